@@ -1,0 +1,215 @@
+"""The public environment API: reset, step with auto-reset, and states built from explicit layouts.
+
+Shapes (N agents, one environment; batch with `jax.vmap(..., in_axes=(0, 0, 0, None))`):
+`obs uint8[N, 21, 21, 3]`, `reward float32[N]`, `terminated bool[N]`, `truncated bool[]`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsocial.env.dynamics import world_step
+from jaxsocial.env.layouts import generate, parse_ascii
+from jaxsocial.env.observe import observe
+from jaxsocial.env.types import BONUS, NUM_ACTIONS, WALL, EnvParams, EnvState
+
+
+def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.Array, params: EnvParams):
+    k_pos, k_dir = jax.random.split(key)
+    n = params.n_agents
+    cells = jax.random.categorical(k_pos, jnp.where(spawn_mask.ravel(), 0.0, -jnp.inf), shape=(n,))
+    y, x = jnp.divmod(cells, params.width)
+    direction = jax.random.randint(k_dir, (n,), 0, 4) if params.random_spawn_dir else jnp.zeros(n, jnp.int32)
+    return EnvState(
+        grid=grid,
+        goal_id=goal_id,
+        pos=jnp.stack([x, y], -1).astype(jnp.int32),
+        dir=direction.astype(jnp.int32),
+        cycle_state=jnp.full(n, -1, jnp.int32),
+        prestige=jnp.zeros(n, jnp.float32),
+        active=jnp.ones(n, bool),
+        arrival=jnp.zeros(n, jnp.int32),
+        time=jnp.zeros((), jnp.int32),
+    )
+
+
+def reset(key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+    """A new episode: a fresh layout and agents placed independently and uniformly on spawn cells
+    (they may share a cell or stand on a bonus tile, spec 1.3). Returns `(obs, state)`."""
+    k_layout, k_spawn = jax.random.split(key)
+    layout = generate(k_layout, params)
+    state = _spawn(k_spawn, layout.grid, layout.goal_id, layout.spawn_mask, params)
+    return observe(state, params), state
+
+
+def check_actions(actions: jax.Array, params: EnvParams) -> None:
+    """Raise (at trace time) unless `actions` is an integer array of shape (n_agents,)."""
+    shape = getattr(actions, "shape", None)
+    if shape != (params.n_agents,) or not jnp.issubdtype(jnp.asarray(actions).dtype, jnp.integer):
+        raise ValueError(
+            f"actions must be an integer array of shape ({params.n_agents},), one per agent; got "
+            f"{getattr(actions, 'dtype', type(actions))} {shape}. Batch with jax.vmap."
+        )
+
+
+def step_env(
+    state: EnvState, actions: jax.Array, params: EnvParams
+) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array]:
+    """One step without auto-reset.
+
+    Args:
+        actions: int32[N], values in [0, 7) (3-6 are no-ops).
+    Returns:
+        obs, state, reward float32[N], terminated bool[N] (agent is on a terminal goal; stays True for the
+        rest of the episode), truncated bool[] (time limit reached while some agent is still active).
+    """
+    check_actions(actions, params)
+    state, reward = world_step(state, actions.astype(jnp.int32), params)
+    terminated = ~state.active
+    truncated = (state.time >= params.max_steps) & ~jnp.all(terminated)
+    return observe(state, params), state, reward, terminated, truncated
+
+
+def _episode_done(terminated: jax.Array, truncated: jax.Array) -> jax.Array:
+    return jnp.all(terminated, axis=-1) | truncated
+
+
+def step(
+    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams
+) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+    """One step with auto-reset (gymnax 1.0 shape).
+
+    When every agent is terminated or time runs out, the returned `obs` and `state` belong to a new
+    episode drawn with `key`; `info["final_obs"]` holds the last observation of the finished episode
+    (equal to `obs` otherwise) and `info["done"]` says whether the episode ended. The reset is a
+    `lax.cond`, so it costs nothing on other steps unless the call is vmapped (then use `step_batch`).
+    """
+    obs, new_state, reward, terminated, truncated = step_env(state, actions, params)
+    done = _episode_done(terminated, truncated)
+    next_obs, next_state = jax.lax.cond(done, lambda: reset(key, params), lambda: (obs, new_state))
+    return next_obs, next_state, reward, terminated, truncated, {"final_obs": obs, "done": done}
+
+
+def step_batch(
+    keys: jax.Array, states: EnvState, actions: jax.Array, params: EnvParams
+) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+    """`step` over a leading batch axis (keys [B], states [B, ...], actions int32[B, N]).
+
+    Equal to `jax.vmap(step, in_axes=(0, 0, 0, None))` but faster: under vmap a `lax.cond` evaluates both
+    branches, so here new episodes are generated and rendered only on steps where some episode ended.
+    """
+    obs, new_states, reward, terminated, truncated = jax.vmap(step_env, in_axes=(0, 0, None))(
+        states, actions, params
+    )
+    done = _episode_done(terminated, truncated)
+
+    def with_resets():
+        reset_obs, reset_states = jax.vmap(reset, in_axes=(0, None))(keys, params)
+
+        def pick(r, s):
+            return jnp.where(done.reshape(done.shape + (1,) * (s.ndim - 1)), r, s)
+
+        return pick(reset_obs, obs), jax.tree.map(pick, reset_states, new_states)
+
+    next_obs, next_states = jax.lax.cond(jnp.any(done), with_resets, lambda: (obs, new_states))
+    return next_obs, next_states, reward, terminated, truncated, {"final_obs": obs, "done": done}
+
+
+def state_from_layout(
+    params: EnvParams,
+    layout: str | list[str] | np.ndarray,
+    pos,
+    dir,
+    goal_id=None,
+    *,
+    prestige=None,
+    cycle_state=None,
+    active=None,
+    arrival=None,
+    time: int = 0,
+) -> EnvState:
+    """Build an exact state from an explicit layout (for tests, notebooks and scripted scenes).
+
+    Args:
+        params: the environment's parameters; the layout must be `params.height x params.width`.
+        layout: an ASCII map (rows along y: '#' wall, '.' empty, 'G' goal, '0'-'9' bonus tile with that
+            cycle id; see `layouts.parse_ascii`) or a uint8[H, W] array of tile types indexed [y, x].
+        pos: int[N, 2] agent (x, y) positions; x points east, y south.
+        dir: int[N] directions (0 east, 1 south, 2 west, 3 north).
+        goal_id: int8[H, W] bonus ids when `layout` is an array (default: bonus tiles numbered in
+            row-major order).
+        prestige, cycle_state, active, arrival: optional per-agent values (defaults: 0, -1, True, 0).
+        time: steps already taken in the episode.
+    """
+    if isinstance(layout, str | list):
+        grid, parsed_ids = parse_ascii(layout)
+        goal_id = parsed_ids if goal_id is None else goal_id
+    else:
+        grid = np.asarray(layout, np.uint8)
+    if goal_id is None:
+        goal_id = np.full(grid.shape, -1, np.int8)
+        bonus = np.flatnonzero(grid == BONUS)
+        goal_id.ravel()[bonus] = np.arange(len(bonus))
+    goal_id = np.asarray(goal_id, np.int8)
+    n = params.n_agents
+    pos, dir = np.asarray(pos, np.int32).reshape(-1, 2), np.asarray(dir, np.int32).reshape(-1)
+    if grid.shape != (params.height, params.width) or goal_id.shape != grid.shape:
+        raise ValueError(
+            f"layout is {grid.shape} (rows, cols) but params say {(params.height, params.width)}"
+        )
+    if len(pos) != n or len(dir) != n:
+        raise ValueError(f"need {n} agent positions and directions, got {len(pos)} and {len(dir)}")
+    if np.any((pos < 0) | (pos >= [params.width, params.height])) or np.any(
+        grid[pos[:, 1], pos[:, 0]] == WALL
+    ):
+        raise ValueError(f"agents must stand on free cells inside the grid, got {pos.tolist()}")
+    if np.any(goal_id >= params.n_goals):
+        raise ValueError(f"bonus ids must be < n_goals={params.n_goals}")
+
+    def per_agent(values, default, dtype):
+        return jnp.asarray(np.broadcast_to(default if values is None else values, (n,)), dtype)
+
+    return EnvState(
+        grid=jnp.asarray(grid),
+        goal_id=jnp.asarray(goal_id),
+        pos=jnp.asarray(pos),
+        dir=jnp.asarray(dir % 4),
+        cycle_state=per_agent(cycle_state, -1, jnp.int32),
+        prestige=per_agent(prestige, 0.0, jnp.float32),
+        active=per_agent(active, True, bool),
+        arrival=per_agent(arrival, 0, jnp.int32),
+        time=jnp.asarray(time, jnp.int32),
+    )
+
+
+class Env:
+    """A named environment: gymnax-style methods over static `EnvParams`.
+
+    `obs, state = env.reset(key, params)`;
+    `obs, state, reward, terminated, truncated, info = env.step(key, state, actions, params)`.
+    """
+
+    def __init__(self, name: str, params: EnvParams):
+        self.name = name
+        self.default_params = params
+
+    reset = staticmethod(reset)
+    step = staticmethod(step)
+    step_batch = staticmethod(step_batch)
+    step_env = staticmethod(step_env)
+    observe = staticmethod(observe)
+
+    @property
+    def num_agents(self) -> int:
+        return self.default_params.n_agents
+
+    @property
+    def num_actions(self) -> int:
+        return NUM_ACTIONS
+
+    def __repr__(self) -> str:
+        return f"Env({self.name!r}, {self.default_params})"

@@ -1,0 +1,60 @@
+"""Named presets and `make(name, **overrides)`.
+
+Goal Cycle follows the paper and the spec's recommended choices (spec 6, 9): 13x13, clutter density 0.1
+(12 walls), +1 / -1.5, first tile always rewarded, 250 steps, view offset 1, prestige colours with
+beta 0.99. Four Rooms (17x17) and Maze (19x19) have one terminal goal, no clutter, the original's reward
+decay `1 - 0.9 t / T`, and 250 steps (spec 9.9). `-solo` variants have one agent; `-distractors` variants
+add two agent slots for random distractors (paper appendix).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from jaxsocial.env.core import Env
+from jaxsocial.env.types import EnvParams
+
+DISTRACTOR_SLOTS = 2
+
+_BASE: dict[str, EnvParams] = {
+    "goalcycle3": EnvParams(),
+    "goalcycle4": EnvParams(n_goals=4),
+    "fourrooms": EnvParams(
+        layout="fourrooms", width=17, height=17, clutter_density=0.0, reward_decay=True, n_goals=1
+    ),
+    "maze": EnvParams(layout="maze", width=19, height=19, clutter_density=0.0, reward_decay=True, n_goals=1),
+}
+
+
+def _presets() -> dict[str, EnvParams]:
+    presets = {}
+    for name, params in _BASE.items():
+        presets[name] = params
+        presets[f"{name}-solo"] = params.replace(n_agents=1)
+        presets[f"{name}-distractors"] = params.replace(n_agents=params.n_agents + DISTRACTOR_SLOTS)
+    return presets
+
+
+PRESETS = _presets()
+PARAM_FIELDS = tuple(f.name for f in dataclasses.fields(EnvParams))
+
+
+def registered_envs() -> list[str]:
+    """Names accepted by `make`."""
+    return sorted(PRESETS)
+
+
+def make(name: str, **overrides) -> tuple[Env, EnvParams]:
+    """The environment and parameters of a preset, with any `EnvParams` field overridden.
+
+    >>> env, params = make("goalcycle3", penalty=0.5, n_agents=1)
+
+    Raises ValueError for an unknown name or field, or an impossible combination, before compiling anything.
+    """
+    if name not in PRESETS:
+        raise ValueError(f"unknown environment {name!r}; choose one of: {', '.join(registered_envs())}")
+    unknown = sorted(set(overrides) - set(PARAM_FIELDS))
+    if unknown:
+        raise ValueError(f"unknown EnvParams field(s) {unknown}; valid fields: {', '.join(PARAM_FIELDS)}")
+    params = PRESETS[name].replace(**overrides)
+    return Env(name, params), params

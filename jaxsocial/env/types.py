@@ -1,0 +1,192 @@
+"""Environment constants, static parameters (`EnvParams`) and the state pytree (`EnvState`).
+
+Conventions (spec section 0): cells are addressed `(x, y)` with x east and y south; grids are stored
+row-major as `[y, x]`; directions are 0 east, 1 south, 2 west, 3 north.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+from flax import struct
+
+# Tile types (spec 1.1). Agents are not tiles: they live in `EnvState.pos` and overlap freely.
+EMPTY, WALL, BONUS, GOAL = 0, 1, 2, 3
+NUM_TILE_TYPES = 4
+
+# Actions (spec 2.1). 3-6 are no-ops in every environment here.
+LEFT, RIGHT, FORWARD, PICKUP, DROP, TOGGLE, DONE = range(7)
+NUM_ACTIONS = 7
+
+# Forward vectors (dx, dy) per direction.
+DIR_VEC = np.array([[1, 0], [0, 1], [-1, 0], [0, -1]], dtype=np.int32)
+
+# Colours (marlgrid objects.COLORS).
+COLORS = {
+    "red": (255, 0, 0),
+    "orange": (255, 165, 0),
+    "green": (0, 255, 0),
+    "blue": (0, 0, 255),
+    "cyan": (0, 139, 139),
+    "purple": (112, 39, 195),
+    "yellow": (255, 255, 0),
+    "olive": (128, 128, 0),
+    "grey": (100, 100, 100),
+    "worst": (74, 65, 42),
+    "pink": (255, 0, 189),
+    "white": (255, 255, 255),
+}
+SHADOW = (35, 25, 30)
+TILE_COLORS = np.array([(0, 0, 0), COLORS["worst"], COLORS["yellow"], COLORS["green"]], dtype=np.uint8)
+# Default fixed agent colours (marlgrid register_marl_env); also bounds the number of agents.
+AGENT_COLOR_NAMES = ("red", "blue", "purple", "orange", "olive", "pink")
+MAX_AGENTS = len(AGENT_COLOR_NAMES)
+
+LAYOUTS = ("goalcycle", "fourrooms", "maze")
+
+
+@jax.tree_util.register_static
+@dataclasses.dataclass(frozen=True)
+class EnvParams:
+    """Static environment parameters (hashable; a change recompiles).
+
+    Registered as a pytree without leaves, so it can be passed to jitted functions like any argument
+    (gymnax style, `in_axes=None` under vmap) and is hashed into the compiled program.
+
+    Every field the paper or the spec names is here; `jaxsocial.make(name, **overrides)` fills them from a
+    preset. Validation happens in `__post_init__`, before anything is compiled.
+    """
+
+    layout: str = "goalcycle"
+    """Layout generator: 'goalcycle', 'fourrooms' or 'maze'."""
+    width: int = 13
+    """Grid width in cells, border included."""
+    height: int = 13
+    """Grid height in cells, border included."""
+    n_agents: int = 3
+    """Agent slots (1-6)."""
+    n_goals: int = 3
+    """Goal Cycle bonus tiles (ignored by fourrooms and maze, which have one terminal goal)."""
+    clutter_density: float = 0.1
+    """Random wall density: `int(density * (W-2) * (H-2))` clutter walls (spec 1.2)."""
+    goal_reward: float = 1.0
+    """Reward for a correct bonus tile or for reaching the goal."""
+    penalty: float = 1.5
+    """Goal Cycle penalty magnitude; applied as -|penalty|."""
+    initial_reward: bool = True
+    """The first bonus tile of an episode pays `goal_reward` (else 0)."""
+    reset_on_mistake: bool = False
+    """After a wrong tile the cycle restarts from that tile (master semantics)."""
+    reward_decay: bool = False
+    """Multiply every tile reward by `1 - 0.9 t / max_steps` (t is the 1-based step)."""
+    max_steps: int = 250
+    """Episode length limit; the episode is truncated at this step."""
+    view_size: int = 7
+    """Egocentric view width in cells (odd)."""
+    view_offset: int = 1
+    """Rows of the view behind the agent; it sees `view_size - 1 - view_offset` rows ahead."""
+    tile_size: int = 3
+    """Pixels per view cell; only 3 is supported (21x21 observations, spec 4.2)."""
+    agent_colors: str = "prestige"
+    """'prestige' (red to blue with prestige) or 'fixed' (red, blue, purple, orange, olive, pink)."""
+    prestige_beta: float = 0.99
+    """Prestige decay constant (alpha_c in the paper)."""
+    prestige_scale: float = 2.0
+    """Colour blend `tanh(prestige / scale)` (code formula)."""
+    prestige_formula: str = "code"
+    """'code': c = beta (c + r), colour tanh(c / scale); 'paper': c = beta c + r, colour sigmoid(c)."""
+    random_spawn_dir: bool = True
+    """Draw each agent's initial direction uniformly (spec 9.6); else all face east."""
+    observation: str = "rgb"
+    """'rgb' (uint8[N, 21, 21, 3]) or 'symbolic' (int8[N, V, V, 4])."""
+
+    def __post_init__(self):
+        def fail(msg):
+            raise ValueError(f"EnvParams: {msg}")
+
+        if self.layout not in LAYOUTS:
+            fail(f"unknown layout {self.layout!r}; choose one of {LAYOUTS}")
+        if not 1 <= self.n_agents <= MAX_AGENTS:
+            fail(f"n_agents={self.n_agents} but there are {MAX_AGENTS} agent colours (1-{MAX_AGENTS} agents)")
+        if self.view_size < 3 or self.view_size % 2 == 0:
+            fail(f"view_size={self.view_size} must be odd and >= 3")
+        if not 0 <= self.view_offset < self.view_size:
+            fail(f"view_offset={self.view_offset} must be in [0, view_size)")
+        if self.tile_size != 3:
+            fail(f"tile_size={self.tile_size}: only 3 is supported (the paper's 21x21 observations)")
+        if self.max_steps < 1:
+            fail(f"max_steps={self.max_steps} must be >= 1")
+        if self.agent_colors not in ("prestige", "fixed"):
+            fail(f"agent_colors={self.agent_colors!r} must be 'prestige' or 'fixed'")
+        if self.prestige_formula not in ("code", "paper"):
+            fail(f"prestige_formula={self.prestige_formula!r} must be 'code' or 'paper'")
+        if self.observation not in ("rgb", "symbolic"):
+            fail(f"observation={self.observation!r} must be 'rgb' or 'symbolic'")
+        if not 0.0 <= self.clutter_density < 1.0:
+            fail(f"clutter_density={self.clutter_density} must be in [0, 1)")
+        if self.layout == "goalcycle":
+            if not 1 <= self.n_goals <= 127:
+                fail(f"n_goals={self.n_goals} must be in [1, 127]")
+            if self.width < 3 or self.height < 3:
+                fail("a goal-cycle grid needs at least 3x3 cells")
+            if self.n_goals + self.n_clutter >= self.interior_cells:
+                fail(
+                    f"a {self.width}x{self.height} grid has {self.interior_cells} free cells, too few for "
+                    f"{self.n_goals} goals + {self.n_clutter} clutter walls + a spawn cell"
+                )
+        elif self.layout == "fourrooms":
+            if self.width < 9 or self.height < 9:
+                fail("four rooms needs at least 9x9 cells")
+        elif self.layout == "maze":
+            if self.width < 7 or self.height < 7 or self.width % 2 == 0 or self.height % 2 == 0:
+                fail("a maze needs odd width and height >= 7")
+
+    @property
+    def interior_cells(self) -> int:
+        return (self.width - 2) * (self.height - 2)
+
+    @property
+    def n_clutter(self) -> int:
+        """Number of clutter walls (spec 1.2)."""
+        return int(self.clutter_density * self.interior_cells)
+
+    @property
+    def obs_shape(self) -> tuple[int, ...]:
+        """Per-agent observation shape."""
+        if self.observation == "rgb":
+            side = self.view_size * self.tile_size
+            return (side, side, 3)
+        return (self.view_size, self.view_size, 4)
+
+    def replace(self, **changes) -> EnvParams:
+        """A copy with some fields changed (validated)."""
+        return dataclasses.replace(self, **changes)
+
+
+@struct.dataclass
+class EnvState:
+    """One environment's state; batch it with `jax.vmap`.
+
+    Attributes:
+        grid: uint8[H, W] tile types, indexed [y, x]; constant within an episode.
+        goal_id: int8[H, W] bonus-tile id (its place in the cycle) or -1.
+        pos: int32[N, 2] agent (x, y).
+        dir: int32[N] agent direction.
+        cycle_state: int32[N] id of the last correctly visited bonus tile, -1 before the first.
+        prestige: float32[N] prestige value (spec 5).
+        active: bool[N] False once an agent has reached a terminal goal (it then waits on it).
+        arrival: int32[N] step at which the agent entered its current cell (0 at spawn); sets draw order.
+        time: int32 steps taken in this episode.
+    """
+
+    grid: jax.Array
+    goal_id: jax.Array
+    pos: jax.Array
+    dir: jax.Array
+    cycle_state: jax.Array
+    prestige: jax.Array
+    active: jax.Array
+    arrival: jax.Array
+    time: jax.Array
