@@ -72,7 +72,8 @@ def _place(grid: jax.Array, flat_idx: jax.Array, tile: int) -> jax.Array:
 
 
 def goal_cycle(key: jax.Array, params: EnvParams) -> Layout:
-    """Spec 1.2: border, `n_goals` bonus tiles (ids in placement order), then clutter; no connectivity check."""
+    """Spec 1.2: border, `n_goals` bonus tiles (ids in placement order), then clutter; no connectivity
+    check."""
     base = jnp.asarray(_border(params.height, params.width))
     n_goals, n_clutter = params.n_goals, params.n_clutter
     cells = _sample_cells(key, base == EMPTY, n_goals + n_clutter)

@@ -139,9 +139,10 @@ class EnvParams:
         elif self.layout == "fourrooms":
             if self.width < 9 or self.height < 9:
                 fail("four rooms needs at least 9x9 cells")
-        elif self.layout == "maze":
-            if self.width < 7 or self.height < 7 or self.width % 2 == 0 or self.height % 2 == 0:
-                fail("a maze needs odd width and height >= 7")
+        elif self.layout == "maze" and (
+            self.width < 7 or self.height < 7 or self.width % 2 == 0 or self.height % 2 == 0
+        ):
+            fail("a maze needs odd width and height >= 7")
 
     @property
     def interior_cells(self) -> int:

@@ -1,0 +1,287 @@
+"""Pictures and videos of episodes for people (numpy + imageio, outside jit).
+
+`render_map` draws the whole grid with every agent as in the observations (spec 4.5, 4.6, 5): 3x3-pixel cell
+pictures from `sprites`, upscaled nearest-neighbour to `tile` pixels per cell. `render_frame` puts the map
+next to each agent's egocentric view; `rollout_episode` plays one episode and `save_episode` writes a GIF
+or an MP4.
+
+Text-free cues: each agent's field of view is outlined on the map, and a strip above its view, in its
+identity colour (marlgrid's default agent colours: red, blue, purple, orange, olive, pink, by index). A
+view's border turns green on a step with a positive reward and red on a penalty. A grey bar along the
+bottom of a frame shows the elapsed fraction of `max_steps`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import imageio.v2 as imageio_v2
+import imageio.v3 as iio
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsocial.env import sprites
+from jaxsocial.env.core import reset, step_env
+from jaxsocial.env.observe import color_index, rgb, view_offsets
+from jaxsocial.env.types import FORWARD, LEFT, NUM_ACTIONS, RIGHT, TILE_COLORS, EnvParams, EnvState
+
+BACKGROUND = np.array((40, 40, 40), np.uint8)
+"""Separators and frame background."""
+PROGRESS = np.array((130, 130, 130), np.uint8)
+REWARD_BORDER = {1: np.array((0, 255, 0), np.uint8), -1: np.array((255, 0, 0), np.uint8)}
+NO_REWARD_BORDER = np.array((70, 70, 70), np.uint8)
+FOV_ALPHA = 0.6
+"""Opacity of the field-of-view outline."""
+VIDEO_EXTENSIONS = (".gif", ".mp4")
+POLICIES = ("random", "random-move")
+
+
+def identity_colors(n: int) -> np.ndarray:
+    """uint8[n, 3] a fixed colour per agent index, used to tell agents apart (FOV outline, view strip)."""
+    return np.array(sprites.fixed_palette()[:n], np.uint8)
+
+
+def agent_colors(state: EnvState, params: EnvParams) -> np.ndarray:
+    """uint8[N, 3] each agent's current sprite colour (its prestige colour, or its fixed colour)."""
+    palette = sprites.prestige_palette() if params.agent_colors == "prestige" else sprites.fixed_palette()
+    idx = np.asarray(color_index(state, params))
+    return np.array([palette[i] for i in idx], np.uint8)
+
+
+def _as_numpy(state: EnvState) -> EnvState:
+    state = jax.device_get(state)
+    if np.ndim(state.grid) != 2:
+        raise ValueError(f"render one environment at a time; got grid of shape {np.shape(state.grid)}")
+    return state
+
+
+def drawn_agents(state: EnvState) -> dict[tuple[int, int], int]:
+    """{(x, y): agent index} the agent drawn on each occupied cell: earliest arrival, ties to lowest index."""
+    pos, arrival = np.asarray(state.pos), np.asarray(state.arrival)
+    drawn: dict[tuple[int, int], int] = {}
+    for i in sorted(range(len(pos)), key=lambda i: (arrival[i], i)):
+        drawn.setdefault((int(pos[i, 0]), int(pos[i, 1])), i)
+    return drawn
+
+
+def upscale(image: np.ndarray, cell: int, tile: int) -> np.ndarray:
+    """uint8[h*cell, w*cell, C] -> uint8[h*tile, w*tile, C]: nearest-neighbour, cell by cell (`tile >= 1`)."""
+
+    def index(n_cells):
+        px = np.arange(n_cells * tile)
+        return (px // tile) * cell + (px % tile) * cell // tile
+
+    return image[index(image.shape[0] // cell)][:, index(image.shape[1] // cell)]
+
+
+def _outline(image: np.ndarray, y0: int, x0: int, y1: int, x1: int, color: np.ndarray, alpha: float) -> None:
+    """Blend a 1-pixel rectangle outline (inclusive pixel bounds) into `image` in place."""
+    mask = np.zeros(image.shape[:2], bool)
+    mask[y0, x0 : x1 + 1] = mask[y1, x0 : x1 + 1] = True
+    mask[y0 : y1 + 1, x0] = mask[y0 : y1 + 1, x1] = True
+    blended = (1 - alpha) * image[mask].astype(np.float64) + alpha * color.astype(np.float64)
+    image[mask] = np.round(blended).astype(np.uint8)
+
+
+def render_map(state: EnvState, params: EnvParams, tile: int = 12, fov: bool = True) -> np.ndarray:
+    """The whole map as uint8[H * tile, W * tile, 3] (rows along y).
+
+    Tiles are flat colours (wall (74, 65, 42), bonus yellow, goal green, empty black); each occupied cell
+    shows one agent (earliest arrival, ties to the lowest index) as a triangle pointing in its absolute
+    direction, in its current colour, blended over a bonus tile or goal exactly as in the observations.
+    With `fov` and `tile >= 6`, each active agent's field of view gets a thin outline in its identity colour.
+    """
+    if tile < 1:
+        raise ValueError(f"tile={tile} must be >= 1")
+    state = _as_numpy(state)
+    grid = np.asarray(state.grid)
+    t = sprites.TILE
+    image = upscale(TILE_COLORS[grid], 1, t)  # [H * 3, W * 3, 3]
+    colors = agent_colors(state, params)
+    directions = np.asarray(state.dir)
+    for (x, y), i in drawn_agents(state).items():
+        color = tuple(int(c) for c in colors[i])
+        cell = sprites.cell_sprite(int(grid[y, x]), int(directions[i]), color, params.agent_colors)
+        image[y * t : (y + 1) * t, x * t : (x + 1) * t] = cell
+    image = upscale(image, t, tile)
+    if fov and tile >= 6:
+        height, width = grid.shape
+        offsets = view_offsets(params.view_size, params.view_offset)
+        for i, color in enumerate(identity_colors(len(directions))):
+            if not np.asarray(state.active)[i]:
+                continue
+            cells = np.asarray(state.pos)[i] + offsets[directions[i]].reshape(-1, 2)
+            (xa, ya), (xb, yb) = cells.min(0).clip(0), cells.max(0).clip(None, [width - 1, height - 1])
+            _outline(image, ya * tile, xa * tile, (yb + 1) * tile - 1, (xb + 1) * tile - 1, color, FOV_ALPHA)
+    return image
+
+
+def render_frame(
+    state: EnvState,
+    obs: np.ndarray | None,
+    params: EnvParams,
+    reward: np.ndarray | None = None,
+    tile: int = 12,
+) -> np.ndarray:
+    """One video frame, uint8[h, w, 3]: the map on the left, every agent's view on the right.
+
+    Args:
+        obs: uint8[N, 21, 21, 3] RGB observations of `state`; None (or symbolic observations) re-renders them.
+        reward: float[N] the reward each agent received on the step into `state`; it colours the view borders.
+        tile: map pixels per cell; views are upscaled to the same size per cell (`max(1, tile // 3)`).
+    """
+    state = _as_numpy(state)
+    if obs is None or np.ndim(obs) != 4 or np.shape(obs)[-1] != 3:
+        obs = rgb(state, params)
+    obs = np.asarray(obs, np.uint8)
+    n = obs.shape[0]
+    world = render_map(state, params, tile)
+    map_h, map_w = world.shape[:2]
+
+    gap, border, strip = max(2, tile // 3), max(1, tile // 6), max(2, tile // 4)
+    views = np.stack([upscale(v, 1, max(1, tile // 3)) for v in obs])
+    side = views.shape[1]
+    panel_h, panel_w = strip + side + 2 * border, side + 2 * border
+    rows = max(1, min(n, (map_h + gap) // (panel_h + gap)))
+    cols = math.ceil(n / rows)
+    rows = math.ceil(n / cols)
+    content_h = max(map_h, rows * panel_h + (rows - 1) * gap)
+    bar = max(2, gap // 2)
+    height = gap + content_h + gap + bar + gap
+    width = gap + map_w + gap + cols * panel_w + (cols - 1) * gap + gap
+    frame = np.empty((height, width, 3), np.uint8)
+    frame[:] = BACKGROUND
+    frame[gap : gap + map_h, gap : gap + map_w] = world
+
+    ids = identity_colors(n)
+    signs = np.zeros(n, int) if reward is None else np.sign(np.asarray(reward, np.float64)).astype(int)
+    for i in range(n):
+        r, c = divmod(i, cols)
+        y0 = gap + r * (panel_h + gap)
+        x0 = 2 * gap + map_w + c * (panel_w + gap)
+        frame[y0 : y0 + panel_h, x0 : x0 + panel_w] = REWARD_BORDER.get(signs[i], NO_REWARD_BORDER)
+        frame[y0 + border : y0 + border + strip, x0 + border : x0 + border + side] = ids[i]
+        frame[y0 + border + strip : y0 + border + strip + side, x0 + border : x0 + border + side] = views[i]
+
+    progress = min(1.0, float(np.asarray(state.time)) / params.max_steps)
+    bar_y = gap + content_h + gap
+    frame[bar_y : bar_y + bar, gap : gap + round(progress * (width - 2 * gap))] = PROGRESS
+    return frame
+
+
+_reset = jax.jit(reset)
+_step_env = jax.jit(step_env)
+
+Policy = Callable[[jax.Array, jax.Array, EnvState], Any]
+
+
+def rollout_episode(
+    key: jax.Array,
+    params: EnvParams,
+    policy: str | Policy = "random",
+    max_steps: int | None = None,
+) -> dict[str, Any]:
+    """Play one episode (no auto-reset) with a jitted `step_env` in a Python loop.
+
+    Args:
+        policy: 'random' (uniform over all 7 actions), 'random-move' (uniform over left, right, forward) or
+            a callable `(key, obs, state) -> int[N]` actions.
+        max_steps: stop after this many steps at most (default `params.max_steps`); the episode also ends
+            when every agent is terminated or the time limit truncates it.
+    Returns:
+        dict with 'states' (list of T+1 numpy `EnvState`), 'obs' (list of T+1 uint8[N, ...]), 'actions' and
+        'rewards' (lists of T int32[N] / float32[N]), 'returns' float32[N], 'steps' T, 'terminated' bool[N],
+        'truncated' bool (the time limit ended the episode).
+    """
+    limit = params.max_steps if max_steps is None else max_steps
+    if limit < 1:
+        raise ValueError(f"max_steps={max_steps} must be >= 1")
+    k_reset, k_act = jax.random.split(key)
+    n = params.n_agents
+    if callable(policy):
+        step_keys = jax.random.split(k_act, limit)
+
+        def choose(t, obs, state):
+            return np.asarray(policy(step_keys[t], obs, state), np.int32)
+
+    elif policy in POLICIES:
+        moves = np.arange(NUM_ACTIONS) if policy == "random" else np.array([LEFT, RIGHT, FORWARD])
+        drawn = moves[np.asarray(jax.random.randint(k_act, (limit, n), 0, len(moves)))].astype(np.int32)
+
+        def choose(t, obs, state):
+            return drawn[t]
+
+    else:
+        raise ValueError(f"unknown policy {policy!r}; use one of {POLICIES} or a callable")
+
+    obs, state = jax.device_get(_reset(k_reset, params))
+    states, observations, actions, rewards = [state], [obs], [], []
+    terminated, truncated = np.zeros(n, bool), False
+    for t in range(limit):
+        act = choose(t, obs, state)
+        out = _step_env(state, jnp.asarray(act), params)
+        obs, state, reward, terminated, truncated = jax.device_get(out)
+        states.append(state)
+        observations.append(obs)
+        actions.append(act)
+        rewards.append(reward)
+        if truncated or terminated.all():
+            break
+    returns = np.sum(rewards, axis=0, dtype=np.float32) if rewards else np.zeros(n, np.float32)
+    return {
+        "states": states,
+        "obs": observations,
+        "actions": actions,
+        "rewards": rewards,
+        "returns": returns,
+        "steps": len(rewards),
+        "terminated": np.asarray(terminated),
+        "truncated": bool(truncated),
+    }
+
+
+def episode_frames(episode: dict[str, Any], params: EnvParams, tile: int = 12) -> list[np.ndarray]:
+    """`render_frame` for every state of a `rollout_episode` result (T+1 uint8 frames)."""
+    rewards = [None, *episode["rewards"]]
+    return [
+        render_frame(s, o, params, r, tile)
+        for s, o, r in zip(episode["states"], episode["obs"], rewards, strict=True)
+    ]
+
+
+def check_video_path(path: str | os.PathLike) -> str:
+    """The lower-case extension of a video path; raises for unsupported ones or a missing MP4 writer."""
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext not in VIDEO_EXTENSIONS:
+        raise ValueError(f"unsupported video file {os.fspath(path)!r}: use a .gif or .mp4 extension")
+    if ext == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError as e:
+            raise RuntimeError(
+                "writing MP4 needs the ffmpeg plugin of imageio: pip install imageio-ffmpeg (or write a .gif)"
+            ) from e
+    return ext
+
+
+def save_episode(frames: Sequence[np.ndarray], path: str | os.PathLike, fps: float = 8) -> None:
+    """Write uint8[h, w, 3] frames as an (endlessly looping) GIF, or as an MP4 when `path` ends with .mp4.
+
+    MP4 needs `imageio-ffmpeg`; frames are padded with black to a multiple of 16 pixels for the codec.
+    """
+    ext = check_video_path(path)
+    if not frames:
+        raise ValueError("no frames to save")
+    if fps <= 0:
+        raise ValueError(f"fps={fps} must be > 0")
+    stack = np.stack([np.asarray(f, np.uint8) for f in frames])
+    if ext == ".gif":
+        iio.imwrite(path, stack, extension=".gif", duration=1000.0 / fps, loop=0)
+    else:
+        pad_h, pad_w = (-stack.shape[1]) % 16, (-stack.shape[2]) % 16
+        stack = np.pad(stack, ((0, 0), (0, pad_h), (0, pad_w), (0, 0)))
+        imageio_v2.mimwrite(path, list(stack), format="FFMPEG", fps=fps, macro_block_size=16)

@@ -1,0 +1,167 @@
+"""The public API contract: presets, shapes, jit/vmap, determinism, auto-reset and bad input."""
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxsocial
+from jaxsocial.env import reset, step, step_batch
+
+ENVS = jaxsocial.registered_envs()
+
+
+def tree_equal(a, b):
+    return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+
+
+def play(params, key, n_steps, step_fn=step):
+    """Reset then take random actions; returns the stacked per-step outputs."""
+    k_reset, k_run = jax.random.split(key)
+    obs, state = reset(k_reset, params)
+
+    def body(state, k):
+        k_act, k_step = jax.random.split(k)
+        actions = jax.random.randint(k_act, (params.n_agents,), 0, 7)
+        obs, state, reward, terminated, truncated, info = step_fn(k_step, state, actions, params)
+        return state, (obs, reward, terminated, truncated, info["final_obs"], info["done"], state.time)
+
+    return jax.lax.scan(body, state, jax.random.split(k_run, n_steps))[1]
+
+
+@pytest.mark.parametrize("name", ENVS)
+def test_every_preset_traces_with_the_documented_shapes(name):
+    """Shapes and dtypes of reset and step for every preset (traced, not compiled: execution is covered by
+    the scene, layout and parity tests)."""
+    env, params = jaxsocial.make(name)
+    n = params.n_agents
+    obs, state = jax.eval_shape(env.reset, jax.random.key(0), params)
+    assert obs.shape == (n, 21, 21, 3) and obs.dtype == jnp.uint8
+    out = jax.eval_shape(env.step, jax.random.key(1), state, jnp.zeros(n, jnp.int32), params)
+    obs, state, reward, terminated, truncated, info = out
+    assert obs.shape == info["final_obs"].shape == (n, 21, 21, 3)
+    assert (reward.shape, reward.dtype) == ((n,), jnp.float32)
+    assert (terminated.shape, terminated.dtype) == ((n,), jnp.bool_)
+    assert (truncated.shape, truncated.dtype) == ((), jnp.bool_)
+    assert state.pos.shape == (n, 2) and state.grid.shape == (params.height, params.width)
+
+
+def test_preset_values():
+    p = jaxsocial.make("goalcycle3")[1]
+    assert (p.width, p.n_goals, p.n_clutter, p.penalty, p.n_agents, p.max_steps) == (13, 3, 12, 1.5, 3, 250)
+    assert p.prestige_beta == 0.99 and p.view_offset == 1 and p.agent_colors == "prestige"
+    assert jaxsocial.make("goalcycle4")[1].n_goals == 4
+    assert jaxsocial.make("goalcycle3-solo")[1].n_agents == 1
+    assert jaxsocial.make("goalcycle3-distractors")[1].n_agents == 5
+    assert jaxsocial.make("fourrooms")[1].width == 17 and jaxsocial.make("maze")[1].width == 19
+    assert jaxsocial.make("goalcycle3", penalty=0.0, view_offset=2)[1].view_offset == 2
+
+
+def test_jit_equals_no_jit_and_determinism():
+    params = jaxsocial.make("goalcycle3", max_steps=6)[1]
+    eager = play(params, jax.random.key(3), 8)
+    jitted = jax.jit(play, static_argnums=(0, 2))(params, jax.random.key(3), 8)
+    again = jax.jit(play, static_argnums=(0, 2))(params, jax.random.key(3), 8)
+    other = jax.jit(play, static_argnums=(0, 2))(params, jax.random.key(4), 8)
+    assert tree_equal(eager, jitted) and tree_equal(jitted, again)
+    assert not np.array_equal(jitted[0], other[0])
+
+
+def test_auto_reset_and_final_obs():
+    params = jaxsocial.make("goalcycle3", max_steps=4)[1]
+    obs, reward, terminated, truncated, final_obs, done, time = jax.jit(play, static_argnums=(0, 2))(
+        params, jax.random.key(5), 9
+    )
+    np.testing.assert_array_equal(done, [False, False, False, True] * 2 + [False])
+    np.testing.assert_array_equal(truncated, done)
+    np.testing.assert_array_equal(time, [1, 2, 3, 0, 1, 2, 3, 0, 1])  # the state after a reset is fresh
+    same = np.array([np.array_equal(o, f) for o, f in zip(obs, final_obs, strict=True)])
+    np.testing.assert_array_equal(same, ~np.asarray(done))  # final_obs differs from obs only at resets
+    # final_obs at a reset is the observation step_env gives for the last step of the episode.
+    k_reset, _ = jax.random.split(jax.random.key(5))
+    assert not np.array_equal(final_obs[3], reset(k_reset, params)[0])
+
+
+def test_episode_ends_when_every_agent_is_terminated(rollout):
+    params = jaxsocial.make("goalcycle3", width=5, height=3, n_goals=1, clutter_density=0.0, n_agents=2)[1]
+    state = jaxsocial.state_from_layout(params, ["#####", "#.G.#", "#####"], [(1, 1), (3, 1)], [0, 2])
+    key = jax.random.key(0)
+    _, state1, _, terminated, truncated, info = step(key, state, jnp.array([2, 6]), params)
+    assert terminated.tolist() == [True, False] and not info["done"] and int(state1.time) == 1
+    _, state2, _, terminated, truncated, info = step(key, state1, jnp.array([0, 2]), params)
+    assert terminated.all() and not truncated and info["done"]
+    assert int(state2.time) == 0 and state2.active.all()  # auto-reset
+
+
+def test_vmap_and_step_batch_equal_per_env_step():
+    params = jaxsocial.make("goalcycle3", max_steps=3)[1]
+    keys = jax.random.split(jax.random.key(9), 4)
+    vmapped = jax.jit(jax.vmap(lambda k: play(params, k, 7)))(keys)
+    batched_step = jax.vmap(step, in_axes=(0, 0, 0, None))
+    for step_fn in (batched_step, step_batch):
+        k_reset, k_run = jax.random.split(jax.random.key(11))
+        obs, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_reset, 4), params)
+        actions = jax.random.randint(k_run, (7, 4, params.n_agents), 0, 7)
+
+        def run(states, actions, step_fn=step_fn, k_run=k_run):
+            def body(s, a_k):
+                a, k = a_k
+                out = step_fn(jax.random.split(k, 4), s, a, params)
+                return out[1], out[:5] + (out[5]["final_obs"], out[5]["done"])
+
+            return jax.lax.scan(body, states, (actions, jax.random.split(k_run, 7)))[1]
+
+        outs = jax.jit(run)(states, actions)
+        if step_fn is batched_step:
+            reference = outs
+        else:
+            assert tree_equal(outs, reference)
+    # each environment of a vmap is the same as running it alone
+    alone = jax.jit(play, static_argnums=(0, 2))(params, keys[2], 7)
+    assert tree_equal(jax.tree.map(lambda x: x[2], vmapped), alone)
+
+
+def test_no_retracing():
+    params = jaxsocial.make("goalcycle3-solo")[1]
+
+    @jax.jit
+    @chex.assert_max_traces(n=1)
+    def step_fn(key, state, actions):
+        return step(key, state, actions, params)
+
+    _, state = reset(jax.random.key(0), params)
+    for i in range(3):
+        _, state, *_ = step_fn(jax.random.key(i), state, jnp.array([i % 3], jnp.int32))
+
+
+def test_symbolic_observation():
+    env, params = jaxsocial.make("goalcycle3", observation="symbolic")
+    obs, _ = env.reset(jax.random.key(0), params)
+    chex.assert_shape(obs, (3, 7, 7, 4))
+    assert obs.dtype == jnp.int8 and (obs[:, 5, 3, 1] == jnp.arange(1, 4)).all()  # each agent sees itself
+
+
+@pytest.mark.parametrize(
+    ("name", "overrides", "message"),
+    [
+        ("goalcycle5", {}, "unknown environment"),
+        ("goalcycle3", {"view_size": 6}, "view_size=6 must be odd"),
+        ("goalcycle3", {"n_agents": 7}, "agent colours"),
+        ("goalcycle3", {"width": 4, "height": 4, "n_goals": 4}, "too few"),
+        ("goalcycle3", {"penalty_size": 1}, "unknown EnvParams field"),
+        ("goalcycle3", {"observation": "pixels"}, "observation="),
+        ("maze", {"width": 18}, "odd width"),
+    ],
+)
+def test_bad_configuration_is_rejected(name, overrides, message):
+    with pytest.raises(ValueError, match=message):
+        jaxsocial.make(name, **overrides)
+
+
+def test_bad_actions_are_rejected_before_compiling():
+    env, params = jaxsocial.make("goalcycle3")
+    _, state = env.reset(jax.random.key(0), params)
+    for actions in (jnp.zeros(2, jnp.int32), jnp.zeros((3, 1), jnp.int32), jnp.zeros(3, jnp.float32)):
+        with pytest.raises(ValueError, match="actions must be an integer array of shape"):
+            jax.jit(env.step)(jax.random.key(1), state, actions, params)

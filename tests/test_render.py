@@ -1,0 +1,172 @@
+"""Rendering for people: map, frames, episodes, video files and the `python -m jaxsocial.render` CLI."""
+
+import subprocess
+import sys
+
+import imageio.v3 as iio
+import jax
+import numpy as np
+import pytest
+
+import jaxsocial
+from jaxsocial import render as cli
+from jaxsocial.env import sprites
+from jaxsocial.env.render import (
+    episode_frames,
+    render_frame,
+    render_map,
+    rollout_episode,
+    save_episode,
+    upscale,
+)
+from jaxsocial.env.types import BONUS, COLORS, EMPTY
+
+LAYOUT = [
+    "#############",
+    "#0..........#",
+    "#...........#",
+    "#...........#",
+    "#...........#",
+    "#.....1.....#",
+    "#...........#",
+    "#.........#.#",
+    "#...........#",
+    "#...........#",
+    "#.......2...#",
+    "#...........#",
+    "#############",
+]
+TILE = 12
+
+
+def fixed_params():
+    return jaxsocial.make("goalcycle3", max_steps=5, agent_colors="fixed")[1]
+
+
+def scene(params, **kwargs):
+    # Agents 0 and 2 share (3, 3); agent 2 arrived first. Agent 1 stands on bonus tile 1 at (6, 5).
+    pos = [(3, 3), (6, 5), (3, 3)]
+    kwargs.setdefault("arrival", [4, 0, 2])
+    return jaxsocial.state_from_layout(params, LAYOUT, pos, [0, 3, 1], **kwargs)
+
+
+def cell(image, x, y, tile=TILE):
+    return image[y * tile : (y + 1) * tile, x * tile : (x + 1) * tile]
+
+
+def expected_cell(tile_type, direction, color, mode, tile=TILE):
+    return upscale(sprites.cell_sprite(tile_type, direction, color, mode), sprites.TILE, tile)
+
+
+def test_render_map_tiles_and_agents():
+    params = fixed_params()
+    image = render_map(scene(params), params, tile=TILE, fov=False)
+    assert image.shape == (13 * TILE, 13 * TILE, 3) and image.dtype == np.uint8
+    assert (cell(image, 0, 0) == COLORS["worst"]).all()  # border wall
+    assert (cell(image, 10, 7) == (74, 65, 42)).all()  # clutter wall at x=10, y=7
+    assert (cell(image, 1, 1) == COLORS["yellow"]).all()  # bonus tile 0, no agent
+    assert (cell(image, 2, 2) == 0).all()  # empty
+    # Shared cell: the earliest arrival (agent 2, purple, facing south) is drawn.
+    purple = COLORS["purple"]
+    np.testing.assert_array_equal(cell(image, 3, 3), expected_cell(EMPTY, 1, purple, "fixed"))
+    # Agent 1 (blue, facing north) blended over its bonus tile.
+    on_bonus = expected_cell(BONUS, 3, COLORS["blue"], "fixed")
+    np.testing.assert_array_equal(cell(image, 6, 5), on_bonus)
+    assert not (on_bonus == COLORS["yellow"]).all()
+
+
+def test_render_map_draw_order_ties_and_fov():
+    params = fixed_params()
+    state = scene(params, arrival=[0, 0, 0])  # tie: lowest index (agent 0, red, east) wins
+    image = render_map(state, params, tile=TILE)
+    centre = cell(image, 3, 3)[1:-1, 1:-1]
+    np.testing.assert_array_equal(centre, expected_cell(EMPTY, 0, COLORS["red"], "fixed")[1:-1, 1:-1])
+    # The field-of-view outline only touches cell edges: the wall colour survives inside the cells.
+    assert (cell(image, 0, 0)[1:-1, 1:-1] == COLORS["worst"]).all()
+    assert not np.array_equal(image, render_map(state, params, tile=TILE, fov=False))
+    # At 3 pixels per cell the map is exactly the observation sprites.
+    small = render_map(state, params, tile=3)
+    assert small.shape == (39, 39, 3)
+    np.testing.assert_array_equal(
+        cell(small, 6, 5, 3), sprites.cell_sprite(BONUS, 3, COLORS["blue"], "fixed")
+    )
+
+
+def test_render_map_prestige_colour():
+    _, params = jaxsocial.make("goalcycle3", max_steps=5)
+    image = render_map(scene(params, prestige=[0.0, 0.0, 20.0]), params, tile=3)
+    r, _, b = cell(image, 3, 3, 3)[1, 1].astype(int)  # agent 2 (high prestige) is blue
+    assert b > 150 and r < 10
+    r, _, b = cell(image, 6, 5, 3)[1, 1].astype(int)  # agent 1 (no prestige) is red
+    assert r > 150 and b == 0
+
+
+def test_render_frame_and_rollout():
+    env, params = jaxsocial.make("goalcycle3", max_steps=5)
+    episode = rollout_episode(jax.random.key(0), params, "random-move")
+    assert episode["steps"] == 5 and episode["truncated"]
+    assert len(episode["states"]) == len(episode["obs"]) == 6 and len(episode["rewards"]) == 5
+    np.testing.assert_allclose(episode["returns"], np.sum(episode["rewards"], 0))
+    state, obs = episode["states"][-1], episode["obs"][-1]
+    assert obs.shape == (3, 21, 21, 3)
+    frame = render_frame(state, obs, params, episode["rewards"][-1], tile=TILE)
+    map_h, map_w = 13 * TILE, 13 * TILE
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    assert frame.shape[0] > map_h and frame.shape[1] > map_w + 21 * (TILE // 3)
+    np.testing.assert_array_equal(frame, render_frame(state, None, params, episode["rewards"][-1], tile=TILE))
+    frames = episode_frames(episode, params, tile=TILE)
+    assert len(frames) == 6 and all(f.shape == frame.shape for f in frames)
+
+
+def test_save_episode_checks_extension(tmp_path):
+    frames = [np.zeros((8, 8, 3), np.uint8)] * 2
+    with pytest.raises(ValueError, match=r"\.gif or \.mp4"):
+        save_episode(frames, tmp_path / "x.png")
+    try:
+        import imageio_ffmpeg  # noqa: F401
+    except ImportError:
+        with pytest.raises(RuntimeError, match="pip install imageio-ffmpeg"):
+            save_episode(frames, tmp_path / "x.mp4")
+    path = tmp_path / "x.gif"
+    save_episode([np.zeros((8, 8, 3), np.uint8), np.full((8, 8, 3), 255, np.uint8)], path, fps=4)
+    assert iio.imread(path, index=None).shape == (2, 8, 8, 3)
+
+
+def run_cli(*args, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "jaxsocial.render", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_cli_writes_gif(tmp_path):
+    out = tmp_path / "episode.gif"
+    result = run_cli("--env", "goalcycle3", "--out", str(out), "--steps", "4", "--seed", "1", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert out.exists()
+    frames = iio.imread(out, index=None)
+    assert frames.ndim == 4 and frames.shape[0] > 1 and frames.shape[-1] == 3
+    assert "goalcycle3" in result.stdout and "steps: 4" in result.stdout and str(out) in result.stdout
+    assert result.stdout.count("penalties") == 3
+
+
+def test_cli_unknown_env(tmp_path):
+    result = run_cli("--env", "nope", "--out", str(tmp_path / "x.gif"), cwd=tmp_path)
+    assert result.returncode == 2
+    assert "unknown environment 'nope'" in result.stderr and "goalcycle3" in result.stderr
+    assert not (tmp_path / "x.gif").exists()
+
+
+def test_cli_refuses_to_overwrite_and_bad_extension(tmp_path, capsys):
+    out = tmp_path / "exists.gif"
+    out.write_bytes(b"keep me")
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--env", "goalcycle3", "--out", str(out)])
+    assert e.value.code == 2 and "--overwrite" in capsys.readouterr().err
+    assert out.read_bytes() == b"keep me"
+    with pytest.raises(SystemExit):
+        cli.main(["--env", "goalcycle3", "--out", str(tmp_path / "x.avi")])
+    assert ".gif or .mp4" in capsys.readouterr().err
