@@ -1,0 +1,304 @@
+"""PPO for one recurrent learner, with the paper's details (appendix): GAE, clipped policy loss, value MSE,
+entropy bonus and the auxiliary observation loss; minibatches of trajectory chunks seeded with stored LSTM
+states; hidden states and advantages recomputed every few minibatches; KL early stop and hard-limit revert.
+
+Everything here is for a single learner; the trainer `vmap`s it over learner slots.
+Shapes: T rollout steps, E environments, L chunk length, C = T / L chunks per environment.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxsocial.agents import network
+from jaxsocial.agents.network import NetworkConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyperparameters (defaults: the paper's appendix)."""
+
+    gamma: float = 0.993
+    """Discount."""
+    gae_lambda: float = 0.97
+    """GAE lambda."""
+    clip: float = 0.2
+    """PPO clip ratio."""
+    value_coef: float = 0.1
+    """c_V, value-loss coefficient."""
+    entropy_coef: float = 1e-5
+    """c_ent, entropy-bonus coefficient."""
+    aux_coef: float = 3.0
+    """c_aux, auxiliary-loss coefficient (ignored when the network's aux is 'none')."""
+    lr: float = 1e-4
+    """Adam learning rate (the paper's experts used 1e-5)."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip."""
+    num_minibatches: int = 20
+    """Sequential minibatch updates per rollout batch."""
+    minibatch_chunks: int = 512
+    """Trajectory chunks per minibatch, sampled uniformly without replacement."""
+    chunk_length: int = 16
+    """Steps per trajectory chunk."""
+    recompute_every: int = 2
+    """Recompute hidden states and advantages every this many minibatches."""
+    kl_target: float = 0.01
+    """Stop the minibatch loop when the KL to the rollout policy exceeds this."""
+    kl_hard_limit: float = 0.03
+    """Revert params and optimiser state of the whole update when the KL exceeds this."""
+    normalize_advantages: bool = True
+    """Normalise advantages per minibatch (zero mean, unit variance over valid steps)."""
+
+
+class Batch(NamedTuple):
+    """One learner's rollout. Time axis first; obs has T + 1 steps (the last one bootstraps).
+
+    obs: uint8[T+1, E, 21, 21, 3]; resets: bool[T+1, E] (the step starts a new episode: reset the LSTM);
+    actions: int32[T, E]; logp: float32[T, E] rollout log-probabilities; rewards: float32[T, E];
+    terminated: bool[T, E] (the agent reached a terminal state, no bootstrap); done: bool[T, E] (its episode
+    ended after this step); final_values: float32[T, E] value of `info["final_obs"]` where the episode was
+    truncated (bootstrap through the time limit); valid: bool[T, E] the agent was acting (not done earlier);
+    carry0: the LSTM state before step 0 (network.Carry of float32[E, H]).
+    """
+
+    obs: jax.Array
+    resets: jax.Array
+    actions: jax.Array
+    logp: jax.Array
+    rewards: jax.Array
+    terminated: jax.Array
+    done: jax.Array
+    final_values: jax.Array
+    valid: jax.Array
+    carry0: network.Carry
+
+
+def gae(
+    rewards: jax.Array,
+    values: jax.Array,
+    next_values: jax.Array,
+    terminated: jax.Array,
+    done: jax.Array,
+    gamma: float,
+    lam: float,
+) -> tuple[jax.Array, jax.Array]:
+    """Generalised advantage estimation over a [T, ...] time axis.
+
+    `next_values[t]` is the value of the state after step t (for a truncated episode, the value of its final
+    observation); it is ignored where `terminated[t]`. The recursion is cut where `done[t]`.
+    Returns (advantages, returns = advantages + values), float32[T, ...].
+    """
+    delta = rewards + gamma * next_values * (1.0 - terminated) - values
+
+    def backward(next_adv, inputs):
+        d, cut = inputs
+        adv = d + gamma * lam * (1.0 - cut) * next_adv
+        return adv, adv
+
+    _, adv = jax.lax.scan(backward, jnp.zeros_like(delta[0]), (delta, done.astype(jnp.float32)), reverse=True)
+    return adv, adv + values
+
+
+class Targets(NamedTuple):
+    """Recomputed per rollout: chunk-start LSTM states (Carry of float32[C, E, H]), advantages and returns
+    float32[T, E]."""
+
+    carries: network.Carry
+    advantages: jax.Array
+    returns: jax.Array
+
+
+def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch) -> Targets:
+    """Unroll the current network over the whole rollout: new chunk-start hidden states, values and GAE."""
+    length = cfg.chunk_length
+    n_steps = batch.actions.shape[0]
+
+    def unroll_chunk(carry, chunk):
+        obs, resets = chunk
+        new_carry, out = network.unroll(params, net, carry, obs, resets)
+        return new_carry, (carry, out.value)
+
+    chunks = jax.tree.map(
+        lambda x: x[:n_steps].reshape(n_steps // length, length, *x.shape[1:]), (batch.obs, batch.resets)
+    )
+    last_carry, (carries, values) = jax.lax.scan(unroll_chunk, batch.carry0, chunks)
+    values = values.reshape(n_steps, *values.shape[2:])
+    _, last = network.unroll(params, net, last_carry, batch.obs[-1:], batch.resets[-1:])
+    following = jnp.concatenate([values[1:], last.value], axis=0)
+    truncated = batch.done & ~batch.terminated
+    next_values = jnp.where(truncated, batch.final_values, following)
+    advantages, returns = gae(
+        batch.rewards, values, next_values, batch.terminated, batch.done, cfg.gamma, cfg.gae_lambda
+    )
+    return Targets(carries, advantages, returns)
+
+
+def _chunked(x: jax.Array, length: int) -> jax.Array:
+    """[T, E, ...] -> [C * E, L, ...] with chunk index c * E + e."""
+    n_steps, n_envs = x.shape[:2]
+    x = x.reshape(n_steps // length, length, n_envs, *x.shape[2:])
+    return jnp.swapaxes(x, 1, 2).reshape(-1, length, *x.shape[3:])
+
+
+def minibatch(batch: Batch, targets: Targets, idx: jax.Array, length: int) -> dict[str, jax.Array]:
+    """Gather chunks `idx` (int32[M], chunk index c * E + e) into time-major arrays [L, M, ...]."""
+
+    def take(x):
+        return jnp.swapaxes(_chunked(x, length)[idx], 0, 1)
+
+    n_steps = batch.actions.shape[0]
+    return {
+        "obs": take(batch.obs[:n_steps]),
+        "next_obs": take(batch.obs[1:]),
+        "resets": take(batch.resets[:n_steps]),
+        "actions": take(batch.actions),
+        "logp": take(batch.logp),
+        "done": take(batch.done),
+        "valid": take(batch.valid),
+        "advantages": take(targets.advantages),
+        "returns": take(targets.returns),
+        "carry": jax.tree.map(lambda c: c.reshape(-1, c.shape[-1])[idx], targets.carries),
+    }
+
+
+def _masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
+    mask = mask.astype(x.dtype)
+    return jnp.sum(x * mask) / jnp.maximum(jnp.sum(mask), 1.0)
+
+
+def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]):
+    """The paper's total loss on one minibatch: L_pi + c_V L_V + c_aux L_aux - c_ent H.
+
+    Returns (loss, metrics dict with 'kl' = estimated KL(rollout || current) on valid steps).
+    """
+    _, out = network.unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
+    valid = mb["valid"]
+    log_probs = jax.nn.log_softmax(out.logits)
+    logp = jnp.take_along_axis(log_probs, mb["actions"][..., None], -1)[..., 0]
+    log_ratio = logp - mb["logp"]
+    ratio = jnp.exp(log_ratio)
+    adv = mb["advantages"]
+    if cfg.normalize_advantages:
+        mean = _masked_mean(adv, valid)
+        std = jnp.sqrt(_masked_mean((adv - mean) ** 2, valid))
+        adv = (adv - mean) / (std + 1e-8)
+    policy_loss = _masked_mean(
+        -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv), valid
+    )
+    value_loss = _masked_mean((out.value - mb["returns"]) ** 2, valid)
+    entropy = _masked_mean(-jnp.sum(jnp.exp(log_probs) * log_probs, -1), valid)
+    kl = _masked_mean(ratio - 1.0 - log_ratio, valid)
+    loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy
+    metrics = {
+        "policy_loss": policy_loss,
+        "value_loss": value_loss,
+        "entropy": entropy,
+        "kl": kl,
+        "clip_frac": _masked_mean((jnp.abs(ratio - 1.0) > cfg.clip).astype(jnp.float32), valid),
+        "ratio_mean": _masked_mean(ratio, valid),
+    }
+    if net.aux != "none":
+        target = mb["next_obs"] if net.aux == "pred" else mb["obs"]
+        prediction = network.decode(params, net, out.hidden, mb["actions"])
+        error = jnp.mean(jnp.abs(prediction - target.astype(jnp.float32) / 255.0), axis=(-3, -2, -1))
+        # A next observation after the episode ended belongs to a new episode: nothing to predict.
+        aux_mask = valid & ~mb["done"] if net.aux == "pred" else valid
+        aux_loss = _masked_mean(error, aux_mask)
+        loss = loss + cfg.aux_coef * aux_loss
+        metrics["aux_loss"] = aux_loss
+    return loss, metrics
+
+
+def make_optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.lr, eps=1e-5))
+
+
+class UpdateState(NamedTuple):
+    params: dict
+    opt_state: optax.OptState
+    running: jax.Array  # bool[]: the minibatch loop goes on
+    reverted: jax.Array  # bool[]: the hard KL limit was hit and the update was undone
+    steps: jax.Array  # int32[]: minibatch updates applied
+    targets: Targets
+
+
+def update(
+    key: jax.Array, params, opt_state, net: NetworkConfig, cfg: PPOConfig, batch: Batch
+) -> tuple[dict, optax.OptState, dict[str, jax.Array]]:
+    """One PPO update of one learner on its rollout (the paper's minibatch loop).
+
+    Minibatch m draws `minibatch_chunks` chunks uniformly; before minibatches 0, k, 2k, ... the hidden
+    states and advantages are recomputed with the current params. Each minibatch measures the KL to the
+    rollout policy with the current params: above `kl_hard_limit` every change of this update is reverted
+    (params and optimiser state) and the loop ends; above `kl_target` the loop ends without applying it.
+    Returns new params, optimiser state and metrics (means over the minibatches that ran).
+    """
+    optimizer = make_optimizer(cfg)
+    n_chunks = batch.actions.shape[0] // cfg.chunk_length * batch.actions.shape[1]
+    grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+
+    def minibatch_step(state: UpdateState, inputs):
+        m, k = inputs
+        targets = jax.lax.cond(
+            m % cfg.recompute_every == 0,
+            lambda: recompute(state.params, net, cfg, batch),
+            lambda: state.targets,
+        )
+        idx = jax.random.choice(k, n_chunks, (cfg.minibatch_chunks,), replace=False)
+        mb = minibatch(batch, targets, idx, cfg.chunk_length)
+        (_, metrics), grads = grad_fn(state.params, net, cfg, mb)
+        kl = metrics["kl"]
+        apply = state.running & (kl <= cfg.kl_target)
+        revert = state.running & (kl > cfg.kl_hard_limit)
+        updates, new_opt = optimizer.update(grads, state.opt_state, state.params)
+        new_params = optax.apply_updates(state.params, updates)
+
+        def pick(new, old, first):
+            return jnp.where(revert, first, jnp.where(apply, new, old))
+
+        params = jax.tree.map(pick, new_params, state.params, params0)
+        opt = jax.tree.map(pick, new_opt, state.opt_state, opt0)
+        new_state = UpdateState(params, opt, apply, state.reverted | revert, state.steps + apply, targets)
+        return new_state, (metrics, state.running)
+
+    params0, opt0 = params, opt_state
+    targets0 = jax.eval_shape(lambda: recompute(params, net, cfg, batch))
+    init = UpdateState(
+        params,
+        opt_state,
+        jnp.array(True),
+        jnp.array(False),
+        jnp.array(0),
+        jax.tree.map(jnp.zeros_like, targets0),
+    )
+    steps = (jnp.arange(cfg.num_minibatches), jax.random.split(key, cfg.num_minibatches))
+    final, (metrics, ran) = jax.lax.scan(minibatch_step, init, steps)
+    summary = {name: _masked_mean(value, ran) for name, value in metrics.items()}
+    summary["kl_last"] = metrics["kl"][jnp.maximum(jnp.sum(ran) - 1, 0)]
+    summary["minibatches"] = final.steps.astype(jnp.float32)
+    summary["reverted"] = final.reverted.astype(jnp.float32)
+    return final.params, final.opt_state, summary
+
+
+def validate(cfg: PPOConfig, rollout_steps: int, num_envs: int) -> None:
+    """Raise ValueError for an impossible configuration (before anything compiles)."""
+    if rollout_steps % cfg.chunk_length:
+        raise ValueError(
+            f"chunk_length={cfg.chunk_length} must divide rollout_steps={rollout_steps} (trajectories are cut "
+            "into whole chunks)"
+        )
+    n_chunks = rollout_steps // cfg.chunk_length * num_envs
+    if cfg.minibatch_chunks > n_chunks:
+        raise ValueError(
+            f"minibatch_chunks={cfg.minibatch_chunks} is larger than the batch: {num_envs} envs x "
+            f"{rollout_steps // cfg.chunk_length} chunks = {n_chunks} chunks"
+        )
+    if cfg.num_minibatches < 1 or cfg.recompute_every < 1:
+        raise ValueError("num_minibatches and recompute_every must be >= 1")
+    if not 0 < cfg.kl_target <= cfg.kl_hard_limit:
+        raise ValueError(f"need 0 < kl_target ({cfg.kl_target}) <= kl_hard_limit ({cfg.kl_hard_limit})")

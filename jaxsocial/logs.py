@@ -1,0 +1,409 @@
+"""Run directories, config files, JSONL metrics, a terminal progress line and optional external loggers.
+
+A run directory ``root/name`` holds ``config.json`` (``write_config``), ``metrics.jsonl`` (``MetricsLog``)
+and whatever else the caller puts there (e.g. checkpoints). Dependency-free except the optional loggers.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import sys
+import time
+import warnings
+from collections.abc import Iterable, Mapping
+from datetime import timedelta
+from pathlib import Path
+from typing import Any, Protocol, TextIO
+
+import numpy as np
+
+__all__ = [
+    "Logger",
+    "MetricsLog",
+    "Progress",
+    "config_diff",
+    "make_logger",
+    "prepare_run_dir",
+    "read_config",
+    "read_metrics",
+    "to_json",
+    "write_config",
+]
+
+CONFIG_FILE = "config.json"
+METRICS_FILE = "metrics.jsonl"
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Run directory and config
+# ----------------------------------------------------------------------------------------------------------
+
+
+def prepare_run_dir(root: str | Path, name: str, *, resume: bool = False, overwrite: bool = False) -> Path:
+    """Creates (or, with `resume`, reuses) the run directory `root/name` and returns it.
+
+    An existing non-empty directory raises FileExistsError unless `resume` (keep it; FileNotFoundError if it
+    does not exist) or `overwrite` (delete it and start fresh). Both together: ValueError.
+    """
+    if resume and overwrite:
+        raise ValueError("choose at most one of resume and overwrite")
+    parts = Path(name).parts
+    if not parts or Path(name).is_absolute() or any(p in (".", "..") for p in parts):
+        raise ValueError(f"run name must be a relative path without '.' or '..', got {name!r}")
+    run_dir = Path(root).expanduser() / name
+    if run_dir.exists() and not run_dir.is_dir():
+        raise FileExistsError(f"run path {run_dir} exists and is not a directory")
+    if resume:
+        if not run_dir.is_dir():
+            raise FileNotFoundError(f"cannot resume: run directory {run_dir} does not exist")
+        return run_dir
+    if run_dir.is_dir() and any(run_dir.iterdir()):
+        if not overwrite:
+            raise FileExistsError(
+                f"run directory {run_dir} already exists and is not empty; pass --resume to continue "
+                "that run or --overwrite to delete it and start fresh (or choose another name)"
+            )
+        shutil.rmtree(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    return run_dir
+
+
+def to_json(x: Any) -> Any:
+    """Converts `x` to plain JSON values: numpy/jax scalars -> int/float/bool, arrays -> (nested) lists,
+    tuples -> lists, Paths -> str; non-finite floats (NaN, inf) -> None. Raises TypeError otherwise."""
+    if x is None or isinstance(x, bool | str):
+        return x
+    if isinstance(x, int):
+        return int(x)
+    if isinstance(x, float):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, Mapping):
+        return {str(k): to_json(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [to_json(v) for v in x]
+    if isinstance(x, Path):
+        return str(x)
+    if isinstance(x, np.generic | np.ndarray) or hasattr(x, "__array__"):
+        a = np.asarray(x)
+        if a.dtype.kind in "biuf":
+            return to_json(a.tolist())  # numpy scalars/arrays -> python (nested lists of) values
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}: {x!r:.80}")
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def write_config(run_dir: str | Path, config: Mapping[str, Any]) -> Path:
+    """Writes `config` to `run_dir/config.json` (indent 2, sorted keys; values through `to_json`)."""
+    path = Path(run_dir) / CONFIG_FILE
+    _atomic_write(path, json.dumps(to_json(config), indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def read_config(run_dir: str | Path) -> dict[str, Any]:
+    """Reads `run_dir/config.json` (FileNotFoundError if missing)."""
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"no {CONFIG_FILE} in run directory {run_dir}")
+    return json.loads(path.read_text())
+
+
+def config_diff(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[str]:
+    """Sorted dotted keys (e.g. "agent.lr") whose values differ between configs `a` and `b`, including keys
+    present in only one. Values are compared after `to_json` (so tuples equal lists, as in config.json)."""
+
+    def walk(x: Any, y: Any, prefix: str) -> Iterable[str]:
+        if isinstance(x, dict) and isinstance(y, dict):
+            for k in sorted(set(x) | set(y)):
+                key = f"{prefix}.{k}" if prefix else k
+                if k not in x or k not in y:
+                    yield key
+                else:
+                    yield from walk(x[k], y[k], key)
+        elif x != y:
+            yield prefix
+
+    return list(walk(to_json(a), to_json(b), ""))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Metrics
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _read_rows(path: Path) -> list[tuple[str, dict[str, Any]]]:
+    """(line, row) pairs of a JSONL file; unreadable lines (interrupted writes) are skipped with a warning."""
+    if not path.is_file():
+        return []
+    rows = []
+    for i, line in enumerate(path.read_text().splitlines()):
+        if not line.strip():
+            continue
+        try:
+            rows.append((line, json.loads(line)))
+        except json.JSONDecodeError:
+            warnings.warn(f"{path}: skipping truncated line {i + 1}: {line[:60]!r}", stacklevel=3)
+    return rows
+
+
+class MetricsLog:
+    """Append-only `run_dir/metrics.jsonl`, one JSON object per row.
+
+    Values go through `to_json`: numpy/jax scalars and small arrays become python numbers/lists and
+    non-finite floats (NaN, inf) are written as null.
+    """
+
+    def __init__(self, run_dir: str | Path):
+        self.path = Path(run_dir) / METRICS_FILE
+
+    def append(self, rows: Iterable[Mapping[str, Any]]) -> None:
+        """Writes `rows` (dicts of str -> scalar/array) and flushes them to disk."""
+        text = "".join(json.dumps(to_json(dict(r)), allow_nan=False) + "\n" for r in rows)
+        if not text:
+            return
+        with open(self.path, "a+b") as f:
+            if f.tell() > 0:  # a crash may have left a partial line: start on a new one
+                f.seek(-1, os.SEEK_END)
+                if f.read(1) != b"\n":
+                    text = "\n" + text
+            f.write(text.encode())
+            f.flush()
+            os.fsync(f.fileno())
+
+    def truncate_after(self, iteration: int) -> int:
+        """Drops rows with `row["iteration"] > iteration` (rows without "iteration" are kept), e.g. when
+        resuming from the checkpoint of `iteration`. Returns the number of dropped rows."""
+        rows = _read_rows(self.path)
+        kept = [
+            line
+            for line, row in rows
+            if not (row.get("iteration") is not None and row["iteration"] > iteration)
+        ]
+        if self.path.is_file():
+            _atomic_write(self.path, "".join(line + "\n" for line in kept))
+        return len(rows) - len(kept)
+
+    def read(self) -> list[dict[str, Any]]:
+        """All rows, in order."""
+        return [row for _, row in _read_rows(self.path)]
+
+
+def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
+    """Rows of `run_dir/metrics.jsonl` ([] if missing); non-finite values read back as None."""
+    return MetricsLog(run_dir).read()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Progress
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _fmt_value(v: Any) -> str:
+    """Floats with 3 significant digits, ints with thousands separators, arrays element-wise."""
+    if isinstance(v, np.generic | np.ndarray) or (hasattr(v, "__array__") and not isinstance(v, str)):
+        a = np.asarray(v)
+        if a.ndim == 0:
+            return _fmt_value(a.item())
+        return (
+            "["
+            + ", ".join(_fmt_value(x) for x in a.reshape(-1).tolist()[:8])
+            + (", ..." if a.size > 8 else "")
+            + "]"
+        )
+    if isinstance(v, bool):
+        return str(v)
+    if isinstance(v, int):
+        return f"{v:,}"
+    if isinstance(v, float):
+        return f"{v:.3g}"
+    return str(v)
+
+
+def _fmt_time(seconds: float) -> str:
+    return str(timedelta(seconds=int(max(seconds, 0))))
+
+
+class Progress:
+    """Dependency-free progress line, e.g. ``train  40/200 [20%] 12,345 env-steps/s loss=0.123  eta 0:01:10``.
+
+    On a TTY the line is rewritten in place with ``\\r``; otherwise a new line is printed at most every
+    `interval` seconds (and at completion), which keeps CI logs short. The rate is (n - initial) * unit_scale
+    per second since construction, shown in `unit`/s.
+    """
+
+    def __init__(
+        self,
+        total: int,
+        desc: str = "",
+        *,
+        initial: int = 0,
+        unit: str = "it",
+        unit_scale: float = 1.0,
+        interval: float = 5.0,
+        stream: TextIO | None = None,
+    ):
+        self.total, self.desc, self.unit, self.unit_scale = int(total), desc, unit, unit_scale
+        self.initial = self.n = int(initial)
+        self.interval = interval
+        self.stream = stream if stream is not None else sys.stdout
+        isatty = getattr(self.stream, "isatty", None)
+        self.tty = bool(isatty and isatty())
+        self.start = time.monotonic()
+        self._last_print = -math.inf
+        self._line = ""
+        self._printed_line = ""
+        self._width = 0
+        self.closed = False
+
+    def format(self, n: int, fields: Mapping[str, Any]) -> str:
+        """The progress line for `n` completed units and extra `fields`."""
+        elapsed = time.monotonic() - self.start
+        width = len(str(self.total))
+        parts = [self.desc] if self.desc else []
+        pct = f" [{100 * n / self.total:3.0f}%]" if self.total > 0 else ""
+        parts.append(f"{n:>{width}}/{self.total}{pct}")
+        done = n - self.initial
+        rate = done / elapsed if elapsed > 0 and done > 0 else None
+        if rate is not None:
+            scaled = rate * self.unit_scale
+            parts.append(f"{scaled:,.0f} {self.unit}/s" if scaled >= 100 else f"{scaled:.3g} {self.unit}/s")
+        parts += [f"{k}={_fmt_value(v)}" for k, v in fields.items()]
+        if n >= self.total:
+            tail = f"elapsed {_fmt_time(elapsed)}"
+        else:
+            tail = f"eta {_fmt_time((self.total - n) / rate)}" if rate else "eta ?"
+        return " ".join(parts) + "  " + tail
+
+    def update(self, n: int, **fields: Any) -> None:
+        """Shows progress: `n` is the number of completed units so far (absolute, not an increment) and
+        `fields` extra name=value pairs (floats: 3 significant digits; ints: thousands separators)."""
+        self.n = int(n)
+        self._line = self.format(self.n, fields)
+        now = time.monotonic()
+        if self.tty:
+            self._write("\r" + self._line.ljust(self._width))
+            self._width = len(self._line)
+        elif now - self._last_print >= self.interval or self.n >= self.total:
+            self._write(self._line + "\n")
+            self._printed_line = self._line
+        else:
+            return
+        self._last_print = now
+
+    def _write(self, text: str) -> None:
+        self.stream.write(text)
+        self.stream.flush()
+
+    def close(self) -> None:
+        """Ends the display (newline on a TTY; the last state if it was not printed yet otherwise)."""
+        if self.closed:
+            return
+        self.closed = True
+        if self.tty and self._width:
+            self._write("\n")
+        elif not self.tty and self._line and self._line != self._printed_line:
+            self._write(self._line + "\n")
+
+    def __enter__(self) -> Progress:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Optional external loggers
+# ----------------------------------------------------------------------------------------------------------
+
+
+class Logger(Protocol):
+    def log(self, row: Mapping[str, Any], step: int) -> None: ...
+
+    def close(self) -> None: ...
+
+
+def _scalars(row: Mapping[str, Any]) -> dict[str, float]:
+    """Finite numeric scalars of `row` as floats (arrays and strings dropped)."""
+    out = {}
+    for k, v in row.items():
+        try:
+            a = np.asarray(v)
+        except Exception:
+            continue
+        if a.ndim == 0 and a.dtype.kind in "biuf" and math.isfinite(float(a)):
+            out[k] = float(a)
+    return out
+
+
+class _NullLogger:
+    def log(self, row: Mapping[str, Any], step: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+class _TensorBoardLogger:
+    def __init__(self, run_dir: Path, config: Mapping[str, Any]):
+        try:
+            from tensorboardX import SummaryWriter
+        except ImportError:
+            try:
+                from torch.utils.tensorboard import SummaryWriter
+            except ImportError:
+                raise ImportError(
+                    "logger 'tensorboard' needs tensorboardX (pip install tensorboardX) or torch"
+                ) from None
+        self.writer = SummaryWriter(str(run_dir / "tensorboard"))
+        self.writer.add_text(
+            "config", "```\n" + json.dumps(to_json(config), indent=2, sort_keys=True) + "\n```"
+        )
+
+    def log(self, row: Mapping[str, Any], step: int) -> None:
+        for k, v in _scalars(row).items():
+            self.writer.add_scalar(k, v, step)
+
+    def close(self) -> None:
+        self.writer.close()
+
+
+class _WandbLogger:
+    """wandb run; project from $WANDB_PROJECT (default "jaxsocial"), mode from $WANDB_MODE."""
+
+    def __init__(self, run_dir: Path, config: Mapping[str, Any]):
+        try:
+            import wandb
+        except ImportError:
+            raise ImportError("logger 'wandb' needs wandb (pip install wandb)") from None
+        self.run = wandb.init(
+            project=os.environ.get("WANDB_PROJECT", "jaxsocial"),
+            name=run_dir.name,
+            dir=str(run_dir),
+            config=to_json(config),
+            mode=os.environ.get("WANDB_MODE"),
+        )
+
+    def log(self, row: Mapping[str, Any], step: int) -> None:
+        self.run.log(_scalars(row), step=step)
+
+    def close(self) -> None:
+        self.run.finish()
+
+
+def make_logger(kind: str | None, run_dir: str | Path, config: Mapping[str, Any]) -> Logger:
+    """External logger with `log(row, step)` and `close()`: None/"none" -> no-op, "tensorboard" (tensorboardX
+    or torch, logs to run_dir/tensorboard) or "wandb". Only finite scalar values are logged. ImportError with
+    the package to install if missing."""
+    if kind is None or kind == "none":
+        return _NullLogger()
+    if kind == "tensorboard":
+        return _TensorBoardLogger(Path(run_dir), config)
+    if kind == "wandb":
+        return _WandbLogger(Path(run_dir), config)
+    raise ValueError(f"unknown logger {kind!r}; expected None, 'tensorboard' or 'wandb'")

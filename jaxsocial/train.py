@@ -1,0 +1,393 @@
+"""Training: `TrainConfig`, `make_train(cfg) -> train(key)`, the chunked driver and the CLI.
+
+One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
+neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
+(`vmap` over learners). A chunk of iterations is one `lax.scan` inside one `jit`; the Python driver loops
+over chunks to log, checkpoint and draw progress.
+
+    python -m jaxsocial.train --env goalcycle3            # small default, a few minutes on 2 CPU cores
+    python -m jaxsocial.train --preset paper --env goalcycle3
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxsocial
+from jaxsocial import checkpoint, logs
+from jaxsocial.agents import network, population, ppo
+from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.env import core
+from jaxsocial.env.types import EnvParams, EnvState
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """A training run. Every field is a command-line flag."""
+
+    env: str = "goalcycle3"
+    """Environment preset (see `jaxsocial.registered_envs()`)."""
+    env_args: str = ""
+    """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
+    slots: str = ""
+    """One entry per agent slot: learner | random | frozen:PATH. Default: a learner in slot 0, random
+    distractors elsewhere."""
+    seed: int = 0
+    """PRNG seed."""
+    iterations: int = 60
+    """PPO iterations (one rollout + one update each)."""
+    num_envs: int = 32
+    """Parallel environments per rollout."""
+    rollout_steps: int = 64
+    """Steps per rollout (a multiple of ppo.chunk_length)."""
+    chunk_iterations: int = 5
+    """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
+    checkpoint_every: int = 50
+    """Save a checkpoint every this many iterations (rounded up to whole chunks) and at the end."""
+    run_name: str | None = None
+    """Run directory name under runs_dir (default: '<env>-s<seed>')."""
+    runs_dir: str = "runs"
+    """Where run directories go."""
+    resume: bool = False
+    """Continue the run in the existing run directory from its latest checkpoint."""
+    overwrite: bool = False
+    """Delete an existing run directory of the same name and start again."""
+    logger: str | None = None
+    """Extra metrics sink: 'tensorboard' or 'wandb' (off by default)."""
+    progress: bool = True
+    """Show a progress line."""
+    preset: str = "small"
+    """Hyperparameter preset the other defaults came from: 'small' or 'paper'."""
+    net: NetworkConfig = NetworkConfig(conv_channels=(16, 32, 32), hidden=64, mlp=32)
+    """Network (the paper's is conv (32, 64, 64), hidden 192, mlp 64)."""
+    ppo: PPOConfig = PPOConfig(
+        lr=5e-4, num_minibatches=8, minibatch_chunks=64, kl_target=0.02, kl_hard_limit=0.05
+    )
+    """PPO hyperparameters."""
+
+    @property
+    def env_overrides(self) -> dict[str, Any]:
+        return parse_env_args(self.env_args)
+
+
+PRESETS = {
+    "small": TrainConfig(),
+    "paper": TrainConfig(
+        preset="paper",
+        iterations=12000,
+        num_envs=128,
+        rollout_steps=256,
+        chunk_iterations=10,
+        checkpoint_every=500,
+        net=NetworkConfig(),
+        ppo=PPOConfig(),
+    ),
+}
+
+
+def parse_env_args(text: str) -> dict[str, Any]:
+    """'a=1,b=x' -> {'a': 1, 'b': 'x'} (values parsed as Python literals when possible)."""
+    out = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"--env-args entry {item!r} is not key=value")
+        try:
+            out[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            out[key.strip()] = value.strip()
+    return out
+
+
+class Setup(NamedTuple):
+    """Everything static about a run, validated."""
+
+    env_params: EnvParams
+    pop: population.Population
+    frozen_params: Any  # stacked params of frozen slots, or None
+
+
+def setup(cfg: TrainConfig) -> Setup:
+    """Validate the config and load frozen policies; raises ValueError before anything compiles."""
+    _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+    if env_params.observation != "rgb":
+        raise ValueError("the learner's network takes RGB observations (observation='rgb')")
+    slots_text = cfg.slots or ",".join(["learner"] + ["random"] * (env_params.n_agents - 1))
+    pop = population.Population(population.parse_slots(slots_text, env_params.n_agents))
+    ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
+    if cfg.iterations < 1 or cfg.chunk_iterations < 1 or cfg.checkpoint_every < 1:
+        raise ValueError("iterations, chunk_iterations and checkpoint_every must be >= 1")
+    frozen = None
+    if pop.frozen:
+        frozen = population.stack([population.load_policy(pop.slots[i].path, cfg.net) for i in pop.frozen])
+    return Setup(env_params, pop, frozen)
+
+
+class RunnerState(NamedTuple):
+    """The whole training state between iterations (a pytree; checkpointed at chunk boundaries)."""
+
+    params: Any  # learner params stacked [S_l, ...]
+    opt_state: Any  # learner optimiser states stacked [S_l, ...]
+    env_states: EnvState  # [E]
+    obs: jax.Array  # uint8[E, N, 21, 21, 3]
+    resets: jax.Array  # bool[E]: the next step starts an episode
+    carry: network.Carry  # float32[S, E, H] neural slots' LSTM states
+    episode_return: jax.Array  # float32[E, N] return so far in the current episode
+    key: jax.Array
+    iteration: jax.Array  # int32[]
+
+
+class Transition(NamedTuple):
+    obs: jax.Array  # uint8[E, S_l, ...] learner observations
+    resets: jax.Array
+    actions: jax.Array  # int32[S_l, E]
+    logp: jax.Array
+    rewards: jax.Array
+    terminated: jax.Array
+    done: jax.Array
+    final_values: jax.Array
+    valid: jax.Array
+
+
+def make_train(cfg: TrainConfig, frozen_params=None):
+    """Build the pure training functions for `cfg`.
+
+    Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, n) -> (state,
+    metrics)` runs n iterations (static n) in one scan; `train(key) -> (state, metrics)` the whole run.
+    Metrics are dicts of arrays with a leading iteration axis.
+    """
+    env_params, pop, loaded = setup(cfg)
+    frozen_params = loaded if frozen_params is None else frozen_params
+    net, ppo_cfg = cfg.net, cfg.ppo
+    learners = jnp.asarray(pop.learners)
+    n_learners, n_neural = len(pop.learners), len(pop.neural)
+    n_envs, n_steps = cfg.num_envs, cfg.rollout_steps
+    optimizer = ppo.make_optimizer(ppo_cfg)
+
+    def init(key: jax.Array) -> RunnerState:
+        k_params, k_env, k_run = jax.random.split(key, 3)
+        params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(k_params, n_learners), net)
+        obs, env_states = jax.vmap(core.reset, in_axes=(0, None))(jax.random.split(k_env, n_envs), env_params)
+        return RunnerState(
+            params=params,
+            opt_state=jax.vmap(optimizer.init)(params),
+            env_states=env_states,
+            obs=obs,
+            resets=jnp.ones(n_envs, bool),
+            carry=network.initial_carry(net, (n_neural, n_envs)),
+            episode_return=jnp.zeros((n_envs, env_params.n_agents), jnp.float32),
+            key=k_run,
+            iteration=jnp.zeros((), jnp.int32),
+        )
+
+    def all_params(state: RunnerState):
+        if frozen_params is None:
+            return state.params
+        return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), state.params, frozen_params)
+
+    def env_step(carry, key):
+        state, params = carry
+        k_act, k_env = jax.random.split(key)
+        actions, new_carry, logp, _ = population.act(
+            k_act, pop, net, params, state.carry, state.obs, state.resets
+        )
+        alive = state.env_states.active  # [E, N] acting at the start of the step
+        obs, env_states, reward, terminated, truncated, info = core.step_batch(
+            jax.random.split(k_env, n_envs), state.env_states, actions, env_params
+        )
+        done = info["done"]
+        final_values = jax.lax.cond(
+            jnp.any(done),
+            lambda: population.values(pop, net, params, new_carry, info["final_obs"]),
+            lambda: jnp.zeros((n_neural, n_envs), jnp.float32),
+        )
+        episode_return = state.episode_return + reward
+        finished = done[:, None].astype(jnp.float32)
+        stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0) * jnp.ones(reward.shape[1]))
+        agent_done = terminated | done[:, None]
+        transition = Transition(
+            obs=state.obs[:, learners],
+            resets=state.resets,
+            actions=actions[:, learners].T,
+            logp=logp[:n_learners],
+            rewards=reward[:, learners].T,
+            terminated=terminated[:, learners].T,
+            done=agent_done[:, learners].T,
+            final_values=final_values[:n_learners],
+            valid=alive[:, learners].T,
+        )
+        new_state = state._replace(
+            env_states=env_states,
+            obs=obs,
+            resets=done,
+            carry=new_carry,
+            episode_return=episode_return * (1.0 - finished),
+        )
+        return (new_state, params), (transition, stats)
+
+    def iteration(state: RunnerState, _):
+        key, k_roll, k_update = jax.random.split(state.key, 3)
+        params = all_params(state)
+        carry0 = jax.tree.map(lambda c: c[:n_learners], state.carry)
+        (state, _), (traj, (return_sum, episodes)) = jax.lax.scan(
+            env_step, (state, params), jax.random.split(k_roll, n_steps)
+        )
+        # Per learner, time-major: [S_l, T(+1), E, ...].
+        obs = jnp.concatenate([traj.obs, state.obs[None, :, learners]], 0)
+        resets = jnp.concatenate([traj.resets, state.resets[None]], 0)
+        batch = ppo.Batch(
+            obs=jnp.moveaxis(obs, 2, 0),
+            resets=jnp.broadcast_to(resets, (n_learners, *resets.shape)),
+            actions=jnp.moveaxis(traj.actions, 1, 0),
+            logp=jnp.moveaxis(traj.logp, 1, 0),
+            rewards=jnp.moveaxis(traj.rewards, 1, 0),
+            terminated=jnp.moveaxis(traj.terminated, 1, 0),
+            done=jnp.moveaxis(traj.done, 1, 0),
+            final_values=jnp.moveaxis(traj.final_values, 1, 0),
+            valid=jnp.moveaxis(traj.valid, 1, 0),
+            carry0=carry0,
+        )
+        update = jax.vmap(ppo.update, in_axes=(0, 0, 0, None, None, 0))
+        new_params, new_opt, losses = update(
+            jax.random.split(k_update, n_learners), state.params, state.opt_state, net, ppo_cfg, batch
+        )
+        episodes_per_slot = jnp.sum(episodes, 0)
+        metrics = {
+            "episodes": episodes_per_slot,
+            "return": jnp.sum(return_sum, 0) / jnp.maximum(episodes_per_slot, 1.0),
+            **losses,
+        }
+        state = state._replace(params=new_params, opt_state=new_opt, key=key, iteration=state.iteration + 1)
+        return state, metrics
+
+    def run_chunk(state: RunnerState, n: int):
+        return jax.lax.scan(iteration, state, None, length=n)
+
+    def train(key: jax.Array):
+        return run_chunk(init(key), cfg.iterations)
+
+    return init, run_chunk, train
+
+
+def config_dict(cfg: TrainConfig) -> dict[str, Any]:
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
+
+
+RESUMABLE_FIELDS = {"iterations", "resume", "overwrite", "progress", "logger", "checkpoint_every"}
+
+
+def metric_rows(
+    metrics: dict[str, np.ndarray], first_iteration: int, sps: float, pop
+) -> list[dict[str, Any]]:
+    """One JSON row per iteration: per-slot returns and episode counts, per-learner losses."""
+    rows = []
+    n = len(next(iter(metrics.values())))
+    for i in range(n):
+        row: dict[str, Any] = {"iteration": first_iteration + i + 1, "env_steps_per_s": sps}
+        for slot in range(len(pop.slots)):
+            row[f"return/{slot}"] = float(metrics["return"][i][slot])
+            row[f"episodes/{slot}"] = int(metrics["episodes"][i][slot])
+        for name, value in metrics.items():
+            if name in ("return", "episodes"):
+                continue
+            for j, slot in enumerate(pop.learners):
+                row[f"{name}/{slot}"] = float(value[i][j])
+        rows.append(row)
+    return rows
+
+
+def run(cfg: TrainConfig) -> Path:
+    """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory."""
+    env_params, pop, _ = setup(cfg)  # validate before touching the disk or compiling
+    name = cfg.run_name or f"{cfg.env}-s{cfg.seed}"
+    run_dir = logs.prepare_run_dir(cfg.runs_dir, name, resume=cfg.resume, overwrite=cfg.overwrite)
+    ckpt_dir = run_dir / "checkpoints"
+    config = config_dict(cfg)
+    if cfg.resume and (run_dir / "config.json").exists():
+        diff = [k for k in logs.config_diff(logs.read_config(run_dir), config) if k not in RESUMABLE_FIELDS]
+        if diff:
+            raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
+    logs.write_config(run_dir, config)
+    init, run_chunk, _ = make_train(cfg)
+    state = jax.jit(init)(jax.random.key(cfg.seed))
+    if cfg.resume and checkpoint.latest_step(ckpt_dir) is not None:
+        state = checkpoint.restore(ckpt_dir, state)
+    metrics_log = logs.MetricsLog(run_dir)
+    start = int(state.iteration)
+    metrics_log.truncate_after(start)
+    extra = logs.make_logger(cfg.logger, run_dir, config)
+    chunk = jax.jit(run_chunk, static_argnums=1, donate_argnums=0)
+    progress = logs.Progress(cfg.iterations, desc=name) if cfg.progress else None
+    steps_per_iteration = cfg.num_envs * cfg.rollout_steps
+    last_saved = start
+    it = start
+    while it < cfg.iterations:
+        n = min(cfg.chunk_iterations, cfg.iterations - it)
+        t0 = time.perf_counter()
+        state, metrics = chunk(state, n)
+        metrics = jax.device_get(metrics)
+        sps = n * steps_per_iteration / (time.perf_counter() - t0)
+        rows = metric_rows(metrics, it, round(sps), pop)
+        metrics_log.append(rows)
+        for row in rows:
+            if extra is not None:
+                extra.log(row, row["iteration"])
+        it += n
+        if it - last_saved >= cfg.checkpoint_every or it == cfg.iterations:
+            checkpoint.save(ckpt_dir, it, state, metadata=config)
+            policy_meta = {
+                "net": population.json_net(cfg.net),
+                "n_learners": len(pop.learners),
+                "slots": cfg.slots,
+            }
+            checkpoint.save(
+                run_dir / population.POLICY_DIR, it, {"params": state.params}, metadata=policy_meta
+            )
+            last_saved = it
+        if progress is not None:
+            shown = {"env-steps/s": sps}
+            shown.update({f"return[{s}]": rows[-1][f"return/{s}"] for s in range(len(pop.slots))})
+            progress.update(it, **shown)
+    if progress is not None:
+        progress.close()
+    if extra is not None:
+        extra.close()
+    return run_dir
+
+
+def parse_args(argv: list[str]) -> TrainConfig:
+    """Parse the CLI: `--preset NAME` picks the defaults, every TrainConfig field is a flag."""
+    import tyro
+
+    preset = "small"
+    if "--preset" in argv:
+        i = argv.index("--preset")
+        preset = argv[i + 1] if i + 1 < len(argv) else ""
+    if preset not in PRESETS:
+        raise SystemExit(f"unknown --preset {preset!r}; choose one of {sorted(PRESETS)}")
+    return tyro.cli(TrainConfig, default=PRESETS[preset], args=argv, description=__doc__)
+
+
+def main(argv: list[str] | None = None) -> None:
+    cfg = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        run_dir = run(cfg)
+    except (ValueError, FileExistsError, FileNotFoundError) as err:
+        raise SystemExit(f"error: {err}") from err
+    rows = logs.read_metrics(run_dir)
+    print(f"wrote {run_dir} ({len(rows)} iterations)")
+
+
+if __name__ == "__main__":
+    main()
