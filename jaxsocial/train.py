@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import json
 import sys
 import time
@@ -160,15 +161,15 @@ class Transition(NamedTuple):
     valid: jax.Array
 
 
-def make_train(cfg: TrainConfig, frozen_params=None):
-    """Build the pure training functions for `cfg`.
+def make_train(cfg: TrainConfig):
+    """Build the pure training functions for `cfg` (validated first; frozen policies are loaded).
 
-    Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, n) -> (state,
-    metrics)` runs n iterations (static n) in one scan; `train(key) -> (state, metrics)` the whole run.
-    Metrics are dicts of arrays with a leading iteration axis.
+    Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
+    (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
+    None); `train(key) -> (state, metrics)` is the whole run. Metrics are dicts of arrays with a leading
+    iteration axis.
     """
-    env_params, pop, loaded = setup(cfg)
-    frozen_params = loaded if frozen_params is None else frozen_params
+    env_params, pop, loaded_frozen = setup(cfg)
     net, ppo_cfg = cfg.net, cfg.ppo
     learners = jnp.asarray(pop.learners)
     n_learners, n_neural = len(pop.learners), len(pop.neural)
@@ -191,7 +192,7 @@ def make_train(cfg: TrainConfig, frozen_params=None):
             iteration=jnp.zeros((), jnp.int32),
         )
 
-    def all_params(state: RunnerState):
+    def all_params(state: RunnerState, frozen_params):
         if frozen_params is None:
             return state.params
         return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), state.params, frozen_params)
@@ -236,9 +237,9 @@ def make_train(cfg: TrainConfig, frozen_params=None):
         )
         return (new_state, params), (transition, stats)
 
-    def iteration(state: RunnerState, _):
+    def iteration(state: RunnerState, frozen_params):
         key, k_roll, k_update = jax.random.split(state.key, 3)
-        params = all_params(state)
+        params = all_params(state, frozen_params)
         carry0 = jax.tree.map(lambda c: c[:n_learners], state.carry)
         (state, _), (traj, (return_sum, episodes)) = jax.lax.scan(
             env_step, (state, params), jax.random.split(k_roll, n_steps)
@@ -271,20 +272,43 @@ def make_train(cfg: TrainConfig, frozen_params=None):
         state = state._replace(params=new_params, opt_state=new_opt, key=key, iteration=state.iteration + 1)
         return state, metrics
 
-    def run_chunk(state: RunnerState, n: int):
-        return jax.lax.scan(iteration, state, None, length=n)
+    def run_chunk(state: RunnerState, frozen_params, n: int):
+        return jax.lax.scan(lambda s, _: iteration(s, frozen_params), state, None, length=n)
 
     def train(key: jax.Array):
-        return run_chunk(init(key), cfg.iterations)
+        return run_chunk(init(key), loaded_frozen, cfg.iterations)
 
     return init, run_chunk, train
 
 
+DRIVER_FIELDS = {
+    "iterations",
+    "resume",
+    "overwrite",
+    "progress",
+    "logger",
+    "checkpoint_every",
+    "run_name",
+    "runs_dir",
+}
+"""Fields that do not change the compiled program."""
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled(program_cfg: TrainConfig):
+    init, run_chunk, _ = make_train(program_cfg)
+    return jax.jit(init), jax.jit(run_chunk, static_argnums=2, donate_argnums=0)
+
+
+def compiled(cfg: TrainConfig):
+    """`(jit(init), jit(run_chunk))` for `cfg`, shared between runs whose programs are the same (tests,
+    notebooks and sweeps in one process compile once)."""
+    defaults = TrainConfig()
+    return _compiled(dataclasses.replace(cfg, **{f: getattr(defaults, f) for f in DRIVER_FIELDS}))
+
+
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:
     return json.loads(json.dumps(dataclasses.asdict(cfg)))
-
-
-RESUMABLE_FIELDS = {"iterations", "resume", "overwrite", "progress", "logger", "checkpoint_every"}
 
 
 def metric_rows(
@@ -309,33 +333,32 @@ def metric_rows(
 
 def run(cfg: TrainConfig) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory."""
-    env_params, pop, _ = setup(cfg)  # validate before touching the disk or compiling
+    _, pop, frozen = setup(cfg)  # validate before touching the disk or compiling
     name = cfg.run_name or f"{cfg.env}-s{cfg.seed}"
     run_dir = logs.prepare_run_dir(cfg.runs_dir, name, resume=cfg.resume, overwrite=cfg.overwrite)
     ckpt_dir = run_dir / "checkpoints"
     config = config_dict(cfg)
     if cfg.resume and (run_dir / "config.json").exists():
-        diff = [k for k in logs.config_diff(logs.read_config(run_dir), config) if k not in RESUMABLE_FIELDS]
+        diff = [k for k in logs.config_diff(logs.read_config(run_dir), config) if k not in DRIVER_FIELDS]
         if diff:
             raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
     logs.write_config(run_dir, config)
-    init, run_chunk, _ = make_train(cfg)
-    state = jax.jit(init)(jax.random.key(cfg.seed))
+    init, chunk = compiled(cfg)
+    state = init(jax.random.key(cfg.seed))
     if cfg.resume and checkpoint.latest_step(ckpt_dir) is not None:
         state = checkpoint.restore(ckpt_dir, state)
     metrics_log = logs.MetricsLog(run_dir)
     start = int(state.iteration)
     metrics_log.truncate_after(start)
     extra = logs.make_logger(cfg.logger, run_dir, config)
-    chunk = jax.jit(run_chunk, static_argnums=1, donate_argnums=0)
-    progress = logs.Progress(cfg.iterations, desc=name) if cfg.progress else None
+    progress = logs.Progress(cfg.iterations, desc=name, initial=start) if cfg.progress else None
     steps_per_iteration = cfg.num_envs * cfg.rollout_steps
     last_saved = start
     it = start
     while it < cfg.iterations:
         n = min(cfg.chunk_iterations, cfg.iterations - it)
         t0 = time.perf_counter()
-        state, metrics = chunk(state, n)
+        state, metrics = chunk(state, frozen, n)
         metrics = jax.device_get(metrics)
         sps = n * steps_per_iteration / (time.perf_counter() - t0)
         rows = metric_rows(metrics, it, round(sps), pop)

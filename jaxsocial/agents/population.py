@@ -146,7 +146,7 @@ def load_policy(path: str, net: network.NetworkConfig):
     if not 0 <= k < n_saved:
         raise ValueError(f"frozen slot {path}: learner index {k} out of range (the run had {n_saved})")
     template = jax.eval_shape(
-        jax.vmap(network.init, in_axes=(0, None)), jax.random.split(jax.random.key(0), n_saved), net
+        jax.vmap(lambda k: network.init(k, net)), jax.random.split(jax.random.key(0), n_saved)
     )
     params = checkpoint.restore(directory, {"params": template})["params"]
     return jax.tree.map(lambda x: x[k], params)

@@ -1,0 +1,141 @@
+"""The trainer: determinism, resume, frozen slots, independent learners, the CLI and bad input."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+from jaxsocial import checkpoint, logs
+from jaxsocial.agents import population
+from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.train import TrainConfig, make_train, run
+
+TINY = TrainConfig(
+    env="goalcycle3",
+    env_args="max_steps=12,width=7,height=7",
+    num_envs=4,
+    rollout_steps=8,
+    iterations=4,
+    chunk_iterations=2,
+    checkpoint_every=2,
+    progress=False,
+    net=NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8),
+    ppo=PPOConfig(chunk_length=4, minibatch_chunks=4, num_minibatches=2, lr=3e-3),
+)
+TINY_FLAGS = [
+    "--env-args", TINY.env_args, "--num-envs", "4", "--rollout-steps", "8", "--iterations", "2",
+    "--chunk-iterations", "1", "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8",
+    "--ppo.chunk-length", "4", "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2", "--no-progress",
+]  # fmt: skip
+
+
+def metrics_without_speed(run_dir):
+    return [{k: v for k, v in row.items() if k != "env_steps_per_s"} for row in logs.read_metrics(run_dir)]
+
+
+@pytest.fixture(scope="module")
+def two_learners():
+    cfg = dataclasses.replace(TINY, slots="learner,learner,random")
+    init, _, train = make_train(cfg)
+    train = jax.jit(train)
+    return cfg, init, train
+
+
+def test_determinism_and_independent_learners(two_learners):
+    cfg, init, train = two_learners
+    state_a, metrics_a = train(jax.random.key(0))
+    state_b, metrics_b = train(jax.random.key(0))
+    _, metrics_c = train(jax.random.key(1))
+    for name in metrics_a:
+        np.testing.assert_array_equal(metrics_a[name], metrics_b[name])
+    assert any(not np.array_equal(metrics_a[k], metrics_c[k]) for k in ("aux_loss", "value_loss"))
+    start = jax.jit(init)(jax.random.key(0))
+    before, after = jax.tree.leaves(start.params), jax.tree.leaves(state_a.params)
+    assert all(x.shape[0] == 2 for x in before)  # a separate set of weights per learner
+    assert any(not np.array_equal(x[0], x[1]) for x in before)  # initialised independently
+    assert all(not np.array_equal(x[0], x[1]) for x in after)  # and trained apart
+    assert all(not np.array_equal(b, a) for b, a in zip(before, after, strict=True))
+    # and one optimiser state per learner
+    assert all(x.shape[0] == 2 for x in jax.tree.leaves(state_a.opt_state) if x.ndim)
+
+
+def test_resume_equals_uninterrupted_run_and_frozen_slots(tmp_path):
+    full = run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="full"))
+    run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="cut", iterations=2))
+    resumed = run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="cut", resume=True))
+    assert metrics_without_speed(resumed) == metrics_without_speed(full)
+    assert checkpoint.all_steps(full / "checkpoints") == [2, 4]
+    with pytest.raises(FileExistsError, match="--resume"):
+        run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="full"))
+    with pytest.raises(ValueError, match="config differs"):
+        run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="full", resume=True, seed=3))
+
+    # A frozen slot plays the saved learner and is never updated.
+    saved = population.load_policy(str(full), TINY.net)
+    frozen_cfg = dataclasses.replace(TINY, slots=f"learner,frozen:{full},random", runs_dir=str(tmp_path))
+    frozen_dir = run(dataclasses.replace(frozen_cfg, run_name="frozen"))
+    policy_before = json.dumps(checkpoint.read_metadata(full / "policy"))
+    assert population.load_policy(str(full), TINY.net) is not saved
+    for a, b in zip(
+        jax.tree.leaves(saved), jax.tree.leaves(population.load_policy(str(full), TINY.net)), strict=True
+    ):
+        np.testing.assert_array_equal(a, b)
+    assert json.dumps(checkpoint.read_metadata(full / "policy")) == policy_before
+    rows = logs.read_metrics(frozen_dir)
+    assert "kl/0" in rows[0] and "kl/1" not in rows[0]  # only the learner is updated
+    # A checkpoint of another architecture is refused with a clear error, before compiling.
+    other = dataclasses.replace(frozen_cfg, net=NetworkConfig(conv_channels=(4, 8, 8), hidden=32, mlp=8))
+    with pytest.raises(ValueError, match="another architecture"):
+        run(dataclasses.replace(other, run_name="other"))
+
+
+def test_cli_end_to_end(tmp_path):
+    cmd = [
+        sys.executable,
+        "-m",
+        "jaxsocial.train",
+        "--runs-dir",
+        str(tmp_path),
+        "--run-name",
+        "cli",
+        *TINY_FLAGS,
+    ]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    run_dir = tmp_path / "cli"
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["num_envs"] == 4 and config["net"]["hidden"] == 16
+    rows = logs.read_metrics(run_dir)
+    assert [r["iteration"] for r in rows] == [1, 2] and "return/0" in rows[0] and "episodes/2" in rows[0]
+    assert checkpoint.latest_step(run_dir / "checkpoints") == 2
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert again.returncode != 0 and "--overwrite" in again.stderr
+    assert logs.read_metrics(run_dir) == rows  # nothing overwritten
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"ppo": PPOConfig(minibatch_chunks=512, chunk_length=4)}, "larger than the batch"),
+        ({"ppo": PPOConfig(chunk_length=3)}, "must divide"),
+        ({"env": "goalcycle9"}, "unknown environment"),
+        ({"slots": "learner,random"}, "3 agents"),
+        ({"slots": "random,random,random"}, "no learner"),
+        ({"slots": "learner,frozen,random"}, "needs a checkpoint path"),
+        ({"env_args": "n_agents=8"}, "agent colours"),
+    ],
+)
+def test_bad_config_fails_before_compiling(tmp_path, changes, message):
+    with pytest.raises(ValueError, match=message):
+        run(dataclasses.replace(TINY, runs_dir=str(tmp_path), **changes))
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_unknown_aux_mode():
+    with pytest.raises(ValueError, match="aux"):
+        NetworkConfig(aux="next")
