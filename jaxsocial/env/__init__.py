@@ -1,7 +1,6 @@
 """Pure-functional multi-agent gridworlds (Goal Cycle, Four Rooms, Maze) in JAX."""
 
 from jaxsocial.env.core import Env, reset, state_from_layout, step, step_batch, step_env
-from jaxsocial.env.observe import observe
 from jaxsocial.env.registry import PRESETS, make, registered_envs
 from jaxsocial.env.types import EnvParams, EnvState
 
@@ -11,7 +10,6 @@ __all__ = [
     "EnvParams",
     "EnvState",
     "make",
-    "observe",
     "registered_envs",
     "reset",
     "state_from_layout",
