@@ -46,15 +46,15 @@ class TrainConfig:
     distractors elsewhere."""
     seed: int = 0
     """PRNG seed."""
-    iterations: int = 60
+    iterations: int = 500
     """PPO iterations (one rollout + one update each)."""
     num_envs: int = 32
     """Parallel environments per rollout."""
-    rollout_steps: int = 64
+    rollout_steps: int = 32
     """Steps per rollout (a multiple of ppo.chunk_length)."""
-    chunk_iterations: int = 5
+    chunk_iterations: int = 10
     """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
-    checkpoint_every: int = 50
+    checkpoint_every: int = 100
     """Save a checkpoint every this many iterations (rounded up to whole chunks) and at the end."""
     run_name: str | None = None
     """Run directory name under runs_dir (default: '<env>-s<seed>')."""
@@ -70,7 +70,7 @@ class TrainConfig:
     """Show a progress line."""
     preset: str = "small"
     """Hyperparameter preset the other defaults came from: 'small' or 'paper'."""
-    net: NetworkConfig = NetworkConfig(conv_channels=(16, 32, 32), hidden=64, mlp=32)
+    net: NetworkConfig = NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32)
     """Network (the paper's is conv (32, 64, 64), hidden 192, mlp 64)."""
     ppo: PPOConfig = PPOConfig(
         lr=5e-4, num_minibatches=8, minibatch_chunks=64, kl_target=0.02, kl_hard_limit=0.05
@@ -86,7 +86,7 @@ PRESETS = {
     "small": TrainConfig(),
     "paper": TrainConfig(
         preset="paper",
-        iterations=12000,
+        iterations=11445,  # 375M env steps, the paper's budget
         num_envs=128,
         rollout_steps=256,
         chunk_iterations=10,
@@ -331,6 +331,16 @@ def metric_rows(
     return rows
 
 
+def progress_fields(metrics: dict[str, np.ndarray], sps: float) -> dict[str, Any]:
+    """What the progress line shows for a chunk: speed and each slot's mean return over the episodes that
+    finished in the chunk ('-' where none did)."""
+    episodes = metrics["episodes"].sum(0)
+    returns = (metrics["return"] * metrics["episodes"]).sum(0) / np.maximum(episodes, 1)
+    shown: dict[str, Any] = {"env-steps/s": int(sps)}
+    shown.update({f"return[{s}]": float(r) if n else "-" for s, (r, n) in enumerate(zip(returns, episodes))})
+    return shown
+
+
 def run(cfg: TrainConfig) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory."""
     _, pop, frozen = setup(cfg)  # validate before touching the disk or compiling
@@ -379,9 +389,7 @@ def run(cfg: TrainConfig) -> Path:
             )
             last_saved = it
         if progress is not None:
-            shown = {"env-steps/s": sps}
-            shown.update({f"return[{s}]": rows[-1][f"return/{s}"] for s in range(len(pop.slots))})
-            progress.update(it, **shown)
+            progress.update(it, **progress_fields(metrics, sps))
     if progress is not None:
         progress.close()
     if extra is not None:
