@@ -1,0 +1,392 @@
+"""Learner throughput: gradient and forward samples/s of the recurrent actor-critic network on this machine.
+
+Section `network` (the default): for the paper network and a small one, with both convolution
+implementations (`NetworkConfig.conv_impl` "matmul" and "xla"), one jitted call processes a minibatch of
+`--batch` sequences x `--seq` steps of uint8 21x21x3 observations (paper: 512 x 16 = 8,192 samples):
+
+  grad     ``jax.value_and_grad`` of
+           mean(value^2) - mean(log_softmax(logits)) + mean(|decode(hidden, actions) - obs / 255|)
+           (value, policy and auxiliary heads, like /work/shared/bench/pytorch_paper_net.py);
+  forward  `unroll` + `decode`, no gradient.
+
+Reported: samples/s (best and median of `--repeats` timed calls after one untimed warm-up), compile
+seconds (``jit(f).lower(...).compile()``, measured separately), achieved GFLOP/s from an analytic count of
+the matrix-product FLOPs (2 per multiply-add; the gradient is the forward plus input and weight gradients,
+without the unneeded input gradients of conv1 and of the one-hot action columns), and the peak of a large
+float32 ``jnp.dot`` measured in the same run. XLA's ``cost_analysis`` counts a loop body once rather than
+once per iteration, so it only cross-checks the forward count on a loop-free call (T=1, B=64).
+
+With ``--torch PYTHON`` (a python with torch installed; torch is not a dependency of jaxsocial) the PyTorch
+reference /work/shared/bench/pytorch_paper_net.py runs in a subprocess with ``--threads <cpu count>`` and
+its JSON line is reported side by side.
+
+Memory: XLA:CPU allocates its large temporary buffers afresh on every call; glibc's malloc mmaps them, and
+the page faults on first touch cost ~10% of a gradient step. ``--hugepages`` re-runs this script with
+``GLIBC_TUNABLES=glibc.malloc.hugetlb=1`` (transparent huge pages for malloc: ~300x fewer faults), and
+the section `network_hugepages` runs the network section that way in a subprocess. No XLA flag is set:
+none helped (see the docstring of jaxsocial.agents.network).
+
+`SECTIONS` maps a section name to ``fn(args) -> dict``; an end-to-end training env-steps/s section can be
+added there. Run from the repository root (~5 minutes, most of it the "xla" implementation's gradient):
+
+    python benchmarks/train_sps.py --torch /work/torchref/bin/python
+    python benchmarks/train_sps.py --sections network,network_hugepages --torch /work/torchref/bin/python
+    python benchmarks/train_sps.py --configs paper --impls matmul --repeats 10 --hugepages
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import importlib.metadata
+import itertools
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsocial.agents import network
+
+REPO = Path(__file__).resolve().parent.parent
+TORCH_SCRIPT = Path("/work/shared/bench/pytorch_paper_net.py")
+HUGEPAGES_TUNABLE = "glibc.malloc.hugetlb=1"
+CONFIGS = {
+    "paper": network.NetworkConfig(),
+    "small": network.NetworkConfig(conv_channels=(16, 32, 32), hidden=64, mlp=32),
+}
+
+
+# ---------------------------------------------------------------------------------------------- FLOPs
+
+
+def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
+    """Matrix-product FLOPs (2 per multiply-add) of one sample's forward pass, per layer."""
+    c1, c2, c3 = cfg.conv_channels
+    hid, mlp, k2 = cfg.hidden, cfg.mlp, network.KERNEL**2
+    s1, s2, s3 = 7 * 7, 5 * 5, 3 * 3  # output positions of conv1..3 (and input positions of the deconvs)
+    layers = {
+        "conv1": s1 * k2 * 3 * c1,
+        "conv2": s2 * k2 * c1 * c2,
+        "conv3": s3 * k2 * c2 * c3,
+        "fc": s3 * c3 * hid,
+        "lstm": 2 * hid * 4 * hid,
+        "value": hid * mlp + mlp * mlp + mlp,
+        "policy": hid * mlp + mlp * mlp + mlp * cfg.n_actions,
+    }
+    if cfg.aux != "none":
+        layers |= {
+            "aux_fc": (hid + cfg.n_actions) * s3 * c3,
+            "deconv1": s3 * c3 * k2 * c2,
+            "deconv2": s2 * c2 * k2 * c1,
+            "deconv3": s1 * c1 * k2 * 3,
+        }
+    return {name: 2 * macs for name, macs in layers.items()}
+
+
+def grad_flops(cfg: network.NetworkConfig) -> int:
+    """Forward + weight gradients + input gradients, except the input gradients nothing needs (of conv1 and
+    of the one-hot action columns of aux_fc)."""
+    fwd = forward_flops(cfg)
+    total = 3 * sum(fwd.values()) - fwd["conv1"]
+    if cfg.aux != "none":
+        total -= 2 * cfg.n_actions * cfg.feature_size
+    return total
+
+
+def xla_forward_flops(cfg: network.NetworkConfig, batch: int = 64) -> float:
+    """XLA's cost_analysis FLOPs per sample of a loop-free forward call (T=1; elementwise ops included)."""
+    params = jax.eval_shape(lambda k: network.init(k, cfg), jax.random.key(0))
+    fn = jax.jit(forward_fn(cfg))
+    args = make_inputs(cfg, 1, batch, seed=0)[1:]
+    cost = fn.lower(params, *args).compile().cost_analysis()
+    cost = cost[0] if isinstance(cost, list) else cost
+    return float(cost["flops"]) / batch
+
+
+# ------------------------------------------------------------------------------------------ network
+
+
+def make_inputs(cfg: network.NetworkConfig, seq: int, batch: int, seed: int):
+    rng = np.random.default_rng(seed)
+    params = jax.jit(network.init, static_argnums=1)(jax.random.key(seed), cfg)
+    carry = network.initial_carry(cfg, (batch,))
+    obs = jnp.asarray(rng.integers(0, 256, (seq, batch, *network.OBS_SHAPE), dtype=np.uint8))
+    resets = jnp.zeros((seq, batch), bool)
+    actions = jnp.asarray(rng.integers(0, cfg.n_actions, (seq, batch)), jnp.int32)
+    return params, carry, obs, resets, actions
+
+
+def loss_fn(cfg: network.NetworkConfig):
+    def loss(params, carry, obs, resets, actions):
+        _, out = network.unroll(params, cfg, carry, obs, resets)
+        value_loss = jnp.mean(out.value**2)
+        policy_term = -jnp.mean(jax.nn.log_softmax(out.logits))
+        aux_loss = jnp.mean(jnp.abs(network.decode(params, cfg, out.hidden, actions) - obs / 255.0))
+        return value_loss + policy_term + aux_loss
+
+    return loss
+
+
+def forward_fn(cfg: network.NetworkConfig):
+    def forward(params, carry, obs, resets, actions):
+        carry, out = network.unroll(params, cfg, carry, obs, resets)
+        return carry, out, network.decode(params, cfg, out.hidden, actions)
+
+    return forward
+
+
+def time_calls(fn: Callable, args: tuple, repeats: int) -> list[float]:
+    jax.block_until_ready(fn(*args))  # warm-up, untimed
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def bench_network(name: str, cfg: network.NetworkConfig, seq: int, batch: int, repeats: int) -> dict:
+    inputs = make_inputs(cfg, seq, batch, seed=0)
+    samples = seq * batch
+    row = {
+        "config": name,
+        "network_config": dataclasses.asdict(cfg),
+        "params": network.param_count(inputs[0]),
+        "samples": samples,
+        "seq": seq,
+        "batch": batch,
+        "chunk": cfg.chunk,
+    }
+    flops = {"grad": grad_flops(cfg), "forward": sum(forward_flops(cfg).values())}
+    for kind, fn in [("grad", jax.value_and_grad(loss_fn(cfg))), ("forward", forward_fn(cfg))]:
+        t0 = time.perf_counter()
+        compiled = jax.jit(fn).lower(*inputs).compile()
+        compile_s = time.perf_counter() - t0
+        times = time_calls(compiled, inputs, repeats)
+        best, median = min(times), statistics.median(times)
+        row[kind] = {
+            "compile_s": compile_s,
+            "times_s": times,
+            "best_samples_per_s": samples / best,
+            "median_samples_per_s": samples / median,
+            "flops_per_sample": flops[kind],
+            "best_gflops_per_s": flops[kind] * samples / best / 1e9,
+            "temp_bytes": compiled.memory_analysis().temp_size_in_bytes,
+        }
+    return row
+
+
+def matmul_peak(n: int = 2048, repeats: int = 5) -> dict:
+    """float32 GFLOP/s of a large square jnp.dot (best of `repeats`)."""
+    a = jnp.asarray(np.random.default_rng(0).normal(size=(n, n)), jnp.float32)
+    fn = jax.jit(jnp.dot).lower(a, a).compile()
+    times = time_calls(fn, (a, a), repeats)
+    return {"n": n, "times_s": times, "best_gflops_per_s": 2 * n**3 / min(times) / 1e9}
+
+
+def run_torch(python: str, seq: int, batch: int, repeats: int) -> dict:
+    cmd = [python, str(TORCH_SCRIPT), "--threads", str(os.cpu_count())]
+    cmd += ["--seq", str(seq), "--batch", str(batch), "--reps", str(repeats)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
+    if proc.returncode != 0:
+        return {"command": cmd, "error": proc.stderr[-2000:]}
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result["command"] = cmd
+    flops = grad_flops(CONFIGS["paper"]), sum(forward_flops(CONFIGS["paper"]).values())
+    result["grad_gflops_per_s"] = result["grad_samples_per_s"] * flops[0] / 1e9
+    result["forward_gflops_per_s"] = result["forward_samples_per_s"] * flops[1] / 1e9
+    return result
+
+
+def section_network(args: argparse.Namespace) -> dict:
+    peak = matmul_peak()
+    print(f"matmul peak (float32 {peak['n']}^2 jnp.dot): {peak['best_gflops_per_s']:.0f} GFLOP/s", flush=True)
+    rows = []
+    for name in args.configs:
+        cfg = CONFIGS[name]
+        print(
+            f"{name}: forward {sum(forward_flops(cfg).values()) / 1e6:.2f} MFLOP/sample analytic, "
+            f"{xla_forward_flops(cfg) / 1e6:.2f} by XLA cost_analysis (incl. elementwise)",
+            flush=True,
+        )
+        for impl, chunk in itertools.product(args.impls, args.chunks or [cfg.chunk]):
+            cfg_impl = dataclasses.replace(cfg, conv_impl=impl, chunk=chunk)
+            repeats = args.repeats if impl == "matmul" else max(2, args.repeats // 3)  # xla: ~13 s per call
+            row = bench_network(name, cfg_impl, args.seq, args.batch, repeats)
+            row["conv_impl"] = impl
+            rows.append(row)
+            g, f = row["grad"], row["forward"]
+            print(
+                f"  {impl:6s} chunk {chunk:5d} grad {g['best_samples_per_s']:8,.0f} samples/s "
+                f"({g['best_gflops_per_s']:.0f} GFLOP/s, compile {g['compile_s']:.1f}s) | "
+                f"forward {f['best_samples_per_s']:8,.0f} samples/s "
+                f"({f['best_gflops_per_s']:.0f} GFLOP/s, compile {f['compile_s']:.1f}s)",
+                flush=True,
+            )
+    result = {"matmul_peak": peak, "rows": rows}
+    if args.torch:
+        print("running the PyTorch reference ...", flush=True)
+        result["torch"] = run_torch(args.torch, args.seq, args.batch, max(3, args.repeats // 2))
+        print(f"  {json.dumps(result['torch'])}", flush=True)
+    return result
+
+
+def section_network_hugepages(args: argparse.Namespace) -> dict:
+    """The network section again in a subprocess with GLIBC_TUNABLES=glibc.malloc.hugetlb=1."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "out.json"
+        cmd = [sys.executable, __file__, "--sections", "network", "--hugepages", "--out", str(out)]
+        cmd += ["--configs", ",".join(args.configs), "--impls", ",".join(args.impls)]
+        cmd += ["--chunks", ",".join(map(str, args.chunks))] if args.chunks else []
+        cmd += ["--seq", str(args.seq), "--batch", str(args.batch), "--repeats", str(args.repeats)]
+        subprocess.run(cmd, check=True, timeout=3600)
+        return json.loads(out.read_text())["sections"]["network"]
+
+
+SECTIONS: dict[str, Callable[[argparse.Namespace], dict]] = {
+    "network": section_network,
+    "network_hugepages": section_network_hugepages,
+}
+
+
+# --------------------------------------------------------------------------------------------- report
+
+
+def git_revision() -> dict:
+    def git(*cmd):
+        return subprocess.run(["git", *cmd], cwd=REPO, capture_output=True, text=True, timeout=10)
+
+    try:
+        head = git("rev-parse", "HEAD")
+        if head.returncode != 0:
+            return {"commit": None, "dirty": None}
+        return {"commit": head.stdout.strip(), "dirty": git("diff", "--quiet").returncode != 0}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+
+
+def cpu_model() -> str | None:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return None
+
+
+def metadata(args: argparse.Namespace) -> dict:
+    def version(pkg):
+        try:
+            return importlib.metadata.version(pkg)
+        except importlib.metadata.PackageNotFoundError:
+            return None
+
+    return {
+        "timestamp": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "args": vars(args),
+        "argv": sys.argv,
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "jaxlib": version("jaxlib"),
+        "flax": version("flax"),
+        "numpy": np.__version__,
+        "devices": [f"{d} (platform={d.platform}, kind={d.device_kind})" for d in jax.devices()],
+        "cpu_count": os.cpu_count(),
+        "cpu_model": cpu_model(),
+        "platform": platform.platform(),
+        "git": git_revision(),
+        "env": {k: os.environ.get(k) for k in ("XLA_FLAGS", "GLIBC_TUNABLES", "OMP_NUM_THREADS")},
+        "loadavg_start": os.getloadavg(),
+    }
+
+
+def print_table(net: dict) -> None:
+    peak = net["matmul_peak"]["best_gflops_per_s"]
+    print(f"\nsamples/s (best of repeats); GFLOP/s vs matmul peak {peak:.0f}")
+    header = (
+        f"{'config':>6} {'impl':>6} {'chunk':>5} | {'grad/s':>8} {'GFLOP/s':>7} {'compile':>7} | "
+        f"{'fwd/s':>8} {'GFLOP/s':>7} {'compile':>7}"
+    )
+    print(header)
+    print("-" * len(header))
+    for r in net["rows"]:
+        g, f = r["grad"], r["forward"]
+        print(
+            f"{r['config']:>6} {r['conv_impl']:>6} {r['chunk']:>5} | {g['best_samples_per_s']:>8,.0f} "
+            f"{g['best_gflops_per_s']:>7.0f} {g['compile_s']:>6.1f}s | {f['best_samples_per_s']:>8,.0f} "
+            f"{f['best_gflops_per_s']:>7.0f} {f['compile_s']:>6.1f}s"
+        )
+    if "torch" in net and "error" not in net["torch"]:
+        t = net["torch"]
+        print(
+            f"{'paper':>6} {'torch':>6} {'':>5} | {t['grad_samples_per_s']:>8,.0f} "
+            f"{t['grad_gflops_per_s']:>7.0f} {'':>7} | {t['forward_samples_per_s']:>8,.0f} "
+            f"{t['forward_gflops_per_s']:>7.0f}"
+            f"   ({t['framework']}, {t['threads']} threads)"
+        )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--sections", default="network", help=f"comma-separated: {', '.join(SECTIONS)}")
+    parser.add_argument("--configs", default="paper,small", help=f"comma-separated: {', '.join(CONFIGS)}")
+    parser.add_argument("--impls", default="matmul,xla", help="comma-separated conv_impl values")
+    parser.add_argument(
+        "--chunks", default="", help="comma-separated NetworkConfig.chunk values (default: the config's)"
+    )
+    parser.add_argument("--seq", type=int, default=16, help="steps per sequence (paper: 16)")
+    parser.add_argument("--batch", type=int, default=512, help="sequences per minibatch (paper: 512)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed calls per measurement (best, median)")
+    parser.add_argument("--torch", metavar="PYTHON", help="python with torch: run the PyTorch reference too")
+    parser.add_argument(
+        "--hugepages", action="store_true", help=f"run with GLIBC_TUNABLES={HUGEPAGES_TUNABLE}"
+    )
+    parser.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "train_sps.json"))
+    args = parser.parse_args()
+    args.sections = [s.strip() for s in args.sections.split(",") if s.strip()]
+    args.configs = [c.strip() for c in args.configs.split(",") if c.strip()]
+    args.impls = [i.strip() for i in args.impls.split(",") if i.strip()]
+    args.chunks = [int(c) for c in args.chunks.split(",") if c.strip()]
+    for kind, values, known in [
+        ("section", args.sections, SECTIONS),
+        ("config", args.configs, CONFIGS),
+        ("impl", args.impls, network.CONV_IMPLS),
+    ]:
+        if unknown := sorted(set(values) - set(known)):
+            parser.error(f"unknown {kind}(s) {unknown}; choose from {', '.join(known)}")
+
+    tunables = os.environ.get("GLIBC_TUNABLES", "")
+    if args.hugepages and HUGEPAGES_TUNABLE not in tunables:
+        env = dict(os.environ, GLIBC_TUNABLES=":".join(filter(None, [tunables, HUGEPAGES_TUNABLE])))
+        os.execve(sys.executable, [sys.executable, *sys.argv], env)  # glibc reads its tunables at start-up
+
+    print(f"devices: {jax.devices()}  cpu_count: {os.cpu_count()}  GLIBC_TUNABLES={tunables!r}", flush=True)
+    meta = metadata(args)
+    sections = {}
+    for name in args.sections:
+        print(f"\n== section {name}", flush=True)
+        sections[name] = SECTIONS[name](args)
+        if name.startswith("network"):
+            print_table(sections[name])
+    meta["loadavg_end"] = os.getloadavg()
+
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"metadata": meta, "sections": sections}, indent=2) + "\n")
+    print(f"\nwrote {out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,227 @@
+"""Recurrent actor-critic network: parameter count, shapes, conv implementations, unroll/step consistency."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxsocial.agents import network as net
+
+SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
+T, B = 5, 3
+
+# Jitted once for the module (eager op-by-op dispatch compiles every primitive separately and is slower).
+init = jax.jit(net.init, static_argnums=1)
+unroll = jax.jit(net.unroll, static_argnums=1)
+step = jax.jit(net.step, static_argnums=1)
+decode = jax.jit(net.decode, static_argnums=1)
+
+
+def _obs(seed, shape):
+    return jnp.asarray(np.random.default_rng(seed).integers(0, 256, shape, dtype=np.uint8))
+
+
+def _normal(seed, tree, scale=1.0):
+    """A tree like `tree` of normal(0, scale) float32 arrays (numpy: no jit compile per shape)."""
+    rng = np.random.default_rng(seed)
+    return jax.tree_util.tree_map(lambda x: jnp.asarray(scale * rng.normal(size=x.shape), jnp.float32), tree)
+
+
+@pytest.fixture(scope="module")
+def small_params():
+    return init(jax.random.key(0), SMALL)
+
+
+def test_paper_param_count():
+    shapes = jax.eval_shape(lambda k: net.init(k, net.NetworkConfig()), jax.random.key(0))
+    # PyTorch reference: 668,555, with two LSTM bias vectors (4 * 192 = 768 more).
+    assert net.param_count(shapes) == 667_787 == 668_555 - 4 * 192
+    no_aux = jax.eval_shape(lambda k: net.init(k, net.NetworkConfig(aux="none")), jax.random.key(0))
+    assert net.param_count(no_aux) == 496_328
+    assert not {"aux_fc", "deconv1", "deconv2", "deconv3"} & set(no_aux)
+    rec = jax.eval_shape(lambda k: net.init(k, net.NetworkConfig(aux="rec")), jax.random.key(0))
+    assert net.param_count(rec) == 667_787
+
+
+def test_paper_param_shapes():
+    shapes = jax.eval_shape(lambda k: net.init(k, net.NetworkConfig()), jax.random.key(0))
+    assert shapes["conv1"]["kernel"].shape == (3, 3, 3, 32)
+    assert shapes["conv3"]["kernel"].shape == (3, 3, 64, 64)
+    assert shapes["fc"]["kernel"].shape == (576, 192)
+    assert shapes["lstm"]["wi"].shape == shapes["lstm"]["wh"].shape == (192, 768)
+    assert shapes["aux_fc"]["kernel"].shape == (199, 576)
+    assert shapes["deconv3"]["kernel"].shape == (3, 3, 32, 3)
+    assert all(leaf.dtype == jnp.float32 for leaf in jax.tree_util.tree_leaves(shapes))
+
+
+def test_init(small_params):
+    """Orthogonal dense and recurrent weights with the documented gains, small policy output, zero biases."""
+    wh = np.asarray(small_params["lstm"]["wh"]).reshape(SMALL.hidden, 4, SMALL.hidden)
+    for gate in range(4):
+        np.testing.assert_allclose(wh[:, gate].T @ wh[:, gate], np.eye(SMALL.hidden), atol=1e-5)
+    fc = np.asarray(small_params["fc"]["kernel"])  # [feature_size, hidden]: orthonormal columns, gain sqrt(2)
+    np.testing.assert_allclose(fc.T @ fc, 2 * np.eye(SMALL.hidden), atol=1e-5)
+    out = np.asarray(small_params["policy"]["out"]["kernel"])  # [mlp=6, n_actions=7]: orthonormal rows * 0.01
+    np.testing.assert_allclose(out @ out.T, 1e-4 * np.eye(SMALL.mlp), atol=1e-9)
+    assert not np.any(small_params["lstm"]["b"]) and not np.any(small_params["value"]["out"]["bias"])
+    bound = 1 / np.sqrt(3 * 9)
+    assert 0.5 * bound < np.abs(small_params["conv1"]["kernel"]).max() <= bound
+    keys = jax.random.split(jax.random.key(1), 2)
+    assert not np.allclose(init(keys[0], SMALL)["conv2"]["kernel"], init(keys[1], SMALL)["conv2"]["kernel"])
+
+
+def test_output_shapes_and_decode(small_params):
+    cfg = SMALL
+    obs = _obs(1, (T, B, *net.OBS_SHAPE))
+    carry, out = unroll(small_params, cfg, net.initial_carry(cfg, (B,)), obs, jnp.zeros((T, B), bool))
+    assert out.logits.shape == (T, B, cfg.n_actions)
+    assert out.value.shape == (T, B)
+    assert out.hidden.shape == (T, B, cfg.hidden)
+    assert carry.c.shape == carry.h.shape == (B, cfg.hidden)
+    np.testing.assert_array_equal(carry.h, out.hidden[-1])
+    pred = decode(small_params, cfg, out.hidden, jnp.zeros((T, B), jnp.int32))
+    assert pred.shape == (T, B, *net.OBS_SHAPE) and pred.dtype == jnp.float32
+    assert decode(small_params, cfg, out.hidden[0, 0], jnp.int32(3)).shape == net.OBS_SHAPE
+    carry1, out1 = step(small_params, cfg, net.initial_carry(cfg, (B,)), obs[0], jnp.zeros((B,), bool))
+    assert out1.logits.shape == (B, cfg.n_actions) and out1.value.shape == (B,)
+    assert out1.hidden.shape == carry1.h.shape == (B, cfg.hidden)
+
+
+def test_matmul_equals_xla_conv(small_params):
+    """Both conv implementations compute the same function of the same params, and the same gradients.
+
+    The matmul side also runs the encoder and decoder in chunks of 4 of the T * B = 15 frames (padded to 16,
+    with the checkpointing of `_map_chunks`); the xla side in one piece.
+    """
+    cfg_mm = dataclasses.replace(SMALL, chunk=4)
+    cfg_xla = dataclasses.replace(SMALL, conv_impl="xla")
+    assert cfg_mm.chunk < T * B <= cfg_xla.chunk and (T * B) % cfg_mm.chunk
+    rng = np.random.default_rng(2)
+    obs = _obs(3, (T, B, *net.OBS_SHAPE))
+    actions = jnp.asarray(rng.integers(0, SMALL.n_actions, (T, B)), jnp.int32)
+    resets = jnp.asarray(rng.random((T, B)) < 0.3)
+    carry = _normal(4, net.initial_carry(SMALL, (B,)), 0.5)
+    params = _normal(5, small_params, 0.3)  # random (not initial) params: every weight and bias matters
+
+    def loss(params, cfg):
+        _, out = net.unroll(params, cfg, carry, obs, resets)
+        pred = net.decode(params, cfg, out.hidden, actions)
+        terms = (
+            (out.value**2).mean(),
+            jax.nn.log_softmax(out.logits).mean(),
+            jnp.abs(pred - obs / 255.0).mean(),
+        )
+        return sum(terms), (out, pred)
+
+    (l_mm, aux_mm), g_mm = jax.jit(jax.value_and_grad(loss, has_aux=True), static_argnums=1)(params, cfg_mm)
+    (l_xla, aux_xla), g_xla = jax.jit(jax.value_and_grad(loss, has_aux=True), static_argnums=1)(
+        params, cfg_xla
+    )
+    np.testing.assert_allclose(l_mm, l_xla, rtol=1e-5)
+    for a, b in zip(jax.tree_util.tree_leaves(aux_mm), jax.tree_util.tree_leaves(aux_xla), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    assert float(jnp.abs(aux_mm[1]).max()) > 0.1  # the decoder output is not trivially zero
+    for path, a in jax.tree_util.tree_leaves_with_path(g_mm):
+        b = _get(g_xla, path)
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()), err_msg=str(path))
+        assert float(jnp.abs(a).max()) > 0, path
+
+
+def _get(tree, path):
+    for key in path:
+        tree = tree[key.key]
+    return tree
+
+
+def test_deconv_scatter_semantics():
+    """Deconvolutions follow PyTorch ConvTranspose2d: out[s*i + di, s*j + dj] += x[i, j] @ kernel[di, dj]."""
+    rng = np.random.default_rng(0)
+    for stride, size in [(1, 3), (3, 2)]:
+        x = rng.normal(size=(2, size, size, 4)).astype(np.float32)
+        kernel = rng.normal(size=(3, 3, 4, 5)).astype(np.float32)
+        bias = rng.normal(size=(5,)).astype(np.float32)
+        out_size = (size - 1) * stride + 3
+        expected = np.zeros((2, out_size, out_size, 5), np.float32) + bias
+        for i in range(size):
+            for j in range(size):
+                for di in range(3):
+                    for dj in range(3):
+                        expected[:, stride * i + di, stride * j + dj] += x[:, i, j] @ kernel[di, dj]
+        for fn in (net._deconv_matmul, net._deconv_xla):
+            np.testing.assert_allclose(fn(x, kernel, bias, stride), expected, rtol=1e-5, atol=1e-5)
+
+
+def test_unroll_equals_steps_with_resets(small_params):
+    cfg = SMALL
+    obs = _obs(6, (T, B, *net.OBS_SHAPE))
+    resets = np.zeros((T, B), bool)
+    resets[2, 0] = resets[3, 1] = resets[0, 2] = True
+    resets = jnp.asarray(resets)
+    carry0 = _normal(7, net.initial_carry(cfg, (B,)))
+
+    final, out = unroll(small_params, cfg, carry0, obs, resets)
+    carry, outs = carry0, []
+    for t in range(T):
+        carry, o = step(small_params, cfg, carry, obs[t], resets[t])
+        outs.append(o)
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *outs)
+    for a, b in zip(
+        jax.tree_util.tree_leaves((final, out)), jax.tree_util.tree_leaves((carry, stacked)), strict=True
+    ):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+
+    # After sequence 0's reset at t=2, its outputs equal a fresh unroll of obs[2:] from a zero carry.
+    _, fresh = unroll(
+        small_params, cfg, net.initial_carry(cfg, (1,)), obs[2:, :1], jnp.zeros((T - 2, 1), bool)
+    )
+    np.testing.assert_allclose(out.hidden[2:, :1], fresh.hidden, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(out.logits[2:, :1], fresh.logits, rtol=1e-5, atol=1e-6)
+    # ... and before it, the (nonzero) initial carry mattered.
+    _, no_reset = unroll(small_params, cfg, carry0, obs, jnp.zeros((T, B), bool))
+    assert not np.allclose(no_reset.hidden[2:, 0], out.hidden[2:, 0])
+
+
+def test_vmap_over_agents():
+    """Independent agents: params stacked on a leading axis, unroll vmapped over it."""
+    cfg = SMALL
+    n_agents = 2
+    params = jax.jit(jax.vmap(net.init, in_axes=(0, None)), static_argnums=1)(
+        jax.random.split(jax.random.key(5), n_agents), cfg
+    )
+    obs = _obs(8, (n_agents, T, B, *net.OBS_SHAPE))
+    carry = net.initial_carry(cfg, (n_agents, B))
+    resets = jnp.zeros((n_agents, T, B), bool)
+    vmapped = jax.jit(jax.vmap(net.unroll, in_axes=(0, None, 0, 0, 0)), static_argnums=1)
+    _, out = vmapped(params, cfg, carry, obs, resets)
+    assert out.logits.shape == (n_agents, T, B, cfg.n_actions)
+    params1 = jax.tree_util.tree_map(lambda x: x[1], params)
+    _, out1 = unroll(params1, cfg, net.initial_carry(cfg, (B,)), obs[1], resets[1])
+    np.testing.assert_allclose(out.logits[1], out1.logits, rtol=1e-5, atol=1e-6)
+
+
+def test_decode_without_aux_raises():
+    cfg = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="none")
+    params = jax.eval_shape(lambda k: net.init(k, cfg), jax.random.key(0))
+    with pytest.raises(ValueError, match="aux"):
+        net.decode(params, cfg, jnp.zeros((2, 8)), jnp.zeros((2,), jnp.int32))
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"aux": "next"}, "aux"),
+        ({"conv_impl": "cudnn"}, "conv_impl"),
+        ({"hidden": 0}, "hidden"),
+        ({"mlp": -1}, "mlp"),
+        ({"n_actions": 0}, "n_actions"),
+        ({"conv_channels": (32, 0, 64)}, "conv_channels"),
+        ({"conv_channels": (32, 64)}, "conv_channels"),
+        ({"chunk": 0}, "chunk"),
+        ({"hidden": 1.5}, "hidden"),
+    ],
+)
+def test_bad_config_raises(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        net.NetworkConfig(**kwargs)
