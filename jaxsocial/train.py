@@ -337,7 +337,12 @@ def progress_fields(metrics: dict[str, np.ndarray], sps: float) -> dict[str, Any
     episodes = metrics["episodes"].sum(0)
     returns = (metrics["return"] * metrics["episodes"]).sum(0) / np.maximum(episodes, 1)
     shown: dict[str, Any] = {"env-steps/s": int(sps)}
-    shown.update({f"return[{s}]": float(r) if n else "-" for s, (r, n) in enumerate(zip(returns, episodes))})
+    shown.update(
+        {
+            f"return[{s}]": float(r) if n else "-"
+            for s, (r, n) in enumerate(zip(returns, episodes, strict=True))
+        }
+    )
     return shown
 
 

@@ -21,7 +21,7 @@ SLOT_KINDS = ("learner", "frozen", "random")
 
 @dataclasses.dataclass(frozen=True)
 class Slot:
-    """One environment slot: `kind` in SLOT_KINDS; `path` the run directory or checkpoint of a frozen policy."""
+    """One environment slot: `kind` in SLOT_KINDS; `path` the run directory of a frozen policy."""
 
     kind: str
     path: str | None = None

@@ -289,8 +289,8 @@ def validate(cfg: PPOConfig, rollout_steps: int, num_envs: int) -> None:
     """Raise ValueError for an impossible configuration (before anything compiles)."""
     if rollout_steps % cfg.chunk_length:
         raise ValueError(
-            f"chunk_length={cfg.chunk_length} must divide rollout_steps={rollout_steps} (trajectories are cut "
-            "into whole chunks)"
+            f"chunk_length={cfg.chunk_length} must divide rollout_steps={rollout_steps} "
+            "(trajectories are cut into whole chunks)"
         )
     n_chunks = rollout_steps // cfg.chunk_length * num_envs
     if cfg.minibatch_chunks > n_chunks:
