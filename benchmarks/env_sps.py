@@ -21,26 +21,20 @@ Run from the repository root:
 from __future__ import annotations
 
 import argparse
-import datetime
-import importlib.metadata
 import json
 import os
-import platform
 import statistics
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
+from run_info import REPO, metadata
 
 import jaxsocial
 from jaxsocial.env import reset, step_batch
 
 NUM_ACTIONS = 7
-REPO = Path(__file__).resolve().parent.parent
 REFERENCE = (
     "The original numpy marlgrid (rendered observations) ran about 960 joint env-steps/s on one core of "
     "this machine kind (figure from the spec, not measured by this script)."
@@ -105,37 +99,6 @@ def bench(name: str, obs_kind: str, batch: int, steps: int, repeats: int, seed: 
     }
 
 
-def git_revision() -> dict:
-    def git(*args):
-        return subprocess.run(["git", *args], cwd=REPO, capture_output=True, text=True, timeout=10)
-
-    try:
-        head = git("rev-parse", "HEAD")
-        if head.returncode != 0:
-            return {"commit": None, "dirty": None}
-        return {"commit": head.stdout.strip(), "dirty": git("diff", "--quiet").returncode != 0}
-    except (OSError, subprocess.SubprocessError):
-        return {"commit": None, "dirty": None}
-
-
-def metadata(args: argparse.Namespace) -> dict:
-    return {
-        "timestamp": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "args": vars(args),
-        "argv": sys.argv,
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "jaxlib": importlib.metadata.version("jaxlib"),
-        "numpy": np.__version__,
-        "devices": [f"{d} (platform={d.platform}, kind={d.device_kind})" for d in jax.devices()],
-        "cpu_count": os.cpu_count(),
-        "platform": platform.platform(),
-        "machine": platform.machine(),
-        "git": git_revision(),
-        "reference": REFERENCE,
-    }
-
-
 def print_table(rows: list[dict]) -> None:
     r0 = rows[0]
     print(
@@ -190,7 +153,9 @@ def main() -> None:
 
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"metadata": metadata(args), "rows": rows}, indent=2) + "\n")
+    out.write_text(
+        json.dumps({"metadata": {**metadata(args), "reference": REFERENCE}, "rows": rows}, indent=2) + "\n"
+    )
     print(f"\nwrote {out}")
 
 

@@ -26,8 +26,11 @@ the page faults on first touch cost ~10% of a gradient step. ``--hugepages`` re-
 the section `network_hugepages` runs the network section that way in a subprocess. No XLA flag is set:
 none helped (see the docstring of jaxsocial.agents.network).
 
-`SECTIONS` maps a section name to ``fn(args) -> dict``; an end-to-end training env-steps/s section can be
-added there. Run from the repository root (~5 minutes, most of it the "xla" implementation's gradient):
+Section `train`: end-to-end training throughput of the `small` (CLI default) and `paper` presets of
+`python -m jaxsocial.train` (rollout of every slot + PPO update), in joint env-steps/s.
+
+`SECTIONS` maps a section name to ``fn(args) -> dict``. Run from the repository root (~6 minutes, most
+of it the "xla" implementation's gradient and one paper-preset iteration):
 
     python benchmarks/train_sps.py --torch /work/torchref/bin/python
     python benchmarks/train_sps.py --sections network,network_hugepages --torch /work/torchref/bin/python
@@ -38,12 +41,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
-import importlib.metadata
 import itertools
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -55,10 +55,10 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from run_info import REPO, metadata
 
 from jaxsocial.agents import network
 
-REPO = Path(__file__).resolve().parent.parent
 TORCH_SCRIPT = Path("/work/shared/bench/pytorch_paper_net.py")
 HUGEPAGES_TUNABLE = "glibc.malloc.hugetlb=1"
 CONFIGS = {
@@ -254,62 +254,63 @@ def section_network_hugepages(args: argparse.Namespace) -> dict:
         return json.loads(out.read_text())["sections"]["network"]
 
 
+def section_train(args: argparse.Namespace) -> dict:
+    """End-to-end training throughput of `python -m jaxsocial.train` presets: one compiled chunk of
+    iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
+    from jaxsocial.train import PRESETS, make_train
+
+    rows = []
+    for preset, n_iter in (("small", 10), ("paper", 1)):
+        cfg = PRESETS[preset]
+        init, run_chunk, _ = make_train(cfg)
+        state = jax.jit(init)(jax.random.key(0))
+        fn = jax.jit(run_chunk, static_argnums=2)
+        t0 = time.perf_counter()
+        compiled = fn.lower(state, None, n_iter).compile()
+        compile_s = time.perf_counter() - t0
+        state, metrics = compiled(state, None)  # warm-up (also moves past the first, all-reset, rollout)
+        jax.block_until_ready(metrics)
+        times = []
+        for _ in range(max(1, args.repeats // 2)):
+            t0 = time.perf_counter()
+            state, metrics = compiled(state, None)
+            jax.block_until_ready(metrics)
+            times.append(time.perf_counter() - t0)
+        steps = n_iter * cfg.num_envs * cfg.rollout_steps
+        n_agents = state.obs.shape[1]
+        best = steps / min(times)
+        row = {
+            "preset": preset,
+            "env": cfg.env,
+            "slots": cfg.slots or "learner,random,random",
+            "iterations_per_call": n_iter,
+            "env_steps_per_call": steps,
+            "grad_samples_per_call": n_iter
+            * cfg.ppo.num_minibatches
+            * cfg.ppo.minibatch_chunks
+            * cfg.ppo.chunk_length,
+            "times_s": times,
+            "compile_s": compile_s,
+            "best_env_steps_per_s": best,
+            "best_agent_steps_per_s": best * n_agents,
+        }
+        rows.append(row)
+        print(
+            f"  {preset:6s} {best:9,.0f} joint env-steps/s ({best * n_agents:,.0f} agent-steps/s), "
+            f"{min(times) / n_iter:.2f} s/iteration, compile {compile_s:.1f}s",
+            flush=True,
+        )
+    return {"rows": rows}
+
+
 SECTIONS: dict[str, Callable[[argparse.Namespace], dict]] = {
     "network": section_network,
+    "train": section_train,
     "network_hugepages": section_network_hugepages,
 }
 
 
 # --------------------------------------------------------------------------------------------- report
-
-
-def git_revision() -> dict:
-    def git(*cmd):
-        return subprocess.run(["git", *cmd], cwd=REPO, capture_output=True, text=True, timeout=10)
-
-    try:
-        head = git("rev-parse", "HEAD")
-        if head.returncode != 0:
-            return {"commit": None, "dirty": None}
-        return {"commit": head.stdout.strip(), "dirty": git("diff", "--quiet").returncode != 0}
-    except (OSError, subprocess.SubprocessError):
-        return {"commit": None, "dirty": None}
-
-
-def cpu_model() -> str | None:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return None
-
-
-def metadata(args: argparse.Namespace) -> dict:
-    def version(pkg):
-        try:
-            return importlib.metadata.version(pkg)
-        except importlib.metadata.PackageNotFoundError:
-            return None
-
-    return {
-        "timestamp": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "args": vars(args),
-        "argv": sys.argv,
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-        "jaxlib": version("jaxlib"),
-        "flax": version("flax"),
-        "numpy": np.__version__,
-        "devices": [f"{d} (platform={d.platform}, kind={d.device_kind})" for d in jax.devices()],
-        "cpu_count": os.cpu_count(),
-        "cpu_model": cpu_model(),
-        "platform": platform.platform(),
-        "git": git_revision(),
-        "env": {k: os.environ.get(k) for k in ("XLA_FLAGS", "GLIBC_TUNABLES", "OMP_NUM_THREADS")},
-        "loadavg_start": os.getloadavg(),
-    }
 
 
 def print_table(net: dict) -> None:
@@ -340,7 +341,7 @@ def print_table(net: dict) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sections", default="network", help=f"comma-separated: {', '.join(SECTIONS)}")
+    parser.add_argument("--sections", default="network,train", help=f"comma-separated: {', '.join(SECTIONS)}")
     parser.add_argument("--configs", default="paper,small", help=f"comma-separated: {', '.join(CONFIGS)}")
     parser.add_argument("--impls", default="matmul,xla", help="comma-separated conv_impl values")
     parser.add_argument(
