@@ -1,4 +1,4 @@
-"""Training: `TrainConfig`, `make_train(cfg) -> train(key)`, the chunked driver and the CLI.
+"""Training: `TrainConfig`, `make_train(cfg) -> (init, run_chunk, train)`, the chunked driver and the CLI.
 
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
 neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
