@@ -2,7 +2,7 @@
 
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
 neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
-(`vmap` over learners). A chunk of iterations is one `lax.scan` inside one `jit`; the Python driver loops
+(`lax.map` over learners). A chunk of iterations is one `lax.scan` inside one `jit`; the Python driver loops
 over chunks to log, checkpoint and draw progress.
 
     python -m jaxsocial.train --env goalcycle3            # small default, a few minutes on 2 CPU cores
@@ -259,9 +259,15 @@ def make_train(cfg: TrainConfig):
             valid=jnp.moveaxis(traj.valid, 1, 0),
             carry0=carry0,
         )
-        update = jax.vmap(ppo.update, in_axes=(0, 0, 0, None, None, 0))
-        new_params, new_opt, losses = update(
-            jax.random.split(k_update, n_learners), state.params, state.opt_state, net, ppo_cfg, batch
+
+        # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
+        # vmapped paper-size network, whose chunked convolutions are themselves a `lax.map`.
+        def update(args):
+            key, params, opt_state, learner_batch = args
+            return ppo.update(key, params, opt_state, net, ppo_cfg, learner_batch)
+
+        new_params, new_opt, losses = jax.lax.map(
+            update, (jax.random.split(k_update, n_learners), state.params, state.opt_state, batch)
         )
         episodes_per_slot = jnp.sum(episodes, 0)
         metrics = {

@@ -201,6 +201,21 @@ def test_vmap_over_agents():
     np.testing.assert_allclose(out.logits[1], out1.logits, rtol=1e-5, atol=1e-6)
 
 
+def test_no_custom_calls():
+    """No LAPACK or other custom calls in init or in the gradient step. A batched (vmapped) LAPACK QR fans out
+    into XLA:CPU's intra-op pool and blocks; two at once deadlocked vmap(init) on a 2-core machine."""
+    key = jax.random.key(0)
+    assert "custom_call" not in jax.jit(net.init, static_argnums=1).lower(key, net.NetworkConfig()).as_text()
+    params = jax.eval_shape(lambda k: net.init(k, SMALL), key)
+    obs = jax.ShapeDtypeStruct((T, B, *net.OBS_SHAPE), jnp.uint8)
+
+    def loss(params, obs):
+        _, out = net.unroll(params, SMALL, net.initial_carry(SMALL, (B,)), obs, jnp.zeros((T, B), bool))
+        return out.value.sum() + net.decode(params, SMALL, out.hidden, jnp.zeros((T, B), jnp.int32)).sum()
+
+    assert "custom_call" not in jax.jit(jax.grad(loss)).lower(params, obs).as_text()
+
+
 def test_decode_without_aux_raises():
     cfg = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="none")
     params = jax.eval_shape(lambda k: net.init(k, cfg), jax.random.key(0))

@@ -180,13 +180,30 @@ def _param_specs(cfg: NetworkConfig) -> dict[str, Any]:
     return specs
 
 
+def _gram_schmidt(z: jax.Array) -> jax.Array:
+    """Orthonormal columns from z [n, m] (n >= m) by Gram-Schmidt with re-orthogonalisation: the Q of z's QR
+    decomposition with a positive diagonal of R, so Haar-distributed for Gaussian z.
+
+    Not ``jnp.linalg.qr``: under ``vmap`` (stacked agents) it becomes a batched LAPACK call that fans out into
+    XLA:CPU's intra-op thread pool and blocks waiting for it; two such calls running concurrently on a 2-core
+    machine deadlock (jaxlib 0.10.2: ``jax::ParallelBatchMap`` in ``lapack_sgeqrf_ffi``).
+    """
+
+    def add_column(j, q):
+        v = lax.dynamic_index_in_dim(z, j, axis=1, keepdims=False)
+        for _ in range(2):  # columns >= j of q are still zero
+            v = v - q @ (q.T @ v)
+        return lax.dynamic_update_index_in_dim(q, v / jnp.linalg.norm(v), j, axis=1)
+
+    return lax.fori_loop(0, z.shape[1], add_column, jnp.zeros_like(z))
+
+
 def _orthogonal(z: jax.Array, gain: float) -> jax.Array:
     """Orthogonal matrices (batched over leading axes) from standard-normal `z` [..., n_in, n_out]."""
     transpose = z.shape[-2] < z.shape[-1]
     if transpose:
         z = jnp.swapaxes(z, -1, -2)
-    q, r = jnp.linalg.qr(z)
-    q = q * jnp.sign(jnp.diagonal(r, axis1=-2, axis2=-1))[..., None, :]
+    q = jnp.vectorize(_gram_schmidt, signature="(n,m)->(n,m)")(z)
     return gain * (jnp.swapaxes(q, -1, -2) if transpose else q)
 
 
