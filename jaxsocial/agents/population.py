@@ -80,6 +80,12 @@ def stack(trees: list) -> object:
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
 
 
+def _step_neural(pop: Population, net: network.NetworkConfig, params, carry, obs, resets):
+    """One network step of every neural slot (vmapped over slots), each on its own view of obs [E, N, ...]."""
+    neural_obs = jnp.moveaxis(obs[:, jnp.asarray(pop.neural)], 1, 0)
+    return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(params, net, carry, neural_obs, resets)
+
+
 def act(
     key: jax.Array,
     pop: Population,
@@ -101,9 +107,7 @@ def act(
     k_neural, k_random = jax.random.split(key)
     actions = jax.random.randint(k_random, (n_envs, n_agents), 0, NUM_ACTIONS)
     neural = jnp.asarray(pop.neural)
-    neural_obs = jnp.moveaxis(obs[:, neural], 1, 0)
-    step = jax.vmap(network.step, in_axes=(0, None, 0, 0, None))
-    carry, out = step(params, net, carry, neural_obs, resets)
+    carry, out = _step_neural(pop, net, params, carry, obs, resets)
     chosen = jax.random.categorical(k_neural, out.logits)
     logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), chosen[..., None], -1)[..., 0]
     actions = actions.at[:, neural].set(chosen.T.astype(actions.dtype))
@@ -114,9 +118,7 @@ def values(
     pop: Population, net: network.NetworkConfig, params, carry: network.Carry, obs: jax.Array
 ) -> jax.Array:
     """float32[S, E] neural slots' values of `obs` (uint8[E, N, ...]) continuing from `carry` (no reset)."""
-    neural_obs = jnp.moveaxis(obs[:, jnp.asarray(pop.neural)], 1, 0)
-    step = jax.vmap(network.step, in_axes=(0, None, 0, 0, None))
-    _, out = step(params, net, carry, neural_obs, jnp.zeros(obs.shape[0], bool))
+    _, out = _step_neural(pop, net, params, carry, obs, jnp.zeros(obs.shape[0], bool))
     return out.value
 
 
