@@ -128,6 +128,10 @@ def test_cli_end_to_end(tmp_path):
         ({"slots": "random,random,random"}, "no learner"),
         ({"slots": "learner,frozen,random"}, "needs a checkpoint path"),
         ({"env_args": "n_agents=8"}, "agent colours"),
+        ({"algo": "dqn"}, "unknown --algo"),
+        ({"algo": "bc", "slots": "learner,random,random"}, "clones expert or frozen slots"),
+        ({"slots": "learner,expert:navigator,random"}, "navigator"),
+        ({"slots": "learner,expert:explorer:epsilon=2,random"}, "epsilon"),
     ],
 )
 def test_bad_config_fails_before_compiling(tmp_path, changes, message):
