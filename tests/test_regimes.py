@@ -12,8 +12,8 @@ import pytest
 from test_train import TINY
 
 import jaxsocial
-from jaxsocial import logs, schedule
-from jaxsocial.agents import population
+from jaxsocial import checkpoint, logs, schedule
+from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
 from jaxsocial.train import run, setup, stage_config
@@ -57,18 +57,23 @@ def test_bad_stages_fail_before_compiling(tmp_path, text, message):
 
 def test_penalty_curriculum_switches_at_the_configured_points(tmp_path):
     cfg = dataclasses.replace(
-        TINY, stages=CURRICULUM, iterations=5, chunk_iterations=3, runs_dir=str(tmp_path)
+        TINY, stages=CURRICULUM, iterations=7, chunk_iterations=3, runs_dir=str(tmp_path)
     )
     rows = logs.read_metrics(run(cfg))
-    # iteration stage 1 starts exactly at iteration 2 (the chunk is cut short to land on it); the return
-    # threshold of stage 2 is reached by the first chunk of stage 1 (iterations 3-5), so stage 2 would
-    # follow it
-    assert [(r["iteration"], r["stage"]) for r in rows] == [(1, 0), (2, 0), (3, 1), (4, 1), (5, 1)]
-    rows = logs.read_metrics(run(dataclasses.replace(cfg, iterations=7, run_name="longer")))
-    assert [r["stage"] for r in rows] == [0, 0, 1, 1, 1, 2, 2]
+    # stage 1 starts exactly at iteration 2 (the first chunk is cut short to land on it); the threshold of
+    # stage 2 is met by stage 1's first chunk (iterations 3-5), so stage 2 runs from iteration 6
+    assert [(r["iteration"], r["stage"]) for r in rows] == [
+        (1, 0),
+        (2, 0),
+        (3, 1),
+        (4, 1),
+        (5, 1),
+        (6, 2),
+        (7, 2),
+    ]
+    stages = setup(cfg).stages
     penalties = [
-        jaxsocial.make(cfg.env, **stage_config(cfg, setup(cfg).stages, i).env_overrides)[1].penalty
-        for i in range(3)
+        jaxsocial.make(cfg.env, **stage_config(cfg, stages, i).env_overrides)[1].penalty for i in range(3)
     ]
     assert penalties == [0.5, 1.0, 1.5]
 
@@ -130,21 +135,15 @@ def test_evaluate_saved_agent_zero_shot_and_wrong_architecture(tmp_path):
     assert learner["ci_over"] == "seeds" and learner["episodes"] == 12 and len(learner["per_seed_mean"]) == 2
     assert learner["ci95"][0] <= learner["mean_return"] <= learner["ci95"][1]
     assert expert["mean_return"] > 0  # navigators reach the goal in small four-rooms episodes
+    # a policy saved by a run with another network cannot fill a slot beside this one
+    other = tmp_path / "other"
+    other_net = dataclasses.replace(TINY.net, hidden=8)
+    params = jax.vmap(lambda k: network.init(k, other_net))(jax.random.split(jax.random.key(0), 1))
+    meta = {"net": population.json_net(other_net), "n_learners": 1, "slots": ""}
+    checkpoint.save(other / population.POLICY_DIR, 1, {"params": params}, metadata=meta)
+    wrong = dataclasses.replace(base, ckpt=(str(run_dir),), slots=f"learner,expert:ckpt={other},random")
     with pytest.raises(ValueError, match="another architecture"):
-        other = run(
-            dataclasses.replace(
-                TINY,
-                iterations=1,
-                runs_dir=str(tmp_path),
-                run_name="o",
-                net=dataclasses.replace(TINY.net, hidden=8),
-            )
-        )
-        evaluate(
-            dataclasses.replace(
-                base, ckpt=(str(run_dir),), slots=f"learner,expert:ckpt={other},random", env="goalcycle3"
-            )
-        )
+        evaluate(dataclasses.replace(wrong, env="goalcycle3"))
     with pytest.raises(ValueError, match="give both"):
         evaluate(dataclasses.replace(base, ckpt=()))
 

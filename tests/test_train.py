@@ -18,6 +18,7 @@ from jaxsocial.train import TrainConfig, make_train, run
 TINY = TrainConfig(
     env="goalcycle3",
     env_args="max_steps=12,width=7,height=7",
+    slots="learner,random,random",  # scripted experts cost compile time; the CLI test runs the default slots
     num_envs=4,
     rollout_steps=8,
     iterations=4,
