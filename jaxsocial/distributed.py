@@ -4,8 +4,11 @@ the hosts' memory and the devices.
 A run splits its environments over a 1-D mesh (axis `DATA`) of devices: every array of the training state with
 an environment axis is sharded along it, everything else (learner params, optimiser states, keys) is
 replicated. `jax.jit` with these shardings lets GSPMD partition the program: the rollout runs on each device's
-share of the environments, and each learner's gradient is the mean over the global minibatch (XLA inserts the
-all-reduces), so D devices run the same algorithm as one, up to floating-point summation order.
+share of the environments. Inside the PPO update `DataParallel` keeps the rollout and each minibatch split
+(sharding constraints) and runs the network on each device's share (`jax.shard_map`; left to GSPMD, the
+reshapes inside the network gathered the whole minibatch onto every device); the losses and each learner's
+gradient are means over the global batch (XLA inserts the all-reduces), so D devices run the same algorithm as
+one, up to floating-point summation order.
 
 Several hosts: one process per host, started with the same command plus `initialize`'s arguments (or the
 environment variables below); `jax.devices()` then lists every process's devices and the mesh spans them all.
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 import functools
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
 import jax
@@ -31,19 +34,19 @@ __all__ = [
     "ENV_COORDINATOR",
     "ENV_NUM_PROCESSES",
     "ENV_PROCESS_ID",
+    "DataParallel",
     "ProcessZeroError",
-    "barrier",
     "batch_sharding",
     "check_batch",
     "data_mesh",
+    "data_parallel",
+    "describe",
     "initialize",
     "is_main",
     "on_main",
     "put",
     "replicated",
     "select_devices",
-    "DataParallel",
-    "data_parallel",
     "state_shardings",
     "to_host",
 ]
@@ -157,12 +160,6 @@ def on_main(fn: Callable[[], T]) -> T | None:
     return result
 
 
-def barrier(name: str) -> None:
-    """Waits until every process got here (no-op for a single process)."""
-    if jax.process_count() > 1:
-        multihost_utils.sync_global_devices(name)
-
-
 # ----------------------------------------------------------------------------------------------------------
 # Devices and shardings
 # ----------------------------------------------------------------------------------------------------------
@@ -218,16 +215,16 @@ def batch_sharding(mesh: Mesh, axis: int) -> NamedSharding:
     return NamedSharding(mesh, PartitionSpec(*([None] * axis), DATA))
 
 
-def state_shardings(state: Any, mesh: Mesh, env_axes: Mapping[str, int], offset: int = 0) -> Any:
-    """Shardings for a NamedTuple `state` (arrays or ShapeDtypeStructs): the leaves of field `f` are split
-    along axis `env_axes[f] + offset` (`offset`: leading axes in front, e.g. a seed axis); the leaves of
-    other fields are replicated."""
-    fields = {}
-    for name in state._fields:
-        axis = env_axes.get(name)
+def state_shardings(state: Any, mesh: Mesh, env_axes: Any, offset: int = 0) -> Any:
+    """Shardings for `state` (arrays or ShapeDtypeStructs): `env_axes` is a pytree prefix of `state` whose
+    ints give the environment axis of the leaves below them (split along axis + `offset`, e.g. behind a
+    seed axis) and whose Nones mark replicated leaves."""
+
+    def one(axis: int | None, subtree: Any) -> Any:
         sharding = replicated(mesh) if axis is None else batch_sharding(mesh, axis + offset)
-        fields[name] = jax.tree.map(lambda _, s=sharding: s, getattr(state, name))
-    return type(state)(**fields)
+        return jax.tree.map(lambda _: sharding, subtree)
+
+    return jax.tree.map(one, env_axes, state, is_leaf=lambda x: x is None)
 
 
 class DataParallel:

@@ -11,7 +11,6 @@ over chunks to log, checkpoint and draw progress.
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import functools
 import json
@@ -25,8 +24,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsocial
-from jaxsocial import checkpoint, compile_cache, distributed, logs
-from jaxsocial.agents import network, population, ppo
+from jaxsocial import checkpoint, compile_cache, distributed, logs, schedule
+from jaxsocial.agents import bc, network, population, ppo
+from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env import core
@@ -39,11 +39,19 @@ class TrainConfig:
 
     env: str = "goalcycle3"
     """Environment preset (see `jaxsocial.registered_envs()`)."""
+    algo: str = "ppo"
+    """'ppo' (reinforcement learning) or 'bc' (behaviour cloning of the expert and frozen slots)."""
     env_args: str = ""
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
     slots: str = ""
-    """One entry per agent slot: learner | random | frozen:PATH. Default: a learner in slot 0, random
-    distractors elsewhere."""
+    """One entry per agent slot: learner | random | frozen:RUN_DIR[@k] | expert:ckpt=RUN_DIR[@k] (a trained
+    expert) | expert:KIND[:epsilon=E,forget=F] (scripted: explorer, oracle, navigator). Default: a learner in
+    slot 0, the environment's scripted expert in the next two (explorer in Goal Cycle, navigator in Four
+    Rooms and Maze), random distractors in any others."""
+    stages: str = ""
+    """Environment changes during training, e.g. the penalty curriculum
+    '0:penalty=0.5;return>=20:penalty=1.0;return>=20:penalty=1.5' or the switch to mixed solo/social
+    training '5000:solo_prob=0.75' (see jaxsocial.schedule)."""
     seed: int = 0
     """PRNG seed."""
     iterations: int = 500
@@ -69,19 +77,22 @@ class TrainConfig:
     progress: bool = True
     """Show a progress line."""
     preset: str = "small"
-    """Hyperparameter preset the other defaults came from: 'small' or 'paper'."""
+    """Hyperparameter preset the other defaults came from: 'small', 'paper' or 'expert'."""
     net: NetworkConfig = NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32)
     """Network (the paper's is conv (32, 64, 64), hidden 192, mlp 64)."""
     ppo: PPOConfig = PPOConfig(
         lr=5e-4, num_minibatches=8, minibatch_chunks=64, kl_target=0.02, kl_hard_limit=0.05
     )
     """PPO hyperparameters."""
+    bc: BCConfig = BCConfig()
+    """Behaviour-cloning hyperparameters (with --algo bc)."""
     # Scale-out (see jaxsocial/distributed.py and the README section "Seeds, devices and hosts").
     seeds: int = 1
     """Independent seeds seed, seed + 1, ... trained together in one compiled program; each seed's metrics,
     checkpoints and policy go to run_dir/s<seed>/."""
-    seed_batching: str = "vmap"
-    """How the seeds share the program: 'vmap' (batched) or 'map' (one after another, `lax.map`)."""
+    seed_batching: str = "auto"
+    """How the seeds share the program: 'vmap' (batched), 'map' (one after another, `lax.map`) or 'auto'
+    (map on CPUs, where it measured as fast and compiles faster; vmap on GPUs and TPUs)."""
     devices: int = 0
     """Devices the environments are split over (data parallel; 0: all devices of all processes)."""
     coordinator: str | None = None
@@ -97,8 +108,12 @@ class TrainConfig:
 
     @property
     def env_overrides(self) -> dict[str, Any]:
-        return parse_env_args(self.env_args)
+        return schedule.parse_assignments(self.env_args)
 
+
+EXPERT_CURRICULUM = "0:penalty=0.5;return>=10:penalty=1.0;return>=10:penalty=1.5"
+"""The penalty curriculum (paper section 3.1): low penalty first, raised once the learner's mean episode
+return reaches 10 (a third of what a perfect 250-step Goal Cycle episode collects)."""
 
 PRESETS = {
     "small": TrainConfig(),
@@ -113,20 +128,18 @@ PRESETS = {
         ppo=PPOConfig(),
     ),
 }
+PRESETS["expert"] = dataclasses.replace(
+    PRESETS["paper"],
+    preset="expert",
+    env="goalcycle3-solo",
+    stages=EXPERT_CURRICULUM,
+    ppo=PPOConfig(lr=1e-5),
+)
+"""The paper's expert training: paper network and PPO with the expert learning rate 1e-5, alone, through
+the penalty curriculum; later runs load the result with `expert:ckpt=RUN_DIR`."""
 
 
-def parse_env_args(text: str) -> dict[str, Any]:
-    """'a=1,b=x' -> {'a': 1, 'b': 'x'} (values parsed as Python literals when possible)."""
-    out = {}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"--env-args entry {item!r} is not key=value")
-        try:
-            out[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            out[key.strip()] = value.strip()
-    return out
+ALGOS = ("ppo", "bc")
 
 
 class Setup(NamedTuple):
@@ -134,30 +147,66 @@ class Setup(NamedTuple):
 
     env_params: EnvParams
     pop: population.Population
-    frozen_params: Any  # stacked params of frozen slots, or None
+    stages: tuple[schedule.Stage, ...]
+    frozen_params: Any  # stacked params of frozen slots, or None (also None when not loaded)
 
 
-def setup(cfg: TrainConfig) -> Setup:
-    """Validate the config and load frozen policies; raises ValueError before anything compiles."""
-    _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+def stage_config(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], index: int) -> TrainConfig:
+    """The single-stage config whose program runs stage `index` of `cfg` (-1: before the first stage)."""
+    env_args = {**cfg.env_overrides, **schedule.overrides_at(stages, index)}
+    return dataclasses.replace(cfg, env_args=schedule.format_assignments(env_args), stages="")
+
+
+def _check_stage(env_params: EnvParams, first: EnvParams, pop: population.Population, where: str) -> None:
+    changed = [f for f in schedule.STRUCTURAL_FIELDS if getattr(env_params, f) != getattr(first, f)]
+    if changed:
+        raise ValueError(f"{where} changes {changed}, which set array shapes; a stage may not change them")
     if env_params.observation != "rgb":
         raise ValueError("the learner's network takes RGB observations (observation='rgb')")
-    slots_text = cfg.slots or ",".join(["learner"] + ["random"] * (env_params.n_agents - 1))
-    pop = population.Population(population.parse_slots(slots_text, env_params.n_agents))
-    ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
+    if env_params.solo_prob > 0 and any(i >= env_params.solo_agents for i in pop.learners):
+        raise ValueError(
+            f"{where}: solo episodes keep only the first solo_agents={env_params.solo_agents} slots, but "
+            f"learners are in slots {pop.learners}; put learners first or raise solo_agents"
+        )
+    pop.validate(env_params)
+
+
+def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
+    """Validate the config (every stage) and load frozen policies; raises ValueError before anything
+    compiles."""
+    stages = schedule.parse_stages(cfg.stages)
+    _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+    pop = population.Population(
+        population.parse_slots(cfg.slots or population.default_slots(env_params), env_params.n_agents)
+    )
+    _check_stage(env_params, env_params, pop, "--env-args")
+    for index in range(len(stages)):
+        overrides = stage_config(cfg, stages, index).env_overrides
+        _check_stage(jaxsocial.make(cfg.env, **overrides)[1], env_params, pop, f"stage {index}")
+    if cfg.algo not in ALGOS:
+        raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
+    if cfg.algo == "bc" and not pop.demonstrators:
+        raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
+    if cfg.algo == "ppo":
+        ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
     if cfg.iterations < 1 or cfg.chunk_iterations < 1 or cfg.checkpoint_every < 1:
         raise ValueError("iterations, chunk_iterations and checkpoint_every must be >= 1")
     if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
         raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
     if cfg.seed_batching not in SEED_BATCHING:
         raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
+    if cfg.seeds > 1 and any(stage.threshold is not None for stage in stages):
+        raise ValueError(
+            "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
+            "triggered by the return would start at another iteration for each seed: train them one by one"
+        )
     frozen = None
-    if pop.frozen:
+    if pop.frozen and load_frozen:
         frozen = population.stack([population.load_policy(pop.slots[i].path, cfg.net) for i in pop.frozen])
-    return Setup(env_params, pop, frozen)
+    return Setup(env_params, pop, stages, frozen)
 
 
-SEED_BATCHING = ("vmap", "map")
+SEED_BATCHING = ("auto", "vmap", "map")
 
 
 class RunnerState(NamedTuple):
@@ -168,18 +217,33 @@ class RunnerState(NamedTuple):
     env_states: EnvState  # [E]
     obs: jax.Array  # uint8[E, N, 21, 21, 3]
     resets: jax.Array  # bool[E]: the next step starts an episode
-    carry: network.Carry  # float32[S, E, H] neural slots' LSTM states
+    slots: population.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
+    demo_carry: network.Carry | None  # bc: learners' LSTM states on the demonstration streams [S_l, E*D, H]
     episode_return: jax.Array  # float32[E, N] return so far in the current episode
     key: jax.Array
     iteration: jax.Array  # int32[]
 
 
-ENV_AXES = {"env_states": 0, "obs": 0, "resets": 0, "carry": 1, "episode_return": 0}
-"""The environment axis of each RunnerState field that has one (split over devices)."""
+ENV_AXES = RunnerState(
+    params=None,
+    opt_state=None,
+    env_states=0,
+    obs=0,
+    resets=0,
+    slots=population.SlotState(carry=1, memory=0, reward=0),
+    demo_carry=1,  # the streams are environment-major
+    episode_return=0,
+    key=None,
+    iteration=None,
+)
+"""The environment axis of the RunnerState's arrays, split over devices (pytree prefix; None: replicated)."""
 
 
 class Transition(NamedTuple):
-    obs: jax.Array  # uint8[E, S_l, ...] learner observations
+    """One rollout step. obs, actions and valid are of the recorded slots (learners for PPO, demonstrators
+    for BC), the rest of the learners."""
+
+    obs: jax.Array  # uint8[E, S_r, ...]
     resets: jax.Array
     actions: jax.Array  # int32[S_l, E]
     logp: jax.Array
@@ -191,21 +255,28 @@ class Transition(NamedTuple):
 
 
 def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
-    """Build the pure training functions for `cfg` (validated first; frozen policies are loaded).
+    """Build the pure training functions for `cfg`, a single-stage config (see `stage_config`); validated
+    first.
 
     Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
     (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
-    None); `train(key) -> (state, metrics)` is the whole run. Metrics are dicts of arrays with a leading
-    iteration axis. One seed (`cfg.seeds` is handled by `compiled`); `mesh`: the devices the environments will
-    be split over (the PPO update then splits its minibatches over them too).
+    None); `train(key) -> (state, metrics)` is the whole run (it loads frozen policies when traced).
+    Metrics are dicts of arrays with a leading iteration axis. One seed (`cfg.seeds` is handled by
+    `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
+    minibatches over them too).
     """
-    env_params, pop, loaded_frozen = setup(cfg)
+    if cfg.stages:
+        raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
+    env_params, pop, _, _ = setup(cfg, load_frozen=False)
     dp = distributed.data_parallel(mesh)
     net, ppo_cfg = cfg.net, cfg.ppo
     learners = jnp.asarray(pop.learners)
     n_learners, n_neural = len(pop.learners), len(pop.neural)
     n_envs, n_steps = cfg.num_envs, cfg.rollout_steps
-    optimizer = ppo.make_optimizer(ppo_cfg)
+    bc_mode = cfg.algo == "bc"
+    recorded = jnp.asarray(pop.demonstrators if bc_mode else pop.learners)
+    n_demo_streams = n_envs * len(pop.demonstrators)
+    optimizer = bc.make_optimizer(cfg.bc) if bc_mode else ppo.make_optimizer(ppo_cfg)
 
     def init(key: jax.Array) -> RunnerState:
         k_params, k_env, k_run = jax.random.split(key, 3)
@@ -217,7 +288,8 @@ def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
             env_states=env_states,
             obs=obs,
             resets=jnp.ones(n_envs, bool),
-            carry=network.initial_carry(net, (n_neural, n_envs)),
+            slots=population.init_slot_state(pop, net, env_params, n_envs),
+            demo_carry=network.initial_carry(net, (n_learners, n_demo_streams)) if bc_mode else None,
             episode_return=jnp.zeros((n_envs, env_params.n_agents), jnp.float32),
             key=k_run,
             iteration=jnp.zeros((), jnp.int32),
@@ -231,50 +303,44 @@ def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
     def env_step(carry, key):
         state, params = carry
         k_act, k_env = jax.random.split(key)
-        actions, new_carry, logp, _ = population.act(
-            k_act, pop, net, params, state.carry, state.obs, state.resets
+        actions, slots, logp, _ = population.act(
+            k_act, pop, net, env_params, params, state.slots, state.obs, state.env_states, state.resets
         )
-        alive = state.env_states.active  # [E, N] acting at the start of the step
+        alive, present = state.env_states.active, state.env_states.present  # [E, N] at the step's start
         obs, env_states, reward, terminated, truncated, info = core.step_batch(
             jax.random.split(k_env, n_envs), state.env_states, actions, env_params
         )
         done = info["done"]
         final_values = jax.lax.cond(
             core.any_in_batch(done),
-            lambda: population.values(pop, net, params, new_carry, info["final_obs"]),
+            lambda: population.values(pop, net, params, slots.carry, info["final_obs"]),
             lambda: jnp.zeros((n_neural, n_envs), jnp.float32),
         )
         episode_return = state.episode_return + reward
-        finished = done[:, None].astype(jnp.float32)
-        stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0) * jnp.ones(reward.shape[1]))
+        finished = (done[:, None] & present).astype(jnp.float32)  # episodes each slot took part in
+        stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0))
         agent_done = terminated | done[:, None]
         transition = Transition(
-            obs=state.obs[:, learners],
+            obs=state.obs[:, recorded],
             resets=state.resets,
-            actions=actions[:, learners].T,
+            actions=actions[:, recorded].T,
             logp=logp[:n_learners],
             rewards=reward[:, learners].T,
             terminated=terminated[:, learners].T,
             done=agent_done[:, learners].T,
             final_values=final_values[:n_learners],
-            valid=alive[:, learners].T,
+            valid=alive[:, recorded].T,
         )
         new_state = state._replace(
             env_states=env_states,
             obs=obs,
             resets=done,
-            carry=new_carry,
-            episode_return=episode_return * (1.0 - finished),
+            slots=population.record_rewards(slots, reward),
+            episode_return=jnp.where(done[:, None], 0.0, episode_return),
         )
         return (new_state, params), (transition, stats)
 
-    def iteration(state: RunnerState, frozen_params):
-        key, k_roll, k_update = jax.random.split(state.key, 3)
-        params = all_params(state, frozen_params)
-        carry0 = jax.tree.map(lambda c: c[:n_learners], state.carry)
-        (state, _), (traj, (return_sum, episodes)) = jax.lax.scan(
-            env_step, (state, params), jax.random.split(k_roll, n_steps)
-        )
+    def ppo_update(state: RunnerState, traj: Transition, carry0, k_update):
         # Per learner, time-major: [S_l, T(+1), E, ...].
         obs = jnp.concatenate([traj.obs, state.obs[None, :, learners]], 0)
         resets = jnp.concatenate([traj.resets, state.resets[None]], 0)
@@ -300,20 +366,51 @@ def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
         new_params, new_opt, losses = jax.lax.map(
             update, (jax.random.split(k_update, n_learners), state.params, state.opt_state, batch)
         )
+        return state._replace(params=new_params, opt_state=new_opt), losses
+
+    def bc_update(state: RunnerState, traj: Transition):
+        # Demonstration streams, time-major [T, E * D, ...] (environment-major, demonstrator-minor).
+        def streams(x):  # [T, E, D, ...] -> [T, E * D, ...]
+            return x.reshape(n_steps, n_demo_streams, *x.shape[3:])
+
+        n_demo = len(pop.demonstrators)
+        obs = streams(traj.obs)
+        resets = jnp.repeat(traj.resets, n_demo, axis=1)
+        actions, valid = (streams(jnp.moveaxis(x, 1, 2)) for x in (traj.actions, traj.valid))
+
+        def update(args):
+            params, opt_state, carry = args
+            return bc.update(params, opt_state, carry, net, cfg.bc, obs, resets, actions, valid)
+
+        new_params, new_opt, carry, losses = jax.lax.map(
+            update, (state.params, state.opt_state, state.demo_carry)
+        )
+        return state._replace(params=new_params, opt_state=new_opt, demo_carry=carry), losses
+
+    def iteration(state: RunnerState, frozen_params):
+        key, k_roll, k_update = jax.random.split(state.key, 3)
+        params = all_params(state, frozen_params)
+        carry0 = jax.tree.map(lambda c: c[:n_learners], state.slots.carry)
+        (state, _), (traj, (return_sum, episodes)) = jax.lax.scan(
+            env_step, (state, params), jax.random.split(k_roll, n_steps)
+        )
+        if bc_mode:
+            state, losses = bc_update(state, traj)
+        else:
+            state, losses = ppo_update(state, traj, carry0, k_update)
         episodes_per_slot = jnp.sum(episodes, 0)
         metrics = {
             "episodes": episodes_per_slot,
             "return": jnp.sum(return_sum, 0) / jnp.maximum(episodes_per_slot, 1.0),
             **losses,
         }
-        state = state._replace(params=new_params, opt_state=new_opt, key=key, iteration=state.iteration + 1)
-        return state, metrics
+        return state._replace(key=key, iteration=state.iteration + 1), metrics
 
     def run_chunk(state: RunnerState, frozen_params, n: int):
         return jax.lax.scan(lambda s, _: iteration(s, frozen_params), state, None, length=n)
 
     def train(key: jax.Array):
-        return run_chunk(init(key), loaded_frozen, cfg.iterations)
+        return run_chunk(init(key), setup(cfg).frozen_params, cfg.iterations)
 
     return init, run_chunk, train
 
@@ -377,7 +474,10 @@ def _compiled(program_cfg: TrainConfig, mesh: jax.sharding.Mesh) -> Program:
     init_one = jax.jit(init_from_seed, in_shardings=replicated, out_shardings=shardings)
     program_init = init_one
     if program_cfg.seeds > 1:  # each seed's state as in a run of its own, stacked
-        run_chunk = over_seeds(run_chunk, program_cfg.seed_batching)
+        batching = program_cfg.seed_batching
+        if batching == "auto":
+            batching = "map" if mesh.devices.flat[0].platform == "cpu" else "vmap"
+        run_chunk = over_seeds(run_chunk, batching)
         stacked = jax.eval_shape(population.stack, [one_seed] * program_cfg.seeds)
         shardings = distributed.state_shardings(stacked, mesh, ENV_AXES, offset=1)
         stack = jax.jit(population.stack, out_shardings=shardings)
@@ -401,9 +501,10 @@ def _compiled(program_cfg: TrainConfig, mesh: jax.sharding.Mesh) -> Program:
 
 def data_mesh(cfg: TrainConfig) -> jax.sharding.Mesh:
     """The devices `cfg` splits its environments over (ValueError, before compiling, if they do not split)."""
-    return distributed.data_mesh(
-        cfg.devices, num_envs=cfg.num_envs, minibatch_chunks=cfg.ppo.minibatch_chunks
-    )
+    sizes = {"num_envs": cfg.num_envs}
+    if cfg.algo == "ppo":
+        sizes["minibatch_chunks"] = cfg.ppo.minibatch_chunks
+    return distributed.data_mesh(cfg.devices, **sizes)
 
 
 def compiled(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None) -> Program:
@@ -455,6 +556,15 @@ def progress_fields(metrics: dict[str, np.ndarray], sps: float) -> dict[str, Any
     return shown
 
 
+def learner_return(metrics: dict[str, np.ndarray], pop: population.Population) -> float | None:
+    """The learners' mean episode return over a chunk's finished episodes (None if none finished)."""
+    learners = list(pop.learners)
+    episodes = metrics["episodes"][:, learners]
+    if episodes.sum() == 0:
+        return None
+    return float((metrics["return"][:, learners] * episodes).sum() / episodes.sum())
+
+
 def run_name(cfg: TrainConfig) -> str:
     """`cfg.run_name`, or '<env>-s<seed>' ('<env>-s<first>-<last>' for several seeds)."""
     if cfg.run_name:
@@ -478,14 +588,16 @@ def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[tuple[TrainConfig, Path]]
 def run(cfg: TrainConfig) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory.
 
-    Several seeds train in one program; each seed's config, metrics, checkpoints and policy go to its own
-    directory (`seed_runs`). In a multi-process run every process calls this with the same config (and its
-    own process_id); only process 0 writes logs, metrics and progress.
+    The run goes through the stages of `cfg.stages` (one compiled program each, switched between chunks);
+    metrics rows record the stage, and checkpoints the stage to resume in. Several seeds train in one
+    program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`). In a
+    multi-process run every process calls this with the same config (and its own process_id); only process 0
+    writes logs, metrics and progress.
     """
     distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
-    _, pop, frozen = setup(cfg)  # validate before touching the disk or compiling
+    _, pop, stages, frozen = setup(cfg)  # validate before touching the disk or compiling
     mesh = data_mesh(cfg)
     name = run_name(cfg)
     run_dir = Path(cfg.runs_dir).expanduser() / name
@@ -507,12 +619,13 @@ def run(cfg: TrainConfig) -> Path:
 
     distributed.on_main(prepare)
     main = distributed.is_main()
-    program = compiled(cfg, mesh)
+    stage = schedule.initial_index(stages)
+    program = compiled(stage_config(cfg, stages, stage), mesh)
     state = program.init(np.asarray([c.seed for c, _ in seeds] if cfg.seeds > 1 else cfg.seed, np.int32))
     if frozen is not None:
         frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
     if cfg.resume:
-        state = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program.shardings)
+        state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
     start = int(np.asarray(state.iteration).reshape(-1)[0])
     metrics_logs = [logs.MetricsLog(d) for _, d in seeds] if main else []
     for metrics_log in metrics_logs:
@@ -529,6 +642,10 @@ def run(cfg: TrainConfig) -> Path:
     it = start
     while it < cfg.iterations:
         n = min(cfg.chunk_iterations, cfg.iterations - it)
+        switch = schedule.next_start(stages, stage)
+        if switch is not None and switch > it:
+            n = min(n, switch - it)  # land exactly on the next stage's first iteration
+        program = compiled(stage_config(cfg, stages, stage), mesh)
         t0 = time.perf_counter()
         state, metrics = program.run_chunk(state, frozen, n)
         metrics = jax.device_get(metrics)
@@ -536,18 +653,20 @@ def run(cfg: TrainConfig) -> Path:
         for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
             seed_metrics = metrics if cfg.seeds == 1 else jax.tree.map(lambda m, k=k: m[k], metrics)
             rows = metric_rows(seed_metrics, it, round(sps), pop)
+            for row in rows:
+                row["stage"] = stage
             metrics_log.append(rows)
             for row in rows:
                 extra.log(row, row["iteration"])
         it += n
+        all_seeds = jax.tree.map(lambda m: m.reshape(-1, *m.shape[2:]), metrics) if cfg.seeds > 1 else metrics
+        stage = schedule.advance(stages, stage, it, learner_return(all_seeds, pop))
         if it - last_saved >= cfg.checkpoint_every or it == cfg.iterations:
-            save_seeds(cfg, seeds, it, state, pop)
+            save_seeds(cfg, seeds, it, state, pop, stage)
             last_saved = it
         if progress is not None:
-            all_seeds = (
-                jax.tree.map(lambda m: m.reshape(-1, *m.shape[2:]), metrics) if cfg.seeds > 1 else metrics
-            )
-            progress.update(it, **progress_fields(all_seeds, sps * cfg.seeds))
+            shown = {"stage": stage} if stages else {}
+            progress.update(it, **shown, **progress_fields(all_seeds, sps * cfg.seeds))
     if progress is not None:
         progress.close()
     for extra in extras:
@@ -556,9 +675,10 @@ def run(cfg: TrainConfig) -> Path:
 
 
 def save_seeds(
-    cfg: TrainConfig, seeds: list[tuple[TrainConfig, Path]], it: int, state: RunnerState, pop
+    cfg: TrainConfig, seeds: list[tuple[TrainConfig, Path]], it: int, state: RunnerState, pop, stage: int
 ) -> None:
-    """Checkpoint and policy of every seed at iteration `it` (every process takes part)."""
+    """Checkpoint (with the stage to resume in) and policy of every seed at iteration `it` (every process
+    takes part)."""
     host = distributed.to_host(state)
     policy_meta = {"net": population.json_net(cfg.net), "n_learners": len(pop.learners), "slots": cfg.slots}
     for k, (seed_cfg, seed_dir) in enumerate(seeds):
@@ -566,17 +686,19 @@ def save_seeds(
         ckpt_dir = seed_dir / "checkpoints"
         if it in checkpoint.all_steps(ckpt_dir):  # saved before an interruption: the same state
             continue
-        checkpoint.save(ckpt_dir, it, seed_state, metadata=config_dict(seed_cfg))
+        checkpoint.save(ckpt_dir, it, seed_state, metadata={**config_dict(seed_cfg), "stage": stage})
         checkpoint.save(
             seed_dir / population.POLICY_DIR, it, {"params": seed_state.params}, metadata=policy_meta
         )
 
 
-def restore_seeds(cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, shardings) -> RunnerState:
-    """The state from the latest checkpoint that every seed has (`state` unchanged if none has one)."""
+def restore_seeds(
+    cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, program: Program, stage: int
+) -> tuple[RunnerState, int]:
+    """The state and stage from the latest checkpoint that every seed has (unchanged if none has one)."""
     steps = [checkpoint.latest_step(d) for d in ckpt_dirs]
     if all(s is None for s in steps):
-        return state
+        return state, stage
     if any(s is None for s in steps):
         missing = [str(d.parent) for d, s in zip(ckpt_dirs, steps, strict=True) if s is None]
         raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
@@ -585,7 +707,8 @@ def restore_seeds(cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, s
     template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), state)
     restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
     host = restored[0] if cfg.seeds == 1 else population.stack(restored)
-    return distributed.put(host, shardings)
+    stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", stage))
+    return distributed.put(host, program.shardings), stage
 
 
 def parse_args(argv: list[str]) -> TrainConfig:

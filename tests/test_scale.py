@@ -22,37 +22,12 @@ from jaxsocial.agents import population
 from jaxsocial.train import run
 
 REPO = Path(__file__).resolve().parent.parent
-TINY_FLAGS = [
-    "--env-args",
-    TINY.env_args,
-    "--num-envs",
-    "4",
-    "--rollout-steps",
-    "8",
-    "--iterations",
-    "4",
-    "--chunk-iterations",
-    "2",
-    "--checkpoint-every",
-    "2",
-    "--net.conv-channels",
-    "4",
-    "8",
-    "8",
-    "--net.hidden",
-    "16",
-    "--net.mlp",
-    "8",
-    "--ppo.chunk-length",
-    "4",
-    "--ppo.minibatch-chunks",
-    "4",
-    "--ppo.num-minibatches",
-    "2",
-    "--ppo.lr",
-    "3e-3",
-    "--no-progress",
-]  # fmt: skip  (TINY as flags)
+TINY_FLAGS = [  # TINY as command-line flags
+    "--env-args", TINY.env_args, "--slots", TINY.slots, "--num-envs", "4", "--rollout-steps", "8",
+    "--iterations", "4", "--chunk-iterations", "2", "--checkpoint-every", "2",
+    "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8", "--ppo.chunk-length", "4",
+    "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2", "--ppo.lr", "3e-3", "--no-progress",
+]  # fmt: skip
 
 
 def assert_same_metrics(a: Path, b: Path) -> None:

@@ -18,6 +18,7 @@ from jaxsocial.train import TrainConfig, make_train, run
 TINY = TrainConfig(
     env="goalcycle3",
     env_args="max_steps=12,width=7,height=7",
+    slots="learner,random,random",  # scripted experts cost compile time; the CLI test runs the default slots
     num_envs=4,
     rollout_steps=8,
     iterations=4,
@@ -128,6 +129,10 @@ def test_cli_end_to_end(tmp_path):
         ({"slots": "random,random,random"}, "no learner"),
         ({"slots": "learner,frozen,random"}, "needs a checkpoint path"),
         ({"env_args": "n_agents=8"}, "agent colours"),
+        ({"algo": "dqn"}, "unknown --algo"),
+        ({"algo": "bc", "slots": "learner,random,random"}, "clones expert or frozen slots"),
+        ({"slots": "learner,expert:navigator,random"}, "navigator"),
+        ({"slots": "learner,expert:explorer:epsilon=2,random"}, "epsilon"),
     ],
 )
 def test_bad_config_fails_before_compiling(tmp_path, changes, message):

@@ -1,6 +1,6 @@
-"""What acts in each environment slot: a learner, a frozen policy (loaded from a checkpoint) or a random
-distractor. Neural slots share one architecture; their parameters are stacked on a leading slot axis and
-applied with `jax.vmap`, so nothing is shared between agents but the code.
+"""What acts in each environment slot: a learner, a frozen policy (loaded from a checkpoint), a scripted
+expert or a random distractor. Neural slots share one architecture; their parameters are stacked on a
+leading slot axis and applied with `jax.vmap`, so nothing is shared between agents but the code.
 """
 
 from __future__ import annotations
@@ -8,76 +8,152 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from jaxsocial import checkpoint
-from jaxsocial.agents import network
-from jaxsocial.env.types import NUM_ACTIONS
+from jaxsocial.agents import experts, network
+from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 
-SLOT_KINDS = ("learner", "frozen", "random")
+SLOT_KINDS = ("learner", "frozen", "expert", "random")
 
 
 @dataclasses.dataclass(frozen=True)
 class Slot:
-    """One environment slot: `kind` in SLOT_KINDS; `path` the run directory of a frozen policy."""
+    """One environment slot: `kind` in SLOT_KINDS; `path` the run directory of a frozen policy (`RUN_DIR`
+    or `RUN_DIR@k`); `expert` the scripted expert of an expert slot."""
 
     kind: str
     path: str | None = None
+    expert: experts.ExpertSpec | None = None
 
     @property
     def neural(self) -> bool:
         return self.kind in ("learner", "frozen")
 
 
-def parse_slots(text: str, n_agents: int) -> tuple[Slot, ...]:
-    """Parse 'learner,random,frozen:PATH' (one entry per agent slot). Raises ValueError on bad input."""
-    entries = [e.strip() for e in text.split(",") if e.strip()]
+def _split_entries(text: str) -> list[str]:
+    """Split a slot list on commas, keeping an expert's own 'k=v,k=v' arguments with their entry."""
+    entries: list[str] = []
+    for token in (t.strip() for t in text.split(",")):
+        if not token:
+            continue
+        if entries and "=" in token and token.partition(":")[0] not in SLOT_KINDS:
+            entries[-1] += "," + token
+        else:
+            entries.append(token)
+    return entries
+
+
+def parse_slot(entry: str) -> Slot:
+    """'learner' | 'random' | 'frozen:PATH' | 'expert:ckpt=PATH' (a trained expert, same as frozen) |
+    'expert:KIND[:k=v,...]' (a scripted expert, see `experts.parse_expert`). Raises ValueError."""
+    kind, _, arg = entry.partition(":")
+    if kind not in SLOT_KINDS:
+        raise ValueError(f"unknown slot kind {kind!r} in {entry!r}; choose from {SLOT_KINDS}")
+    if kind == "expert":
+        if not arg:
+            raise ValueError(f"slot {entry!r}: say which expert, e.g. expert:explorer or expert:ckpt=RUN_DIR")
+        if arg.startswith("ckpt="):
+            return parse_slot(f"frozen:{arg.removeprefix('ckpt=')}")
+        return Slot("expert", expert=experts.parse_expert(arg))
+    if (kind == "frozen") != bool(arg):
+        raise ValueError(f"slot {entry!r}: 'frozen:PATH' needs a checkpoint path; {kind} takes none")
+    return Slot(kind, arg or None)
+
+
+def parse_slots(text: str, n_agents: int, need_learner: bool = True) -> tuple[Slot, ...]:
+    """Parse 'learner,expert:explorer,random,frozen:PATH' (one entry per agent slot). Raises ValueError."""
+    entries = _split_entries(text)
     if len(entries) != n_agents:
         raise ValueError(
             f"--slots lists {len(entries)} slots ({text!r}) but the environment has {n_agents} agents"
         )
-    slots = []
-    for entry in entries:
-        kind, _, path = entry.partition(":")
-        if kind == "expert":
-            raise ValueError(
-                f"slot {entry!r}: scripted and trained experts are not available yet (use frozen:PATH)"
-            )
-        if kind not in SLOT_KINDS:
-            raise ValueError(f"unknown slot kind {kind!r} in {entry!r}; choose from {SLOT_KINDS}")
-        if (kind == "frozen") != bool(path):
-            raise ValueError(f"slot {entry!r}: 'frozen:PATH' needs a checkpoint path; other kinds take none")
-        slots.append(Slot(kind, path or None))
-    if not any(s.kind == "learner" for s in slots):
+    slots = tuple(parse_slot(e) for e in entries)
+    if need_learner and not any(s.kind == "learner" for s in slots):
         raise ValueError(f"--slots {text!r} has no learner: nothing would be trained")
-    return tuple(slots)
+    return slots
+
+
+DEFAULT_EXPERT = {"goalcycle": "explorer", "fourrooms": "navigator", "maze": "navigator"}
+"""The scripted expert of each layout."""
+
+
+def default_slots(params: EnvParams) -> str:
+    """The paper's set-up: a learner in slot 0, scripted experts in the next two slots (the environment's
+    own agents), random distractors in any further slots (the `-distractors` presets)."""
+    expert = f"expert:{DEFAULT_EXPERT[params.layout]}"
+    return ",".join(["learner"] + [expert] * min(2, params.n_agents - 1) + ["random"] * (params.n_agents - 3))
 
 
 @dataclasses.dataclass(frozen=True)
 class Population:
-    """Static slot bookkeeping: indices of learner, frozen and neural (learner then frozen) slots."""
+    """Static slot bookkeeping: indices of learner, frozen, neural (learner then frozen) and expert slots."""
 
     slots: tuple[Slot, ...]
 
+    def _of(self, kind: str) -> tuple[int, ...]:
+        return tuple(i for i, s in enumerate(self.slots) if s.kind == kind)
+
     @property
     def learners(self) -> tuple[int, ...]:
-        return tuple(i for i, s in enumerate(self.slots) if s.kind == "learner")
+        return self._of("learner")
 
     @property
     def frozen(self) -> tuple[int, ...]:
-        return tuple(i for i, s in enumerate(self.slots) if s.kind == "frozen")
+        return self._of("frozen")
+
+    @property
+    def experts(self) -> tuple[int, ...]:
+        return self._of("expert")
+
+    @property
+    def demonstrators(self) -> tuple[int, ...]:
+        """Slots behaviour cloning learns from: scripted experts and frozen policies."""
+        return tuple(sorted(self.experts + self.frozen))
 
     @property
     def neural(self) -> tuple[int, ...]:
         """Neural slots in stacking order: learners first, then frozen policies."""
         return self.learners + self.frozen
 
+    def validate(self, params: EnvParams) -> None:
+        """Raise ValueError if a scripted expert cannot play this environment."""
+        for i in self.experts:
+            try:
+                experts.validate(self.slots[i].expert, params)
+            except ValueError as err:
+                raise ValueError(f"slot {i}: {err}") from err
+
 
 def stack(trees: list) -> object:
     """Stack a list of equally shaped pytrees on a new leading axis."""
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+
+
+class SlotState(NamedTuple):
+    """What the slots carry from step to step, for a batch of E environments.
+
+    carry: network.Carry of float32[S, E, H] (neural slots, `Population.neural` order); memory: one
+    experts.Memory with a leading [E] axis per expert slot; reward: float32[E, N] every agent's reward of
+    the previous step (scripted experts learn from their own).
+    """
+
+    carry: network.Carry
+    memory: tuple
+    reward: jax.Array
+
+
+def init_slot_state(pop: Population, net: network.NetworkConfig, params: EnvParams, n_envs: int) -> SlotState:
+    """The slot state before the first step (every environment starts an episode then)."""
+    batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, *x.shape)), experts.init_memory(params))
+    return SlotState(
+        carry=network.initial_carry(net, (len(pop.neural), n_envs)),
+        memory=(batched,) * len(pop.experts),
+        reward=jnp.zeros((n_envs, params.n_agents), jnp.float32),
+    )
 
 
 def _step_neural(pop: Population, net: network.NetworkConfig, params, carry, obs, resets):
@@ -90,28 +166,54 @@ def act(
     key: jax.Array,
     pop: Population,
     net: network.NetworkConfig,
+    env_params: EnvParams,
     params,
-    carry: network.Carry,
+    slot_state: SlotState,
     obs: jax.Array,
+    env_states: EnvState,
     resets: jax.Array,
-) -> tuple[jax.Array, network.Carry, jax.Array, jax.Array]:
+) -> tuple[jax.Array, SlotState, jax.Array, jax.Array]:
     """Every slot's action for a batch of environments.
 
     Args:
-        params: neural-slot params stacked [S, ...] in `pop.neural` order; carry: Carry of float32[S, E, H];
-        obs: uint8[E, N, 21, 21, 3]; resets: bool[E] (the step starts an episode: zero the LSTM state).
+        params: neural-slot params stacked [S, ...] in `pop.neural` order (None when there are none);
+        obs: uint8[E, N, 21, 21, 3]; env_states: EnvState [E] (scripted experts read it); resets: bool[E]
+        the step starts an episode (zero the LSTM state, clear the experts' memory).
     Returns:
-        actions int32[E, N], the new carry, log-probabilities and values float32[S, E] of the neural slots.
+        actions int32[E, N]; the new slot state (rewards still those of the previous step, see
+        `record_rewards`); log-probabilities and values float32[S, E] of the neural slots.
     """
     n_envs, n_agents = obs.shape[:2]
-    k_neural, k_random = jax.random.split(key)
+    k_neural, k_random, k_experts = jax.random.split(key, 3)
     actions = jax.random.randint(k_random, (n_envs, n_agents), 0, NUM_ACTIONS)
-    neural = jnp.asarray(pop.neural)
-    carry, out = _step_neural(pop, net, params, carry, obs, resets)
-    chosen = jax.random.categorical(k_neural, out.logits)
-    logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), chosen[..., None], -1)[..., 0]
-    actions = actions.at[:, neural].set(chosen.T.astype(actions.dtype))
-    return actions, carry, logp, out.value
+    carry, logp, value = slot_state.carry, jnp.zeros((0, n_envs)), jnp.zeros((0, n_envs))
+    if pop.neural:
+        carry, out = _step_neural(pop, net, params, carry, obs, resets)
+        chosen = jax.random.categorical(k_neural, out.logits)
+        logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), chosen[..., None], -1)[..., 0]
+        actions = actions.at[:, jnp.asarray(pop.neural)].set(chosen.T.astype(actions.dtype))
+        value = out.value
+    memory = []
+    expert_keys = jax.random.split(k_experts, len(pop.experts))
+    for slot, mem, k in zip(pop.experts, slot_state.memory, expert_keys, strict=True):
+        chosen, mem = experts.act_batch(
+            jax.random.split(k, n_envs),
+            pop.slots[slot].expert,
+            env_params,
+            env_states,
+            slot,
+            mem,
+            slot_state.reward[:, slot],
+            resets,
+        )
+        actions = actions.at[:, slot].set(chosen.astype(actions.dtype))
+        memory.append(mem)
+    return actions, SlotState(carry, tuple(memory), slot_state.reward), logp, value
+
+
+def record_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:
+    """Keep float32[E, N] this step's rewards for the scripted experts' next decision."""
+    return slot_state._replace(reward=reward)
 
 
 def values(
@@ -126,16 +228,26 @@ POLICY_DIR = "policy"
 """Sub-directory of a run directory holding the learners' params (stacked [S_l, ...]) for frozen slots."""
 
 
+def _policy_dir(path: str) -> tuple[Path, int]:
+    run_dir, _, index = path.partition("@")
+    directory = Path(run_dir) / POLICY_DIR
+    if checkpoint.latest_step(directory) is None:
+        raise ValueError(f"no saved policy under {directory} (is {run_dir} a training run directory?)")
+    return directory, int(index or 0)
+
+
+def saved_net(path: str) -> network.NetworkConfig:
+    """The network config a policy (`RUN_DIR[@k]`) was trained with."""
+    return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(path)[0])["net"])
+
+
 def load_policy(path: str, net: network.NetworkConfig):
     """Params of one learner from a run directory's `policy/` checkpoints, for a frozen slot.
 
     `path` is `RUN_DIR` (its first learner) or `RUN_DIR@k` (its k-th learner). Raises ValueError if the
     saved network differs from `net` (a checkpoint of another architecture) or the path has no policy.
     """
-    run_dir, _, index = path.partition("@")
-    directory = Path(run_dir) / POLICY_DIR
-    if checkpoint.latest_step(directory) is None:
-        raise ValueError(f"frozen slot: no saved policy under {directory}")
+    directory, k = _policy_dir(path)
     meta = checkpoint.read_metadata(directory)
     saved_net = meta.get("net")
     if saved_net != json_net(net):
@@ -144,7 +256,6 @@ def load_policy(path: str, net: network.NetworkConfig):
             f"{json_net(net)} (a checkpoint of another architecture)"
         )
     n_saved = int(meta["n_learners"])
-    k = int(index or 0)
     if not 0 <= k < n_saved:
         raise ValueError(f"frozen slot {path}: learner index {k} out of range (the run had {n_saved})")
     template = jax.eval_shape(

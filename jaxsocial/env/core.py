@@ -18,9 +18,19 @@ from jaxsocial.env.observe import observe
 from jaxsocial.env.types import BONUS, NUM_ACTIONS, WALL, EnvParams, EnvState
 
 
+def _present(key: jax.Array, params: EnvParams) -> jax.Array:
+    """bool[N] who takes part in a new episode: everyone, or in a solo episode the first `solo_agents`."""
+    n = params.n_agents
+    if params.solo_prob == 0.0:
+        return jnp.ones(n, bool)
+    solo = jax.random.bernoulli(key, params.solo_prob)
+    return ~solo | (jnp.arange(n) < params.solo_agents)
+
+
 def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.Array, params: EnvParams):
     k_pos, k_dir = jax.random.split(key)
     n = params.n_agents
+    present = _present(jax.random.fold_in(key, 1), params)
     cells = jax.random.categorical(k_pos, jnp.where(spawn_mask.ravel(), 0.0, -jnp.inf), shape=(n,))
     y, x = jnp.divmod(cells, params.width)
     direction = jax.random.randint(k_dir, (n,), 0, 4) if params.random_spawn_dir else jnp.zeros(n, jnp.int32)
@@ -31,7 +41,8 @@ def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.
         dir=direction.astype(jnp.int32),
         cycle_state=jnp.full(n, -1, jnp.int32),
         prestige=jnp.zeros(n, jnp.float32),
-        active=jnp.ones(n, bool),
+        active=present,
+        present=present,
         arrival=jnp.zeros(n, jnp.int32),
         time=jnp.zeros((), jnp.int32),
     )
@@ -39,7 +50,8 @@ def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.
 
 def reset(key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
     """A new episode: a fresh layout and agents placed independently and uniformly on spawn cells
-    (they may share a cell or stand on a bonus tile, spec 1.3). Returns `(obs, state)`."""
+    (they may share a cell or stand on a bonus tile, spec 1.3); with `params.solo_prob` it is a solo
+    episode (see `EnvParams.solo_prob`). Returns `(obs, state)`."""
     k_layout, k_spawn = jax.random.split(key)
     layout = generate(k_layout, params)
     state = _spawn(k_spawn, layout.grid, layout.goal_id, layout.spawn_mask, params)
@@ -145,6 +157,7 @@ def state_from_layout(
     prestige=None,
     cycle_state=None,
     active=None,
+    present=None,
     arrival=None,
     time: int = 0,
 ) -> EnvState:
@@ -158,7 +171,8 @@ def state_from_layout(
         dir: int[N] directions (0 east, 1 south, 2 west, 3 north).
         goal_id: int8[H, W] bonus ids when `layout` is an array (default: bonus tiles numbered in
             row-major order).
-        prestige, cycle_state, active, arrival: optional per-agent values (defaults: 0, -1, True, 0).
+        prestige, cycle_state, active, present, arrival: optional per-agent values (defaults: 0, -1,
+            True, True, 0); absent agents (`present` False) are also inactive.
         time: steps already taken in the episode.
     """
     if isinstance(layout, str | list):
@@ -196,7 +210,8 @@ def state_from_layout(
         dir=jnp.asarray(dir % 4),
         cycle_state=per_agent(cycle_state, -1, jnp.int32),
         prestige=per_agent(prestige, 0.0, jnp.float32),
-        active=per_agent(active, True, bool),
+        active=per_agent(active, True, bool) & per_agent(present, True, bool),
+        present=per_agent(present, True, bool),
         arrival=per_agent(arrival, 0, jnp.int32),
         time=jnp.asarray(time, jnp.int32),
     )

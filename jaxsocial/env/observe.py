@@ -100,11 +100,12 @@ def agent_layer(state: EnvState, world: jax.Array) -> tuple[jax.Array, jax.Array
     """Which agent each observer sees drawn in each view cell (spec 4.6, 9.11).
 
     Only one agent is drawn per cell: the observer if it is there, otherwise the earliest arrival, ties to
-    the lowest index. Inactive (done) agents are still drawn.
+    the lowest index. Inactive (done) agents are still drawn; absent ones (`present` False) are not.
     Returns bool[N, V, V] (an agent is drawn) and int32[N, V, V] its index.
     """
     n = state.pos.shape[0]
     at = jnp.all(world[:, None] == state.pos[None, :, None, None, :], -1)  # [obs, agent, V, V]
+    at = at & state.present[None, :, None, None]
     key = state.arrival * n + jnp.arange(n)
     key = jnp.where(jnp.eye(n, dtype=bool), -1, key[None, :])  # observer first
     big = jnp.iinfo(jnp.int32).max

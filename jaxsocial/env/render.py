@@ -60,10 +60,11 @@ def _as_numpy(state: EnvState) -> EnvState:
 
 
 def drawn_agents(state: EnvState) -> dict[tuple[int, int], int]:
-    """{(x, y): agent index} the agent drawn on each occupied cell: earliest arrival, ties to lowest index."""
-    pos, arrival = np.asarray(state.pos), np.asarray(state.arrival)
+    """{(x, y): agent index} the agent drawn on each occupied cell: earliest arrival, ties to lowest index
+    (absent agents are not drawn)."""
+    pos, arrival, present = np.asarray(state.pos), np.asarray(state.arrival), np.asarray(state.present)
     drawn: dict[tuple[int, int], int] = {}
-    for i in sorted(range(len(pos)), key=lambda i: (arrival[i], i)):
+    for i in sorted(map(int, np.flatnonzero(present)), key=lambda i: (arrival[i], i)):
         drawn.setdefault((int(pos[i, 0]), int(pos[i, 1])), i)
     return drawn
 

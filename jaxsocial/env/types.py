@@ -101,6 +101,11 @@ class EnvParams:
     """Draw each agent's initial direction uniformly (spec 9.6); else all face east."""
     observation: str = "rgb"
     """'rgb' (uint8[N, 21, 21, 3]) or 'symbolic' (int8[N, V, V, 4])."""
+    solo_prob: float = 0.0
+    """Probability that an episode is solo: only the first `solo_agents` slots take part; the others are
+    absent for the whole episode (never drawn, never act, no reward). 0 = every episode is social."""
+    solo_agents: int = 1
+    """Agent slots present in a solo episode (the first ones)."""
 
     def __post_init__(self):
         def fail(msg):
@@ -124,6 +129,10 @@ class EnvParams:
             fail(f"prestige_formula={self.prestige_formula!r} must be 'code' or 'paper'")
         if self.observation not in ("rgb", "symbolic"):
             fail(f"observation={self.observation!r} must be 'rgb' or 'symbolic'")
+        if not 0.0 <= self.solo_prob <= 1.0:
+            fail(f"solo_prob={self.solo_prob} must be a probability in [0, 1]")
+        if not 1 <= self.solo_agents <= self.n_agents:
+            fail(f"solo_agents={self.solo_agents} must be in [1, n_agents={self.n_agents}]")
         if not 0.0 <= self.clutter_density < 1.0:
             fail(f"clutter_density={self.clutter_density} must be in [0, 1)")
         if self.layout == "goalcycle":
@@ -177,7 +186,9 @@ class EnvState:
         dir: int32[N] agent direction.
         cycle_state: int32[N] id of the last correctly visited bonus tile, -1 before the first.
         prestige: float32[N] prestige value (spec 5).
-        active: bool[N] False once an agent has reached a terminal goal (it then waits on it).
+        active: bool[N] False once an agent has reached a terminal goal (it then waits on it), and for
+            absent agents.
+        present: bool[N] the agent takes part in this episode (False: absent from a solo episode).
         arrival: int32[N] step at which the agent entered its current cell (0 at spawn); sets draw order.
         time: int32 steps taken in this episode.
     """
@@ -189,5 +200,6 @@ class EnvState:
     cycle_state: jax.Array
     prestige: jax.Array
     active: jax.Array
+    present: jax.Array
     arrival: jax.Array
     time: jax.Array

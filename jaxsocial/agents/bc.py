@@ -1,0 +1,80 @@
+"""Behaviour cloning: the learner's network is trained to output the demonstrators' actions from the
+demonstrators' own egocentric observations (cross-entropy, Adam). The paper's imitation-learning baseline,
+which, unlike the social learners, gets the experts' observations and actions.
+
+The trainer collects demonstrations inside its jitted rollout (every scripted-expert and frozen slot is a
+demonstrator; `python -m jaxsocial.train --algo bc`) and calls `update` once per iteration. The network's
+value and auxiliary heads are not trained.
+Shapes: T rollout steps, B demonstration streams (environments x demonstrators).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxsocial.agents import network
+from jaxsocial.agents.network import NetworkConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class BCConfig:
+    """Behaviour-cloning hyperparameters."""
+
+    lr: float = 3e-4
+    """Adam learning rate."""
+    epochs: int = 4
+    """Gradient steps on each iteration's demonstrations (the whole batch each time)."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip."""
+
+    def __post_init__(self):
+        if self.epochs < 1 or self.lr <= 0:
+            raise ValueError(f"BCConfig: need epochs >= 1 and lr > 0, got {self.epochs} and {self.lr}")
+
+
+def make_optimizer(cfg: BCConfig) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.lr))
+
+
+def loss_fn(params, net: NetworkConfig, carry: network.Carry, obs, resets, actions, valid):
+    """Mean cross-entropy of the demonstrators' actions over valid steps.
+
+    obs uint8[T, B, 21, 21, 3]; resets bool[T, B]; actions int32[T, B]; valid bool[T, B] (the demonstrator
+    was acting). Returns (loss, (final carry, metrics)).
+    """
+    carry, out = network.unroll(params, net, carry, obs, resets)
+    log_probs = jax.nn.log_softmax(out.logits)
+    nll = -jnp.take_along_axis(log_probs, actions[..., None], -1)[..., 0]
+    weight = valid.astype(jnp.float32)
+    count = jnp.maximum(weight.sum(), 1.0)
+    loss = jnp.sum(nll * weight) / count
+    accuracy = jnp.sum((jnp.argmax(out.logits, -1) == actions) * weight) / count
+    return loss, (carry, {"bc_loss": loss, "bc_accuracy": accuracy})
+
+
+def update(
+    params, opt_state, carry: network.Carry, net: NetworkConfig, cfg: BCConfig, obs, resets, actions, valid
+):
+    """`cfg.epochs` gradient steps on one batch of demonstrations (arguments as in `loss_fn`).
+
+    The LSTM runs over the batch from `carry`, the demonstration streams' state at its start. Returns new
+    params and optimiser state, the carry at the end of the batch for the next one (computed by the last
+    step's forward pass, i.e. with the params before that step) and the metrics of the first step (the
+    fit to fresh data).
+    """
+    optimizer = make_optimizer(cfg)
+    grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
+
+    def epoch(state, _):
+        params, opt_state = state
+        (_, (end_carry, metrics)), grads = grad_fn(params, net, carry, obs, resets, actions, valid)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state), (end_carry, metrics)
+
+    (params, opt_state), (end_carries, metrics) = jax.lax.scan(epoch, (params, opt_state), None, cfg.epochs)
+    last = jax.tree.map(lambda x: x[-1], end_carries)
+    return params, opt_state, last, jax.tree.map(lambda x: x[0], metrics)
