@@ -132,6 +132,7 @@ def test_devices_and_processes_match_one_device(tmp_path, single_runs):
         ({"seeds": 0}, "seeds must be"),
         ({"seeds": -2}, "seeds must be"),
         ({"seed_batching": "pmap"}, "seed_batching"),
+        ({"seeds": 2, "stages": "0:penalty=0.5;return>=1:penalty=1.0"}, "triggered by the return"),
         ({"devices": 2}, "2 devices requested but only 1"),
         ({"devices": -1}, "devices must be"),
         ({"coordinator": "localhost"}, "HOST:PORT"),
