@@ -5,7 +5,9 @@ compilation cache start clean. Sections (JSON in benchmarks/results/scale_sps.js
 
   devices   training throughput of a preset on 1 and on 2 host devices (`XLA_FLAGS=
             --xla_force_host_platform_device_count=2`, `--devices 2`): one compiled chunk of iterations,
-            joint env-steps/s (best of --repeats calls after a warm-up call), and compile seconds.
+            joint env-steps/s (best and median of --repeats calls after a warm-up call), and compile
+            seconds; --rounds alternating rounds, the speed-up is the median over rounds of the ratio of
+            the median calls.
   seeds     K seeds of the small preset in one program, `seed_batching` vmap and map, against one seed:
             total env-steps/s over all seeds. `--paper-seeds` adds the paper preset with 2 seeds (compile
             seconds and one iteration; minutes).
@@ -22,6 +24,7 @@ import argparse
 import dataclasses
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -41,14 +44,15 @@ def worker(spec: dict) -> dict:
     import jax
     import numpy as np
 
-    from jaxsocial import train
+    from jaxsocial import compile_cache, train
 
+    if spec.get("compile_cache"):
+        compile_cache.enable(spec["compile_cache"])
     cfg = dataclasses.replace(
         train.PRESETS[spec["preset"]],
         seeds=spec["seeds"],
         seed_batching=spec["batching"],
         devices=spec["devices"],
-        **spec.get("overrides", {}),
     )
     program = train.compiled(cfg)
     seeds = np.arange(cfg.seeds, dtype=np.int32) if cfg.seeds > 1 else np.int32(0)
@@ -114,14 +118,23 @@ def base_spec(args: argparse.Namespace, **changes) -> dict:
 
 
 def section_devices(args: argparse.Namespace) -> dict:
+    """1 and 2 host devices, alternating for --rounds rounds (load on a shared machine drifts); later rounds
+    load the programs from a compilation cache."""
     rows = []
-    for host_devices in (1, 2):
-        r = measure(base_spec(args, devices=host_devices), host_devices)
-        show(f"{args.preset}, {host_devices} host device(s)", r)
-        rows.append(r)
-    speedup = rows[1]["best_env_steps_per_s"] / rows[0]["best_env_steps_per_s"]
-    print(f"  2 devices / 1 device: {speedup:.2f}x", flush=True)
-    return {"rows": rows, "speedup_2_over_1": speedup}
+    with tempfile.TemporaryDirectory() as cache:
+        for round_ in range(args.rounds):
+            for host_devices in (1, 2):
+                spec = base_spec(args, devices=host_devices, compile_cache=cache)
+                r = measure(spec, host_devices) | {"round": round_}
+                show(f"{args.preset}, {host_devices} host device(s), round {round_}", r)
+                rows.append(r)
+    speedups = []
+    for round_ in range(args.rounds):
+        one, two = (r for r in rows if r["round"] == round_)
+        speedups.append(two["median_env_steps_per_s"] / one["median_env_steps_per_s"])
+    speedup = statistics.median(speedups)
+    print(f"  2 devices / 1 device, median over rounds of the median call: {speedup:.2f}x", flush=True)
+    return {"rows": rows, "speedups_per_round": speedups, "speedup_2_over_1": speedup}
 
 
 def section_seeds(args: argparse.Namespace) -> dict:
@@ -183,6 +196,7 @@ def main() -> None:
     parser.add_argument("--preset", default="small", help="preset of the devices section")
     parser.add_argument("--iterations", type=int, default=10, help="iterations per compiled call")
     parser.add_argument("--repeats", type=int, default=3, help="timed calls per measurement")
+    parser.add_argument("--rounds", type=int, default=3, help="alternating rounds of the devices section")
     parser.add_argument("--seed-counts", default="2,4", help="seed counts of the seeds section")
     parser.add_argument("--paper-seeds", action="store_true", help="also the paper preset with 2 seeds")
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "scale_sps.json"))
