@@ -114,7 +114,12 @@ class Targets(NamedTuple):
 
 
 def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch) -> Targets:
-    """Unroll the current network over the whole rollout: new chunk-start hidden states, values and GAE."""
+    """Unroll the current network over the whole rollout: new chunk-start hidden states, values and GAE.
+
+    The bootstrap values of truncated episodes (`batch.final_values`) stay those of the rollout policy: they
+    need the pre-reset observation, which the batch does not keep (one value per truncation, at most a
+    couple per environment and rollout).
+    """
     length = cfg.chunk_length
     n_steps = batch.actions.shape[0]
 
