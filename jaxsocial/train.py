@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsocial
-from jaxsocial import checkpoint, logs, schedule
+from jaxsocial import checkpoint, compile_cache, distributed, logs, schedule
 from jaxsocial.agents import bc, network, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
@@ -86,6 +86,25 @@ class TrainConfig:
     """PPO hyperparameters."""
     bc: BCConfig = BCConfig()
     """Behaviour-cloning hyperparameters (with --algo bc)."""
+    # Scale-out (see jaxsocial/distributed.py and the README section "Seeds, devices and hosts").
+    seeds: int = 1
+    """Independent seeds seed, seed + 1, ... trained together in one compiled program; each seed's metrics,
+    checkpoints and policy go to run_dir/s<seed>/."""
+    seed_batching: str = "auto"
+    """How the seeds share the program: 'vmap' (batched), 'map' (one after another, `lax.map`) or 'auto'
+    (map on CPUs, where it measured as fast and compiles faster; vmap on GPUs and TPUs)."""
+    devices: int = 0
+    """Devices the environments are split over (data parallel; 0: all devices of all processes)."""
+    coordinator: str | None = None
+    """Multi-host: HOST:PORT of process 0, the same for every process, or 'auto' (Slurm, Open MPI, TPU);
+    default $JAX_COORDINATOR_ADDRESS."""
+    num_processes: int | None = None
+    """Multi-host: number of processes, one per host (default $JAX_NUM_PROCESSES)."""
+    process_id: int | None = None
+    """Multi-host: this process's index, 0 to num_processes - 1 (default $JAX_PROCESS_ID)."""
+    compile_cache: str | None = None
+    """Persistent compilation cache directory: a later run of the same program skips compiling (off by
+    default; see `python -m jaxsocial.compile_cache`)."""
 
     @property
     def env_overrides(self) -> dict[str, Any]:
@@ -172,10 +191,22 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
     if cfg.iterations < 1 or cfg.chunk_iterations < 1 or cfg.checkpoint_every < 1:
         raise ValueError("iterations, chunk_iterations and checkpoint_every must be >= 1")
+    if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
+        raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
+    if cfg.seed_batching not in SEED_BATCHING:
+        raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
+    if cfg.seeds > 1 and any(stage.threshold is not None for stage in stages):
+        raise ValueError(
+            "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
+            "triggered by the return would start at another iteration for each seed: train them one by one"
+        )
     frozen = None
     if pop.frozen and load_frozen:
         frozen = population.stack([population.load_policy(pop.slots[i].path, cfg.net) for i in pop.frozen])
     return Setup(env_params, pop, stages, frozen)
+
+
+SEED_BATCHING = ("auto", "vmap", "map")
 
 
 class RunnerState(NamedTuple):
@@ -193,6 +224,21 @@ class RunnerState(NamedTuple):
     iteration: jax.Array  # int32[]
 
 
+ENV_AXES = RunnerState(
+    params=None,
+    opt_state=None,
+    env_states=0,
+    obs=0,
+    resets=0,
+    slots=population.SlotState(carry=1, memory=0, reward=0),
+    demo_carry=1,  # the streams are environment-major
+    episode_return=0,
+    key=None,
+    iteration=None,
+)
+"""The environment axis of the RunnerState's arrays, split over devices (pytree prefix; None: replicated)."""
+
+
 class Transition(NamedTuple):
     """One rollout step. obs, actions and valid are of the recorded slots (learners for PPO, demonstrators
     for BC), the rest of the learners."""
@@ -208,18 +254,21 @@ class Transition(NamedTuple):
     valid: jax.Array
 
 
-def make_train(cfg: TrainConfig):
+def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
     """Build the pure training functions for `cfg`, a single-stage config (see `stage_config`); validated
     first.
 
     Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
     (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
     None); `train(key) -> (state, metrics)` is the whole run (it loads frozen policies when traced).
-    Metrics are dicts of arrays with a leading iteration axis.
+    Metrics are dicts of arrays with a leading iteration axis. One seed (`cfg.seeds` is handled by
+    `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
+    minibatches over them too).
     """
     if cfg.stages:
         raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
     env_params, pop, _, _ = setup(cfg, load_frozen=False)
+    dp = distributed.data_parallel(mesh)
     net, ppo_cfg = cfg.net, cfg.ppo
     learners = jnp.asarray(pop.learners)
     n_learners, n_neural = len(pop.learners), len(pop.neural)
@@ -263,7 +312,7 @@ def make_train(cfg: TrainConfig):
         )
         done = info["done"]
         final_values = jax.lax.cond(
-            jnp.any(done),
+            core.any_in_batch(done),
             lambda: population.values(pop, net, params, slots.carry, info["final_obs"]),
             lambda: jnp.zeros((n_neural, n_envs), jnp.float32),
         )
@@ -312,7 +361,7 @@ def make_train(cfg: TrainConfig):
         # vmapped paper-size network, whose chunked convolutions are themselves a `lax.map`.
         def update(args):
             key, params, opt_state, learner_batch = args
-            return ppo.update(key, params, opt_state, net, ppo_cfg, learner_batch)
+            return ppo.update(key, params, opt_state, net, ppo_cfg, learner_batch, dp)
 
         new_params, new_opt, losses = jax.lax.map(
             update, (jax.random.split(k_update, n_learners), state.params, state.opt_state, batch)
@@ -375,21 +424,97 @@ DRIVER_FIELDS = {
     "checkpoint_every",
     "run_name",
     "runs_dir",
+    "devices",
+    "coordinator",
+    "num_processes",
+    "process_id",
+    "compile_cache",
 }
-"""Fields that do not change the compiled program."""
+"""Fields that do not change the compiled program (or only its placement: `devices`), so a run can be resumed
+with other values."""
+
+
+def over_seeds(run_chunk, batching: str = "vmap"):
+    """`run_chunk` of `make_train` over a leading seed axis of the state and the metrics (the frozen params
+    are shared): 'vmap' batches the seeds, 'map' runs them one after another (`lax.map`); both give every
+    seed the result of a run of its own (vmap up to floating-point summation order)."""
+
+    def run_seeds(state, frozen_params, n: int):
+        if batching == "vmap":
+            return jax.vmap(lambda s: run_chunk(s, frozen_params, n))(state)
+        return jax.lax.map(lambda s: run_chunk(s, frozen_params, n), state)
+
+    return run_seeds
+
+
+class Program(NamedTuple):
+    """A run's compiled functions, placed on a device mesh.
+
+    init(seeds): int32[] (or int32[K] for K seeds) -> RunnerState ([K, ...] for K seeds) on `shardings`;
+    run_chunk(state, frozen_params, n) -> (state, metrics) (n static; the state is donated; metrics
+    replicated, [K, n, ...] for K seeds); frozen params must be placed with `distributed.put`.
+    """
+
+    init: Any
+    run_chunk: Any
+    shardings: RunnerState
+    mesh: jax.sharding.Mesh
 
 
 @functools.lru_cache(maxsize=8)
-def _compiled(program_cfg: TrainConfig):
-    init, run_chunk, _ = make_train(program_cfg)
-    return jax.jit(init), jax.jit(run_chunk, static_argnums=2, donate_argnums=0)
+def _compiled(program_cfg: TrainConfig, mesh: jax.sharding.Mesh) -> Program:
+    init, run_chunk, _ = make_train(program_cfg, mesh)
+    replicated = distributed.replicated(mesh)
+
+    def init_from_seed(seed):
+        return init(jax.random.key(seed))
+
+    one_seed = jax.eval_shape(init_from_seed, jax.ShapeDtypeStruct((), jnp.int32))
+    shardings = distributed.state_shardings(one_seed, mesh, ENV_AXES)
+    init_one = jax.jit(init_from_seed, in_shardings=replicated, out_shardings=shardings)
+    program_init = init_one
+    if program_cfg.seeds > 1:  # each seed's state as in a run of its own, stacked
+        batching = program_cfg.seed_batching
+        if batching == "auto":
+            batching = "map" if mesh.devices.flat[0].platform == "cpu" else "vmap"
+        run_chunk = over_seeds(run_chunk, batching)
+        stacked = jax.eval_shape(population.stack, [one_seed] * program_cfg.seeds)
+        shardings = distributed.state_shardings(stacked, mesh, ENV_AXES, offset=1)
+        stack = jax.jit(population.stack, out_shardings=shardings)
+
+        def program_init(seeds):
+            return stack([init_one(np.int32(seed)) for seed in seeds])
+
+    return Program(
+        program_init,
+        jax.jit(
+            run_chunk,
+            static_argnums=2,
+            donate_argnums=0,
+            in_shardings=(shardings, replicated),
+            out_shardings=(shardings, replicated),
+        ),
+        shardings,
+        mesh,
+    )
 
 
-def compiled(cfg: TrainConfig):
-    """`(jit(init), jit(run_chunk))` for `cfg`, shared between runs whose programs are the same (tests,
-    notebooks and sweeps in one process compile once)."""
+def data_mesh(cfg: TrainConfig) -> jax.sharding.Mesh:
+    """The devices `cfg` splits its environments over (ValueError, before compiling, if they do not split)."""
+    sizes = {"num_envs": cfg.num_envs}
+    if cfg.algo == "ppo":
+        sizes["minibatch_chunks"] = cfg.ppo.minibatch_chunks
+    return distributed.data_mesh(cfg.devices, **sizes)
+
+
+def compiled(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None) -> Program:
+    """The `Program` of `cfg` on `mesh` (default: `data_mesh(cfg)`), shared
+    between runs whose programs are the same (tests, notebooks and sweeps in one process compile once)."""
+    if mesh is None:
+        mesh = data_mesh(cfg)
     defaults = TrainConfig()
-    return _compiled(dataclasses.replace(cfg, **{f: getattr(defaults, f) for f in DRIVER_FIELDS}))
+    unused = DRIVER_FIELDS | {"seed"}  # the seeds are an argument of `init`
+    return _compiled(dataclasses.replace(cfg, **{f: getattr(defaults, f) for f in unused}), mesh)
 
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:
@@ -440,33 +565,78 @@ def learner_return(metrics: dict[str, np.ndarray], pop: population.Population) -
     return float((metrics["return"][:, learners] * episodes).sum() / episodes.sum())
 
 
+def run_name(cfg: TrainConfig) -> str:
+    """`cfg.run_name`, or '<env>-s<seed>' ('<env>-s<first>-<last>' for several seeds)."""
+    if cfg.run_name:
+        return cfg.run_name
+    last = f"-{cfg.seed + cfg.seeds - 1}" if cfg.seeds > 1 else ""
+    return f"{cfg.env}-s{cfg.seed}{last}"
+
+
+def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[tuple[TrainConfig, Path]]:
+    """(config, directory) of each seed: the run itself for one seed; for several, `run_dir/s<seed>/` with
+    the config of a one-seed run of that seed (so it reads like one, e.g. for `frozen:RUN_DIR/s1`)."""
+    if cfg.seeds == 1:
+        return [(cfg, run_dir)]
+    runs = []
+    for seed in range(cfg.seed, cfg.seed + cfg.seeds):
+        name = f"{run_name(cfg)}/s{seed}"
+        runs.append((dataclasses.replace(cfg, seed=seed, seeds=1, run_name=name), run_dir / f"s{seed}"))
+    return runs
+
+
 def run(cfg: TrainConfig) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory.
 
     The run goes through the stages of `cfg.stages` (one compiled program each, switched between chunks);
-    metrics rows record the stage, and checkpoints the stage to resume in.
+    metrics rows record the stage, and checkpoints the stage to resume in. Several seeds train in one
+    program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`). In a
+    multi-process run every process calls this with the same config (and its own process_id); only process 0
+    writes logs, metrics and progress.
     """
+    distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
+    if cfg.compile_cache:
+        compile_cache.enable(cfg.compile_cache)
     _, pop, stages, frozen = setup(cfg)  # validate before touching the disk or compiling
-    name = cfg.run_name or f"{cfg.env}-s{cfg.seed}"
-    run_dir = logs.prepare_run_dir(cfg.runs_dir, name, resume=cfg.resume, overwrite=cfg.overwrite)
-    ckpt_dir = run_dir / "checkpoints"
+    mesh = data_mesh(cfg)
+    name = run_name(cfg)
+    run_dir = Path(cfg.runs_dir).expanduser() / name
+    seeds = seed_runs(cfg, run_dir)
     config = config_dict(cfg)
-    if cfg.resume and (run_dir / "config.json").exists():
-        diff = [k for k in logs.config_diff(logs.read_config(run_dir), config) if k not in DRIVER_FIELDS]
-        if diff:
-            raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
-    logs.write_config(run_dir, config)
+
+    def prepare() -> None:
+        logs.prepare_run_dir(cfg.runs_dir, name, resume=cfg.resume, overwrite=cfg.overwrite)
+        if cfg.resume and (run_dir / "config.json").exists():
+            diff = [k for k in logs.config_diff(logs.read_config(run_dir), config) if k not in DRIVER_FIELDS]
+            if diff:
+                raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
+        logs.write_config(run_dir, config)
+        for seed_cfg, seed_dir in seeds:
+            for sub in ("checkpoints", population.POLICY_DIR):  # made here, before any process looks
+                (seed_dir / sub).mkdir(parents=True, exist_ok=True)
+            if seed_cfg is not cfg:
+                logs.write_config(seed_dir, config_dict(seed_cfg))
+
+    distributed.on_main(prepare)
+    main = distributed.is_main()
     stage = schedule.initial_index(stages)
-    init, _ = compiled(stage_config(cfg, stages, stage))
-    state = init(jax.random.key(cfg.seed))
-    if cfg.resume and checkpoint.latest_step(ckpt_dir) is not None:
-        state = checkpoint.restore(ckpt_dir, state)
-        stage = int(checkpoint.read_metadata(ckpt_dir).get("stage", stage))
-    metrics_log = logs.MetricsLog(run_dir)
-    start = int(state.iteration)
-    metrics_log.truncate_after(start)
-    extra = logs.make_logger(cfg.logger, run_dir, config)
-    progress = logs.Progress(cfg.iterations, desc=name, initial=start) if cfg.progress else None
+    program = compiled(stage_config(cfg, stages, stage), mesh)
+    state = program.init(np.asarray([c.seed for c, _ in seeds] if cfg.seeds > 1 else cfg.seed, np.int32))
+    if frozen is not None:
+        frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
+    if cfg.resume:
+        state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
+    start = int(np.asarray(state.iteration).reshape(-1)[0])
+    metrics_logs = [logs.MetricsLog(d) for _, d in seeds] if main else []
+    for metrics_log in metrics_logs:
+        metrics_log.truncate_after(start)
+    extras = [logs.make_logger(cfg.logger, d, config_dict(c)) for c, d in seeds] if main else []
+    progress = None
+    if cfg.progress and main:
+        parts = [f"{cfg.seeds} seeds"] if cfg.seeds > 1 else []
+        parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
+        desc = f"{name} ({', '.join(parts)})" if parts else name
+        progress = logs.Progress(cfg.iterations, desc=desc, initial=start)
     steps_per_iteration = cfg.num_envs * cfg.rollout_steps
     last_saved = start
     it = start
@@ -475,38 +645,70 @@ def run(cfg: TrainConfig) -> Path:
         switch = schedule.next_start(stages, stage)
         if switch is not None and switch > it:
             n = min(n, switch - it)  # land exactly on the next stage's first iteration
-        _, chunk = compiled(stage_config(cfg, stages, stage))
+        program = compiled(stage_config(cfg, stages, stage), mesh)
         t0 = time.perf_counter()
-        state, metrics = chunk(state, frozen, n)
+        state, metrics = program.run_chunk(state, frozen, n)
         metrics = jax.device_get(metrics)
-        sps = n * steps_per_iteration / (time.perf_counter() - t0)
-        rows = metric_rows(metrics, it, round(sps), pop)
-        for row in rows:
-            row["stage"] = stage
-        metrics_log.append(rows)
-        for row in rows:
-            if extra is not None:
+        sps = n * steps_per_iteration / (time.perf_counter() - t0)  # per seed
+        for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
+            seed_metrics = metrics if cfg.seeds == 1 else jax.tree.map(lambda m, k=k: m[k], metrics)
+            rows = metric_rows(seed_metrics, it, round(sps), pop)
+            for row in rows:
+                row["stage"] = stage
+            metrics_log.append(rows)
+            for row in rows:
                 extra.log(row, row["iteration"])
         it += n
-        stage = schedule.advance(stages, stage, it, learner_return(metrics, pop))
+        all_seeds = jax.tree.map(lambda m: m.reshape(-1, *m.shape[2:]), metrics) if cfg.seeds > 1 else metrics
+        stage = schedule.advance(stages, stage, it, learner_return(all_seeds, pop))
         if it - last_saved >= cfg.checkpoint_every or it == cfg.iterations:
-            checkpoint.save(ckpt_dir, it, state, metadata={**config, "stage": stage})
-            policy_meta = {
-                "net": population.json_net(cfg.net),
-                "n_learners": len(pop.learners),
-                "slots": cfg.slots,
-            }
-            checkpoint.save(
-                run_dir / population.POLICY_DIR, it, {"params": state.params}, metadata=policy_meta
-            )
+            save_seeds(cfg, seeds, it, state, pop, stage)
             last_saved = it
         if progress is not None:
-            progress.update(it, **({"stage": stage} if stages else {}), **progress_fields(metrics, sps))
+            shown = {"stage": stage} if stages else {}
+            progress.update(it, **shown, **progress_fields(all_seeds, sps * cfg.seeds))
     if progress is not None:
         progress.close()
-    if extra is not None:
+    for extra in extras:
         extra.close()
     return run_dir
+
+
+def save_seeds(
+    cfg: TrainConfig, seeds: list[tuple[TrainConfig, Path]], it: int, state: RunnerState, pop, stage: int
+) -> None:
+    """Checkpoint (with the stage to resume in) and policy of every seed at iteration `it` (every process
+    takes part)."""
+    host = distributed.to_host(state)
+    policy_meta = {"net": population.json_net(cfg.net), "n_learners": len(pop.learners), "slots": cfg.slots}
+    for k, (seed_cfg, seed_dir) in enumerate(seeds):
+        seed_state = host if cfg.seeds == 1 else jax.tree.map(lambda x, k=k: x[k], host)
+        ckpt_dir = seed_dir / "checkpoints"
+        if it in checkpoint.all_steps(ckpt_dir):  # saved before an interruption: the same state
+            continue
+        checkpoint.save(ckpt_dir, it, seed_state, metadata={**config_dict(seed_cfg), "stage": stage})
+        checkpoint.save(
+            seed_dir / population.POLICY_DIR, it, {"params": seed_state.params}, metadata=policy_meta
+        )
+
+
+def restore_seeds(
+    cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, program: Program, stage: int
+) -> tuple[RunnerState, int]:
+    """The state and stage from the latest checkpoint that every seed has (unchanged if none has one)."""
+    steps = [checkpoint.latest_step(d) for d in ckpt_dirs]
+    if all(s is None for s in steps):
+        return state, stage
+    if any(s is None for s in steps):
+        missing = [str(d.parent) for d, s in zip(ckpt_dirs, steps, strict=True) if s is None]
+        raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
+    step = min(steps)
+    lead = int(cfg.seeds > 1)
+    template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), state)
+    restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
+    host = restored[0] if cfg.seeds == 1 else population.stack(restored)
+    stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", stage))
+    return distributed.put(host, program.shardings), stage
 
 
 def parse_args(argv: list[str]) -> TrainConfig:
@@ -528,8 +730,11 @@ def main(argv: list[str] | None = None) -> None:
         run_dir = run(cfg)
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
-    rows = logs.read_metrics(run_dir)
-    print(f"wrote {run_dir} ({len(rows)} iterations)")
+    if distributed.is_main():
+        seed_dirs = [d for _, d in seed_runs(cfg, run_dir)]
+        rows = logs.read_metrics(seed_dirs[0])
+        where = f" ({len(seed_dirs)} seeds: s{cfg.seed}/ ...)" if len(seed_dirs) > 1 else ""
+        print(f"wrote {run_dir}{where} ({len(rows)} iterations)")
 
 
 if __name__ == "__main__":

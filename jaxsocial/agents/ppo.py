@@ -2,14 +2,17 @@
 entropy bonus and the auxiliary observation loss; minibatches of trajectory chunks seeded with stored LSTM
 states; hidden states and advantages recomputed every few minibatches; KL early stop and hard-limit revert.
 
-Everything here is for a single learner; the trainer `vmap`s it over learner slots.
+Everything here is for a single learner; the trainer maps it over learner slots. With data parallelism
+(`dp`, a `jaxsocial.distributed.DataParallel`) the environments of the rollout and the chunks of each
+minibatch are split over devices: the network runs on each device's share, the losses' means and the
+gradient are taken over the whole batch, so the result is that of one device.
 Shapes: T rollout steps, E environments, L chunk length, C = T / L chunks per environment.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -113,13 +116,24 @@ class Targets(NamedTuple):
     returns: jax.Array
 
 
-def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch) -> Targets:
+BATCH_ENV_AXES = Batch(*([1] * (len(Batch._fields) - 1)), carry0=0)
+"""The environment axis of each Batch field."""
+TARGETS_ENV_AXES = Targets(carries=1, advantages=1, returns=1)
+
+
+def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Any = None) -> Targets:
     """Unroll the current network over the whole rollout: new chunk-start hidden states, values and GAE.
 
-    The bootstrap values of truncated episodes (`batch.final_values`) stay those of the rollout policy: they
-    need the pre-reset observation, which the batch does not keep (one value per truncation, at most a
-    couple per environment and rollout).
+    Every environment on its own, so with `dp` each device computes its environments' targets. The bootstrap
+    values of truncated episodes (`batch.final_values`) stay those of the rollout policy: they need the
+    pre-reset observation, which the batch does not keep (one value per truncation, at most a couple per
+    environment and rollout).
     """
+    if dp is not None:
+        local = dp.per_device(
+            lambda p, b: recompute(p, net, cfg, b), in_axes=(None, BATCH_ENV_AXES), out_axes=TARGETS_ENV_AXES
+        )
+        return local(params, batch)
     length = cfg.chunk_length
     n_steps = batch.actions.shape[0]
 
@@ -176,12 +190,23 @@ def _masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
     return jnp.sum(x * mask) / jnp.maximum(jnp.sum(mask), 1.0)
 
 
-def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]):
+def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array], dp: Any = None):
     """The paper's total loss on one minibatch: L_pi + c_V L_V + c_aux L_aux - c_ent H.
 
-    Returns (loss, metrics dict with 'kl' = estimated KL(rollout || current) on valid steps).
+    Returns (loss, metrics dict with 'kl' = estimated KL(rollout || current) on valid steps). With `dp` the
+    network runs on each device's chunks of the minibatch ([L, M] arrays split along M).
     """
-    _, out = network.unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
+
+    def unroll(params, carry, obs, resets):
+        return network.unroll(params, net, carry, obs, resets)
+
+    def decode(params, hidden, actions):
+        return network.decode(params, net, hidden, actions)
+
+    if dp is not None:
+        unroll = dp.per_device(unroll, in_axes=(None, 0, 1, 1), out_axes=(0, 1))
+        decode = dp.per_device(decode, in_axes=(None, 1, 1), out_axes=1)
+    _, out = unroll(params, mb["carry"], mb["obs"], mb["resets"])
     valid = mb["valid"]
     log_probs = jax.nn.log_softmax(out.logits)
     logp = jnp.take_along_axis(log_probs, mb["actions"][..., None], -1)[..., 0]
@@ -209,7 +234,7 @@ def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]
     }
     if net.aux != "none":
         target = mb["next_obs"] if net.aux == "pred" else mb["obs"]
-        prediction = network.decode(params, net, out.hidden, mb["actions"])
+        prediction = decode(params, out.hidden, mb["actions"])
         error = jnp.mean(jnp.abs(prediction - target.astype(jnp.float32) / 255.0), axis=(-3, -2, -1))
         # A next observation after the episode ended belongs to a new episode: nothing to predict.
         aux_mask = valid & ~mb["done"] if net.aux == "pred" else valid
@@ -233,7 +258,13 @@ class UpdateState(NamedTuple):
 
 
 def update(
-    key: jax.Array, params, opt_state, net: NetworkConfig, cfg: PPOConfig, batch: Batch
+    key: jax.Array,
+    params,
+    opt_state,
+    net: NetworkConfig,
+    cfg: PPOConfig,
+    batch: Batch,
+    dp: Any = None,
 ) -> tuple[dict, optax.OptState, dict[str, jax.Array]]:
     """One PPO update of one learner on its rollout (the paper's minibatch loop).
 
@@ -241,9 +272,12 @@ def update(
     states and advantages are recomputed with the current params. Each minibatch measures the KL to the
     rollout policy with the current params: above `kl_hard_limit` every change of this update is reverted
     (params and optimiser state) and the loop ends; above `kl_target` the loop ends without applying it.
-    Returns new params, optimiser state and metrics (means over the minibatches that ran).
+    Returns new params, optimiser state and metrics (means over the minibatches that ran). `dp`: data
+    parallelism (see the module docstring).
     """
     optimizer = make_optimizer(cfg)
+    if dp is not None:
+        batch = dp.shard(batch, BATCH_ENV_AXES)
     n_chunks = batch.actions.shape[0] // cfg.chunk_length * batch.actions.shape[1]
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
@@ -251,12 +285,14 @@ def update(
         m, k = inputs
         targets = jax.lax.cond(
             m % cfg.recompute_every == 0,
-            lambda: recompute(state.params, net, cfg, batch),
+            lambda: recompute(state.params, net, cfg, batch, dp),
             lambda: state.targets,
         )
         idx = jax.random.choice(k, n_chunks, (cfg.minibatch_chunks,), replace=False)
         mb = minibatch(batch, targets, idx, cfg.chunk_length)
-        (_, metrics), grads = grad_fn(state.params, net, cfg, mb)
+        if dp is not None:  # chunks split over devices: [L, M, ...] along M, the carry [M, H] along M
+            mb = dp.shard(mb, {name: int(name != "carry") for name in mb})
+        (_, metrics), grads = grad_fn(state.params, net, cfg, mb, dp)
         kl = metrics["kl"]
         apply = state.running & (kl <= cfg.kl_target)
         revert = state.running & (kl > cfg.kl_hard_limit)

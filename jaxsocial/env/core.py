@@ -106,6 +106,22 @@ def step(
     return next_obs, next_state, reward, terminated, truncated, {"final_obs": obs, "done": done}
 
 
+@jax.custom_batching.custom_vmap
+def any_in_batch(x: jax.Array) -> jax.Array:
+    """`jnp.any(x)`, and under `vmap` the any over the vmapped axes too (an unbatched bool[]).
+
+    For the predicate of a `lax.cond` that only skips work whose results are masked anyway (new episodes
+    where none ended): with a batched predicate a vmapped cond runs both branches every time; with this one
+    it stays a cond (e.g. `step_batch` vmapped over independent training seeds).
+    """
+    return jnp.any(x)
+
+
+@any_in_batch.def_vmap
+def _any_in_batch_vmap(axis_size: int, in_batched: list[bool], x: jax.Array):
+    return jnp.any(x), False
+
+
 def step_batch(
     keys: jax.Array, states: EnvState, actions: jax.Array, params: EnvParams
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
@@ -127,7 +143,7 @@ def step_batch(
 
         return pick(reset_obs, obs), jax.tree.map(pick, reset_states, new_states)
 
-    next_obs, next_states = jax.lax.cond(jnp.any(done), with_resets, lambda: (obs, new_states))
+    next_obs, next_states = jax.lax.cond(any_in_batch(done), with_resets, lambda: (obs, new_states))
     return next_obs, next_states, reward, terminated, truncated, {"final_obs": obs, "done": done}
 
 

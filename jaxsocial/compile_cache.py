@@ -1,0 +1,74 @@
+"""JAX's persistent compilation cache: a later run of the same program loads it instead of compiling it.
+
+    python -m jaxsocial.train --compile-cache ~/.cache/jaxsocial/xla ...   # use (and fill) a cache
+    python -m jaxsocial.compile_cache                # where the default cache is, its entries and size
+    python -m jaxsocial.compile_cache --clear        # delete its entries
+
+The cache is keyed by the program, the JAX/XLA versions and the devices, so one directory serves every
+configuration. Programs that compile in under `MIN_COMPILE_SECONDS` are not stored (JAX runs many tiny ones).
+Setting $JAX_COMPILATION_CACHE_DIR has the same effect for any JAX program.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+import jax
+
+__all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "enable", "entries", "main"]
+
+DEFAULT_DIR = Path(os.environ.get("XDG_CACHE_HOME") or "~/.cache").expanduser() / "jaxsocial" / "xla"
+"""The directory `python -m jaxsocial.compile_cache` looks at by default."""
+MIN_COMPILE_SECONDS = 0.5
+
+
+def enable(directory: str | Path, min_compile_seconds: float = MIN_COMPILE_SECONDS) -> Path:
+    """Stores compiled programs in `directory` (created if missing) and loads them from there from now on in
+    this process. Returns the absolute directory."""
+    path = Path(directory).expanduser().absolute()
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"compile cache {path} exists and is not a directory")
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_seconds))
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    from jax.experimental.compilation_cache import compilation_cache
+
+    compilation_cache.reset_cache()  # JAX opens the cache on the first compilation; point it here
+    return path
+
+
+def entries(directory: str | Path) -> list[Path]:
+    """The files of JAX's cache in `directory`: a `<key>-cache` per program and maybe `<key>-atime` (its last
+    use); [] if `directory` does not exist. Nothing else there counts (or is deleted by --clear)."""
+    path = Path(directory).expanduser()
+    if not path.is_dir():
+        return []
+    return sorted(p for p in path.iterdir() if p.is_file() and p.name.endswith(("-cache", "-atime")))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m jaxsocial.compile_cache", description="Show or clear the persistent compile cache."
+    )
+    parser.add_argument("directory", nargs="?", default=str(DEFAULT_DIR), help=f"default: {DEFAULT_DIR}")
+    parser.add_argument("--clear", action="store_true", help="delete the cached programs")
+    args = parser.parse_args(argv)
+    path = Path(args.directory).expanduser().absolute()
+    files = entries(path)
+    programs = sum(f.name.endswith("-cache") for f in files)
+    summary = f"{programs} programs, {sum(f.stat().st_size for f in files) / 1e6:.1f} MB"
+    if args.clear:
+        for f in files:
+            f.unlink()
+        print(f"cleared {path} ({summary})")
+        return
+    state = summary if path.is_dir() else "does not exist yet"
+    print(f"{path}: {state}")
+    print(f"use it with: python -m jaxsocial.train --compile-cache {path} ...")
+
+
+if __name__ == "__main__":
+    main()

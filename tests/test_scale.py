@@ -1,0 +1,166 @@
+"""Scale-out: seeds in one program, data parallelism over devices and processes, bad input, compile cache.
+
+Runs with several devices or processes are subprocesses (XLA_FLAGS must be set before JAX starts; this
+process keeps one device); their metrics are compared with one-device runs made here.
+"""
+
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from test_train import TINY, metrics_without_speed
+
+from jaxsocial import checkpoint, compile_cache, distributed
+from jaxsocial.agents import population
+from jaxsocial.train import run
+
+REPO = Path(__file__).resolve().parent.parent
+TINY_FLAGS = [  # TINY as command-line flags
+    "--env-args", TINY.env_args, "--slots", TINY.slots, "--num-envs", "4", "--rollout-steps", "8",
+    "--iterations", "4", "--chunk-iterations", "2", "--checkpoint-every", "2",
+    "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8", "--ppo.chunk-length", "4",
+    "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2", "--ppo.lr", "3e-3", "--no-progress",
+]  # fmt: skip
+
+
+def assert_same_metrics(a: Path, b: Path) -> None:
+    """Equal episode counts; other metrics equal up to floating-point summation order."""
+    rows_a, rows_b = metrics_without_speed(a), metrics_without_speed(b)
+    assert len(rows_a) == len(rows_b) == TINY.iterations
+    for row_a, row_b in zip(rows_a, rows_b, strict=True):
+        assert row_a.keys() == row_b.keys()
+        for key in row_a:
+            if key.startswith(("episodes/", "iteration")):
+                assert row_a[key] == row_b[key], key
+            else:
+                np.testing.assert_allclose(row_a[key], row_b[key], rtol=1e-4, atol=1e-5, err_msg=key)
+
+
+def env_with(**extra: str) -> dict[str, str]:
+    env = dict(
+        os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
+    )
+    return {**env, **extra}
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def single_runs(tmp_path_factory):
+    """One-device, one-seed runs of TINY with seeds 0 and 1."""
+    root = tmp_path_factory.mktemp("single")
+    return [run(dataclasses.replace(TINY, runs_dir=str(root), run_name=f"s{s}", seed=s)) for s in (0, 1)]
+
+
+def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs):
+    cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), seeds=2, seed_batching="vmap")
+    run_dir = run(dataclasses.replace(cfg, run_name="k2"))
+    assert json.loads((run_dir / "config.json").read_text())["seeds"] == 2
+    for seed, single in enumerate(single_runs):
+        seed_dir = run_dir / f"s{seed}"
+        config = json.loads((seed_dir / "config.json").read_text())
+        assert config["seed"] == seed and config["seeds"] == 1
+        assert checkpoint.all_steps(seed_dir / "checkpoints") == [2, 4]
+        assert_same_metrics(seed_dir, single)
+    # Each seed directory is a run of its own: its policy plays in a frozen slot.
+    policies = [population.load_policy(str(run_dir / f"s{s}"), TINY.net) for s in (0, 1)]
+    assert not np.array_equal(*(jax.tree.leaves(p)[0] for p in policies))
+    # An interrupted run of several seeds resumes to the same metrics.
+    run(dataclasses.replace(cfg, run_name="cut", iterations=2))
+    resumed = run(dataclasses.replace(cfg, run_name="cut", resume=True))
+    for seed in (0, 1):
+        assert metrics_without_speed(resumed / f"s{seed}") == metrics_without_speed(run_dir / f"s{seed}")
+
+
+def test_devices_and_processes_match_one_device(tmp_path, single_runs):
+    """Two host devices in one process (two seeds, seeds mapped) and two processes with one device each
+    give the metrics of one device; the two-device run fills a compilation cache."""
+    cli = [sys.executable, "-m", "jaxsocial.train", *TINY_FLAGS, "--runs-dir", str(tmp_path)]
+    two_devices = subprocess.Popen(
+        [*cli, "--run-name", "d2", "--devices", "2", "--seeds", "2", "--seed-batching", "map"]
+        + ["--compile-cache", str(tmp_path / "cache")],
+        env=env_with(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    coordinator = f"127.0.0.1:{free_port()}"
+    processes = [
+        subprocess.Popen(
+            [*cli, "--run-name", "p2", "--coordinator", coordinator, "--num-processes", "2"]
+            + ["--process-id", str(i)],
+            env=env_with(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
+    for proc in [two_devices, *processes]:
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err[-3000:]
+    for seed, single in enumerate(single_runs):
+        assert_same_metrics(tmp_path / "d2" / f"s{seed}", single)
+    assert_same_metrics(tmp_path / "p2", tmp_path / "d2" / "s0")
+    assert checkpoint.all_steps(tmp_path / "p2" / "checkpoints") == [2, 4]
+    assert compile_cache.entries(tmp_path / "cache")
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxsocial.compile_cache", str(tmp_path / "cache"), "--clear"],
+        env=env_with(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0 and "cleared" in done.stdout, done.stderr
+    assert not compile_cache.entries(tmp_path / "cache")
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"seeds": 0}, "seeds must be"),
+        ({"seeds": -2}, "seeds must be"),
+        ({"seed_batching": "pmap"}, "seed_batching"),
+        ({"seeds": 2, "stages": "0:penalty=0.5;return>=1:penalty=1.0"}, "triggered by the return"),
+        ({"devices": 2}, "2 devices requested but only 1"),
+        ({"devices": -1}, "devices must be"),
+        ({"coordinator": "localhost"}, "HOST:PORT"),
+        ({"num_processes": 2}, "need a coordinator"),
+        ({"coordinator": "localhost:1", "num_processes": 2, "process_id": 2}, "process_id"),
+    ],
+)
+def test_bad_scale_input_fails_before_compiling(tmp_path, changes, message):
+    with pytest.raises(ValueError, match=message):
+        run(dataclasses.replace(TINY, runs_dir=str(tmp_path), **changes))
+    assert not any(tmp_path.iterdir())  # nothing written
+    assert not jax.distributed.is_initialized()
+
+
+def test_batch_must_split_over_devices():
+    with pytest.raises(ValueError, match="num_envs=6 does not split evenly over 4 devices"):
+        distributed.check_batch(4, num_envs=6, minibatch_chunks=8)
+    with pytest.raises(ValueError, match="minibatch_chunks=3"):
+        distributed.check_batch(2, num_envs=4, minibatch_chunks=3)
+    distributed.check_batch(2, num_envs=4, minibatch_chunks=4)
+
+
+def test_compile_cache_command(tmp_path, capsys):
+    compile_cache.main([str(tmp_path / "none")])
+    assert "does not exist yet" in capsys.readouterr().out
+    (tmp_path / "keep.txt").write_text("not a cache entry")
+    (tmp_path / "jit_f-0123-cache").write_bytes(b"x" * 10)
+    compile_cache.main([str(tmp_path)])
+    assert "1 programs" in capsys.readouterr().out
+    compile_cache.main([str(tmp_path), "--clear"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]  # only the cache's own files go
