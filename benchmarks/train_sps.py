@@ -257,11 +257,15 @@ def section_network_hugepages(args: argparse.Namespace) -> dict:
 def section_train(args: argparse.Namespace) -> dict:
     """End-to-end training throughput of `python -m jaxsocial.train` presets: one compiled chunk of
     iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
-    from jaxsocial.train import PRESETS, make_train
+    from jaxsocial.train import PRESETS, make_train, setup
 
     rows = []
-    for preset, n_iter in (("small", 10), ("paper", 1)):
-        cfg = PRESETS[preset]
+    runs = [
+        ("small", PRESETS["small"], 10),
+        ("small, random slots", dataclasses.replace(PRESETS["small"], slots="learner,random,random"), 10),
+        ("paper", PRESETS["paper"], 1),
+    ]
+    for preset, cfg, n_iter in runs:
         init, run_chunk, _ = make_train(cfg)
         state = jax.jit(init)(jax.random.key(0))
         fn = jax.jit(run_chunk, static_argnums=2)
@@ -282,7 +286,10 @@ def section_train(args: argparse.Namespace) -> dict:
         row = {
             "preset": preset,
             "env": cfg.env,
-            "slots": cfg.slots or "learner,random,random",
+            "slots": ",".join(
+                slot.kind if slot.kind != "expert" else f"expert:{slot.expert.kind}"
+                for slot in setup(cfg).pop.slots
+            ),
             "iterations_per_call": n_iter,
             "env_steps_per_call": steps,
             "grad_samples_per_call": n_iter
@@ -296,7 +303,7 @@ def section_train(args: argparse.Namespace) -> dict:
         }
         rows.append(row)
         print(
-            f"  {preset:6s} {best:9,.0f} joint env-steps/s ({best * n_agents:,.0f} agent-steps/s), "
+            f"  {preset:20s} {best:9,.0f} joint env-steps/s ({best * n_agents:,.0f} agent-steps/s), "
             f"{min(times) / n_iter:.2f} s/iteration, compile {compile_s:.1f}s",
             flush=True,
         )

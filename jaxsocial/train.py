@@ -152,8 +152,14 @@ class Setup(NamedTuple):
 
 
 def stage_config(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], index: int) -> TrainConfig:
-    """The single-stage config whose program runs stage `index` of `cfg` (-1: before the first stage)."""
+    """The single-stage config whose program runs stage `index` of `cfg` (-1: before the first stage).
+
+    Its `env_args` are canonical (sorted, without values equal to the preset's), so stages with the same
+    environment share one compiled program.
+    """
+    base = jaxsocial.make(cfg.env)[1]
     env_args = {**cfg.env_overrides, **schedule.overrides_at(stages, index)}
+    env_args = {k: v for k, v in sorted(env_args.items()) if not hasattr(base, k) or getattr(base, k) != v}
     return dataclasses.replace(cfg, env_args=schedule.format_assignments(env_args), stages="")
 
 

@@ -18,18 +18,21 @@ from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
 from jaxsocial.train import run, setup, stage_config
 
-CURRICULUM = "0:penalty=0.5;2:penalty=1.0;return>=-1000:penalty=1.5"
+CURRICULUM = "2:penalty=1.0;return>=-1000:penalty=1.5"  # 1.5 is the preset's: the first program again
 
 
 def test_parse_stages_and_accumulated_overrides():
-    stages = schedule.parse_stages(CURRICULUM + ";return>=3:solo_prob=0.75")
+    stages = schedule.parse_stages("0:penalty=0.5;" + CURRICULUM + ";return>=3:solo_prob=0.75")
     assert [s.start for s in stages] == [0, 2, None, None]
     assert [s.threshold for s in stages] == [None, None, -1000.0, 3.0]
     assert schedule.overrides_at(stages, 0) == {"penalty": 0.5}
     assert schedule.overrides_at(stages, 3) == {"penalty": 1.5, "solo_prob": 0.75}
     assert schedule.overrides_at(stages, -1) == {}
+    assert schedule.initial_index(stages) == 0 and schedule.initial_index(stages[1:]) == -1
     cfg = dataclasses.replace(TINY, stages=CURRICULUM)
     assert stage_config(cfg, stages, 1).env_overrides == {**TINY.env_overrides, "penalty": 1.0}
+    # a stage whose environment is the preset's runs the program of the plain config
+    assert stage_config(cfg, stages, 2).env_overrides == stage_config(cfg, stages, -1).env_overrides
     # iteration stages switch on the iteration, threshold stages on the chunk's learner return
     assert schedule.advance(stages, 0, 1, 50.0) == 0 and schedule.advance(stages, 0, 2, None) == 1
     assert schedule.advance(stages, 2, 9, None) == 2 and schedule.advance(stages, 2, 9, 3.0) == 3
@@ -60,25 +63,26 @@ def test_penalty_curriculum_switches_at_the_configured_points(tmp_path):
         TINY, stages=CURRICULUM, iterations=7, chunk_iterations=3, runs_dir=str(tmp_path)
     )
     rows = logs.read_metrics(run(cfg))
-    # stage 1 starts exactly at iteration 2 (the first chunk is cut short to land on it); the threshold of
-    # stage 2 is met by stage 1's first chunk (iterations 3-5), so stage 2 runs from iteration 6
+    # before the first stage the plain environment runs; stage 0 starts exactly at iteration 2 (the first
+    # chunk is cut short to land on it); the threshold of stage 1 is met by stage 0's first chunk
+    # (iterations 3-5), so stage 1 runs from iteration 6
     assert [(r["iteration"], r["stage"]) for r in rows] == [
-        (1, 0),
-        (2, 0),
-        (3, 1),
-        (4, 1),
-        (5, 1),
-        (6, 2),
-        (7, 2),
+        (1, -1),
+        (2, -1),
+        (3, 0),
+        (4, 0),
+        (5, 0),
+        (6, 1),
+        (7, 1),
     ]
     stages = setup(cfg).stages
     penalties = [
-        jaxsocial.make(cfg.env, **stage_config(cfg, stages, i).env_overrides)[1].penalty for i in range(3)
+        jaxsocial.make(cfg.env, **stage_config(cfg, stages, i).env_overrides)[1].penalty for i in (-1, 0, 1)
     ]
-    assert penalties == [0.5, 1.0, 1.5]
+    assert penalties == [1.5, 1.0, 1.5]
 
 
-def test_solo_mixture_proportion_and_absent_agents():
+def test_solo_mixture_proportion_and_absent_agents(step_env, observe_fn):
     _, params = jaxsocial.make("goalcycle3", solo_prob=0.75)
     n = 4000
     obs, states = jax.jit(jax.vmap(core.reset, in_axes=(0, None)), static_argnums=1)(
@@ -100,9 +104,9 @@ def test_solo_mixture_proportion_and_absent_agents():
             for f in ("pos", "dir", "cycle_state", "prestige", "active", "present", "arrival")
         }
     )
-    np.testing.assert_array_equal(obs[i, 0], core.observe(single, alone)[0])
+    np.testing.assert_array_equal(obs[i, 0], observe_fn(single, alone)[0])
     # and never acts: it stays put and earns nothing, whatever it does
-    _, after, reward, terminated, _ = core.step_env(one, np.array([2, 2, 2], np.int32), params)
+    _, after, reward, terminated, _ = step_env(one, np.array([2, 2, 2], np.int32), params)
     np.testing.assert_array_equal(after.pos[1:], one.pos[1:])
     assert float(np.abs(reward[1:]).sum()) == 0.0 and terminated[1:].all()
 
@@ -126,22 +130,32 @@ def test_ci95():
     assert mean_ci95(np.array([5.0])) == (5.0, 5.0, 5.0)
 
 
+def save_policy(run_dir, net, seed=0):
+    """A run directory with a saved (untrained) policy, as training leaves it."""
+    params = jax.vmap(lambda k: network.init(k, net))(jax.random.split(jax.random.key(seed), 1))
+    meta = {"net": population.json_net(net), "n_learners": 1, "slots": ""}
+    checkpoint.save(run_dir / population.POLICY_DIR, 1, {"params": params}, metadata=meta)
+    return run_dir
+
+
 def test_evaluate_saved_agent_zero_shot_and_wrong_architecture(tmp_path):
-    run_dir = run(dataclasses.replace(TINY, iterations=2, runs_dir=str(tmp_path)))
-    base = EvalConfig(ckpt=(str(run_dir), str(run_dir)), env="fourrooms", env_args="max_steps=20", episodes=6)
+    runs = [str(save_policy(tmp_path / f"s{seed}", TINY.net, seed)) for seed in (0, 1)]
+    base = EvalConfig(
+        ckpt=tuple(runs),
+        env="fourrooms",
+        env_args="max_steps=20",
+        slots="learner,expert:navigator,random",
+        episodes=6,
+    )
     result = evaluate(base)
     learner, expert = result["results"][0], result["results"][1]
-    assert result["slots"] == ["learner", "expert:navigator", "expert:navigator"]
+    assert result["slots"] == ["learner", "expert:navigator", "random"]
     assert learner["ci_over"] == "seeds" and learner["episodes"] == 12 and len(learner["per_seed_mean"]) == 2
     assert learner["ci95"][0] <= learner["mean_return"] <= learner["ci95"][1]
     assert expert["mean_return"] > 0  # navigators reach the goal in small four-rooms episodes
     # a policy saved by a run with another network cannot fill a slot beside this one
-    other = tmp_path / "other"
-    other_net = dataclasses.replace(TINY.net, hidden=8)
-    params = jax.vmap(lambda k: network.init(k, other_net))(jax.random.split(jax.random.key(0), 1))
-    meta = {"net": population.json_net(other_net), "n_learners": 1, "slots": ""}
-    checkpoint.save(other / population.POLICY_DIR, 1, {"params": params}, metadata=meta)
-    wrong = dataclasses.replace(base, ckpt=(str(run_dir),), slots=f"learner,expert:ckpt={other},random")
+    other = save_policy(tmp_path / "other", dataclasses.replace(TINY.net, hidden=8))
+    wrong = dataclasses.replace(base, ckpt=runs[:1], slots=f"learner,expert:ckpt={other},random")
     with pytest.raises(ValueError, match="another architecture"):
         evaluate(dataclasses.replace(wrong, env="goalcycle3"))
     with pytest.raises(ValueError, match="give both"):

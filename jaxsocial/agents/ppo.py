@@ -124,7 +124,11 @@ TARGETS_ENV_AXES = Targets(carries=1, advantages=1, returns=1)
 def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Any = None) -> Targets:
     """Unroll the current network over the whole rollout: new chunk-start hidden states, values and GAE.
 
-    Every environment on its own, so with `dp` each device computes its environments' targets."""
+    Every environment on its own, so with `dp` each device computes its environments' targets. The bootstrap
+    values of truncated episodes (`batch.final_values`) stay those of the rollout policy: they need the
+    pre-reset observation, which the batch does not keep (one value per truncation, at most a couple per
+    environment and rollout).
+    """
     if dp is not None:
         local = dp.per_device(
             lambda p, b: recompute(p, net, cfg, b), in_axes=(None, BATCH_ENV_AXES), out_axes=TARGETS_ENV_AXES
