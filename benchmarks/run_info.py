@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import importlib.metadata
+import json
 import os
 import platform
 import subprocess
@@ -68,3 +69,12 @@ def metadata(args: argparse.Namespace) -> dict:
         "env": {k: os.environ.get(k) for k in ("XLA_FLAGS", "GLIBC_TUNABLES", "OMP_NUM_THREADS")},
         "loadavg_start": os.getloadavg(),
     }
+
+
+def write_results(out: str | Path, meta: dict, sections: dict) -> None:
+    """Write `{"metadata": meta, "sections": sections}` to `out` as JSON (the end load average added)."""
+    meta["loadavg_end"] = os.getloadavg()
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"metadata": meta, "sections": sections}, indent=2) + "\n")
+    print(f"\nwrote {out}")

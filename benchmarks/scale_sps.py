@@ -31,7 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from run_info import REPO, metadata
+from run_info import REPO, metadata, write_results
 
 DEVICE_FLAG = "--xla_force_host_platform_device_count"
 
@@ -213,11 +213,7 @@ def main() -> None:
     for name in args.sections:
         print(f"\n== section {name}", flush=True)
         sections[name] = SECTIONS[name](args)
-    meta["loadavg_end"] = os.getloadavg()
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"metadata": meta, "sections": sections}, indent=2) + "\n")
-    print(f"\nwrote {out}")
+    write_results(args.out, meta, sections)
 
 
 if __name__ == "__main__":

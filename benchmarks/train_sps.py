@@ -55,7 +55,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from run_info import REPO, metadata
+from run_info import REPO, metadata, write_results
 
 from jaxsocial.agents import network
 
@@ -388,12 +388,7 @@ def main() -> None:
         sections[name] = SECTIONS[name](args)
         if name.startswith("network"):
             print_table(sections[name])
-    meta["loadavg_end"] = os.getloadavg()
-
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"metadata": meta, "sections": sections}, indent=2) + "\n")
-    print(f"\nwrote {out}")
+    write_results(args.out, meta, sections)
 
 
 if __name__ == "__main__":
