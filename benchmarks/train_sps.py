@@ -6,7 +6,8 @@ implementations (`NetworkConfig.conv_impl` "matmul" and "xla"), one jitted call 
 
   grad     ``jax.value_and_grad`` of
            mean(value^2) - mean(log_softmax(logits)) + mean(|decode(hidden, actions) - obs / 255|)
-           (value, policy and auxiliary heads, like /work/shared/bench/pytorch_paper_net.py);
+           (value, policy and auxiliary heads, like /work/shared/bench/pytorch_paper_net.py; the last
+           term through `network.aux_loss`, as the PPO loss computes it);
   forward  `unroll` + `decode`, no gradient.
 
 Reported: samples/s (best and median of `--repeats` timed calls after one untimed warm-up), compile
@@ -132,7 +133,8 @@ def loss_fn(cfg: network.NetworkConfig):
         _, out = network.unroll(params, cfg, carry, obs, resets)
         value_loss = jnp.mean(out.value**2)
         policy_term = -jnp.mean(jax.nn.log_softmax(out.logits))
-        aux_loss = jnp.mean(jnp.abs(network.decode(params, cfg, out.hidden, actions) - obs / 255.0))
+        weight = jnp.full(actions.shape, 1.0 / actions.size)  # mean |decode(hidden, actions) - obs / 255|
+        aux_loss = network.aux_loss(params, cfg, out.hidden, actions, obs, weight)
         return value_loss + policy_term + aux_loss
 
     return loss

@@ -233,6 +233,8 @@ class DataParallel:
     Axes are given as pytree prefixes of ints (the batch axis of those leaves) or None (replicated).
     """
 
+    axis_name = DATA  # inside `per_device` functions: the mesh axis their batch share is split over
+
     def __init__(self, mesh: Mesh):
         self.mesh = mesh
 

@@ -1,6 +1,7 @@
 """Recurrent actor-critic network: parameter count, shapes, conv implementations, unroll/step consistency."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -131,7 +132,7 @@ def test_matmul_equals_xla_conv(small_params):
 
 def _get(tree, path):
     for key in path:
-        tree = tree[key.key]
+        tree = tree[key.key if hasattr(key, "key") else key.idx]  # dict key or sequence index
     return tree
 
 
@@ -199,6 +200,37 @@ def test_vmap_over_agents():
     params1 = jax.tree_util.tree_map(lambda x: x[1], params)
     _, out1 = unroll(params1, cfg, net.initial_carry(cfg, (B,)), obs[1], resets[1])
     np.testing.assert_allclose(out.logits[1], out1.logits, rtol=1e-5, atol=1e-6)
+
+
+def test_aux_loss_equals_decode_error(small_params):
+    """`aux_loss` (decoder backward in its forward pass, by chunks) has the value and the gradients (params,
+    hidden, weight) of the weighted error written with `decode`, with and without differentiation; 15 frames
+    in chunks of 4 (padded) and weights with zeros."""
+    cfg = dataclasses.replace(SMALL, chunk=4)
+    rng = np.random.default_rng(7)
+    params = _normal(8, small_params, 0.3)
+    hidden = jnp.asarray(rng.normal(size=(T, B, cfg.hidden)), jnp.float32)
+    actions = jnp.asarray(rng.integers(0, cfg.n_actions, (T, B)), jnp.int32)
+    target = _obs(9, (T, B, *net.OBS_SHAPE))
+    weight = jnp.asarray(rng.random((T, B)) * (rng.random((T, B)) < 0.7), jnp.float32)
+
+    def with_decode(params, hidden, weight):
+        error = jnp.abs(net.decode(params, cfg, hidden, actions) - target / 255.0).mean(axis=(-3, -2, -1))
+        return 3.0 * jnp.sum(weight * error)  # x 3 (like c_aux): the backward pass scales by its cotangent
+
+    def fused(params, hidden, weight):
+        return 3.0 * net.aux_loss(params, cfg, hidden, actions, target, weight)
+
+    grad = functools.partial(jax.value_and_grad, argnums=(0, 1, 2))
+    value, grads = jax.jit(grad(fused))(params, hidden, weight)
+    expected_value, expected_grads = jax.jit(grad(with_decode))(params, hidden, weight)
+    np.testing.assert_allclose(value, expected_value, rtol=1e-5)
+    np.testing.assert_allclose(jax.jit(fused)(params, hidden, weight), expected_value, rtol=1e-5)
+    for path, expected in jax.tree_util.tree_leaves_with_path(expected_grads):
+        actual = _get(grads, path)
+        np.testing.assert_allclose(actual, expected, rtol=1e-5, atol=1e-6 * float(jnp.abs(expected).max()))
+    assert float(jnp.abs(grads[0]["deconv1"]["kernel"]).max()) > 0 and float(jnp.abs(grads[1]).max()) > 0
+    assert not np.any(grads[0]["conv1"]["kernel"])  # the encoder is not part of the decoder's loss
 
 
 def test_no_custom_calls():

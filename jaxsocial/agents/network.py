@@ -41,9 +41,13 @@ Convolution implementations (``NetworkConfig.conv_impl``; same math, same params
 
 CPU performance (benchmarks/train_sps.py): besides the matmul convolutions, the conv encoder and the decoder
 run in chunks of `NetworkConfig.chunk` frames under `lax.map` (`_map_chunks`), which keeps activations in
-cache, and save only each layer's activation for the backward pass. ``jax.default_matmul_precision`` has no
-effect on CPU (float32 throughout), and no XLA flag tried (XNNPACK/YNNPACK fusion types, oneDNN, vector
-width, fast math) helped; none is set here.
+cache, and save only each layer's activation for the backward pass. The learner's auxiliary loss
+(`aux_loss`) goes further: the decoder's backward pass runs right after its forward pass, chunk by chunk,
+so no decoder activation or predicted frame of the whole batch is ever stored (gradient step ~10% faster).
+``jax.default_matmul_precision`` has no effect on CPU (float32 throughout), and no XLA flag tried
+(XNNPACK/YNNPACK fusion types, oneDNN, vector width, fast math) helped; none is set here. Tried and slower:
+im2col and col2im as gathers with constant indices (one kernel each instead of 9 slices and a concatenation
+or sum), and decoder chunks of 64 or 256 frames.
 """
 
 from __future__ import annotations
@@ -462,23 +466,117 @@ def step(
     return carry, jax.tree_util.tree_map(lambda x: x[0], out)
 
 
+DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")
+
+
+def _check_decoder(cfg: NetworkConfig) -> None:
+    if cfg.aux == "none":
+        raise ValueError("decoding needs an auxiliary decoder, but cfg.aux == 'none' built none")
+
+
+def _decode_rows(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Array) -> jax.Array:
+    """The decoder on rows: hidden f32[N, H], action int[N] -> f32[N, 21, 21, 3]."""
+    _, deconv = _conv_fns(cfg)
+    z = jnp.concatenate([hidden, jax.nn.one_hot(action, cfg.n_actions, dtype=hidden.dtype)], axis=-1)
+    x = checkpoint_name(jnp.tanh(_dense(params["aux_fc"], z)), _SAVED).reshape(-1, *cfg.feature_shape)
+    for name, stride in zip(("deconv1", "deconv2", "deconv3"), STRIDES[::-1], strict=True):
+        x = deconv(x, params[name]["kernel"], params[name]["bias"], stride)
+        x = _leaky_relu(x) if name != "deconv3" else x  # linear output
+    return x
+
+
 def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Array) -> jax.Array:
     """Auxiliary prediction f32[..., 21, 21, 3] from LSTM outputs f32[..., H] and actions int[...].
 
-    Unbounded (linear output layer); the learner compares it with obs / 255. Raises ValueError for aux="none".
+    Unbounded (linear output layer); the learner compares it with obs / 255 (see `aux_loss`, which
+    computes that comparison and its gradient faster). Raises ValueError for aux="none".
     """
-    if cfg.aux == "none":
-        raise ValueError("decode needs an auxiliary decoder, but cfg.aux == 'none' built none")
-    _, deconv = _conv_fns(cfg)
-
-    def decode_chunk(hidden, action):
-        z = jnp.concatenate([hidden, jax.nn.one_hot(action, cfg.n_actions, dtype=hidden.dtype)], axis=-1)
-        x = checkpoint_name(jnp.tanh(_dense(params["aux_fc"], z)), _SAVED).reshape(-1, *cfg.feature_shape)
-        for name, stride in zip(("deconv1", "deconv2", "deconv3"), STRIDES[::-1], strict=True):
-            x = deconv(x, params[name]["kernel"], params[name]["bias"], stride)
-            x = _leaky_relu(x) if name != "deconv3" else x  # linear output
-        return x
-
+    _check_decoder(cfg)
     batch = hidden.shape[:-1]
     hidden, action = hidden.reshape(-1, hidden.shape[-1]), jnp.asarray(action).reshape(-1)
-    return _map_chunks(decode_chunk, (hidden, action), cfg.chunk).reshape(*batch, *OBS_SHAPE)
+    fn = functools.partial(_decode_rows, params, cfg)
+    return _map_chunks(fn, (hidden, action), cfg.chunk).reshape(*batch, *OBS_SHAPE)
+
+
+def aux_loss(
+    params: Params,
+    cfg: NetworkConfig,
+    hidden: jax.Array,
+    action: jax.Array,
+    target: jax.Array,
+    weight: jax.Array,
+    axis_name: str | None = None,
+) -> jax.Array:
+    """Weighted auxiliary loss ``sum(weight * mean|decode(hidden, action) - target / 255|)``, f32[].
+
+    hidden f32[..., H]; action int[...]; target uint8[..., 21, 21, 3]; weight f32[...] (the mean absolute
+    error of each frame over its pixels is weighted). `axis_name`: called inside `jax.shard_map` on a share of
+    the rows, with params replicated, the mesh axis the rows are split over (the params' gradient is then
+    summed over it). Raises ValueError for aux="none".
+
+    Differentiable in params, hidden and weight, with the value and gradients of writing it with `decode`,
+    but faster: as only a scalar leaves the decoder, the forward pass of a differentiated call runs the
+    decoder's backward pass too, chunk by chunk (`NetworkConfig.chunk` frames) while each chunk's
+    activations are in cache. It keeps the gradients (of the decoder params, and f32[N, H] of hidden) rather
+    than every frame's activations; the backward pass only scales them by the incoming cotangent.
+    """
+    _check_decoder(cfg)
+    decoder = {name: params[name] for name in DECODER_PARAMS}
+    if axis_name is not None:  # per-device gradients; pcast's transpose sums them over the devices
+        decoder = lax.pcast(decoder, axis_name, to="varying")
+    n = math.prod(hidden.shape[:-1])
+    rows = (
+        hidden.reshape(n, hidden.shape[-1]),
+        jnp.asarray(action).reshape(n),
+        target.reshape(n, *OBS_SHAPE),
+        jnp.broadcast_to(jnp.asarray(weight, jnp.float32), hidden.shape[:-1]).reshape(n),
+    )
+    return _aux_loss(cfg, decoder, *rows)
+
+
+def _frame_errors(decoder: Params, cfg: NetworkConfig, hidden, action, target) -> jax.Array:
+    """Mean absolute error of each frame's prediction, f32[N], for rows hidden f32[N, H], action int[N],
+    target uint8[N, 21, 21, 3]."""
+    prediction = _decode_rows(decoder, cfg, hidden, action)
+    return jnp.mean(jnp.abs(prediction - target.astype(jnp.float32) / 255.0), axis=(1, 2, 3))
+
+
+@functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
+def _aux_loss(cfg: NetworkConfig, decoder: Params, hidden, action, target, weight) -> jax.Array:
+    errors = _map_chunks(functools.partial(_frame_errors, decoder, cfg), (hidden, action, target), cfg.chunk)
+    return jnp.sum(weight * errors)
+
+
+def _aux_loss_fwd(cfg: NetworkConfig, decoder: Params, hidden, action, target, weight):
+    """The loss and its gradients, chunk by chunk: a `lax.scan` over chunks of rows (padded with weight 0)
+    that sums the decoder params' gradients and stacks those of hidden and weight (= the frame errors)."""
+    n = hidden.shape[0]
+    chunk = min(cfg.chunk, n)
+    n_chunks = -(-n // chunk)
+    pad = n_chunks * chunk - n
+    rows = (hidden, action, target, weight)
+    rows = tuple(jnp.pad(x, [(0, pad)] + [(0, 0)] * (x.ndim - 1)) if pad else x for x in rows)
+    rows = tuple(x.reshape(n_chunks, chunk, *x.shape[1:]) for x in rows)
+
+    def chunk_grads(d_decoder, inputs):
+        hidden, action, target, weight = inputs
+
+        def weighted_error(decoder, hidden):
+            errors = _frame_errors(decoder, cfg, hidden, action, target)
+            return jnp.sum(weight * errors), errors
+
+        (d_chunk, d_hidden), errors = jax.grad(weighted_error, argnums=(0, 1), has_aux=True)(decoder, hidden)
+        return jax.tree.map(jnp.add, d_decoder, d_chunk), (d_hidden, errors)
+
+    d_decoder, (d_hidden, errors) = lax.scan(chunk_grads, jax.tree.map(jnp.zeros_like, decoder), rows)
+    d_hidden, errors = d_hidden.reshape(-1, hidden.shape[-1])[:n], errors.reshape(-1)[:n]
+    return jnp.sum(weight * errors), (d_decoder, d_hidden, errors)
+
+
+def _aux_loss_bwd(cfg: NetworkConfig, residuals, g):
+    del cfg
+    d_decoder, d_hidden, errors = residuals
+    return jax.tree.map(lambda x: g * x, d_decoder), g * d_hidden, None, None, g * errors
+
+
+_aux_loss.defvjp(_aux_loss_fwd, _aux_loss_bwd)

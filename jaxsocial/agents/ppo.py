@@ -200,12 +200,13 @@ def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]
     def unroll(params, carry, obs, resets):
         return network.unroll(params, net, carry, obs, resets)
 
-    def decode(params, hidden, actions):
-        return network.decode(params, net, hidden, actions)
+    def aux_part(params, hidden, actions, target, weight):  # f32[1]; with `dp` one per device, summed below
+        axis_name = None if dp is None else dp.axis_name
+        return network.aux_loss(params, net, hidden, actions, target, weight, axis_name)[None]
 
     if dp is not None:
         unroll = dp.per_device(unroll, in_axes=(None, 0, 1, 1), out_axes=(0, 1))
-        decode = dp.per_device(decode, in_axes=(None, 1, 1), out_axes=1)
+        aux_part = dp.per_device(aux_part, in_axes=(None, 1, 1, 1, 1), out_axes=0)
     _, out = unroll(params, mb["carry"], mb["obs"], mb["resets"])
     valid = mb["valid"]
     log_probs = jax.nn.log_softmax(out.logits)
@@ -234,13 +235,11 @@ def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]
     }
     if net.aux != "none":
         target = mb["next_obs"] if net.aux == "pred" else mb["obs"]
-        prediction = decode(params, out.hidden, mb["actions"])
-        error = jnp.mean(jnp.abs(prediction - target.astype(jnp.float32) / 255.0), axis=(-3, -2, -1))
         # A next observation after the episode ended belongs to a new episode: nothing to predict.
-        aux_mask = valid & ~mb["done"] if net.aux == "pred" else valid
-        aux_loss = _masked_mean(error, aux_mask)
-        loss = loss + cfg.aux_coef * aux_loss
-        metrics["aux_loss"] = aux_loss
+        aux_mask = (valid & ~mb["done"] if net.aux == "pred" else valid).astype(jnp.float32)
+        weight = aux_mask / jnp.maximum(jnp.sum(aux_mask), 1.0)  # the masked mean of the frames' errors
+        metrics["aux_loss"] = jnp.sum(aux_part(params, out.hidden, mb["actions"], target, weight))
+        loss = loss + cfg.aux_coef * metrics["aux_loss"]
     return loss, metrics
 
 
