@@ -515,9 +515,9 @@ def aux_loss(
     """Weighted auxiliary loss ``sum(weight * mean|decode(hidden, action) - target / 255|)``, f32[].
 
     hidden f32[..., H]; action int[...]; target uint8[..., 21, 21, 3]; weight f32[...] (the mean absolute
-    error of each frame over its pixels is weighted). `axis_name`: called inside `jax.shard_map` on a share of
-    the rows, with params replicated, the mesh axis the rows are split over (the params' gradient is then
-    summed over it). Raises ValueError for aux="none".
+    error of each frame over its pixels is weighted). `axis_name`: called inside `jax.shard_map` with params
+    replicated and every other argument the device's share of the rows, the mesh axis the rows are split
+    over (the params' gradient is then summed over it). Raises ValueError for aux="none".
 
     Differentiable in params, hidden and weight, with the value and gradients of writing it with `decode`,
     but faster: as only a scalar leaves the decoder, the forward pass of a differentiated call runs the
