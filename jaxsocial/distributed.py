@@ -206,13 +206,18 @@ def data_mesh(requested: int, **sizes: int) -> Mesh:
     return Mesh(np.asarray(devices), (DATA,))
 
 
+def _spec(axis: int | None) -> PartitionSpec:
+    """Split along `axis` over the `DATA` mesh axis (the other axes replicated); None: replicated."""
+    return PartitionSpec() if axis is None else PartitionSpec(*([None] * axis), DATA)
+
+
 def replicated(mesh: Mesh) -> NamedSharding:
-    return NamedSharding(mesh, PartitionSpec())
+    return NamedSharding(mesh, _spec(None))
 
 
 def batch_sharding(mesh: Mesh, axis: int) -> NamedSharding:
     """Arrays split along `axis` over the mesh (the other axes replicated)."""
-    return NamedSharding(mesh, PartitionSpec(*([None] * axis), DATA))
+    return NamedSharding(mesh, _spec(axis))
 
 
 def state_shardings(state: Any, mesh: Mesh, env_axes: Any, offset: int = 0) -> Any:
@@ -238,23 +243,16 @@ class DataParallel:
     def __init__(self, mesh: Mesh):
         self.mesh = mesh
 
-    def _spec(self, axis: int | None) -> PartitionSpec:
-        return PartitionSpec() if axis is None else PartitionSpec(*([None] * axis), DATA)
-
     def shard(self, tree: Any, axes: Any) -> Any:
         """`tree` with the leaves under each int of `axes` split along that axis (a sharding constraint)."""
-
-        def one(axis: int | None, subtree: Any) -> Any:
-            sharding = NamedSharding(self.mesh, self._spec(axis))
-            return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), subtree)
-
-        return jax.tree.map(one, axes, tree, is_leaf=lambda x: x is None)
+        shardings = state_shardings(tree, self.mesh, axes)
+        return jax.tree.map(jax.lax.with_sharding_constraint, tree, shardings)
 
     def per_device(self, fn: Callable, in_axes: Any, out_axes: Any) -> Callable:
         """`fn` run by every device on its share of the batch (`jax.shard_map`): for functions that treat
         every batch element on its own, like the network over a batch of sequences. Its parameters with axis
         None are replicated (their gradient is summed over the devices)."""
-        to_spec = functools.partial(jax.tree.map, self._spec, is_leaf=lambda x: x is None)
+        to_spec = functools.partial(jax.tree.map, _spec, is_leaf=lambda x: x is None)
         return jax.shard_map(fn, mesh=self.mesh, in_specs=to_spec(in_axes), out_specs=to_spec(out_axes))
 
 

@@ -657,8 +657,7 @@ def run(cfg: TrainConfig) -> Path:
         metrics = jax.device_get(metrics)
         sps = n * steps_per_iteration / (time.perf_counter() - t0)  # per seed
         for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
-            seed_metrics = metrics if cfg.seeds == 1 else jax.tree.map(lambda m, k=k: m[k], metrics)
-            rows = metric_rows(seed_metrics, it, round(sps), pop)
+            rows = metric_rows(seed_part(metrics, k, cfg.seeds), it, round(sps), pop)
             for row in rows:
                 row["stage"] = stage
             metrics_log.append(rows)
@@ -680,6 +679,11 @@ def run(cfg: TrainConfig) -> Path:
     return run_dir
 
 
+def seed_part(tree: Any, k: int, seeds: int) -> Any:
+    """Seed k's part of `tree`, whose leaves have a leading seed axis when there are several `seeds`."""
+    return tree if seeds == 1 else jax.tree.map(lambda x: x[k], tree)
+
+
 def save_seeds(
     cfg: TrainConfig, seeds: list[tuple[TrainConfig, Path]], it: int, state: RunnerState, pop, stage: int
 ) -> None:
@@ -688,7 +692,7 @@ def save_seeds(
     host = distributed.to_host(state)
     policy_meta = {"net": population.json_net(cfg.net), "n_learners": len(pop.learners), "slots": cfg.slots}
     for k, (seed_cfg, seed_dir) in enumerate(seeds):
-        seed_state = host if cfg.seeds == 1 else jax.tree.map(lambda x, k=k: x[k], host)
+        seed_state = seed_part(host, k, cfg.seeds)
         ckpt_dir = seed_dir / "checkpoints"
         if it in checkpoint.all_steps(ckpt_dir):  # saved before an interruption: the same state
             continue
