@@ -288,10 +288,7 @@ def section_train(args: argparse.Namespace) -> dict:
         row = {
             "preset": preset,
             "env": cfg.env,
-            "slots": ",".join(
-                slot.kind if slot.kind != "expert" else f"expert:{slot.expert.kind}"
-                for slot in setup(cfg).pop.slots
-            ),
+            "slots": ",".join(slot.label for slot in setup(cfg).pop.slots),
             "iterations_per_call": n_iter,
             "env_steps_per_call": steps,
             "grad_samples_per_call": n_iter

@@ -173,7 +173,7 @@ def evaluate(cfg: EvalConfig) -> dict[str, Any]:
     return {
         "env": cfg.env,
         "env_args": cfg.env_args,
-        "slots": [s.kind if s.kind != "expert" else f"expert:{s.expert.kind}" for s in pop.slots],
+        "slots": [s.label for s in pop.slots],
         "checkpoints": list(cfg.ckpt),
         "episodes_per_checkpoint": cfg.episodes,
         "seed": cfg.seed,

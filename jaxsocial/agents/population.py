@@ -33,6 +33,11 @@ class Slot:
     def neural(self) -> bool:
         return self.kind in ("learner", "frozen")
 
+    @property
+    def label(self) -> str:
+        """Short name for results: the kind, 'expert:KIND' for a scripted expert."""
+        return f"expert:{self.expert.kind}" if self.kind == "expert" else self.kind
+
 
 def _split_entries(text: str) -> list[str]:
     """Split a slot list on commas, keeping an expert's own 'k=v,k=v' arguments with their entry."""
