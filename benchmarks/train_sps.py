@@ -12,8 +12,9 @@ implementations (`NetworkConfig.conv_impl` "matmul" and "xla"), one jitted call 
 
 Reported: samples/s (best and median of `--repeats` timed calls after one untimed warm-up), compile
 seconds (``jit(f).lower(...).compile()``, measured separately), achieved GFLOP/s from an analytic count of
-the matrix-product FLOPs (2 per multiply-add; the gradient is the forward plus input and weight gradients,
-without the unneeded input gradients of conv1 and of the one-hot action columns), and the peak of a large
+the matrix-product FLOPs the implementation performs (2 per multiply-add; Winograd layers: channel products
+and pixel transforms, `forward_flops`; the gradient is the forward plus input and weight gradients, without
+the unneeded ones, `grad_flops`; recomputation in the backward pass is not counted), and the peak of a large
 float32 ``jnp.dot`` measured in the same run. XLA's ``cost_analysis`` counts a loop body once rather than
 once per iteration, so it only cross-checks the forward count on a loop-free call (T=1, B=64).
 
@@ -72,34 +73,53 @@ CONFIGS = {
 
 
 def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
-    """Matrix-product FLOPs (2 per multiply-add) of one sample's forward pass, per layer."""
+    """Matrix-product FLOPs (2 per multiply-add) of one sample's forward pass, per layer, as `cfg.conv_impl`
+    computes them: the "matmul" implementation's stride-1 layers (Winograd, see jaxsocial.agents.network)
+    count their channel products under the layer's name and their pixel transforms (products with constant
+    matrices) under "<layer>.transforms"; "xla" counts direct convolutions. The Winograd kernel transforms
+    (once per chunk, not per sample) are left out."""
     c1, c2, c3 = cfg.conv_channels
     hid, mlp, k2 = cfg.hidden, cfg.mlp, network.KERNEL**2
     s1, s2, s3 = 7 * 7, 5 * 5, 3 * 3  # output positions of conv1..3 (and input positions of the deconvs)
-    layers = {
-        "conv1": s1 * k2 * 3 * c1,
+    direct = {
         "conv2": s2 * k2 * c1 * c2,
         "conv3": s3 * k2 * c2 * c3,
+        "deconv1": s3 * c3 * k2 * c2,
+        "deconv2": s2 * c2 * k2 * c1,
+    }
+    if cfg.conv_impl == "matmul":  # (in pixels, out pixels, c_in, c_out) of each stride-1 layer
+        shapes = {"conv2": (s1, s2, c1, c2), "conv3": (s2, s3, c2, c3), "deconv1": (s3, s2, c3, c2)}
+        shapes["deconv2"] = (s2, s1, c2, c1)
+        stride1 = {}
+        for name, (p_in, p_out, c_in, c_out) in shapes.items():
+            tile = max(p_in, p_out)  # transformed pixels: (m + 2)^2
+            stride1[name] = tile * c_in * c_out
+            stride1[f"{name}.transforms"] = tile * (p_in * c_in + p_out * c_out)
+    else:
+        stride1 = direct
+    layers = {
+        "conv1": s1 * k2 * 3 * c1,
         "fc": s3 * c3 * hid,
         "lstm": 2 * hid * 4 * hid,
         "value": hid * mlp + mlp * mlp + mlp,
         "policy": hid * mlp + mlp * mlp + mlp * cfg.n_actions,
     }
+    layers |= {name: macs for name, macs in stride1.items() if name.startswith("conv")}
     if cfg.aux != "none":
         layers |= {
             "aux_fc": (hid + cfg.n_actions) * s3 * c3,
-            "deconv1": s3 * c3 * k2 * c2,
-            "deconv2": s2 * c2 * k2 * c1,
             "deconv3": s1 * c1 * k2 * 3,
         }
+        layers |= {name: macs for name, macs in stride1.items() if name.startswith("deconv")}
     return {name: 2 * macs for name, macs in layers.items()}
 
 
 def grad_flops(cfg: network.NetworkConfig) -> int:
-    """Forward + weight gradients + input gradients, except the input gradients nothing needs (of conv1 and
-    of the one-hot action columns of aux_fc)."""
+    """Forward + weight gradients + input gradients, except the gradients nothing needs: conv1's and the
+    one-hot action columns' input gradients, and the (constant) Winograd transforms' weight gradients."""
     fwd = forward_flops(cfg)
-    total = 3 * sum(fwd.values()) - fwd["conv1"]
+    no_weight_grad = sum(flops for name, flops in fwd.items() if name.endswith(".transforms"))
+    total = 3 * sum(fwd.values()) - fwd["conv1"] - no_weight_grad
     if cfg.aux != "none":
         total -= 2 * cfg.n_actions * cfg.feature_size
     return total
@@ -205,7 +225,8 @@ def run_torch(python: str, seq: int, batch: int, repeats: int) -> dict:
         return {"command": cmd, "error": proc.stderr[-2000:]}
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     result["command"] = cmd
-    flops = grad_flops(CONFIGS["paper"]), sum(forward_flops(CONFIGS["paper"]).values())
+    direct = dataclasses.replace(CONFIGS["paper"], conv_impl="xla")  # torch: direct convolutions
+    flops = grad_flops(direct), sum(forward_flops(direct).values())
     result["grad_gflops_per_s"] = result["grad_samples_per_s"] * flops[0] / 1e9
     result["forward_gflops_per_s"] = result["forward_samples_per_s"] * flops[1] / 1e9
     return result
