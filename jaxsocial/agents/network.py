@@ -587,7 +587,10 @@ def _frame_errors(decoder: Params, cfg: NetworkConfig, hidden, action, target) -
     """Mean absolute error of each frame's prediction, f32[N], for rows hidden f32[N, H], action int[N],
     target uint8[N, 21, 21, 3]."""
     prediction = _decode_hwnc(decoder, cfg, hidden, action)
-    return jnp.mean(jnp.abs(prediction - _to_hwnc(target).astype(jnp.float32) / 255.0), axis=(0, 1, 3))
+    error = jnp.abs(prediction - _to_hwnc(target).astype(jnp.float32) / 255.0)
+    h, w, n, c = error.shape
+    # The sum over pixels as a matrix-vector product: XLA:CPU's reduction over axes (0, 1, 3) took 10x longer.
+    return (jnp.ones(h * w) @ error.reshape(h * w, n * c)).reshape(n, c).sum(axis=-1) / (h * w * c)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
