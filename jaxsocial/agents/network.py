@@ -298,6 +298,16 @@ _leaky_relu.defvjp(_leaky_relu_fwd, lambda y, g: (jnp.where(y >= 0, g, LEAKY_SLO
 # transforms below), and a product over the channels of every pixel is a batched matrix product over h * w.
 
 
+def _to_hwnc(images: jax.Array) -> jax.Array:
+    """Frames [n, h, w, c] -> [h, w, n, c] (the conv layers' layout)."""
+    return images.transpose(1, 2, 0, 3)
+
+
+def _to_nhwc(x: jax.Array) -> jax.Array:
+    """HWNC [h, w, n, c] -> frames [n, h, w, c]."""
+    return x.transpose(2, 0, 1, 3)
+
+
 @functools.cache
 def _winograd_transforms(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Single-tile Winograd F(m x m, 3 x 3): float32 matrices data [a^2, a^2], filter [a^2, 9] and output
@@ -384,29 +394,28 @@ def _deconv_matmul(x, kernel, bias, stride: int):
     return cols.reshape(h, w, n, k, k, c_out).transpose(0, 3, 1, 4, 2, 5).reshape(h * k, w * k, n, c_out)
 
 
-_HWNC = ("HWNC", "HWIO", "HWNC")
+# XLA:CPU's convolutions run NHWC (its HWNC convolutions measured 12x slower): transposes around them.
+_NHWC = ("NHWC", "HWIO", "NHWC")
 
 
 def _conv_xla(x, kernel, bias, stride: int):
-    return lax.conv_general_dilated(x, kernel, (stride, stride), "VALID", dimension_numbers=_HWNC) + bias
+    out = lax.conv_general_dilated(_to_nhwc(x), kernel, (stride, stride), "VALID", dimension_numbers=_NHWC)
+    return _to_hwnc(out + bias)
 
 
 def _deconv_xla(x, kernel, bias, stride: int):
     # lax.conv_transpose (transpose_kernel=False) correlates the dilated, padded input with the kernel;
     # flipping the kernel spatially gives the scatter semantics documented above.
-    out = lax.conv_transpose(x, kernel[::-1, ::-1], (stride, stride), "VALID", dimension_numbers=_HWNC)
-    return out + bias
+    out = lax.conv_transpose(
+        _to_nhwc(x), kernel[::-1, ::-1], (stride, stride), "VALID", dimension_numbers=_NHWC
+    )
+    return _to_hwnc(out + bias)
 
 
 def _conv_fns(cfg: NetworkConfig):
     if cfg.conv_impl == "matmul":
         return _conv_matmul, _deconv_matmul
     return _conv_xla, _deconv_xla
-
-
-def _to_hwnc(images: jax.Array) -> jax.Array:
-    """Frames [n, h, w, c] -> [h, w, n, c] (the conv layers' layout)."""
-    return images.transpose(1, 2, 0, 3)
 
 
 # ------------------------------------------------------------------------------------------ forward
@@ -463,7 +472,7 @@ def _encode(params: Params, cfg: NetworkConfig, obs: jax.Array) -> jax.Array:
         x = _leaky_relu_unsaved(conv(x, params["conv1"]["kernel"], params["conv1"]["bias"], STRIDES[0]))
         x = _leaky_relu(conv(x, params["conv2"]["kernel"], params["conv2"]["bias"], STRIDES[1]))
         x = conv(x, params["conv3"]["kernel"], params["conv3"]["bias"], STRIDES[2])
-        return x.transpose(2, 0, 1, 3).reshape(x.shape[2], -1)  # rows, flattened in (h, w, c) order
+        return _to_nhwc(x).reshape(x.shape[2], -1)  # rows, flattened in (h, w, c) order
 
     x = _leaky_relu(_map_chunks(encode_chunk, (obs,), cfg.chunk))
     x = jnp.tanh(_dense(params["fc"], x))
@@ -527,7 +536,7 @@ def _decode_hwnc(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: 
     _, deconv = _conv_fns(cfg)
     z = jnp.concatenate([hidden, jax.nn.one_hot(action, cfg.n_actions, dtype=hidden.dtype)], axis=-1)
     x = checkpoint_name(jnp.tanh(_dense(params["aux_fc"], z)), _SAVED)
-    x = x.reshape(-1, *cfg.feature_shape).transpose(1, 2, 0, 3)
+    x = _to_hwnc(x.reshape(-1, *cfg.feature_shape))
     for name, stride in zip(("deconv1", "deconv2", "deconv3"), STRIDES[::-1], strict=True):
         x = deconv(x, params[name]["kernel"], params[name]["bias"], stride)
         x = _leaky_relu(x) if name != "deconv3" else x  # linear output
@@ -543,7 +552,7 @@ def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Ar
     _check_decoder(cfg)
     batch = hidden.shape[:-1]
     hidden, action = hidden.reshape(-1, hidden.shape[-1]), jnp.asarray(action).reshape(-1)
-    fn = lambda hidden, action: _decode_hwnc(params, cfg, hidden, action).transpose(2, 0, 1, 3)  # noqa: E731
+    fn = lambda hidden, action: _to_nhwc(_decode_hwnc(params, cfg, hidden, action))  # noqa: E731
     return _map_chunks(fn, (hidden, action), cfg.chunk).reshape(*batch, *OBS_SHAPE)
 
 
