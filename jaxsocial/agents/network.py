@@ -38,11 +38,12 @@ Convolution implementations (``NetworkConfig.conv_impl``; same function of the s
     5x5 maps (`_winograd_transforms`), 49 and 25 multiplies per channel pair instead of 225 and 81. With HWNC
     activations each layer is a transform of the pixels (one matrix product ``[a^2, a^2] @ [a^2, n * C]``),
     a batched product over the a^2 transformed pixels (``[n, C_in] @ [C_in, C_out]`` each) and an output
-    transform; the deconvolutions are the adjoints (transposed transforms). The matrix-product FLOPs of the
-    paper network's gradient drop by a third, and it runs ~1.35x faster than the im2col formulation it
-    replaced (patch concatenation + one product with K = 9 * C_in). float32 error: ~5e-6 of a layer's
-    largest output (F(5x5, 3x3); a direct product: ~1e-7), far below what PPO notices. conv1 and deconv3
-    (stride 3 = kernel size) have non-overlapping 3x3 blocks: a transpose and one matrix product.
+    transform; the deconvolutions are the adjoints (transposed transforms). The matrix-product FLOPs of a
+    paper-network gradient sample drop from 13.2 M to 7.8 M, and the step ran ~1.35x faster than the im2col
+    formulation it replaced (patch concatenation + one product with K = 9 * C_in; interleaved A/B in one
+    process). float32 error: ~5e-6 of a layer's largest output for F(5x5, 3x3), against ~1e-7 for a direct
+    product; the tests hold outputs and gradients to 1e-5 of the exact "xla" implementation's. conv1 and
+    deconv3 (stride 3 = kernel size) have non-overlapping 3x3 blocks: a transpose and one matrix product.
   * "xla": ``lax.conv_general_dilated`` / ``lax.conv_transpose`` (exact reference; slow gradients on CPU).
 
 CPU performance (benchmarks/train_sps.py): besides the matrix-product convolutions, the conv encoder and the
@@ -55,8 +56,10 @@ whole batch is ever stored. Together 10-20% faster than chunked layers with ever
 (XNNPACK/YNNPACK fusion types, oneDNN, vector width, fast math) helped; none is set here. Tried with the
 im2col formulation and slower: im2col and col2im as gathers with constant indices; no faster: conv1's
 patches and deconv3's output kept in the 3x3-block layout (no float32 transposes), and (per layer) a
-batch-minor [C, H, W, N] layout. With Winograd, chunks of 256 or 512 frames measure alike, 128 and 1024
-slower.
+batch-minor [C, H, W, N] layout. With Winograd: chunks of 256 or 512 frames measure alike, 128 and 1024
+slower; no faster: separable (two 1D) pixel transforms instead of the Kronecker products (measured per
+transform), and the batched products' weight gradients as explicitly transposed products (whole step;
+XLA:CPU runs those gradients, which contract the batch rows, outside YNNPACK).
 """
 
 from __future__ import annotations
@@ -337,15 +340,20 @@ def _winograd_transforms(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return tuple(np.kron(t, t).astype(np.float32) for t in (data_1d, filter_1d, out_1d))
 
 
+def _winograd_kernel(kernel: jax.Array, m: int) -> jax.Array:
+    """HWIO kernel [3, 3, c_in, c_out] -> its F(m x m, 3 x 3) transform [(m + 2)^2, c_in, c_out]."""
+    _, filter_, _ = _winograd_transforms(m)
+    return (filter_ @ kernel.reshape(KERNEL * KERNEL, -1)).reshape(-1, *kernel.shape[2:])
+
+
 def _winograd_conv(x, kernel, bias):
     """VALID stride-1 3x3 cross-correlation of x f32[m+2, m+2, n, c_in] (one Winograd tile per frame and
     channel) with HWIO kernel [3, 3, c_in, c_out] -> f32[m, m, n, c_out]."""
     a, _, n, c_in = x.shape
     m = a - KERNEL + 1
-    data, filter_, out = _winograd_transforms(m)
-    u = (filter_ @ kernel.reshape(KERNEL * KERNEL, -1)).reshape(a * a, c_in, -1)
+    data, _, out = _winograd_transforms(m)
     v = (data @ x.reshape(a * a, -1)).reshape(a * a, n, c_in)
-    y = out @ jnp.matmul(v, u).reshape(a * a, -1)
+    y = out @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
     return y.reshape(m, m, n, -1) + bias
 
 
@@ -354,10 +362,9 @@ def _winograd_deconv(x, kernel, bias):
     [3, 3, c_in, c_out] -> f32[m+2, m+2, n, c_out]: `_winograd_conv`'s adjoint (transposed transforms)."""
     m, _, n, c_in = x.shape
     a = m + KERNEL - 1
-    data, filter_, out = _winograd_transforms(m)
-    u = (filter_ @ kernel.reshape(KERNEL * KERNEL, -1)).reshape(a * a, c_in, -1)
+    data, _, out = _winograd_transforms(m)
     v = (out.T @ x.reshape(m * m, -1)).reshape(a * a, n, c_in)
-    y = data.T @ jnp.matmul(v, u).reshape(a * a, -1)
+    y = data.T @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
     return y.reshape(a, a, n, -1) + bias
 
 
