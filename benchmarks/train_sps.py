@@ -81,22 +81,6 @@ def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
     c1, c2, c3 = cfg.conv_channels
     hid, mlp, k2 = cfg.hidden, cfg.mlp, network.KERNEL**2
     s1, s2, s3 = 7 * 7, 5 * 5, 3 * 3  # output positions of conv1..3 (and input positions of the deconvs)
-    direct = {
-        "conv2": s2 * k2 * c1 * c2,
-        "conv3": s3 * k2 * c2 * c3,
-        "deconv1": s3 * c3 * k2 * c2,
-        "deconv2": s2 * c2 * k2 * c1,
-    }
-    if cfg.conv_impl == "matmul":  # (in pixels, out pixels, c_in, c_out) of each stride-1 layer
-        shapes = {"conv2": (s1, s2, c1, c2), "conv3": (s2, s3, c2, c3), "deconv1": (s3, s2, c3, c2)}
-        shapes["deconv2"] = (s2, s1, c2, c1)
-        stride1 = {}
-        for name, (p_in, p_out, c_in, c_out) in shapes.items():
-            tile = max(p_in, p_out)  # transformed pixels: (m + 2)^2
-            stride1[name] = tile * c_in * c_out
-            stride1[f"{name}.transforms"] = tile * (p_in * c_in + p_out * c_out)
-    else:
-        stride1 = direct
     layers = {
         "conv1": s1 * k2 * 3 * c1,
         "fc": s3 * c3 * hid,
@@ -104,13 +88,17 @@ def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
         "value": hid * mlp + mlp * mlp + mlp,
         "policy": hid * mlp + mlp * mlp + mlp * cfg.n_actions,
     }
-    layers |= {name: macs for name, macs in stride1.items() if name.startswith("conv")}
+    stride1 = {"conv2": (s1, s2, c1, c2), "conv3": (s2, s3, c2, c3)}  # (in pixels, out pixels, c_in, c_out)
     if cfg.aux != "none":
-        layers |= {
-            "aux_fc": (hid + cfg.n_actions) * s3 * c3,
-            "deconv3": s1 * c1 * k2 * 3,
-        }
-        layers |= {name: macs for name, macs in stride1.items() if name.startswith("deconv")}
+        layers |= {"aux_fc": (hid + cfg.n_actions) * s3 * c3, "deconv3": s1 * c1 * k2 * 3}
+        stride1 |= {"deconv1": (s3, s2, c3, c2), "deconv2": (s2, s1, c2, c1)}
+    for name, (p_in, p_out, c_in, c_out) in stride1.items():
+        if cfg.conv_impl == "matmul":
+            tile = max(p_in, p_out)  # transformed pixels: (m + 2)^2
+            layers[name] = tile * c_in * c_out
+            layers[f"{name}.transforms"] = tile * (p_in * c_in + p_out * c_out)
+        else:  # direct: 9 products per pixel of the smaller map
+            layers[name] = min(p_in, p_out) * k2 * c_in * c_out
     return {name: 2 * macs for name, macs in layers.items()}
 
 
