@@ -116,6 +116,42 @@ def episode_returns(
     return returns, present
 
 
+def parse_env_spec(spec: str) -> EnvParams:
+    """The parameters of an evaluation environment 'NAME' or 'NAME:field=value,...' (ValueError if bad)."""
+    name, _, args = spec.partition(":")
+    return jaxsocial.make(name.strip(), **schedule.parse_assignments(args))[1]
+
+
+def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episodes: int):
+    """Evaluation during training: `fn(key, params) -> {spec: mean return}` plays `episodes` episodes of
+    each environment spec (`parse_env_spec`) with one learner's `params` (unstacked) in slot 0 beside the
+    environment's default companions (scripted experts, distractors), and returns the learner's mean episode
+    return over the episodes it took part in. Validates everything (ValueError) before compiling."""
+    if episodes < 1:
+        raise ValueError(f"eval_episodes={episodes} must be >= 1")
+    setups = []
+    for spec in specs:
+        env_params = parse_env_spec(spec)
+        if env_params.observation != "rgb":
+            raise ValueError(f"eval env {spec!r}: the learner's network takes RGB observations")
+        pop = population.Population(
+            population.parse_slots(population.default_slots(env_params), env_params.n_agents)
+        )
+        pop.validate(env_params)
+        setups.append((spec, pop, env_params))
+    play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
+
+    def run(key: jax.Array, params) -> dict[str, float]:
+        stacked = jax.tree.map(lambda x: x[None], params)
+        out = {}
+        for (spec, pop, env_params), k in zip(setups, jax.random.split(key, len(setups)), strict=True):
+            returns, present = jax.device_get(play(k, pop, net, env_params, stacked, episodes))
+            out[spec] = float(returns[present[:, 0], 0].mean())
+        return out
+
+    return run
+
+
 def _setup(cfg: EvalConfig):
     """Validate everything and load the policies; raises ValueError before compiling."""
     if cfg.episodes < 1:

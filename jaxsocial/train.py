@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsocial
-from jaxsocial import checkpoint, compile_cache, distributed, logs, schedule
+from jaxsocial import checkpoint, compile_cache, distributed, evaluate, logs, schedule
 from jaxsocial.agents import bc, network, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
@@ -105,6 +105,15 @@ class TrainConfig:
     compile_cache: str | None = None
     """Persistent compilation cache directory: a later run of the same program skips compiling (off by
     default; see `python -m jaxsocial.compile_cache`)."""
+    # Evaluation during training (see `jaxsocial.evaluate.make_learner_eval`).
+    eval_envs: tuple[str, ...] = ()
+    """Environments the first learner is evaluated in during training, each NAME or NAME:field=value,...
+    (e.g. goalcycle3-solo goalcycle4), beside that environment's default companions; logged in
+    metrics.jsonl as 'eval/<spec>' on every eval_every-th iteration and the last."""
+    eval_every: int = 100
+    """Iterations between evaluations (with eval_envs)."""
+    eval_episodes: int = 64
+    """Episodes per evaluation environment and evaluation."""
 
     @property
     def env_overrides(self) -> dict[str, Any]:
@@ -201,6 +210,10 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
     if cfg.seed_batching not in SEED_BATCHING:
         raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
+    if cfg.eval_envs:
+        if cfg.eval_every < 1:
+            raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
+        evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # validates, compiles nothing
     if cfg.seeds > 1 and any(stage.threshold is not None for stage in stages):
         raise ValueError(
             "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
@@ -435,6 +448,9 @@ DRIVER_FIELDS = {
     "num_processes",
     "process_id",
     "compile_cache",
+    "eval_envs",
+    "eval_every",
+    "eval_episodes",
 }
 """Fields that do not change the compiled program (or only its placement: `devices`), so a run can be resumed
 with other values."""
@@ -644,6 +660,7 @@ def run(cfg: TrainConfig) -> Path:
         desc = f"{name} ({', '.join(parts)})" if parts else name
         progress = logs.Progress(cfg.iterations, desc=desc, initial=start)
     steps_per_iteration = cfg.num_envs * cfg.rollout_steps
+    learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
     last_saved = start
     it = start
     while it < cfg.iterations:
@@ -651,6 +668,8 @@ def run(cfg: TrainConfig) -> Path:
         switch = schedule.next_start(stages, stage)
         if switch is not None and switch > it:
             n = min(n, switch - it)  # land exactly on the next stage's first iteration
+        if cfg.eval_envs:
+            n = min(n, cfg.eval_every - it % cfg.eval_every)  # end chunks on evaluation iterations
         program = compiled(stage_config(cfg, stages, stage), mesh)
         t0 = time.perf_counter()
         state, metrics = program.run_chunk(state, frozen, n)
@@ -660,6 +679,13 @@ def run(cfg: TrainConfig) -> Path:
             rows = metric_rows(seed_part(metrics, k, cfg.seeds), it, round(sps), pop)
             for row in rows:
                 row["stage"] = stage
+            end = it + n
+            if cfg.eval_envs and (end % cfg.eval_every == 0 or end == cfg.iterations):
+                seed = seeds[k][0].seed
+                host_params = jax.device_get(seed_part(state.params, k, cfg.seeds))  # replicated: local
+                params = jax.tree.map(lambda x: x[0], host_params)  # the first learner
+                key = jax.random.fold_in(jax.random.key(seed), end)
+                rows[-1].update({f"eval/{s}": r for s, r in learner_eval(key, params).items()})
             metrics_log.append(rows)
             for row in rows:
                 extra.log(row, row["iteration"])

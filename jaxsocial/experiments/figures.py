@@ -1,0 +1,267 @@
+"""Summaries (JSON) and figures (PNG) of a recipe, read from its run directories.
+
+Every number comes from the runs' `metrics.jsonl` files and post-training evaluations; nothing is
+hard-coded. A condition's *final return* is, per seed, the learner's episode-weighted mean return over the
+last 10% of training iterations (the issue's measure); the 95% confidence interval is Student t over seeds.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxsocial import logs
+from jaxsocial.evaluate import mean_ci95
+from jaxsocial.experiments import recipes, runner
+from jaxsocial.experiments.recipes import Recipe, Scale
+
+FINAL_FRACTION = 0.1
+"""The share of training iterations, at the end, over which the final return is averaged."""
+
+CURVE_POINTS = 50
+"""Points per learning curve (iterations are averaged in blocks)."""
+
+
+def slot_returns(rows: list[dict[str, Any]], slot: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-iteration float64[I] summed returns and episode counts of one slot."""
+    returns = np.array([r[f"return/{slot}"] * r[f"episodes/{slot}"] for r in rows], np.float64)
+    episodes = np.array([r[f"episodes/{slot}"] for r in rows], np.float64)
+    return returns, episodes
+
+
+def final_return(rows: list[dict[str, Any]], slot: int = 0) -> float:
+    """Episode-weighted mean return of `slot` over the last `FINAL_FRACTION` of the iterations (nan if no
+    episode ended there)."""
+    n = max(1, round(len(rows) * FINAL_FRACTION))
+    returns, episodes = slot_returns(rows[-n:], slot)
+    return float(returns.sum() / episodes.sum()) if episodes.sum() else float("nan")
+
+
+def curve(
+    rows: list[dict[str, Any]], slot: int = 0, points: int = CURVE_POINTS
+) -> tuple[np.ndarray, np.ndarray]:
+    """(iterations, episode-weighted mean return) in `points` blocks of consecutive iterations."""
+    returns, episodes = slot_returns(rows, slot)
+    blocks = np.array_split(np.arange(len(rows)), min(points, len(rows)))
+    x = np.array([rows[b[-1]]["iteration"] for b in blocks], np.float64)
+    y = np.array([returns[b].sum() / max(episodes[b].sum(), 1.0) for b in blocks])
+    return x, y
+
+
+def eval_curve(rows: list[dict[str, Any]], key: str) -> tuple[np.ndarray, np.ndarray]:
+    """(iterations, value) of the rows that logged the evaluation `key` (e.g. 'eval/goalcycle4')."""
+    logged = [r for r in rows if r.get(key) is not None]
+    return np.array([r["iteration"] for r in logged], np.float64), np.array([r[key] for r in logged])
+
+
+def stats(values: list[float]) -> dict[str, Any]:
+    """{'final_returns': per-seed values, 'mean', 'ci95': [lo, hi]} (Student t over seeds)."""
+    finite = np.array([v for v in values if np.isfinite(v)], np.float64)
+    if not len(finite):
+        return {"final_returns": values, "mean": None, "ci95": None}
+    mean, lo, hi = mean_ci95(finite)
+    return {
+        "final_returns": [round(v, 4) for v in values],
+        "mean": round(mean, 4),
+        "ci95": [round(lo, 4), round(hi, 4)],
+    }
+
+
+def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
+    """For each ordered pair of conditions by mean, 'a > b': whether a's 95% CI lies entirely above b's."""
+    out = {}
+    for a, b in itertools.permutations(conditions, 2):
+        sa, sb = conditions[a], conditions[b]
+        if sa.get("ci95") and sb.get("ci95") and sa["mean"] > sb["mean"]:
+            out[f"{a} > {b}"] = sa["ci95"][0] > sb["ci95"][1]
+    return out
+
+
+class RecipeRuns:
+    """The run directories of a recipe at a scale and seed range, with their metrics."""
+
+    def __init__(self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str):
+        self.recipe, self.scale = recipe, scale
+        self.configs = {
+            c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions
+        }
+        self.seed_dirs = {c: runner.seed_dirs(cfg) for c, cfg in self.configs.items()}
+        missing = [str(d) for dirs in self.seed_dirs.values() for d in dirs if not logs.read_metrics(d)]
+        if missing:
+            raise FileNotFoundError(
+                f"no metrics in {missing}: run `python -m jaxsocial.experiments run {recipe.name} "
+                f"--scale {scale.name} --seeds {seeds}` first"
+            )
+        self.rows = {c: [logs.read_metrics(d) for d in dirs] for c, dirs in self.seed_dirs.items()}
+        self.command = (
+            f"python -m jaxsocial.experiments run {recipe.name} --scale {scale.name} --seeds {seeds}"
+        )
+        if seed:
+            self.command += f" --seed {seed}"
+
+    def flags(self, condition: str) -> list[str]:
+        cfg = self.configs[condition]
+        return recipes.condition_flags(self.scale, condition, cfg.seed, cfg.seeds, cfg.runs_dir)
+
+    def header(self) -> dict[str, Any]:
+        unfinished = {
+            c: [len(r) for r in rows]
+            for c, rows in self.rows.items()
+            if any(len(r) < self.configs[c].iterations for r in rows)
+        }
+        cfg = next(iter(self.configs.values()))
+        return {
+            "recipe": self.recipe.name,
+            "title": self.recipe.title,
+            "scale": self.scale.name,
+            "scale_note": self.scale.note,
+            "command": self.command,
+            "config": {
+                c: {"flags": " ".join(self.flags(c)), "label": recipes.CONDITIONS[c].label}
+                for c in self.configs
+            },
+            "env_steps_per_run": cfg.iterations * cfg.num_envs * cfg.rollout_steps,
+            "unfinished_runs": unfinished,
+        }
+
+
+def summarize(runs: RecipeRuns) -> dict[str, Any]:
+    """The JSON summary of a recipe (see the module docstring for the measures)."""
+    out = runs.header()
+    kind = runs.recipe.kind
+    conditions: dict[str, Any] = {}
+    if kind in ("curves", "mixing", "predictions"):
+        for c, seed_rows in runs.rows.items():
+            conditions[c] = stats([final_return(rows) for rows in seed_rows])
+            if kind == "mixing":
+                for key in _eval_keys(seed_rows):
+                    conditions[c][key] = stats([_final_eval(rows, key) for rows in seed_rows])
+        experts = [final_return(rows, 1) for c, seed_rows in runs.rows.items() for rows in seed_rows
+                   if recipes.CONDITIONS[c].env == "goalcycle3" and "return/1" in rows[0]]  # fmt: skip
+        if experts:
+            out["experts"] = stats(experts)
+        out["separated_ci95"] = separations(conditions)
+    else:  # transfer: learner and expert returns in each evaluation environment
+        for spec in runner.transfer_specs(runs.recipe, runs.scale):
+            per_cond = {}
+            expert_returns = []
+            for c, dirs in runs.seed_dirs.items():
+                results = [_read_eval(d, spec) for d in dirs]
+                per_cond[c] = stats([r[0]["mean_return"] for r in results])
+                expert_returns += [s["mean_return"] for r in results for s in r[1:] if s["kind"] == "expert"]
+            per_cond["experts"] = stats(expert_returns)
+            conditions[spec] = per_cond
+    out["conditions"] = conditions
+    return out
+
+
+def _eval_keys(seed_rows: list[list[dict[str, Any]]]) -> list[str]:
+    return sorted({k for rows in seed_rows for r in rows for k in r if k.startswith("eval/")})
+
+
+def _final_eval(rows: list[dict[str, Any]], key: str) -> float:
+    _, values = eval_curve(rows, key)
+    n = max(1, round(len(values) * FINAL_FRACTION))
+    return float(values[-n:].mean()) if len(values) else float("nan")
+
+
+def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
+    path = runner.eval_path(seed_dir, spec)
+    if not path.exists():
+        raise FileNotFoundError(f"no evaluation {path}: run the recipe first")
+    return json.loads(path.read_text())["results"]
+
+
+def _band(ax, xs: list[np.ndarray], ys: list[np.ndarray], label: str, color) -> None:
+    """Per-seed faint lines, the mean and a 95% CI band over seeds."""
+    n = min(len(x) for x in xs)
+    x, y = xs[0][:n], np.stack([v[:n] for v in ys])
+    for v in y:
+        ax.plot(x, v, color=color, alpha=0.25, lw=0.8)
+    stats_ = np.array([mean_ci95(y[:, i]) for i in range(n)])
+    ax.plot(x, stats_[:, 0], color=color, lw=2, label=label)
+    if len(y) > 1:
+        ax.fill_between(x, stats_[:, 1], stats_[:, 2], color=color, alpha=0.2)
+
+
+def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
+    """The recipe's figure as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = plt.get_cmap("tab10").colors
+    kind = runs.recipe.kind
+    steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
+    if kind in ("curves", "predictions"):
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+        for i, (c, seed_rows) in enumerate(runs.rows.items()):
+            xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
+            xs = [x * steps_per_iteration[c] / 1e6 for x in xs]
+            _band(axes[0], xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
+            aux = [np.array([r.get("aux_loss/0") or np.nan for r in rows]) for rows in seed_rows]
+            if all(np.isfinite(a).any() for a in aux):
+                its = [
+                    np.array([r["iteration"] for r in rows]) * steps_per_iteration[c] / 1e6
+                    for rows in seed_rows
+                ]
+                _band(axes[1], its, aux, recipes.CONDITIONS[c].label, colors[i])
+        if "experts" in summary and summary["experts"]["mean"] is not None:
+            axes[0].axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
+        axes[0].set(xlabel="env-steps (millions)", ylabel="learner episode return", title=runs.recipe.title)
+        axes[1].set(xlabel="env-steps (millions)", ylabel="auxiliary loss (MAE)", title="auxiliary loss")
+        axes[0].legend(fontsize=8)
+    elif kind == "mixing":
+        keys = _eval_keys([r for rows in runs.rows.values() for r in rows])
+        fig, axes = plt.subplots(1, 1 + len(keys), figsize=(5 * (1 + len(keys)), 4))
+        for i, (c, seed_rows) in enumerate(runs.rows.items()):
+            label = recipes.CONDITIONS[c].label
+            xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
+            _band(axes[0], list(xs), list(ys), label, colors[i])
+            for ax, key in zip(axes[1:], keys, strict=True):
+                xs, ys = zip(*(eval_curve(rows, key) for rows in seed_rows), strict=True)
+                _band(ax, list(xs), list(ys), label, colors[i])
+        axes[0].set(title="training environment (with experts)", xlabel="iteration", ylabel="learner return")
+        for ax, key in zip(axes[1:], keys, strict=True):
+            ax.set(title=key.removeprefix("eval/"), xlabel="iteration")
+        axes[0].legend(fontsize=8)
+    else:
+        specs = list(summary["conditions"])
+        fig, axes = plt.subplots(1, len(specs), figsize=(4.5 * len(specs), 4), squeeze=False)
+        for ax, spec in zip(axes[0], specs, strict=True):
+            names = list(summary["conditions"][spec])
+            for j, name in enumerate(names):
+                s = summary["conditions"][spec][name]
+                if s["mean"] is None:
+                    continue
+                lo, hi = s["ci95"]
+                ax.bar(j, s["mean"], color=colors[j], yerr=[[s["mean"] - lo], [hi - s["mean"]]], capsize=4)
+                ax.scatter([j] * len(s["final_returns"]), s["final_returns"], color="k", marker="x", zorder=3)
+            labels = [recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else n for n in names]
+            ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
+            ax.set(title=spec, ylabel="mean episode return")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write(runs: RecipeRuns, out_dir: Path) -> tuple[Path, Path]:
+    """Write `<recipe>-<scale>.json` and `.png` into `out_dir`; returns their paths."""
+    summary = summarize(runs)
+    stem = out_dir / f"{runs.recipe.name}-{runs.scale.name}"
+    json_path, png_path = stem.with_suffix(".json"), stem.with_suffix(".png")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(summary, indent=1) + "\n")
+    if runs.recipe.kind == "predictions":
+        from jaxsocial.experiments import predictions
+
+        predictions.draw(runs, png_path)
+    else:
+        draw(runs, summary, png_path)
+    return json_path, png_path

@@ -1,0 +1,251 @@
+"""The paper's experiments as named recipes: conditions (training flags) x seeds x scale.
+
+A *condition* is a training run described by `python -m jaxsocial.train` flags on top of its scale's base
+flags; a *recipe* names the conditions one figure compares, what is evaluated after training, and how the
+figure is drawn. Conditions are shared between recipes (`mixing` reuses `h1`'s social PPO + pred runs), so
+each is trained once per scale and seed range.
+
+Scales:
+  * `cpu`: the configuration under which the paper's mechanism shows on 2 CPU cores within an afternoon
+    (see `CPU` for what differs from the paper and why);
+  * `paper`: the paper's settings (`--preset paper`: 13x13 Goal Cycle, the paper's network and PPO, 375M
+    env-steps per run); meant for GPUs;
+  * `tiny`: seconds per run, for tests and the notebook's smoke run (learns nothing).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from jaxsocial import train
+
+
+@dataclasses.dataclass(frozen=True)
+class Scale:
+    """A size of every recipe: base training flags and the evaluation budget."""
+
+    name: str
+    flags: tuple[str, ...]
+    """`python -m jaxsocial.train` flags every condition starts from."""
+    env_args: str
+    """Goal Cycle overrides shared by training and the Goal Cycle evaluation environments (e.g. the grid)."""
+    iterations: int
+    """Training iterations of every condition."""
+    eval_every: int
+    """Iterations between evaluations during training (conditions with `eval_envs`)."""
+    eval_episodes: int
+    """Episodes per seed of every evaluation (during and after training)."""
+    note: str = ""
+
+
+CPU = Scale(
+    name="cpu",
+    flags=(
+        "--num-envs",
+        "128",
+        "--rollout-steps",
+        "64",
+        "--net.conv-channels",
+        "16",
+        "32",
+        "32",
+        "--net.hidden",
+        "64",
+        "--net.mlp",
+        "64",
+        "--ppo.lr",
+        "1e-3",
+        "--ppo.entropy-coef",
+        "0.003",
+        "--ppo.num-minibatches",
+        "16",
+        "--ppo.minibatch-chunks",
+        "64",
+        "--ppo.kl-target",
+        "0.02",
+        "--ppo.kl-hard-limit",
+        "0.05",
+        "--chunk-iterations",
+        "10",
+        "--checkpoint-every",
+        "100",
+    ),  # fmt: skip
+    env_args="width=9,height=9",
+    iterations=400,
+    eval_every=50,
+    eval_episodes=64,
+    note=(
+        "9x9 Goal Cycle (7x7 interior, 4 clutter walls) instead of 13x13, so the experts are in view more "
+        "often; a 16-32-32 conv, 64-unit LSTM network instead of 32-64-64 and 192; 128 envs x 64 steps "
+        "per iteration with two passes of 16 minibatches (2 gradient samples per env-step); learning rate "
+        "1e-3 and entropy bonus 3e-3 (the paper: 1e-4 and 1e-5). Kept: independent learners beside two "
+        "scripted experts, 7x7 partial views in RGB, the -1.5 penalty, prestige colours, the auxiliary loss."
+    ),
+)
+
+PAPER = Scale(
+    name="paper",
+    flags=("--preset", "paper"),
+    env_args="",
+    iterations=train.PRESETS["paper"].iterations,
+    eval_every=200,
+    eval_episodes=100,
+    note="The paper's settings (13x13 Goal Cycle, paper network and PPO, 375M env-steps per run).",
+)
+
+TINY = Scale(
+    name="tiny",
+    flags=(
+        "--num-envs",
+        "4",
+        "--rollout-steps",
+        "16",
+        "--net.conv-channels",
+        "4",
+        "4",
+        "4",
+        "--net.hidden",
+        "8",
+        "--net.mlp",
+        "8",
+        "--ppo.num-minibatches",
+        "1",
+        "--ppo.minibatch-chunks",
+        "4",
+        "--chunk-iterations",
+        "2",
+        "--checkpoint-every",
+        "2",
+    ),  # fmt: skip
+    env_args="width=7,height=7,max_steps=20",
+    iterations=4,
+    eval_every=2,
+    eval_episodes=2,
+    note="Plumbing only: seconds per run, learns nothing.",
+)
+
+SCALES = {s.name: s for s in (CPU, PAPER, TINY)}
+
+
+@dataclasses.dataclass(frozen=True)
+class Condition:
+    """One training condition: a label for figures and its flags on top of the scale's."""
+
+    label: str
+    env: str = "goalcycle3"
+    flags: tuple[str, ...] = ()
+    env_args: str = ""
+    """Extra EnvParams overrides (after the scale's)."""
+    eval_during_training: bool = False
+    """Evaluate in solo 3-goal and in 4-goal with experts during training (the mixing figure)."""
+    mixed_from: float | None = None
+    """Switch to 75% solo episodes after this fraction of the iterations (the paper: about 1/3)."""
+
+
+IMPERFECT_EXPERT = "expert:explorer:epsilon=0.2,forget=0.01"
+
+CONDITIONS = {
+    "solo_pred": Condition("solo PPO + aux pred", env="goalcycle3-solo", flags=("--net.aux", "pred")),
+    "social_none": Condition("social PPO (vanilla)", flags=("--net.aux", "none")),
+    "social_rec": Condition("social PPO + aux rec", flags=("--net.aux", "rec")),
+    "social_pred": Condition("social PPO + aux pred", flags=("--net.aux", "pred"), eval_during_training=True),
+    "social_pred_mixed": Condition(
+        "social PPO + aux pred, then 75% solo",
+        flags=("--net.aux", "pred"),
+        eval_during_training=True,
+        mixed_from=1 / 3,
+    ),
+    "social_pred_imperfect": Condition(
+        "social PPO + aux pred, imperfect experts",
+        flags=("--net.aux", "pred", "--slots", f"learner,{IMPERFECT_EXPERT},{IMPERFECT_EXPERT}"),
+    ),
+    "bc": Condition("behaviour cloning", flags=("--algo", "bc", "--net.aux", "none")),
+    "social_pred_nopenalty": Condition(
+        "social PPO + aux pred, no penalty", flags=("--net.aux", "pred"), env_args="penalty=0"
+    ),  # fmt: skip
+    "solo_pred_nopenalty": Condition(
+        "solo PPO + aux pred, no penalty",
+        env="goalcycle3-solo",
+        flags=("--net.aux", "pred"),
+        env_args="penalty=0",
+    ),
+    "social_pred_distractors": Condition(
+        "social PPO + aux pred, 2 random distractors",
+        env="goalcycle3-distractors",
+        flags=("--net.aux", "pred"),
+    ),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """A figure of the paper: the conditions it compares and how it is drawn."""
+
+    name: str
+    title: str
+    conditions: tuple[str, ...]
+    kind: str
+    """'curves' (return through training, final-return CIs), 'transfer' (zero-shot bars), 'mixing'
+    (return through training in three environments) or 'predictions' (a trained learner's next frames)."""
+    transfer_envs: tuple[str, ...] = ()
+    """Evaluation environments after training ('transfer'); Goal Cycle ones take the scale's env_args."""
+
+
+RECIPES = {
+    r.name: r
+    for r in (
+        Recipe("h1", "H1: social learning with an auxiliary loss (paper Fig. 3)",
+               ("solo_pred", "social_none", "social_rec", "social_pred"), "curves"),
+        Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
+               ("solo_pred", "social_pred", "social_pred_imperfect"), "curves"),
+        Recipe("transfer", "H2: zero-shot transfer with new experts (paper Fig. 5)",
+               ("social_pred", "solo_pred", "bc"), "transfer", ("goalcycle4", "fourrooms", "maze")),
+        Recipe("mixing", "Solo/social mixing (paper Fig. 6)", ("social_pred", "social_pred_mixed"), "mixing"),
+        Recipe("no_penalty", "Appendix: no exploration penalty",
+               ("social_pred_nopenalty", "solo_pred_nopenalty"), "transfer", ("goalcycle4",)),
+        Recipe("distractors", "Appendix: random distractors beside the experts",
+               ("social_pred", "social_pred_distractors"), "curves"),
+        Recipe("bc", "Appendix: behaviour cloning training curve", ("bc",), "curves"),
+        Recipe("predictions", "A trained learner's predicted next frames (paper Fig. 2)", ("social_pred",),
+               "predictions"),
+    )
+}  # fmt: skip
+
+
+def goalcycle_spec(name: str, scale: Scale, extra: str = "") -> str:
+    """An environment spec NAME[:field=value,...] with the scale's Goal Cycle overrides (other layouts keep
+    their own grids)."""
+    args = ",".join(a for a in (scale.env_args if name.startswith("goalcycle") else "", extra) if a)
+    return f"{name}:{args}" if args else name
+
+
+def run_name(scale: Scale, condition: str, seed: int, seeds: int) -> str:
+    """The run directory of a condition under the runs root: `<scale>/<condition>-s<first>-<last>`."""
+    return f"{scale.name}/{condition}-s{seed}-{seed + seeds - 1}"
+
+
+def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[str]:
+    """The full `python -m jaxsocial.train` command line of a condition at a scale."""
+    cond = CONDITIONS[condition]
+    flags = [*scale.flags, "--env", cond.env, *cond.flags, "--iterations", str(scale.iterations)]
+    env_args = ",".join(a for a in (scale.env_args, cond.env_args) if a)
+    if env_args:
+        flags += ["--env-args", env_args]
+    if cond.eval_during_training:
+        flags += [
+            "--eval-envs",
+            goalcycle_spec("goalcycle3-solo", scale),
+            goalcycle_spec("goalcycle4", scale),
+        ]
+        flags += ["--eval-every", str(scale.eval_every), "--eval-episodes", str(scale.eval_episodes)]
+    if cond.mixed_from is not None:
+        switch = max(1, round(scale.iterations * cond.mixed_from))
+        flags += ["--stages", f"{switch}:solo_prob=0.75"]
+    flags += ["--seed", str(seed), "--seeds", str(seeds), "--runs-dir", runs_dir]
+    flags += ["--run-name", run_name(scale, condition, seed, seeds)]
+    return flags
+
+
+def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> train.TrainConfig:
+    """The `TrainConfig` of a condition (validated by the training CLI's parser, not yet by `train.setup`)."""
+    return train.parse_args(condition_flags(scale, condition, seed, seeds, runs_dir))

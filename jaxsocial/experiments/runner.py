@@ -1,0 +1,78 @@
+"""Run a recipe: train each condition that is not finished (resuming interrupted ones), then evaluate the
+trained learners where the recipe asks (zero-shot transfer). Everything lands in run directories; figures
+are drawn from them (`jaxsocial.experiments.figures`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+from jaxsocial import evaluate, logs, train
+from jaxsocial.experiments import recipes
+from jaxsocial.experiments.recipes import Recipe, Scale
+
+EVAL_DIR = "eval"
+"""Sub-directory of a seed's run directory holding its post-training evaluations, one JSON per env spec."""
+
+
+def seed_dirs(cfg: train.TrainConfig) -> list[Path]:
+    """The run directory of every seed of a condition's config."""
+    run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
+    return [d for _, d in train.seed_runs(cfg, run_dir)]
+
+
+def status(cfg: train.TrainConfig) -> str:
+    """'done' (every seed logged every iteration), 'partial' (a run directory exists) or 'missing'."""
+    run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
+    if not (run_dir / logs.CONFIG_FILE).exists():
+        return "missing"
+    done = all(len(logs.read_metrics(d)) >= cfg.iterations for d in seed_dirs(cfg))
+    return "done" if done else "partial"
+
+
+def eval_path(seed_dir: Path, spec: str) -> Path:
+    return seed_dir / EVAL_DIR / f"{spec.replace(':', '_').replace(',', '_')}.json"
+
+
+def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
+    return [recipes.goalcycle_spec(name, scale) for name in recipe.transfer_envs]
+
+
+def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_run: bool = False) -> None:
+    """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
+
+    Every config is validated before anything trains, so a bad recipe fails at once. `dry_run` prints the
+    commands and what is done instead.
+    """
+    configs = {c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
+    for cfg in configs.values():
+        train.setup(cfg, load_frozen=False)
+    for name, cfg in configs.items():
+        state = status(cfg)
+        flags = recipes.condition_flags(scale, name, seed, seeds, runs_dir)
+        print(f"[{recipe.name}/{scale.name}] {name}: {state}")
+        if dry_run:
+            print("  python -m jaxsocial.train " + " ".join(_quote(f) for f in flags))
+            continue
+        if state != "done":
+            train.run(dataclasses.replace(cfg, resume=state == "partial"))
+    for name in recipe.conditions if recipe.kind == "transfer" else ():
+        for spec in transfer_specs(recipe, scale):
+            for seed_dir in seed_dirs(configs[name]):
+                out = eval_path(seed_dir, spec)
+                if out.exists() or dry_run:
+                    continue
+                env, _, env_args = spec.partition(":")
+                result = evaluate.evaluate(
+                    evaluate.EvalConfig(
+                        ckpt=(str(seed_dir),), env=env, env_args=env_args, episodes=scale.eval_episodes
+                    )
+                )
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_text(json.dumps(result, indent=2) + "\n")
+                print(f"  {name} {seed_dir.name} in {spec}: {result['results'][0]['mean_return']:.2f}")
+
+
+def _quote(flag: str) -> str:
+    return f'"{flag}"' if any(c in flag for c in " ;,=") and not flag.startswith("--") else flag

@@ -1,0 +1,134 @@
+"""Experiment recipes: every condition is a valid run at every scale, the summaries' arithmetic, and the
+run -> resume/skip -> figure plumbing at the tiny scale (with evaluation during training and a stage)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from jaxsocial import logs, train
+from jaxsocial.experiments import __main__ as cli
+from jaxsocial.experiments import figures, recipes, runner
+
+
+@pytest.mark.parametrize("scale", sorted(recipes.SCALES))
+def test_every_condition_is_a_valid_run(scale):
+    for name, cond in recipes.CONDITIONS.items():
+        cfg = recipes.condition_config(recipes.SCALES[scale], name, seed=3, seeds=2, runs_dir="r")
+        train.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
+        assert (cfg.seed, cfg.seeds, cfg.iterations) == (3, 2, recipes.SCALES[scale].iterations)
+        assert cfg.run_name == f"{scale}/{name}-s3-4"
+        assert cfg.env == cond.env
+        assert bool(cfg.eval_envs) == cond.eval_during_training
+    for recipe in recipes.RECIPES.values():
+        assert set(recipe.conditions) <= set(recipes.CONDITIONS)
+
+
+def test_paper_scale_is_the_paper_preset():
+    cfg = recipes.condition_config(recipes.PAPER, "social_pred", 0, 1, "r")
+    paper = train.PRESETS["paper"]
+    assert (cfg.net.conv_channels, cfg.net.hidden, cfg.net.aux) == ((32, 64, 64), 192, "pred")
+    assert (cfg.ppo, cfg.num_envs, cfg.rollout_steps, cfg.iterations) == (
+        paper.ppo,
+        paper.num_envs,
+        paper.rollout_steps,
+        paper.iterations,
+    )
+    assert cfg.env_args == ""  # 13x13 Goal Cycle as in the paper
+    mixed = recipes.condition_config(recipes.PAPER, "social_pred_mixed", 0, 1, "r")
+    assert mixed.stages == f"{round(paper.iterations / 3)}:solo_prob=0.75"
+
+
+def _rows(returns, episodes):
+    return [
+        {"iteration": i + 1, "return/0": r, "episodes/0": n, "return/1": 10.0, "episodes/1": 1}
+        for i, (r, n) in enumerate(zip(returns, episodes, strict=True))
+    ]
+
+
+def test_final_return_is_episode_weighted_over_the_last_tenth():
+    rows = _rows([5.0] * 18 + [1.0, 4.0], [1] * 18 + [3, 1])
+    assert figures.final_return(rows) == pytest.approx((3 * 1.0 + 4.0) / 4)
+    assert figures.final_return(rows, slot=1) == 10.0
+    assert math.isnan(figures.final_return(_rows([0.0] * 10, [0] * 10)))
+    x, y = figures.curve(rows, points=4)
+    np.testing.assert_array_equal(x, [5, 10, 15, 20])
+    assert y[-1] == pytest.approx((5.0 * 3 + 3.0 + 4.0) / 7)
+
+
+def test_stats_and_ci_separation():
+    s = figures.stats([1.0, 2.0, 3.0])
+    half = 4.303 * 1.0 / math.sqrt(3)
+    assert s["mean"] == 2.0
+    assert s["ci95"] == pytest.approx([2.0 - half, 2.0 + half], abs=1e-4)
+    conditions = {
+        "a": figures.stats([10.0, 10.5, 11.0]),  # CI [9.26, 11.74]
+        "b": figures.stats([1.0, 2.0, 3.0]),  # CI [-0.48, 4.48]
+        "c": s,  # the same as b: neither is above the other
+        "d": figures.stats([0.0, 2.5, 5.0]),  # CI [-3.71, 8.71]
+    }
+    assert figures.separations(conditions) == {
+        "a > b": True,
+        "a > c": True,
+        "a > d": True,
+        "d > b": False,
+        "d > c": False,
+    }
+
+
+def test_cli_rejects_bad_input(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["run", "nonexistent"])
+    with pytest.raises(SystemExit):
+        cli.main(["run", "h1", "--seeds", "0"])
+    with pytest.raises(SystemExit, match="run `python -m jaxsocial.experiments run h1"):
+        cli.main(["figure", "h1", "--scale", "tiny", "--runs-dir", str(tmp_path)])
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+@pytest.fixture(scope="module")
+def mixing_runs(tmp_path_factory):
+    """The mixing recipe at the tiny scale, one seed: social PPO + pred with evaluation during training,
+    and the same with the switch to 75% solo episodes."""
+    root = tmp_path_factory.mktemp("experiments")
+    cli.main(["run", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(root)])
+    return root
+
+
+def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
+    scale = recipes.TINY
+    cfg = recipes.condition_config(scale, "social_pred_mixed", 0, 1, str(mixing_runs))
+    (run_dir,) = runner.seed_dirs(cfg)
+    rows = logs.read_metrics(run_dir)
+    assert [r["iteration"] for r in rows] == list(range(1, scale.iterations + 1))
+    switch = round(scale.iterations / 3)
+    assert [r["stage"] for r in rows] == [-1] * switch + [0] * (scale.iterations - switch)
+    evals = {r["iteration"]: r for r in rows if "eval/goalcycle3-solo:width=7,height=7,max_steps=20" in r}
+    assert sorted(evals) == list(range(scale.eval_every, scale.iterations + 1, scale.eval_every))
+    for r in evals.values():
+        assert {k for k in r if k.startswith("eval/")} == {
+            "eval/goalcycle3-solo:width=7,height=7,max_steps=20",
+            "eval/goalcycle4:width=7,height=7,max_steps=20",
+        }
+    before = (run_dir / logs.METRICS_FILE).stat().st_mtime_ns
+    capsys.readouterr()
+    cli.main(["run", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs)])
+    assert capsys.readouterr().out.count(": done") == 2
+    assert (run_dir / logs.METRICS_FILE).stat().st_mtime_ns == before  # not retrained
+
+
+def test_figure_summarises_the_runs(mixing_runs, tmp_path):
+    cli.main(["figure", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs),
+              "--out-dir", str(tmp_path)])  # fmt: skip
+    summary = json.loads((tmp_path / "mixing-tiny.json").read_text())
+    assert (tmp_path / "mixing-tiny.png").stat().st_size > 1000
+    assert summary["command"] == "python -m jaxsocial.experiments run mixing --scale tiny --seeds 1"
+    assert set(summary["conditions"]) == {"social_pred", "social_pred_mixed"}
+    for name, entry in summary["conditions"].items():
+        cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
+        rows = logs.read_metrics(runner.seed_dirs(cfg)[0])
+        assert entry["final_returns"] == [round(figures.final_return(rows), 4)]
+        key = "eval/goalcycle4:width=7,height=7,max_steps=20"
+        assert entry[key]["final_returns"] == [round(rows[-1][key], 4)]
+    assert summary["experts"]["mean"] > 0  # the scripted experts collect tiles
