@@ -50,5 +50,5 @@ def test_social_learning_notebook(tmp_path, monkeypatch):
     pred = ns["pred"]
     assert set(pred["predicted"]) == {"left", "right", "forward"}
     for frame in pred["predicted"].values():
-        assert frame.shape == (21, 21, 3) and 0.0 <= frame.min() and frame.max() <= 1.0
+        assert frame.shape == (21, 21, 3) and frame.min() >= 0.0 and frame.max() <= 1.0
     np.testing.assert_array_equal(pred["observed"], ns["episode"]["obs"][pred["step"], 0])
