@@ -16,8 +16,13 @@ Scales:
 from __future__ import annotations
 
 import dataclasses
+import shlex
 
 from jaxsocial import train
+
+
+def _flags(text: str) -> tuple[str, ...]:
+    return tuple(shlex.split(text))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,36 +45,12 @@ class Scale:
 
 CPU = Scale(
     name="cpu",
-    flags=(
-        "--num-envs",
-        "128",
-        "--rollout-steps",
-        "64",
-        "--net.conv-channels",
-        "16",
-        "32",
-        "32",
-        "--net.hidden",
-        "64",
-        "--net.mlp",
-        "64",
-        "--ppo.lr",
-        "1e-3",
-        "--ppo.entropy-coef",
-        "0.003",
-        "--ppo.num-minibatches",
-        "16",
-        "--ppo.minibatch-chunks",
-        "64",
-        "--ppo.kl-target",
-        "0.02",
-        "--ppo.kl-hard-limit",
-        "0.05",
-        "--chunk-iterations",
-        "10",
-        "--checkpoint-every",
-        "100",
-    ),  # fmt: skip
+    flags=_flags(
+        "--num-envs 128 --rollout-steps 64 --net.conv-channels 16 32 32 --net.hidden 64 --net.mlp 64 "
+        "--net.n-actions 3 --ppo.lr 1e-3 --ppo.entropy-coef 0.01 --ppo.num-minibatches 16 "
+        "--ppo.minibatch-chunks 64 --ppo.kl-target 0.02 --ppo.kl-hard-limit 0.05 --chunk-iterations 10 "
+        "--checkpoint-every 100"
+    ),
     env_args="width=9,height=9",
     iterations=400,
     eval_every=50,
@@ -78,7 +59,7 @@ CPU = Scale(
         "9x9 Goal Cycle (7x7 interior, 4 clutter walls) instead of 13x13, so the experts are in view more "
         "often; a 16-32-32 conv, 64-unit LSTM network instead of 32-64-64 and 192; 128 envs x 64 steps "
         "per iteration with two passes of 16 minibatches (2 gradient samples per env-step); learning rate "
-        "1e-3 and entropy bonus 3e-3 (the paper: 1e-4 and 1e-5). Kept: independent learners beside two "
+        "1e-3 and entropy bonus 0.01 (the paper: 1e-4 and 1e-5). Kept: independent learners beside two "
         "scripted experts, 7x7 partial views in RGB, the -1.5 penalty, prestige colours, the auxiliary loss."
     ),
 )
@@ -95,28 +76,10 @@ PAPER = Scale(
 
 TINY = Scale(
     name="tiny",
-    flags=(
-        "--num-envs",
-        "4",
-        "--rollout-steps",
-        "16",
-        "--net.conv-channels",
-        "4",
-        "4",
-        "4",
-        "--net.hidden",
-        "8",
-        "--net.mlp",
-        "8",
-        "--ppo.num-minibatches",
-        "1",
-        "--ppo.minibatch-chunks",
-        "4",
-        "--chunk-iterations",
-        "2",
-        "--checkpoint-every",
-        "2",
-    ),  # fmt: skip
+    flags=_flags(
+        "--num-envs 4 --rollout-steps 16 --net.conv-channels 4 4 4 --net.hidden 8 --net.mlp 8 "
+        "--ppo.num-minibatches 1 --ppo.minibatch-chunks 4 --chunk-iterations 2 --checkpoint-every 2"
+    ),
     env_args="width=7,height=7,max_steps=20",
     iterations=4,
     eval_every=2,
@@ -140,6 +103,9 @@ class Condition:
     """Evaluate in solo 3-goal and in 4-goal with experts during training (the mixing figure)."""
     mixed_from: float | None = None
     """Switch to 75% solo episodes after this fraction of the iterations (the paper: about 1/3)."""
+    penalty_curriculum: bool = False
+    """The experts' penalty curriculum 0.5 -> 1.0 -> 1.5, each for a third of the iterations (iteration
+    stages, so seeds can share a program; the paper switched on the return)."""
 
 
 IMPERFECT_EXPERT = "expert:explorer:epsilon=0.2,forget=0.01"
@@ -168,6 +134,12 @@ CONDITIONS = {
         env="goalcycle3-solo",
         flags=("--net.aux", "pred"),
         env_args="penalty=0",
+    ),
+    "expert_curriculum": Condition(
+        "solo PPO + aux pred, penalty curriculum",
+        env="goalcycle3-solo",
+        flags=("--net.aux", "pred"),
+        penalty_curriculum=True,
     ),
     "social_pred_distractors": Condition(
         "social PPO + aux pred, 2 random distractors",
@@ -206,6 +178,8 @@ RECIPES = {
         Recipe("distractors", "Appendix: random distractors beside the experts",
                ("social_pred", "social_pred_distractors"), "curves"),
         Recipe("bc", "Appendix: behaviour cloning training curve", ("bc",), "curves"),
+        Recipe("curriculum", "Appendix: expert training through the penalty curriculum",
+               ("expert_curriculum", "solo_pred"), "curves"),
         Recipe("predictions", "A trained learner's predicted next frames (paper Fig. 2)", ("social_pred",),
                "predictions"),
     )
@@ -238,6 +212,9 @@ def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_di
             goalcycle_spec("goalcycle4", scale),
         ]
         flags += ["--eval-every", str(scale.eval_every), "--eval-episodes", str(scale.eval_episodes)]
+    if cond.penalty_curriculum:
+        third = max(1, scale.iterations // 3)
+        flags += ["--stages", f"0:penalty=0.5;{third}:penalty=1.0;{2 * third}:penalty=1.5"]
     if cond.mixed_from is not None:
         switch = max(1, round(scale.iterations * cond.mixed_from))
         flags += ["--stages", f"{switch}:solo_prob=0.75"]
