@@ -30,7 +30,7 @@ from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env import core
-from jaxsocial.env.types import EnvParams, EnvState
+from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,6 +202,12 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
     if cfg.algo == "bc" and not pop.demonstrators:
         raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
+    if cfg.algo == "bc" and cfg.net.n_actions != NUM_ACTIONS:
+        raise ValueError(
+            f"--algo bc clones demonstrators that use all {NUM_ACTIONS} actions (scripted experts idle with "
+            f"'done' and act at random with epsilon), so net.n_actions must be {NUM_ACTIONS}, not "
+            f"{cfg.net.n_actions}"
+        )
     if cfg.algo == "ppo":
         ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
     if cfg.iterations < 1 or cfg.chunk_iterations < 1 or cfg.checkpoint_every < 1:

@@ -133,6 +133,14 @@ def test_cli_end_to_end(tmp_path):
         ({"algo": "bc", "slots": "learner,random,random"}, "clones expert or frozen slots"),
         ({"slots": "learner,expert:navigator,random"}, "navigator"),
         ({"slots": "learner,expert:explorer:epsilon=2,random"}, "epsilon"),
+        (
+            {"algo": "bc", "slots": "learner,expert:explorer,random", "net": NetworkConfig(n_actions=3)},
+            "must be 7",
+        ),
+        ({"eval_envs": ("goalcycle7",)}, "unknown environment"),
+        ({"eval_envs": ("goalcycle4:penalty=abc,nope=1",)}, "unknown EnvParams field"),
+        ({"eval_envs": ("goalcycle4",), "eval_every": 0}, "eval_every"),
+        ({"eval_envs": ("goalcycle4",), "eval_episodes": 0}, "eval_episodes"),
     ],
 )
 def test_bad_config_fails_before_compiling(tmp_path, changes, message):

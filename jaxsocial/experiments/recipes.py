@@ -125,7 +125,9 @@ CONDITIONS = {
         "social PPO + aux pred, imperfect experts",
         flags=("--net.aux", "pred", "--slots", f"learner,{IMPERFECT_EXPERT},{IMPERFECT_EXPERT}"),
     ),
-    "bc": Condition("behaviour cloning", flags=("--algo", "bc", "--net.aux", "none")),
+    "bc": Condition(  # the experts' 7 actions (they idle with 'done')
+        "behaviour cloning", flags=("--algo", "bc", "--net.aux", "none", "--net.n-actions", "7")
+    ),
     "social_pred_nopenalty": Condition(
         "social PPO + aux pred, no penalty", flags=("--net.aux", "pred"), env_args="penalty=0"
     ),  # fmt: skip
