@@ -52,7 +52,7 @@ CPU = Scale(
         "--checkpoint-every 100"
     ),
     env_args="width=9,height=9",
-    iterations=400,
+    iterations=250,
     eval_every=50,
     eval_episodes=64,
     note=(
