@@ -96,6 +96,7 @@ def mixing_runs(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
     scale = recipes.TINY
     cfg = recipes.condition_config(scale, "social_pred_mixed", 0, 1, str(mixing_runs))
@@ -118,6 +119,7 @@ def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
     assert (run_dir / logs.METRICS_FILE).stat().st_mtime_ns == before  # not retrained
 
 
+@pytest.mark.slow
 def test_figure_summarises_the_runs(mixing_runs, tmp_path):
     cli.main(["figure", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs),
               "--out-dir", str(tmp_path)])  # fmt: skip

@@ -29,6 +29,7 @@ def test_notebook_runs(path):
     run_notebook(path)
 
 
+@pytest.mark.slow  # trains a tiny run (about a minute of compiling)
 def test_social_learning_notebook(tmp_path, monkeypatch):
     monkeypatch.setenv("JAXSOCIAL_SCALE", "tiny")
     monkeypatch.setenv("JAXSOCIAL_SEEDS", "2")
