@@ -37,7 +37,7 @@ from jaxsocial.env import reset, step_batch
 NUM_ACTIONS = 7
 REFERENCE = (
     "The original numpy marlgrid (rendered observations) ran about 960 joint env-steps/s on one core of "
-    "this machine kind (figure from the spec, not measured by this script)."
+    "this machine kind (figure from docs/environment.md section 8, not measured by this script)."
 )
 
 

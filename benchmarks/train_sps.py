@@ -6,8 +6,8 @@ implementations (`NetworkConfig.conv_impl` "matmul" and "xla"), one jitted call 
 
   grad     ``jax.value_and_grad`` of
            mean(value^2) - mean(log_softmax(logits)) + mean(|decode(hidden, actions) - obs / 255|)
-           (value, policy and auxiliary heads, like /work/shared/bench/pytorch_paper_net.py; the last
-           term through `network.aux_loss`, as the PPO loss computes it);
+           (value, policy and auxiliary heads, like the PyTorch reference benchmarks/pytorch_paper_net.py;
+           the last term through `network.aux_loss`, as the PPO loss computes it);
   forward  `unroll` + `decode`, no gradient.
 
 Reported: samples/s (best and median of `--repeats` timed calls after one untimed warm-up), compile
@@ -19,8 +19,8 @@ float32 ``jnp.dot`` measured in the same run. XLA's ``cost_analysis`` counts a l
 once per iteration, so it only cross-checks the forward count on a loop-free call (T=1, B=64).
 
 With ``--torch PYTHON`` (a python with torch installed; torch is not a dependency of jaxsocial) the PyTorch
-reference /work/shared/bench/pytorch_paper_net.py runs in a subprocess with ``--threads <cpu count>`` and
-its JSON line is reported side by side.
+reference benchmarks/pytorch_paper_net.py (the same network in stock PyTorch layers) runs in a subprocess
+with ``--threads <cpu count>`` and its JSON line is reported side by side.
 
 Memory: XLA:CPU allocates its large temporary buffers afresh on every call; glibc's malloc mmaps them, and
 the page faults on first touch cost ~10% of a gradient step. ``--hugepages`` re-runs this script with
@@ -32,10 +32,11 @@ Section `train`: end-to-end training throughput of the `small` (CLI default) and
 `python -m jaxsocial.train` (rollout of every slot + PPO update), in joint env-steps/s.
 
 `SECTIONS` maps a section name to ``fn(args) -> dict``. Run from the repository root (~6 minutes, most
-of it the "xla" implementation's gradient and one paper-preset iteration):
+of it the "xla" implementation's gradient and one paper-preset iteration; ``~/torchref`` is a virtual
+environment with torch, see benchmarks/pytorch_paper_net.py):
 
-    python benchmarks/train_sps.py --torch /work/torchref/bin/python
-    python benchmarks/train_sps.py --sections network,network_hugepages --torch /work/torchref/bin/python
+    python benchmarks/train_sps.py --torch ~/torchref/bin/python
+    python benchmarks/train_sps.py --sections network,network_hugepages --torch ~/torchref/bin/python
     python benchmarks/train_sps.py --configs paper --impls matmul --repeats 10 --hugepages
 """
 
@@ -61,7 +62,8 @@ from run_info import REPO, metadata, write_results
 
 from jaxsocial.agents import network
 
-TORCH_SCRIPT = Path("/work/shared/bench/pytorch_paper_net.py")
+TORCH_SCRIPT = Path(__file__).resolve().parent / "pytorch_paper_net.py"
+"""The PyTorch reference (run with the `--torch` python; the only file that imports torch)."""
 HUGEPAGES_TUNABLE = "glibc.malloc.hugetlb=1"
 CONFIGS = {
     "paper": network.NetworkConfig(),

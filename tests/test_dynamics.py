@@ -1,4 +1,5 @@
-"""Movement, the goal-cycle reward rule, goal termination and prestige on hand-built scenes (spec 2, 3, 5)."""
+"""Movement, the goal-cycle reward rule, goal termination and prestige on hand-built scenes
+(docs/environment.md, sections 2, 3 and 5)."""
 
 import jax.numpy as jnp
 import numpy as np
@@ -28,7 +29,8 @@ def run(rollout, state, params, actions):
 
 
 def test_spec_trace_three_goals(rollout):
-    """Spec 3's verified trace: 1->6->2->6 over tiles 0,1,2 gives +1 +1 +1, -1.5, +1, +1 +1."""
+    """The worked example of docs/environment.md section 3: 1->6->2->6 over tiles 0,1,2 gives
+    +1 +1 +1, -1.5, +1, +1 +1."""
     params = corridor_params(CORRIDOR3, 3)
     state = state_from_layout(params, CORRIDOR3, [(1, 1)], [0])
     actions = [F] * 5 + [L, L] + [F] * 4 + [R, R] + [F] * 4

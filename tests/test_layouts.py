@@ -1,4 +1,5 @@
-"""Layout generators: Goal Cycle placement, Four Rooms doors and goals, maze reachability (spec 1.2, 6)."""
+"""Layout generators: Goal Cycle placement, Four Rooms doors and goals, maze reachability
+(docs/environment.md 1.2, 6)."""
 
 from collections import deque
 
@@ -40,7 +41,8 @@ def test_goal_cycle_counts_and_ids(n_goals):
         assert (grid[0] == WALL).all() and (grid[:, 0] == WALL).all()
         assert sorted(goal_id[grid == BONUS].tolist()) == list(range(n_goals))
         assert (goal_id[grid != BONUS] == -1).all()
-        np.testing.assert_array_equal(spawn, grid != WALL)  # agents may spawn on bonus tiles (spec 1.3)
+        # Agents may spawn on bonus tiles (docs/environment.md 1.3).
+        np.testing.assert_array_equal(spawn, grid != WALL)
     # goal positions vary and every interior cell can hold a goal
     assert len({tuple(np.argwhere(g == BONUS)[0]) for g in batch.grid}) > 20
 

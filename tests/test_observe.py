@@ -1,4 +1,5 @@
-"""Egocentric crop, occlusion, sprites, blending, prestige colours and draw order (spec 4, 5)."""
+"""Egocentric crop, occlusion, sprites, blending, prestige colours and draw order
+(docs/environment.md, sections 4 and 5)."""
 
 import jax
 import numpy as np
@@ -23,7 +24,7 @@ def cell(obs, row, col):
 
 
 def reference_visibility(transparent, view_offset):
-    """Spec 4.4 pseudo-code, literally (M and T indexed [x, y] like the original)."""
+    """The sweep of docs/environment.md 4.4, literally (M and T indexed [x, y] like the original)."""
     v = transparent.shape[0]
     t = transparent.T
     m = np.zeros((v, v), bool)
@@ -140,7 +141,7 @@ def test_hidden_cells_are_shadow_and_walls_visible(observe_fn):
 
 
 def test_blending_example_red_agent_on_yellow(observe_fn):
-    """Spec 4.6: a red east-facing agent on a bonus tile, seen by an observer facing north."""
+    """docs/environment.md 4.6: a red east-facing agent on a bonus tile, seen by an observer facing north."""
     rows = [r for r in OPEN]
     rows[4] = "#...0...#"
     state, params = scene(rows, [(4, 4), (4, 6)], [0, 3], n_agents=2, agent_colors="fixed")
@@ -163,7 +164,8 @@ def test_prestige_colours_and_relative_headings(observe_fn):
     other = cell(obs[1], 3, 3)
     np.testing.assert_array_equal(other[..., 0], (alpha[0] * red) >> 8)
     np.testing.assert_array_equal(other[..., 2], (alpha[0] * blue) >> 8)
-    # Agent 1 sees itself pointing up in pure red (prestige 0): centre pixel 197, not 198 (spec 5).
+    # Agent 1 sees itself pointing up in pure red (prestige 0): centre pixel 197, not 198
+    # (docs/environment.md section 5).
     own = cell(obs[1], 5, 3)
     np.testing.assert_array_equal(own[..., 0], (alpha[3] * 255) >> 8)
     assert own[1, 1, 0] == 197 and not own[..., 1:].any()

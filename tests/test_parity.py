@@ -1,8 +1,9 @@
-"""Parity with episodes recorded from the original marlgrid code (tests/data, see shared/fixtures/README.md).
+"""Parity with episodes recorded from the original marlgrid code (tests/data; the files are
+described in docs/environment.md section 11).
 
 Positions, directions, rewards, prestige, cycle state and done flags must match on every step; observations
 must match pixel for pixel wherever the original's random within-step order could not matter
-(`obs_order_dependent` False; spec 9.11).
+(`obs_order_dependent` False; docs/environment.md 9.11).
 """
 
 from pathlib import Path
@@ -65,7 +66,7 @@ def test_goal_cycle_matches_marlgrid(episode, goal_cycle, rollout, observe_fn):
 def test_four_rooms_matches_marlgrid(episode, four_rooms, rollout):
     z = four_rooms
     _, params = jaxsocial.make("fourrooms")
-    # The original places agents at the start of step 1 (spec 9.7): start from those cells.
+    # The original places agents at the start of step 1 (docs/environment.md 9.7): start from those cells.
     state = state_from_layout(
         params, z["cell_type"][episode].T, z["spawn_pos"][episode], z["init_dir"][episode]
     )

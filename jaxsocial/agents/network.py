@@ -19,7 +19,7 @@ Architecture (paper widths; every width is a `NetworkConfig` field)::
           the next frame for aux="pred"; both build the same decoder)
 
 Parameter count: 667,787 for the paper configuration. The PyTorch reference
-(/work/shared/bench/pytorch_paper_net.py) has 668,555 = 667,787 + 768 because ``torch.nn.LSTM`` keeps two
+(benchmarks/pytorch_paper_net.py) has 668,555 = 667,787 + 768 because ``torch.nn.LSTM`` keeps two
 bias vectors (``b_ih`` and ``b_hh``, 4 * 192 each) of which only the sum matters; here the LSTM has one.
 Without the auxiliary decoder (aux="none"): 496,328.
 

@@ -50,8 +50,8 @@ def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.
 
 def reset(key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
     """A new episode: a fresh layout and agents placed independently and uniformly on spawn cells
-    (they may share a cell or stand on a bonus tile, spec 1.3); with `params.solo_prob` it is a solo
-    episode (see `EnvParams.solo_prob`). Returns `(obs, state)`."""
+    (they may share a cell or stand on a bonus tile, docs/environment.md 1.3); with `params.solo_prob` it
+    is a solo episode (see `EnvParams.solo_prob`, docs/environment.md 10.2). Returns `(obs, state)`."""
     k_layout, k_spawn = jax.random.split(key)
     layout = generate(k_layout, params)
     state = _spawn(k_spawn, layout.grid, layout.goal_id, layout.spawn_mask, params)

@@ -1,8 +1,9 @@
-"""One step of the world: turning, moving, tile rewards, goal termination and prestige (spec 2, 3, 5).
+"""One step of the world: turning, moving, tile rewards, goal termination and prestige
+(docs/environment.md, sections 2, 3 and 5).
 
 All agents are updated at once: agents overlap freely (ghost mode) and tiles are never consumed, so the
-original's random within-step order changes no position or reward (spec 2.2); it only decides which agent
-is drawn on a shared cell, which `arrival` records.
+original's random within-step order changes no position or reward (docs/environment.md 2.2); it only decides
+which agent is drawn on a shared cell, which `arrival` records.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ def move(state: EnvState, actions: jax.Array) -> tuple[EnvState, jax.Array]:
 def cycle_reward(
     cycle_state: jax.Array, tile_id: jax.Array, params: EnvParams
 ) -> tuple[jax.Array, jax.Array]:
-    """Goal Cycle rule (spec 3, master `BonusTile.get_reward`) for agents entering bonus tile `tile_id`.
+    """Goal Cycle rule (docs/environment.md section 3, master `BonusTile.get_reward`) for agents entering
+    bonus tile `tile_id`.
 
     Args:
         cycle_state: int32[N] id of the last correct tile, -1 before the first tile of the episode.
@@ -47,7 +49,7 @@ def cycle_reward(
     first = cycle_state < 0
     last = jnp.where(first, (tile_id - 1) % n, cycle_state)
     correct = (last + 1) % n == tile_id
-    if n == 1:  # spec 9.14: a single tile rewards every visit (exp semantics)
+    if n == 1:  # docs/environment.md 9.14: a single tile rewards every visit (exp semantics)
         correct = jnp.ones_like(first)
     reward = jnp.where(correct, params.goal_reward, -abs(params.penalty))
     if not params.initial_reward:
@@ -61,8 +63,8 @@ def cycle_reward(
 def update_prestige(
     prestige: jax.Array, reward: jax.Array, active: jax.Array, params: EnvParams
 ) -> jax.Array:
-    """Spec 5: code c = beta (c + r), paper c = beta c + r; a negative reward resets to 0; only active
-    agents change. float32[N] -> float32[N]."""
+    """Prestige (docs/environment.md section 5): code c = beta (c + r), paper c = beta c + r; a negative
+    reward resets to 0; only active agents change. float32[N] -> float32[N]."""
     beta = params.prestige_beta
     grown = beta * (prestige + reward) if params.prestige_formula == "code" else beta * prestige + reward
     new = jnp.where(reward < 0, 0.0, grown)

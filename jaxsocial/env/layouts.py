@@ -72,8 +72,8 @@ def _place(grid: jax.Array, flat_idx: jax.Array, tile: int) -> jax.Array:
 
 
 def goal_cycle(key: jax.Array, params: EnvParams) -> Layout:
-    """Spec 1.2: border, `n_goals` bonus tiles (ids in placement order), then clutter; no connectivity
-    check."""
+    """Goal Cycle (docs/environment.md 1.2): border, `n_goals` bonus tiles (ids in placement order), then
+    clutter; no connectivity check."""
     base = jnp.asarray(_border(params.height, params.width))
     n_goals, n_clutter = params.n_goals, params.n_clutter
     cells = _sample_cells(key, base == EMPTY, n_goals + n_clutter)
@@ -83,8 +83,8 @@ def goal_cycle(key: jax.Array, params: EnvParams) -> Layout:
 
 
 def four_rooms_static(width: int, height: int) -> dict[str, np.ndarray]:
-    """The fixed parts of a Four Rooms map (spec 6): walls with closed doors, door cells, goal candidates,
-    spawn box. Arrays are numpy; positions are (x, y)."""
+    """The fixed parts of a Four Rooms map (docs/environment.md 6.2): walls with closed doors, door cells,
+    goal candidates, spawn box. Arrays are numpy; positions are (x, y)."""
     grid = _border(height, width)
     grid[height // 2, :] = WALL
     grid[:, width // 2] = WALL
@@ -113,8 +113,8 @@ def four_rooms_static(width: int, height: int) -> dict[str, np.ndarray]:
 
 
 def four_rooms(key: jax.Array, params: EnvParams) -> Layout:
-    """Spec 6 (FourRoom): goal among 9 candidates, clutter on empty cells, then the 4 doorways open;
-    agents spawn in the top-left box."""
+    """Four Rooms (docs/environment.md 6.2): goal among 9 candidates, clutter on empty cells, then the 4
+    doorways open; agents spawn in the top-left box."""
     fixed = four_rooms_static(params.width, params.height)
     k_goal, k_clutter = jax.random.split(key)
     cand = jnp.asarray(fixed["goal_candidates"])
@@ -130,7 +130,7 @@ def four_rooms(key: jax.Array, params: EnvParams) -> Layout:
 
 
 def maze(key: jax.Array, params: EnvParams) -> Layout:
-    """A random maze on the odd lattice, in the spirit of labmaze's RandomMaze (spec 6, 9.10).
+    """A random maze on the odd lattice, like labmaze's RandomMaze (docs/environment.md 6.3, 9.10).
 
     A random spanning tree (Prim's algorithm on random edge weights) connects every lattice cell; up to four
     rooms of 3x3 or 5x5 cells are carved; every remaining inner wall between two lattice cells opens with

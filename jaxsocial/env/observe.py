@@ -1,4 +1,5 @@
-"""Egocentric observations: crop by gather, occlusion, agent layer, RGB from the sprite atlas (spec 4, 5).
+"""Egocentric observations: crop by gather, occlusion, agent layer, RGB from the sprite atlas
+(docs/environment.md, sections 4 and 5).
 
 View cells are indexed `[row, col]` with row 0 farthest ahead; the observer sits at
 `(row, col) = (V - 1 - view_offset, V // 2)` facing up.
@@ -18,7 +19,8 @@ from jaxsocial.env.types import DIR_VEC, EMPTY, WALL, EnvParams, EnvState
 
 @functools.cache
 def view_offsets(view_size: int, view_offset: int) -> np.ndarray:
-    """int32[4, V, V, 2]: world (dx, dy) of view cell [row, col] for each facing direction (spec 4.3)."""
+    """int32[4, V, V, 2]: world (dx, dy) of view cell [row, col] for each facing direction
+    (docs/environment.md 4.3)."""
     rows, cols = np.mgrid[0:view_size, 0:view_size]
     ahead = view_size - 1 - view_offset - rows
     side = cols - view_size // 2
@@ -53,7 +55,7 @@ def _or(a, b):
 
 
 def visibility(transparent: jax.Array, view_offset: int) -> jax.Array:
-    """The original's occlusion sweep (spec 4.4), unrolled at trace time.
+    """The original's occlusion sweep (docs/environment.md 4.4), unrolled at trace time.
 
     Args:
         transparent: bool[..., V, V] cells that do not block sight (everything but walls).
@@ -97,7 +99,7 @@ def visibility(transparent: jax.Array, view_offset: int) -> jax.Array:
 
 
 def agent_layer(state: EnvState, world: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Which agent each observer sees drawn in each view cell (spec 4.6, 9.11).
+    """Which agent each observer sees drawn in each view cell (docs/environment.md 4.6, 9.11).
 
     Only one agent is drawn per cell: the observer if it is there, otherwise the earliest arrival, ties to
     the lowest index. Inactive (done) agents are still drawn; absent ones (`present` False) are not.

@@ -1,10 +1,11 @@
 """Named presets and `make(name, **overrides)`.
 
-Goal Cycle follows the paper and the spec's recommended choices (spec 6, 9): 13x13, clutter density 0.1
-(12 walls), +1 / -1.5, first tile always rewarded, 250 steps, view offset 1, prestige colours with
-beta 0.99. Four Rooms (17x17) and Maze (19x19) have one terminal goal, no clutter, the original's reward
-decay `1 - 0.9 t / T`, and 250 steps (spec 9.9). `-solo` variants have one agent; `-distractors` variants
-add two agent slots for random distractors (paper appendix).
+Goal Cycle follows the paper and the choices of docs/environment.md (sections 6 and 9): 13x13, clutter
+density 0.1 (12 walls), +1 / -1.5, first tile always rewarded, 250 steps, view offset 1, prestige colours
+with beta 0.99. Four Rooms (17x17) and Maze (19x19) have one terminal goal, no clutter, the original's
+reward decay `1 - 0.9 t / T`, and 250 steps (docs/environment.md 9.9). `-solo` variants have one agent;
+`-distractors` variants add two agent slots for random distractors (paper appendix; docs/environment.md
+10.3).
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Pictures and videos of episodes for people (numpy + imageio, outside jit).
 
-`render_map` draws the whole grid with every agent as in the observations (spec 4.5, 4.6, 5): 3x3-pixel cell
-pictures from `sprites`, upscaled nearest-neighbour to `tile` pixels per cell. `render_frame` puts the map
-next to each agent's egocentric view; `rollout_episode` plays one episode and `save_episode` writes a GIF
-or an MP4.
+`render_map` draws the whole grid with every agent as in the observations (docs/environment.md 4.5, 4.6,
+5): 3x3-pixel cell pictures from `sprites`, upscaled nearest-neighbour to `tile` pixels per cell.
+`render_frame` puts the map next to each agent's egocentric view; `rollout_episode` plays one episode and
+`save_episode` writes a GIF or an MP4.
 
 Text-free cues: each agent's field of view is outlined on the map, and a strip above its view, in its
 identity colour (marlgrid's default agent colours: red, blue, purple, orange, olive, pink, by index). A

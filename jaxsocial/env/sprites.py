@@ -1,4 +1,4 @@
-"""Tile sprites and the observation atlas, built once in numpy (spec 4.5, 4.6, 5).
+"""Tile sprites and the observation atlas, built once in numpy (docs/environment.md 4.5, 4.6, 5).
 
 Sprites are 3x3 RGB tiles. Agents are triangles rasterised with 3x supersampling and the original's
 two-stage mean; their colour comes either from the prestige value (a white sprite recoloured with
@@ -54,8 +54,8 @@ def white_alpha() -> np.ndarray:
 def agent_sprite(direction: int, color: tuple[int, int, int], mode: str) -> np.ndarray:
     """uint8[3, 3, 3] agent sprite pointing `direction` in `color`.
 
-    mode 'prestige': the white sprite recoloured per pixel as `(alpha * colour) >> 8` (spec 5);
-    mode 'fixed': the triangle drawn directly in `color` and downsampled.
+    mode 'prestige': the white sprite recoloured per pixel as `(alpha * colour) >> 8` (docs/environment.md
+    section 5); mode 'fixed': the triangle drawn directly in `color` and downsampled.
     """
     if mode == "prestige":
         alpha = white_alpha()[direction].astype(np.int64)[..., None]
@@ -65,8 +65,8 @@ def agent_sprite(direction: int, color: tuple[int, int, int], mode: str) -> np.n
 
 
 def blend(base: np.ndarray, sprite: np.ndarray) -> np.ndarray:
-    """Draw an agent sprite over a tile (spec 4.6): `floor((base (m - a) + sprite a) / m)` with
-    `a = R + G + B` of the sprite pixel and `m` its maximum over the tile. uint8[3, 3, 3] each."""
+    """Draw an agent sprite over a tile (docs/environment.md 4.6): `floor((base (m - a) + sprite a) / m)`
+    with `a = R + G + B` of the sprite pixel and `m` its maximum over the tile. uint8[3, 3, 3] each."""
     alpha = sprite.astype(np.int64).sum(-1, keepdims=True)
     m = alpha.max()
     if m == 0:

@@ -1,7 +1,7 @@
 """Environment constants, static parameters (`EnvParams`) and the state pytree (`EnvState`).
 
-Conventions (spec section 0): cells are addressed `(x, y)` with x east and y south; grids are stored
-row-major as `[y, x]`; directions are 0 east, 1 south, 2 west, 3 north.
+Conventions (docs/environment.md, section 0): cells are addressed `(x, y)` with x east and y south; grids
+are stored row-major as `[y, x]`; directions are 0 east, 1 south, 2 west, 3 north.
 """
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import jax
 import numpy as np
 from flax import struct
 
-# Tile types (spec 1.1). Agents are not tiles: they live in `EnvState.pos` and overlap freely.
+# Tile types (docs/environment.md 1.1). Agents are not tiles: they live in `EnvState.pos` and overlap freely.
 EMPTY, WALL, BONUS, GOAL = 0, 1, 2, 3
 NUM_TILE_TYPES = 4
 
-# Actions (spec 2.1). 3-6 are no-ops in every environment here.
+# Actions (docs/environment.md 2.1). 3-6 are no-ops in every environment here.
 LEFT, RIGHT, FORWARD, PICKUP, DROP, TOGGLE, DONE = range(7)
 NUM_ACTIONS = 7
 
@@ -55,8 +55,8 @@ class EnvParams:
     Registered as a pytree without leaves, so it can be passed to jitted functions like any argument
     (gymnax style, `in_axes=None` under vmap) and is hashed into the compiled program.
 
-    Every field the paper or the spec names is here; `jaxsocial.make(name, **overrides)` fills them from a
-    preset. Validation happens in `__post_init__`, before anything is compiled.
+    Every field the paper or docs/environment.md names is here; `jaxsocial.make(name, **overrides)` fills
+    them from a preset. Validation happens in `__post_init__`, before anything is compiled.
     """
 
     layout: str = "goalcycle"
@@ -70,7 +70,7 @@ class EnvParams:
     n_goals: int = 3
     """Goal Cycle bonus tiles (ignored by fourrooms and maze, which have one terminal goal)."""
     clutter_density: float = 0.1
-    """Random wall density: `int(density * (W-2) * (H-2))` clutter walls (spec 1.2)."""
+    """Random wall density: `int(density * (W-2) * (H-2))` clutter walls (docs/environment.md 1.2)."""
     goal_reward: float = 1.0
     """Reward for a correct bonus tile or for reaching the goal."""
     penalty: float = 1.5
@@ -88,7 +88,7 @@ class EnvParams:
     view_offset: int = 1
     """Rows of the view behind the agent; it sees `view_size - 1 - view_offset` rows ahead."""
     tile_size: int = 3
-    """Pixels per view cell; only 3 is supported (21x21 observations, spec 4.2)."""
+    """Pixels per view cell; only 3 is supported (21x21 observations, docs/environment.md 4.2)."""
     agent_colors: str = "prestige"
     """'prestige' (red to blue with prestige) or 'fixed' (red, blue, purple, orange, olive, pink)."""
     prestige_beta: float = 0.99
@@ -98,7 +98,7 @@ class EnvParams:
     prestige_formula: str = "code"
     """'code': c = beta (c + r), colour tanh(c / scale); 'paper': c = beta c + r, colour sigmoid(c)."""
     random_spawn_dir: bool = True
-    """Draw each agent's initial direction uniformly (spec 9.6); else all face east."""
+    """Draw each agent's initial direction uniformly (docs/environment.md 9.6); else all face east."""
     observation: str = "rgb"
     """'rgb' (uint8[N, 21, 21, 3]) or 'symbolic' (int8[N, V, V, 4])."""
     solo_prob: float = 0.0
@@ -159,7 +159,7 @@ class EnvParams:
 
     @property
     def n_clutter(self) -> int:
-        """Number of clutter walls (spec 1.2)."""
+        """Number of clutter walls (docs/environment.md 1.2)."""
         return int(self.clutter_density * self.interior_cells)
 
     @property
@@ -185,7 +185,7 @@ class EnvState:
         pos: int32[N, 2] agent (x, y).
         dir: int32[N] agent direction.
         cycle_state: int32[N] id of the last correctly visited bonus tile, -1 before the first.
-        prestige: float32[N] prestige value (spec 5).
+        prestige: float32[N] prestige value (docs/environment.md section 5).
         active: bool[N] False once an agent has reached a terminal goal (it then waits on it), and for
             absent agents.
         present: bool[N] the agent takes part in this episode (False: absent from a solo episode).
