@@ -82,7 +82,7 @@ def test_cli_rejects_bad_input(tmp_path, capsys):
         cli.main(["run", "nonexistent"])
     with pytest.raises(SystemExit):
         cli.main(["run", "h1", "--seeds", "0"])
-    with pytest.raises(SystemExit, match="run `python -m jaxsocial.experiments run h1"):
+    with pytest.raises(SystemExit, match="no metrics for any condition of h1"):
         cli.main(["figure", "h1", "--scale", "tiny", "--runs-dir", str(tmp_path)])
     assert not any(tmp_path.iterdir())  # nothing written
 
@@ -134,3 +134,14 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
         key = "eval/goalcycle4:width=7,height=7,max_steps=20"
         assert entry[key]["final_returns"] == [round(rows[-1][key], 4)]
     assert summary["experts"]["mean"] > 0  # the scripted experts collect tiles
+
+
+@pytest.mark.slow
+def test_figure_leaves_out_conditions_not_run(mixing_runs, tmp_path):
+    """h1 shares social_pred with mixing; its other conditions were not run here."""
+    cli.main(["figure", "h1", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs),
+              "--out-dir", str(tmp_path)])  # fmt: skip
+    summary = json.loads((tmp_path / "h1-tiny.json").read_text())
+    assert summary["missing_conditions"] == ["solo_pred", "social_none", "social_rec"]
+    assert list(summary["conditions"]) == ["social_pred"]
+    assert (tmp_path / "h1-tiny.png").stat().st_size > 1000

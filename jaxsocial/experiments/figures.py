@@ -82,7 +82,8 @@ def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
 
 
 class RecipeRuns:
-    """The run directories of a recipe at a scale and seed range, with their metrics."""
+    """The run directories of a recipe at a scale and seed range, with their metrics. Conditions without
+    metrics in every seed are left out (`missing`); FileNotFoundError if all are."""
 
     def __init__(self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str):
         self.recipe, self.scale = recipe, scale
@@ -90,12 +91,17 @@ class RecipeRuns:
             c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions
         }
         self.seed_dirs = {c: runner.seed_dirs(cfg) for c, cfg in self.configs.items()}
-        missing = [str(d) for dirs in self.seed_dirs.values() for d in dirs if not logs.read_metrics(d)]
-        if missing:
+        self.missing = [
+            c for c, dirs in self.seed_dirs.items() if not all(logs.read_metrics(d) for d in dirs)
+        ]
+        if len(self.missing) == len(self.configs):
             raise FileNotFoundError(
-                f"no metrics in {missing}: run `python -m jaxsocial.experiments run {recipe.name} "
-                f"--scale {scale.name} --seeds {seeds}` first"
+                f"no metrics for any condition of {recipe.name} under {runs_dir}/{scale.name}: "
+                f"run `python -m jaxsocial.experiments run {recipe.name} --scale {scale.name} "
+                f"--seeds {seeds}` first"
             )
+        for c in self.missing:  # drawn without them; the summary lists them
+            del self.configs[c], self.seed_dirs[c]
         self.rows = {c: [logs.read_metrics(d) for d in dirs] for c, dirs in self.seed_dirs.items()}
         self.command = (
             f"python -m jaxsocial.experiments run {recipe.name} --scale {scale.name} --seeds {seeds}"
@@ -126,6 +132,7 @@ class RecipeRuns:
             },
             "env_steps_per_run": cfg.iterations * cfg.num_envs * cfg.rollout_steps,
             "unfinished_runs": unfinished,
+            "missing_conditions": self.missing,
         }
 
 
