@@ -52,7 +52,7 @@ CPU = Scale(
         "--checkpoint-every 100"
     ),
     env_args="width=9,height=9",
-    iterations=250,
+    iterations=200,
     eval_every=50,
     eval_episodes=64,
     note=(
@@ -61,7 +61,7 @@ CPU = Scale(
         "Cycle; behaviour cloning keeps all 7, which the experts use to idle); a 16-32-32 conv, 64-unit LSTM "
         "network instead of 32-64-64 and 192; 128 envs x 64 steps per iteration, two passes of 16 "
         "minibatches (2 gradient samples per env-step); learning rate 1e-3 and entropy bonus 0.01 (the "
-        "paper: 1e-4 and 1e-5); 250 iterations (2M env-steps) per run, 60x fewer than the paper's 125M "
+        "paper: 1e-4 and 1e-5); 200 iterations (1.6M env-steps) per run, 80x fewer than the paper's 125M "
         "steps before social learning appeared. Kept: independent learners beside two scripted experts, 7x7 "
         "partial views in RGB, the -1.5 penalty, prestige colours, the auxiliary loss (coefficient 3)."
     ),
