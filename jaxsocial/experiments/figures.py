@@ -249,7 +249,10 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
                 lo, hi = s["ci95"]
                 ax.bar(j, s["mean"], color=colors[j], yerr=[[s["mean"] - lo], [hi - s["mean"]]], capsize=4)
                 ax.scatter([j] * len(s["final_returns"]), s["final_returns"], color="k", marker="x", zorder=3)
-            labels = [recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else n for n in names]
+            labels = [
+                recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts"
+                for n in names
+            ]
             ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
             ax.set(title=spec, ylabel="mean episode return")
     fig.tight_layout()
