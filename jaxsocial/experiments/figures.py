@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import shlex
 from pathlib import Path
 from typing import Any
 
@@ -127,7 +128,7 @@ class RecipeRuns:
             "scale_note": self.scale.note,
             "command": self.command,
             "config": {
-                c: {"flags": " ".join(self.flags(c)), "label": recipes.CONDITIONS[c].label}
+                c: {"flags": shlex.join(self.flags(c)), "label": recipes.CONDITIONS[c].label}
                 for c in self.configs
             },
             "env_steps_per_run": cfg.iterations * cfg.num_envs * cfg.rollout_steps,

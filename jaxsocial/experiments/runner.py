@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shlex
 from pathlib import Path
 
 from jaxsocial import evaluate, logs, train
@@ -53,7 +54,7 @@ def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_
         flags = recipes.condition_flags(scale, name, seed, seeds, runs_dir)
         print(f"[{recipe.name}/{scale.name}] {name}: {state}")
         if dry_run:
-            print("  python -m jaxsocial.train " + " ".join(_quote(f) for f in flags))
+            print("  python -m jaxsocial.train " + shlex.join(flags))
             continue
         if state != "done":
             train.run(dataclasses.replace(cfg, resume=state == "partial"))
@@ -72,7 +73,3 @@ def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_
                 out.parent.mkdir(parents=True, exist_ok=True)
                 out.write_text(json.dumps(result, indent=2) + "\n")
                 print(f"  {name} {seed_dir.name} in {spec}: {result['results'][0]['mean_return']:.2f}")
-
-
-def _quote(flag: str) -> str:
-    return f'"{flag}"' if any(c in flag for c in " ;,=") and not flag.startswith("--") else flag
