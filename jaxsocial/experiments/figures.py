@@ -23,6 +23,9 @@ from jaxsocial.experiments.recipes import Recipe, Scale
 FINAL_FRACTION = 0.1
 """The share of training iterations, at the end, over which the final return is averaged."""
 
+LOSS_PANEL = {"aux_loss/0": "auxiliary loss (MAE)", "bc_loss/0": "behaviour-cloning loss (cross-entropy)"}
+"""The loss drawn beside the returns: each condition's first of these metrics."""
+
 CURVE_POINTS = 50
 """Points per learning curve (iterations are averaged in blocks)."""
 
@@ -208,21 +211,28 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
     steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
     if kind in ("curves", "predictions"):
         fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+        used = set()
         for i, (c, seed_rows) in enumerate(runs.rows.items()):
             xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
             xs = [x * steps_per_iteration[c] / 1e6 for x in xs]
             _band(axes[0], xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
-            aux = [np.array([r.get("aux_loss/0") or np.nan for r in rows]) for rows in seed_rows]
-            if all(np.isfinite(a).any() for a in aux):
+            key = next((k for k in LOSS_PANEL if k in seed_rows[0][-1]), None)
+            if key is not None:
+                used.add(key)
                 its = [
                     np.array([r["iteration"] for r in rows]) * steps_per_iteration[c] / 1e6
                     for rows in seed_rows
                 ]
-                _band(axes[1], its, aux, recipes.CONDITIONS[c].label, colors[i])
+                losses = [
+                    np.array([r[key] if r.get(key) is not None else np.nan for r in rows])
+                    for rows in seed_rows
+                ]
+                _band(axes[1], its, losses, recipes.CONDITIONS[c].label, colors[i])
         if "experts" in summary and summary["experts"]["mean"] is not None:
             axes[0].axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
         axes[0].set(xlabel="env-steps (millions)", ylabel="learner episode return", title=runs.recipe.title)
-        axes[1].set(xlabel="env-steps (millions)", ylabel="auxiliary loss (MAE)", title="auxiliary loss")
+        names = " / ".join(LOSS_PANEL[k] for k in LOSS_PANEL if k in used)
+        axes[1].set(xlabel="env-steps (millions)", ylabel=names, title="training loss")
         axes[0].legend(fontsize=8)
     elif kind == "mixing":
         keys = _eval_keys([r for rows in runs.rows.values() for r in rows])

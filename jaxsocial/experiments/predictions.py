@@ -17,6 +17,8 @@ from jaxsocial.env.types import FORWARD, LEFT, RIGHT
 from jaxsocial.evaluate import parse_env_spec
 
 MOVES = {"left": LEFT, "right": RIGHT, "forward": FORWARD}
+WARM_UP = 8
+"""`predicted_frames` picks a step after this many by default."""
 
 
 def learner_episode(run_dir: str, env_spec: str, steps: int = 40, seed: int = 0) -> dict[str, Any]:
@@ -63,14 +65,17 @@ def learner_episode(run_dir: str, env_spec: str, steps: int = 40, seed: int = 0)
 
 def predicted_frames(episode: dict[str, Any], step: int | None = None) -> dict[str, Any]:
     """The learner's predicted next views at one step of a `learner_episode`: by default the step at which
-    its view shows the most agent pixels.
+    its view shows the most agent pixels (after `WARM_UP` steps).
 
     Returns {'step': t, 'observed': uint8[21, 21, 3] its view at t, 'next': its view after the step,
     'action': the action it took, 'predicted': {move: float32[21, 21, 3] in [0, 1]} the decoder's prediction
     for each movement action}. Raises ValueError if the network has no decoder (aux='none').
     """
     views = episode["obs"][:, 0]
-    t = int(np.argmax([_agent_pixels(v) for v in views])) if step is None else step
+    if step is None:  # after the LSTM has seen a few steps
+        warm = min(WARM_UP, len(views) - 1)
+        step = warm + int(np.argmax([_agent_pixels(v) for v in views[warm:]]))
+    t = step
     moves = jnp.asarray(list(MOVES.values()))
     hidden = jnp.broadcast_to(episode["hidden"][t], (len(MOVES), episode["hidden"].shape[-1]))
     frames = np.clip(np.asarray(network.decode(episode["params"], episode["net"], hidden, moves)), 0.0, 1.0)
