@@ -758,9 +758,11 @@ def parse_args(argv: list[str]) -> TrainConfig:
     import tyro
 
     preset = "small"
-    if "--preset" in argv:
-        i = argv.index("--preset")
-        preset = argv[i + 1] if i + 1 < len(argv) else ""
+    for i, arg in enumerate(argv):  # '--preset NAME' or '--preset=NAME' (the last one counts)
+        if arg == "--preset":
+            preset = argv[i + 1] if i + 1 < len(argv) else ""
+        elif arg.startswith("--preset="):
+            preset = arg.removeprefix("--preset=")
     if preset not in PRESETS:
         raise SystemExit(f"unknown --preset {preset!r}; choose one of {sorted(PRESETS)}")
     return tyro.cli(TrainConfig, default=PRESETS[preset], args=argv, description=__doc__)

@@ -13,7 +13,7 @@ from jaxsocial import checkpoint, logs
 from jaxsocial.agents import population
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.train import TrainConfig, make_train, run
+from jaxsocial.train import PRESETS, TrainConfig, make_train, parse_args, run
 
 TINY = TrainConfig(
     env="goalcycle3",
@@ -152,3 +152,13 @@ def test_bad_config_fails_before_compiling(tmp_path, changes, message):
 def test_unknown_aux_mode():
     with pytest.raises(ValueError, match="aux"):
         NetworkConfig(aux="next")
+
+
+@pytest.mark.parametrize(
+    "argv", [["--preset", "paper"], ["--preset=paper"], ["--preset", "small", "--preset=paper"]]
+)
+def test_preset_flag_forms(argv):
+    cfg = parse_args([*argv, "--iterations", "7"])
+    assert (cfg.preset, cfg.net, cfg.iterations) == ("paper", PRESETS["paper"].net, 7)
+    with pytest.raises(SystemExit, match="unknown --preset"):
+        parse_args(["--preset=nope"])
