@@ -244,6 +244,12 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
             for ax, key in zip(axes[1:], keys, strict=True):
                 xs, ys = zip(*(eval_curve(rows, key) for rows in seed_rows), strict=True)
                 _band(ax, list(xs), list(ys), label, colors[i])
+        for i, c in enumerate(runs.rows):
+            if recipes.CONDITIONS[c].mixed_from is not None:
+                for ax in axes:
+                    ax.axvline(
+                        recipes.mixing_switch(runs.scale, recipes.CONDITIONS[c]), color=colors[i], ls=":"
+                    )
         axes[0].set(title="training environment (with experts)", xlabel="iteration", ylabel="learner return")
         for ax, key in zip(axes[1:], keys, strict=True):
             ax.set(title=key.removeprefix("eval/"), xlabel="iteration")

@@ -198,6 +198,11 @@ def goalcycle_spec(name: str, scale: Scale, extra: str = "") -> str:
     return f"{name}:{args}" if args else name
 
 
+def mixing_switch(scale: Scale, cond: Condition) -> int:
+    """The iteration at which a mixed condition switches to 75% solo episodes."""
+    return max(1, round(scale.iterations * cond.mixed_from))
+
+
 def run_name(scale: Scale, condition: str, seed: int, seeds: int) -> str:
     """The run directory of a condition under the runs root: `<scale>/<condition>-s<first>-<last>`."""
     return f"{scale.name}/{condition}-s{seed}-{seed + seeds - 1}"
@@ -221,8 +226,7 @@ def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_di
         third = max(1, scale.iterations // 3)
         flags += ["--stages", f"0:penalty=0.5;{third}:penalty=1.0;{2 * third}:penalty=1.5"]
     if cond.mixed_from is not None:
-        switch = max(1, round(scale.iterations * cond.mixed_from))
-        flags += ["--stages", f"{switch}:solo_prob=0.75"]
+        flags += ["--stages", f"{mixing_switch(scale, cond)}:solo_prob=0.75"]
     flags += ["--seed", str(seed), "--seeds", str(seeds), "--runs-dir", runs_dir]
     flags += ["--run-name", run_name(scale, condition, seed, seeds)]
     return flags
