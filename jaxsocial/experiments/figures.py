@@ -151,23 +151,39 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
             if kind == "mixing":
                 for key in _eval_keys(seed_rows):
                     conditions[c][key] = stats([_final_eval(rows, key) for rows in seed_rows])
-        experts = [final_return(rows, 1) for c, seed_rows in runs.rows.items() for rows in seed_rows
-                   if recipes.CONDITIONS[c].env == "goalcycle3" and "return/1" in rows[0]]  # fmt: skip
-        if experts:
-            out["experts"] = stats(experts)
+        # Scripted experts do not react to the learner, and all conditions of a seed share the environment's
+        # random numbers, so the experts' returns are the same in every social condition: take the first's.
+        social = [c for c in runs.rows if recipes.CONDITIONS[c].env == "goalcycle3"]
+        if social:
+            seed_rows = runs.rows[social[0]]
+            slots = _slots(seed_rows[0][0])[1:]  # the learner is in slot 0
+            out["experts"] = stats(
+                [float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows]
+            )
         out["separated_ci95"] = separations(conditions)
     else:  # transfer: learner and expert returns in each evaluation environment
         for spec in runner.transfer_specs(runs.recipe, runs.scale):
-            per_cond = {}
-            expert_returns = []
-            for c, dirs in runs.seed_dirs.items():
-                results = [_read_eval(d, spec) for d in dirs]
-                per_cond[c] = stats([r[0]["mean_return"] for r in results])
-                expert_returns += [s["mean_return"] for r in results for s in r[1:] if s["kind"] == "expert"]
-            per_cond["experts"] = stats(expert_returns)
+            per_cond = {
+                c: stats([_read_eval(d, spec)[0]["mean_return"] for d in dirs])
+                for c, dirs in runs.seed_dirs.items()
+            }
+            # The environment's own experts, from one evaluation (every evaluation plays the same episodes).
+            first = _read_eval(next(iter(runs.seed_dirs.values()))[0], spec)
+            experts = [s for s in first if s["kind"] == "expert"]
+            per_cond["experts"] = {
+                "per_slot": [round(s["mean_return"], 4) for s in experts],
+                "mean": round(float(np.mean([s["mean_return"] for s in experts])), 4),
+                "ci95": [round(float(np.mean([s["ci95"][i] for s in experts])), 4) for i in (0, 1)],
+                "ci_over": "episodes",
+            }
             conditions[spec] = per_cond
     out["conditions"] = conditions
     return out
+
+
+def _slots(row: dict[str, Any]) -> list[int]:
+    """The agent slots a metrics row reports."""
+    return sorted(int(k.split("/")[1]) for k in row if k.startswith("return/"))
 
 
 def _eval_keys(seed_rows: list[list[dict[str, Any]]]) -> list[str]:
@@ -265,7 +281,8 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
                     continue
                 lo, hi = s["ci95"]
                 ax.bar(j, s["mean"], color=colors[j], yerr=[[s["mean"] - lo], [hi - s["mean"]]], capsize=4)
-                ax.scatter([j] * len(s["final_returns"]), s["final_returns"], color="k", marker="x", zorder=3)
+                marks = s.get("final_returns", [])
+                ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
             labels = [
                 recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts"
                 for n in names
