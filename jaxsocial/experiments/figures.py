@@ -226,12 +226,13 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
     kind = runs.recipe.kind
     steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
     if kind in ("curves", "predictions"):
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+        fig, (returns_ax, zoom_ax, loss_ax) = plt.subplots(1, 3, figsize=(17, 4.2))
         used = set()
         for i, (c, seed_rows) in enumerate(runs.rows.items()):
             xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
             xs = [x * steps_per_iteration[c] / 1e6 for x in xs]
-            _band(axes[0], xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
+            for ax in (returns_ax, zoom_ax):
+                _band(ax, xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
             key = next((k for k in LOSS_PANEL if k in seed_rows[0][-1]), None)
             if key is not None:
                 used.add(key)
@@ -243,13 +244,16 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
                     np.array([r[key] if r.get(key) is not None else np.nan for r in rows])
                     for rows in seed_rows
                 ]
-                _band(axes[1], its, losses, recipes.CONDITIONS[c].label, colors[i])
+                _band(loss_ax, its, losses, recipes.CONDITIONS[c].label, colors[i])
         if "experts" in summary and summary["experts"]["mean"] is not None:
-            axes[0].axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
-        axes[0].set(xlabel="env-steps (millions)", ylabel="learner episode return", title=runs.recipe.title)
+            returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
+        returns_ax.set(
+            xlabel="env-steps (millions)", ylabel="learner episode return", title=runs.recipe.title
+        )
+        zoom_ax.set(xlabel="env-steps (millions)", title="the learners' returns, zoomed")
         names = " / ".join(LOSS_PANEL[k] for k in LOSS_PANEL if k in used)
-        axes[1].set(xlabel="env-steps (millions)", ylabel=names, title="training loss")
-        axes[0].legend(fontsize=8)
+        loss_ax.set(xlabel="env-steps (millions)", ylabel=names, title="training loss")
+        returns_ax.legend(fontsize=8)
     elif kind == "mixing":
         keys = _eval_keys([r for rows in runs.rows.values() for r in rows])
         fig, axes = plt.subplots(1, 1 + len(keys), figsize=(5 * (1 + len(keys)), 4))
