@@ -295,7 +295,7 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
             ax.set(title=spec, ylabel="mean episode return")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=70)
     plt.close(fig)
 
 
