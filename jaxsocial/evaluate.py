@@ -132,13 +132,8 @@ def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episod
     setups = []
     for spec in specs:
         env_params = parse_env_spec(spec)
-        if env_params.observation != "rgb":
-            raise ValueError(f"eval env {spec!r}: the learner's network takes RGB observations")
-        pop = population.Population(
-            population.parse_slots(population.default_slots(env_params), env_params.n_agents)
-        )
-        pop.validate(env_params)
-        setups.append((spec, pop, env_params))
+        population.require_rgb(env_params, f"eval env {spec!r}")
+        setups.append((spec, population.default_population(env_params), env_params))
     play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
 
     def run(key: jax.Array, params) -> dict[str, float]:
@@ -157,8 +152,7 @@ def _setup(cfg: EvalConfig):
     if cfg.episodes < 1:
         raise ValueError(f"--episodes {cfg.episodes} must be >= 1")
     _, env_params = jaxsocial.make(cfg.env, **schedule.parse_assignments(cfg.env_args))
-    if env_params.observation != "rgb":
-        raise ValueError("the agents' networks take RGB observations (observation='rgb')")
+    population.require_rgb(env_params, f"--env {cfg.env}")
     slots_text = cfg.slots or population.default_slots(env_params)
     pop = population.Population(population.parse_slots(slots_text, env_params.n_agents, need_learner=False))
     pop.validate(env_params)

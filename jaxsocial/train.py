@@ -176,8 +176,7 @@ def _check_stage(env_params: EnvParams, first: EnvParams, pop: population.Popula
     changed = [f for f in schedule.STRUCTURAL_FIELDS if getattr(env_params, f) != getattr(first, f)]
     if changed:
         raise ValueError(f"{where} changes {changed}, which set array shapes; a stage may not change them")
-    if env_params.observation != "rgb":
-        raise ValueError("the learner's network takes RGB observations (observation='rgb')")
+    population.require_rgb(env_params, where)
     if env_params.solo_prob > 0 and any(i >= env_params.solo_agents for i in pop.learners):
         raise ValueError(
             f"{where}: solo episodes keep only the first solo_agents={env_params.solo_agents} slots, but "

@@ -93,6 +93,12 @@ def default_slots(params: EnvParams) -> str:
     return ",".join(["learner"] + [expert] * min(2, params.n_agents - 1) + ["random"] * (params.n_agents - 3))
 
 
+def require_rgb(params: EnvParams, where: str) -> None:
+    """ValueError unless `params` gives RGB observations, the only input the networks take."""
+    if params.observation != "rgb":
+        raise ValueError(f"{where}: the networks take RGB observations (observation='rgb')")
+
+
 @dataclasses.dataclass(frozen=True)
 class Population:
     """Static slot bookkeeping: indices of learner, frozen, neural (learner then frozen) and expert slots."""
@@ -131,6 +137,13 @@ class Population:
                 experts.validate(self.slots[i].expert, params)
             except ValueError as err:
                 raise ValueError(f"slot {i}: {err}") from err
+
+
+def default_population(params: EnvParams) -> Population:
+    """The paper's set-up of an environment (`default_slots`), validated: the learner in slot 0."""
+    pop = Population(parse_slots(default_slots(params), params.n_agents))
+    pop.validate(params)
+    return pop
 
 
 def stack(trees: list) -> object:

@@ -95,9 +95,8 @@ class RecipeRuns:
             c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions
         }
         self.seed_dirs = {c: runner.seed_dirs(cfg) for c, cfg in self.configs.items()}
-        self.missing = [
-            c for c, dirs in self.seed_dirs.items() if not all(logs.read_metrics(d) for d in dirs)
-        ]
+        self.rows = {c: [logs.read_metrics(d) for d in dirs] for c, dirs in self.seed_dirs.items()}
+        self.missing = [c for c, seed_rows in self.rows.items() if not all(seed_rows)]
         if len(self.missing) == len(self.configs):
             raise FileNotFoundError(
                 f"no metrics for any condition of {recipe.name} under {runs_dir}/{scale.name}: "
@@ -105,8 +104,7 @@ class RecipeRuns:
                 f"--seeds {seeds}` first"
             )
         for c in self.missing:  # drawn without them; the summary lists them
-            del self.configs[c], self.seed_dirs[c]
-        self.rows = {c: [logs.read_metrics(d) for d in dirs] for c, dirs in self.seed_dirs.items()}
+            del self.configs[c], self.seed_dirs[c], self.rows[c]
         self.command = (
             f"python -m jaxsocial.experiments run {recipe.name} --scale {scale.name} --seeds {seeds}"
         )

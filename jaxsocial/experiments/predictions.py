@@ -33,9 +33,7 @@ def learner_episode(run_dir: str, env_spec: str, steps: int = 40, seed: int = 0)
     net = population.saved_net(run_dir)
     params = population.load_policy(run_dir, net)
     env_params = parse_env_spec(env_spec)
-    pop = population.Population(
-        population.parse_slots(population.default_slots(env_params), env_params.n_agents)
-    )
+    pop = population.default_population(env_params)
     stacked = jax.tree.map(lambda x: x[None], params)
 
     @jax.jit
@@ -75,15 +73,14 @@ def predicted_frames(episode: dict[str, Any], step: int | None = None) -> dict[s
     if step is None:  # after the LSTM has seen a few steps
         warm = min(WARM_UP, len(views) - 1)
         step = warm + int(np.argmax([_agent_pixels(v) for v in views[warm:]]))
-    t = step
     moves = jnp.asarray(list(MOVES.values()))
-    hidden = jnp.broadcast_to(episode["hidden"][t], (len(MOVES), episode["hidden"].shape[-1]))
+    hidden = jnp.broadcast_to(episode["hidden"][step], (len(MOVES), episode["hidden"].shape[-1]))
     frames = np.clip(np.asarray(network.decode(episode["params"], episode["net"], hidden, moves)), 0.0, 1.0)
     return {
-        "step": t,
-        "observed": views[t],
-        "next": episode["next_obs"][t, 0],
-        "action": int(episode["actions"][t, 0]),
+        "step": step,
+        "observed": views[step],
+        "next": episode["next_obs"][step, 0],
+        "action": int(episode["actions"][step, 0]),
         "predicted": dict(zip(MOVES, frames, strict=True)),
     }
 

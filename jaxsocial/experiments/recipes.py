@@ -6,8 +6,8 @@ figure is drawn. Conditions are shared between recipes (`mixing` reuses `h1`'s s
 each is trained once per scale and seed range.
 
 Scales:
-  * `cpu`: the configuration under which the paper's mechanism shows on 2 CPU cores within an afternoon
-    (see `CPU` for what differs from the paper and why);
+  * `cpu`: the paper's mechanism sized for 2 CPU cores, every condition's seeds within a session (see
+    `CPU.note` for what differs from the paper and why; the README's Results say what it showed);
   * `paper`: the paper's settings (`--preset paper`: 13x13 Goal Cycle, the paper's network and PPO, 375M
     env-steps per run); meant for GPUs;
   * `tiny`: seconds per run, for tests and the notebook's smoke run (learns nothing).
