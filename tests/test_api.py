@@ -152,11 +152,24 @@ def test_symbolic_observation():
         ("goalcycle3", {"penalty_size": 1}, "unknown EnvParams field"),
         ("goalcycle3", {"observation": "pixels"}, "observation="),
         ("maze", {"width": 18}, "odd width"),
+        ("goalcycle3", {"penalty": "abc"}, "penalty='abc' must be of type float"),
+        ("goalcycle3", {"width": "13"}, "width='13' must be of type int"),
+        ("goalcycle3", {"max_steps": 2.5}, "max_steps=2.5 must be of type int"),
+        ("goalcycle3", {"initial_reward": 1}, "initial_reward=1 must be of type bool"),
+        ("goalcycle3", {"n_goals": True}, "n_goals=True must be of type int"),
+        ("goalcycle3", {"prestige_beta": 5.0}, "prestige_beta=5.0 must be in"),
+        ("goalcycle3", {"dropout_prob": 0.6, "dropin_prob": 0.6}, "must be <= 1"),
+        ("goalcycle3", {"dropout_prob": 0.5, "dropout_min_step": 300}, "dropout_min_step"),
     ],
 )
 def test_bad_configuration_is_rejected(name, overrides, message):
     with pytest.raises(ValueError, match=message):
         jaxsocial.make(name, **overrides)
+
+
+def test_int_given_for_a_float_field_is_stored_as_a_float():
+    params = jaxsocial.make("goalcycle3", penalty=1)[1]
+    assert params.penalty == 1.0 and isinstance(params.penalty, float)
 
 
 def test_bad_actions_are_rejected_before_compiling():

@@ -27,10 +27,34 @@ def _present(key: jax.Array, params: EnvParams) -> jax.Array:
     return ~solo | (jnp.arange(n) < params.solo_agents)
 
 
+NEVER = np.iinfo(np.int32).max
+"""A presence-window bound no episode reaches."""
+
+
+def _window(key: jax.Array, present: jax.Array, params: EnvParams) -> jax.Array:
+    """int32[N, 2] each slot's presence window [join, leave) (docs/environment.md 10.4): slots from
+    `solo_agents` on leave (`dropout_prob`) or join (`dropin_prob`) at a uniform step in
+    [dropout_min_step, dropout_max_step]; slots absent from a solo episode never join."""
+    n = params.n_agents
+    if not params.changes_presence:
+        return jnp.stack([jnp.where(present, 0, NEVER), jnp.full(n, NEVER)], -1).astype(jnp.int32)
+    k_kind, k_step = jax.random.split(key)
+    u = jax.random.uniform(k_kind, (n,))
+    other = jnp.arange(n) >= params.solo_agents
+    leaves = other & (u < params.dropout_prob)
+    joins = other & ~leaves & (u < params.dropout_prob + params.dropin_prob)
+    at = jax.random.randint(k_step, (n,), params.dropout_min_step, params.dropout_last_step + 1)
+    join = jnp.where(present, jnp.where(joins, at, 0), NEVER)
+    leave = jnp.where(leaves, at, NEVER)
+    return jnp.stack([join, leave], -1).astype(jnp.int32)
+
+
 def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.Array, params: EnvParams):
     k_pos, k_dir = jax.random.split(key)
     n = params.n_agents
     present = _present(jax.random.fold_in(key, 1), params)
+    window = _window(jax.random.fold_in(key, 2), present, params)
+    present = window[:, 0] == 0
     cells = jax.random.categorical(k_pos, jnp.where(spawn_mask.ravel(), 0.0, -jnp.inf), shape=(n,))
     y, x = jnp.divmod(cells, params.width)
     direction = jax.random.randint(k_dir, (n,), 0, 4) if params.random_spawn_dir else jnp.zeros(n, jnp.int32)
@@ -43,6 +67,7 @@ def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.
         prestige=jnp.zeros(n, jnp.float32),
         active=present,
         present=present,
+        window=window,
         arrival=jnp.zeros(n, jnp.int32),
         time=jnp.zeros((), jnp.int32),
     )
@@ -159,6 +184,7 @@ def state_from_layout(
     active=None,
     present=None,
     arrival=None,
+    window=None,
     time: int = 0,
 ) -> EnvState:
     """Build an exact state from an explicit layout (for tests, notebooks and scripted scenes).
@@ -173,6 +199,8 @@ def state_from_layout(
             row-major order).
         prestige, cycle_state, active, present, arrival: optional per-agent values (defaults: 0, -1,
             True, True, 0); absent agents (`present` False) are also inactive.
+        window: optional int[N, 2] presence windows [join, leave) (default: present ones from step 0 on,
+            absent ones never).
         time: steps already taken in the episode.
     """
     if isinstance(layout, str | list):
@@ -203,6 +231,10 @@ def state_from_layout(
     def per_agent(values, default, dtype):
         return jnp.asarray(np.broadcast_to(default if values is None else values, (n,)), dtype)
 
+    present = per_agent(present, True, bool)
+    if window is None:
+        window = np.stack([np.where(present, 0, NEVER), np.full(n, NEVER)], -1)
+
     return EnvState(
         grid=jnp.asarray(grid),
         goal_id=jnp.asarray(goal_id),
@@ -210,8 +242,9 @@ def state_from_layout(
         dir=jnp.asarray(dir % 4),
         cycle_state=per_agent(cycle_state, -1, jnp.int32),
         prestige=per_agent(prestige, 0.0, jnp.float32),
-        active=per_agent(active, True, bool) & per_agent(present, True, bool),
-        present=per_agent(present, True, bool),
+        active=per_agent(active, True, bool) & present,
+        present=present,
+        window=jnp.asarray(np.broadcast_to(window, (n, 2)), jnp.int32),
         arrival=per_agent(arrival, 0, jnp.int32),
         time=jnp.asarray(time, jnp.int32),
     )

@@ -71,6 +71,19 @@ def update_prestige(
     return jnp.where(active, new, prestige).astype(jnp.float32)
 
 
+def update_presence(state: EnvState) -> EnvState:
+    """Slots whose presence window (`EnvState.window`) starts at `state.time` join, active, where they were
+    spawned; slots whose window ends leave (absent and inactive) (docs/environment.md 10.4)."""
+    join, leave = state.window[:, 0], state.window[:, 1]
+    joins = state.time == join
+    leaves = state.time == leave
+    return state.replace(
+        present=(state.present | joins) & ~leaves,
+        active=(state.active | joins) & ~leaves,
+        arrival=jnp.where(joins, state.time, state.arrival),
+    )
+
+
 def world_step(state: EnvState, actions: jax.Array, params: EnvParams) -> tuple[EnvState, jax.Array]:
     """Advance time, move, pay tile rewards, update prestige and deactivate agents on a terminal goal.
 
@@ -94,4 +107,4 @@ def world_step(state: EnvState, actions: jax.Array, params: EnvParams) -> tuple[
         arrival=jnp.where(moved, time, state.arrival),
         time=time,
     )
-    return new_state, reward
+    return update_presence(new_state), reward

@@ -106,11 +106,23 @@ class EnvParams:
     absent for the whole episode (never drawn, never act, no reward). 0 = every episode is social."""
     solo_agents: int = 1
     """Agent slots present in a solo episode (the first ones)."""
+    dropout_prob: float = 0.0
+    """Expert dropout (docs/environment.md 10.4): in each episode, each slot from `solo_agents` on leaves with
+    this probability at a step drawn uniformly from [dropout_min_step, dropout_max_step], and is absent from
+    then on. 0 = nobody leaves."""
+    dropin_prob: float = 0.0
+    """Expert drop-in: each slot from `solo_agents` on is absent at the start with this probability and joins
+    at a step drawn as for dropout (a slot either leaves, joins or stays: dropout_prob + dropin_prob <= 1)."""
+    dropout_min_step: int = 1
+    """First step at which a slot may leave or join."""
+    dropout_max_step: int = 0
+    """Last step at which a slot may leave or join (0: max_steps - 1)."""
 
     def __post_init__(self):
         def fail(msg):
             raise ValueError(f"EnvParams: {msg}")
 
+        self._check_types()
         if self.layout not in LAYOUTS:
             fail(f"unknown layout {self.layout!r}; choose one of {LAYOUTS}")
         if not 1 <= self.n_agents <= MAX_AGENTS:
@@ -133,6 +145,20 @@ class EnvParams:
             fail(f"solo_prob={self.solo_prob} must be a probability in [0, 1]")
         if not 1 <= self.solo_agents <= self.n_agents:
             fail(f"solo_agents={self.solo_agents} must be in [1, n_agents={self.n_agents}]")
+        if not 0.0 <= self.prestige_beta <= 1.0:
+            fail(f"prestige_beta={self.prestige_beta} must be in [0, 1]")
+        if self.prestige_scale <= 0.0:
+            fail(f"prestige_scale={self.prestige_scale} must be > 0")
+        if not 0.0 <= self.dropout_prob <= 1.0 or not 0.0 <= self.dropin_prob <= 1.0:
+            fail(f"dropout_prob={self.dropout_prob} and dropin_prob={self.dropin_prob} must be in [0, 1]")
+        if self.dropout_prob + self.dropin_prob > 1.0:
+            fail(f"dropout_prob + dropin_prob = {self.dropout_prob + self.dropin_prob} must be <= 1")
+        steps_ok = 1 <= self.dropout_min_step <= self.dropout_last_step < self.max_steps
+        if self.changes_presence and not steps_ok:
+            fail(
+                f"need 1 <= dropout_min_step ({self.dropout_min_step}) <= dropout_max_step "
+                f"({self.dropout_last_step}) < max_steps ({self.max_steps})"
+            )
         if not 0.0 <= self.clutter_density < 1.0:
             fail(f"clutter_density={self.clutter_density} must be in [0, 1)")
         if self.layout == "goalcycle":
@@ -152,6 +178,30 @@ class EnvParams:
             self.width < 7 or self.height < 7 or self.width % 2 == 0 or self.height % 2 == 0
         ):
             fail("a maze needs odd width and height >= 7")
+
+    def _check_types(self) -> None:
+        """ValueError unless every field has its annotated type (ints are accepted for floats and stored as
+        floats; bools are not ints here)."""
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            kind = {"int": int, "float": float, "bool": bool, "str": str}[field.type]
+            if kind is float and isinstance(value, int) and not isinstance(value, bool):
+                object.__setattr__(self, field.name, float(value))
+            elif not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+                raise ValueError(
+                    f"EnvParams: {field.name}={value!r} must be of type {field.type}, "
+                    f"not {type(value).__name__}"
+                )
+
+    @property
+    def dropout_last_step(self) -> int:
+        """`dropout_max_step`, with 0 resolved to `max_steps - 1`."""
+        return self.dropout_max_step or self.max_steps - 1
+
+    @property
+    def changes_presence(self) -> bool:
+        """Slots may leave or join during an episode (expert dropout or drop-in)."""
+        return self.dropout_prob > 0.0 or self.dropin_prob > 0.0
 
     @property
     def interior_cells(self) -> int:
@@ -188,7 +238,10 @@ class EnvState:
         prestige: float32[N] prestige value (docs/environment.md section 5).
         active: bool[N] False once an agent has reached a terminal goal (it then waits on it), and for
             absent agents.
-        present: bool[N] the agent takes part in this episode (False: absent from a solo episode).
+        present: bool[N] the agent takes part in the episode now (False: absent from a solo episode, or
+            outside its presence window).
+        window: int32[N, 2] steps [join, leave): the agent is present while join <= time < leave (0 and
+            `int32 max` unless it drops in or out, docs/environment.md 10.4).
         arrival: int32[N] step at which the agent entered its current cell (0 at spawn); sets draw order.
         time: int32 steps taken in this episode.
     """
@@ -201,5 +254,6 @@ class EnvState:
     prestige: jax.Array
     active: jax.Array
     present: jax.Array
+    window: jax.Array
     arrival: jax.Array
     time: jax.Array
