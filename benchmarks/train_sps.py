@@ -91,7 +91,7 @@ def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
         "policy": hid * mlp + mlp * mlp + mlp * cfg.n_actions,
     }
     stride1 = {"conv2": (s1, s2, c1, c2), "conv3": (s2, s3, c2, c3)}  # (in pixels, out pixels, c_in, c_out)
-    if cfg.aux != "none":
+    if cfg.frame_aux != "none":
         layers |= {"aux_fc": (hid + cfg.n_actions) * s3 * c3, "deconv3": s1 * c1 * k2 * 3}
         stride1 |= {"deconv1": (s3, s2, c3, c2), "deconv2": (s2, s1, c2, c1)}
     for name, (p_in, p_out, c_in, c_out) in stride1.items():
@@ -110,7 +110,7 @@ def grad_flops(cfg: network.NetworkConfig) -> int:
     fwd = forward_flops(cfg)
     no_weight_grad = sum(flops for name, flops in fwd.items() if name.endswith(".transforms"))
     total = 3 * sum(fwd.values()) - fwd["conv1"] - no_weight_grad
-    if cfg.aux != "none":
+    if cfg.frame_aux != "none":
         total -= 2 * cfg.n_actions * cfg.feature_size
     return total
 

@@ -29,7 +29,7 @@ from jaxsocial.agents import bc, network, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.env import core
+from jaxsocial.env import core, observe
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 
 
@@ -207,6 +207,12 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
             f"'done' and act at random with epsilon), so net.n_actions must be {NUM_ACTIONS}, not "
             f"{cfg.net.n_actions}"
         )
+    if cfg.net.attention and (cfg.algo != "ppo" or cfg.net.n_others != env_params.n_agents - 1):
+        raise ValueError(
+            f"net.aux={cfg.net.aux!r}: the attention loss trains PPO learners to locate the "
+            f"{env_params.n_agents - 1} other agent slots, so it needs --algo ppo and net.n_others "
+            f"{env_params.n_agents - 1} (got --algo {cfg.algo}, net.n_others {cfg.net.n_others})"
+        )
     if cfg.algo == "ppo":
         ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
     if cfg.iterations < 1 or cfg.chunk_iterations < 1 or cfg.checkpoint_every < 1:
@@ -276,6 +282,7 @@ class Transition(NamedTuple):
     done: jax.Array
     final_values: jax.Array
     valid: jax.Array
+    attention: jax.Array | None  # int32[S_l, E, N-1] with an attention head (`observe.attention_targets`)
 
 
 def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
@@ -324,6 +331,12 @@ def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
             return state.params
         return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), state.params, frozen_params)
 
+    def attention_targets(env_states: EnvState) -> jax.Array | None:
+        if not net.attention:
+            return None
+        targets = jax.vmap(observe.attention_targets, in_axes=(0, None))(env_states, env_params)
+        return jnp.moveaxis(targets[:, learners], 1, 0)
+
     def env_step(carry, key):
         state, params = carry
         k_act, k_env = jax.random.split(key)
@@ -354,6 +367,7 @@ def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
             done=agent_done[:, learners].T,
             final_values=final_values[:n_learners],
             valid=alive[:, recorded].T,
+            attention=attention_targets(state.env_states),
         )
         new_state = state._replace(
             env_states=env_states,
@@ -379,6 +393,7 @@ def make_train(cfg: TrainConfig, mesh: jax.sharding.Mesh | None = None):
             final_values=jnp.moveaxis(traj.final_values, 1, 0),
             valid=jnp.moveaxis(traj.valid, 1, 0),
             carry0=carry0,
+            attention=None if traj.attention is None else jnp.moveaxis(traj.attention, 1, 0),
         )
 
         # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the

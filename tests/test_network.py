@@ -46,6 +46,33 @@ def test_paper_param_count():
     assert net.param_count(rec) == 667_787
 
 
+@pytest.mark.parametrize(
+    ("aux", "frame_aux", "decoder"), [("attention", "none", False), ("pred+attention", "pred", True)]
+)
+def test_attention_head_adds_one_dense_layer(aux, frame_aux, decoder):
+    cfg = net.NetworkConfig(aux=aux, n_others=3)
+    assert (cfg.frame_aux, cfg.attention) == (frame_aux, True)
+    shapes = jax.eval_shape(lambda k: net.init(k, cfg), jax.random.key(0))
+    base = 667_787 if decoder else 496_328
+    assert net.param_count(shapes) == base + (192 + 1) * 3 * 50
+    assert shapes["attention"]["kernel"].shape == (192, 150)
+
+
+def test_attention_loss_is_the_weighted_cross_entropy():
+    cfg = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="attention", n_others=2)
+    params = net.init(jax.random.key(0), cfg)
+    hidden = jax.random.normal(jax.random.key(1), (3, 4, 8))
+    target = jax.random.randint(jax.random.key(2), (3, 4, 2), 0, 50)
+    weight = jax.random.uniform(jax.random.key(3), (3, 4))
+    logits = (hidden @ params["attention"]["kernel"] + params["attention"]["bias"]).reshape(3, 4, 2, 50)
+    log_probs = np.asarray(jax.nn.log_softmax(logits))
+    nll = -np.take_along_axis(log_probs, np.asarray(target)[..., None], -1)[..., 0]
+    expected = (np.asarray(weight) * nll.mean(-1)).sum()
+    np.testing.assert_allclose(net.attention_loss(params, cfg, hidden, target, weight), expected, rtol=1e-5)
+    with pytest.raises(ValueError, match="no attention head"):
+        net.attention_loss(params, dataclasses.replace(cfg, aux="pred"), hidden, target, weight)
+
+
 def test_paper_param_shapes():
     shapes = jax.eval_shape(lambda k: net.init(k, net.NetworkConfig()), jax.random.key(0))
     assert shapes["conv1"]["kernel"].shape == (3, 3, 3, 32)
@@ -322,6 +349,8 @@ def test_decode_without_aux_raises():
         ({"conv_channels": (32, 64)}, "conv_channels"),
         ({"chunk": 0}, "chunk"),
         ({"hidden": 1.5}, "hidden"),
+        ({"aux": "attention+pred"}, "aux"),
+        ({"n_others": 0}, "n_others"),
     ],
 )
 def test_bad_config_raises(kwargs, match):

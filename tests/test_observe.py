@@ -7,7 +7,7 @@ import pytest
 
 import jaxsocial
 from jaxsocial.env import sprites, state_from_layout
-from jaxsocial.env.observe import visibility
+from jaxsocial.env.observe import attention_targets, visibility
 from jaxsocial.env.types import SHADOW
 
 OPEN = ["#########", *["#.......#"] * 7, "#########"]
@@ -193,3 +193,21 @@ def test_done_observer_sees_only_shadow(observe_fn):
     obs = np.asarray(observe_fn(state, params))
     np.testing.assert_array_equal(obs[0], np.broadcast_to(SHADOW, obs[0].shape))
     assert cell(obs[1], 5, 3)[1, 1, 0] == 197  # active agents still see normally
+
+
+def test_attention_targets_are_view_cells_of_the_other_agents():
+    """Observer 0 at (4, 6) facing north sits at view (row 5, col 3): agent 1 at (4, 2) is 4 ahead (row 1,
+    col 3) even behind the wall at (4, 4); agent 2 at (7, 7) is 1 behind, 3 right (row 6, col 6); agent 3
+    at (1, 1) is 5 ahead, 3 left (the corner, row 0, col 0); agent 4 is absent."""
+    rows = [*OPEN[:4], "#...#...#", *OPEN[5:]]
+    params = jaxsocial.make("goalcycle3", width=9, height=9, clutter_density=0.0, n_agents=5)[1]
+    state = state_from_layout(
+        params, rows, [[4, 6], [4, 2], [7, 7], [1, 1], [4, 5]], [3, 0, 0, 0, 0], present=[1, 1, 1, 1, 0]
+    )
+    targets = np.asarray(attention_targets(state, params))
+    assert targets.shape == (5, 4)
+    np.testing.assert_array_equal(targets[0], [1 * 7 + 3, 6 * 7 + 6, 0, 49])
+    # Agent 1 at (4, 2) facing east sees observer 0 (2 right, 4 behind: outside) and agent 4 is absent.
+    assert targets[1, 0] == 49 and targets[1, 3] == 49
+    # Seen from agent 2 at (7, 7) facing east, agent 0 at (4, 6) is 3 behind (outside: only 1 row behind).
+    assert targets[2, 0] == 49

@@ -115,6 +115,30 @@ def test_aux_loss_targets(setup, aux):
     np.testing.assert_allclose(metrics["aux_loss"], (error * mask).sum() / mask.sum(), rtol=1e-5)
 
 
+def test_attention_loss_term_uses_the_minibatch_targets_on_valid_steps(setup):
+    _, batch = setup
+    net = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8, aux="attention", n_others=2)
+    params = network.init(jax.random.key(0), net)
+    cells = jax.random.randint(jax.random.key(5), (T, E, 2), 0, network.ATTENTION_CLASSES)
+    batch = batch._replace(attention=cells, valid=jnp.arange(T)[:, None] < T - 5 + jnp.zeros((1, E), int))
+    targets = ppo.recompute(params, net, CFG, batch)
+    mb = ppo.minibatch(batch, targets, jnp.arange(8), L)
+    loss, metrics = ppo.loss_fn(params, net, CFG, mb)
+    _, out = network.unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
+    weight = mb["valid"] / mb["valid"].sum()
+    expected = network.attention_loss(params, net, out.hidden, mb["attention"], weight)
+    np.testing.assert_allclose(metrics["attention_loss"], expected, rtol=1e-6)
+    cfg0 = ppo.PPOConfig(**{**CFG.__dict__, "attention_coef": 0.0})
+    loss0, _ = ppo.loss_fn(params, net, cfg0, mb)
+    np.testing.assert_allclose(loss - loss0, CFG.attention_coef * expected, rtol=1e-4)
+    # Its gradient reaches the LSTM, not only the head.
+    grads = jax.grad(lambda p: ppo.loss_fn(p, net, CFG, mb)[0] - ppo.loss_fn(p, net, cfg0, mb)[0])(params)
+    assert (
+        float(jnp.abs(grads["lstm"]["wi"]).max()) > 0
+        and float(jnp.abs(grads["policy"]["out"]["kernel"]).max()) == 0
+    )
+
+
 def run_update(params, batch, cfg):
     opt_state = ppo.make_optimizer(cfg).init(params)
     fn = jax.jit(ppo.update, static_argnums=(3, 4))

@@ -141,12 +141,32 @@ def test_cli_end_to_end(tmp_path):
         ({"eval_envs": ("goalcycle4:penalty=abc,nope=1",)}, "unknown EnvParams field"),
         ({"eval_envs": ("goalcycle4",), "eval_every": 0}, "eval_every"),
         ({"eval_envs": ("goalcycle4",), "eval_episodes": 0}, "eval_episodes"),
+        ({"env_args": "penalty=abc"}, "penalty='abc' must be of type float"),
+        ({"net": NetworkConfig(aux="attention", n_others=3)}, "net.n_others 2"),
+        (
+            {"algo": "bc", "slots": "learner,expert:explorer,random", "net": NetworkConfig(aux="attention")},
+            "needs --algo ppo",
+        ),
     ],
 )
 def test_bad_config_fails_before_compiling(tmp_path, changes, message):
     with pytest.raises(ValueError, match=message):
         run(dataclasses.replace(TINY, runs_dir=str(tmp_path), **changes))
     assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_attention_loss_learns_where_the_others_are_under_expert_dropout():
+    """The attention targets recorded in the rollout are learnable: the loss falls well below its start."""
+    cfg = dataclasses.replace(
+        TINY,
+        env_args=TINY.env_args + ",dropout_prob=0.5,dropin_prob=0.5",
+        iterations=8,
+        net=dataclasses.replace(TINY.net, aux="pred+attention"),
+        ppo=dataclasses.replace(TINY.ppo, lr=0.03, kl_target=10.0, kl_hard_limit=10.0),
+    )
+    _, metrics = jax.jit(make_train(cfg)[2])(jax.random.key(0))
+    losses = np.asarray(metrics["attention_loss"])[:, 0]
+    assert losses[0] > 3.0 and losses[-1] < losses[0] - 1.0, losses
 
 
 def test_unknown_aux_mode():

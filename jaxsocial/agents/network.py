@@ -17,11 +17,14 @@ Architecture (paper widths; every width is a `NetworkConfig` field)::
       -> DeConv(32->3, 3x3, stride 3)                    3x3 -> 5x5 -> 7x7 -> 21x21x3, linear output
          (compared by the learner with an MAE against obs / 255: the current frame for aux="rec",
           the next frame for aux="pred"; both build the same decoder)
+    attention = FC(192 -> K * 50), K = n_others          with aux "attention", "rec+attention" or
+         "pred+attention" (an addition after Bhoopchand et al. 2023, not in the paper): for each other
+         agent slot, logits over its cell in the 7x7 view plus "not in view" (`attention_loss`)
 
 Parameter count: 667,787 for the paper configuration. The PyTorch reference
 (benchmarks/pytorch_paper_net.py) has 668,555 = 667,787 + 768 because ``torch.nn.LSTM`` keeps two
 bias vectors (``b_ih`` and ``b_hh``, 4 * 192 each) of which only the sum matters; here the LSTM has one.
-Without the auxiliary decoder (aux="none"): 496,328.
+Without the auxiliary decoder (aux="none"): 496,328. The attention head adds 193 * 50 * n_others.
 
 Layouts and conventions:
   * frames are [n, h, w, c] at the interface (uint8 observations, decoded predictions); inside, the conv
@@ -81,7 +84,8 @@ OBS_SHAPE = (21, 21, 3)  # 7x7 grid cells of 3x3 pixels (marlgrid tile size 3)
 KERNEL = 3
 STRIDES = (3, 1, 1)  # encoder strides; the decoder mirrors them in reverse order
 LEAKY_SLOPE = 0.01  # torch.nn.functional.leaky_relu default
-AUX_KINDS = ("none", "rec", "pred")
+AUX_KINDS = ("none", "rec", "pred", "attention", "rec+attention", "pred+attention")
+ATTENTION_CLASSES = (OBS_SHAPE[0] // KERNEL) ** 2 + 1  # the 7x7 view cells, then "not in view"
 CONV_IMPLS = ("matmul", "xla")
 _SAVED = "activation"  # checkpoint name of the layer outputs saved for the backward pass (`_map_chunks`)
 
@@ -93,10 +97,11 @@ class NetworkConfig:
     conv_channels: tuple[int, int, int] = (32, 64, 64)
     hidden: int = 192  # FC and LSTM width
     mlp: int = 64  # hidden width of the value and policy MLPs
-    aux: str = "pred"  # "none" | "rec" | "pred"; "none" builds no decoder params
+    aux: str = "pred"  # one of AUX_KINDS: a frame loss ("rec", "pred") and/or "attention"
     n_actions: int = 7
     conv_impl: str = "matmul"  # "matmul" (patches + dot, fast on CPU) | "xla" (lax.conv / conv_transpose)
     chunk: int = 512  # frames per chunk of the conv encoder and decoder (speed only, see `_map_chunks`)
+    n_others: int = 2  # other agent slots the attention head locates (n_agents - 1; aux with "attention")
 
     def __post_init__(self):
         channels = tuple(self.conv_channels)
@@ -109,13 +114,23 @@ class NetworkConfig:
 
         if not all(positive_int(c) for c in channels):
             raise ValueError(f"conv_channels must be positive integers, got {self.conv_channels!r}")
-        for name in ("hidden", "mlp", "n_actions", "chunk"):
+        for name in ("hidden", "mlp", "n_actions", "chunk", "n_others"):
             if not positive_int(getattr(self, name)):
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
         if self.aux not in AUX_KINDS:
             raise ValueError(f"unknown aux {self.aux!r}; choose from {AUX_KINDS}")
         if self.conv_impl not in CONV_IMPLS:
             raise ValueError(f"unknown conv_impl {self.conv_impl!r}; choose from {CONV_IMPLS}")
+
+    @property
+    def frame_aux(self) -> str:
+        """The frame loss: "none", "rec" or "pred" (what the decoder is trained on; "none": no decoder)."""
+        return "none" if self.aux == "attention" else self.aux.removesuffix("+attention")
+
+    @property
+    def attention(self) -> bool:
+        """The network has the attention head (`attention_loss`)."""
+        return self.aux.endswith("attention")
 
     @property
     def feature_shape(self) -> tuple[int, int, int]:
@@ -188,7 +203,9 @@ def _param_specs(cfg: NetworkConfig) -> dict[str, Any]:
     }
     specs["value"] = _mlp_spec(cfg, 1, 1.0)
     specs["policy"] = _mlp_spec(cfg, cfg.n_actions, 0.01)
-    if cfg.aux != "none":
+    if cfg.attention:
+        specs["attention"] = _dense_spec(hid, cfg.n_others * ATTENTION_CLASSES, 0.01)
+    if cfg.frame_aux != "none":
         specs["aux_fc"] = _dense_spec(hid + cfg.n_actions, cfg.feature_size, math.sqrt(2.0))
         for name, (c_in, c_out), stride in zip(
             ("deconv1", "deconv2", "deconv3"), [(c3, c2), (c2, c1), (c1, 3)], STRIDES[::-1], strict=True
@@ -540,12 +557,26 @@ def step(
     return carry, jax.tree_util.tree_map(lambda x: x[0], out)
 
 
+def attention_loss(params: Params, cfg: NetworkConfig, hidden: jax.Array, target: jax.Array, weight):
+    """Weighted attention loss ``sum(weight * mean_k CE(logits_k, target_k))``, f32[].
+
+    hidden f32[..., H]; target int[..., K] each other slot's view cell (`observe.attention_targets`:
+    row * 7 + col, or 49 when not in view); weight f32[...]. Raises ValueError without the attention head.
+    """
+    if not cfg.attention:
+        raise ValueError(f"cfg.aux == {cfg.aux!r} has no attention head")
+    logits = _dense(params["attention"], hidden).reshape(*hidden.shape[:-1], cfg.n_others, ATTENTION_CLASSES)
+    log_probs = jax.nn.log_softmax(logits)
+    nll = -jnp.take_along_axis(log_probs, target[..., None].astype(jnp.int32), -1)[..., 0]
+    return jnp.sum(weight * jnp.mean(nll, -1))
+
+
 DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")
 
 
 def _check_decoder(cfg: NetworkConfig) -> None:
-    if cfg.aux == "none":
-        raise ValueError("decoding needs an auxiliary decoder, but cfg.aux == 'none' built none")
+    if cfg.frame_aux == "none":
+        raise ValueError(f"decoding needs an auxiliary decoder, but cfg.aux == {cfg.aux!r} built none")
 
 
 def _decode_hwnc(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Array) -> jax.Array:
@@ -564,7 +595,7 @@ def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Ar
     """Auxiliary prediction f32[..., 21, 21, 3] from LSTM outputs f32[..., H] and actions int[...].
 
     Unbounded (linear output layer); the learner compares it with obs / 255 (see `aux_loss`, which
-    computes that comparison and its gradient faster). Raises ValueError for aux="none".
+    computes that comparison and its gradient faster). Raises ValueError without a decoder.
     """
     _check_decoder(cfg)
     batch = hidden.shape[:-1]
@@ -587,7 +618,7 @@ def aux_loss(
     hidden f32[..., H]; action int[...]; target uint8[..., 21, 21, 3]; weight f32[...] (the mean absolute
     error of each frame over its pixels is weighted). `axis_name`: called inside `jax.shard_map` with params
     replicated and every other argument the device's share of the rows, the mesh axis the rows are split
-    over (the params' gradient is then summed over it). Raises ValueError for aux="none".
+    over (the params' gradient is then summed over it). Raises ValueError without a decoder.
 
     Differentiable in params, hidden and weight, with the value and gradients of writing it with `decode`,
     but faster: as only a scalar leaves the decoder, the forward pass of a differentiated call runs the

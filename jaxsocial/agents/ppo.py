@@ -37,7 +37,9 @@ class PPOConfig:
     entropy_coef: float = 1e-5
     """c_ent, entropy-bonus coefficient."""
     aux_coef: float = 3.0
-    """c_aux, auxiliary-loss coefficient (ignored when the network's aux is 'none')."""
+    """c_aux, coefficient of the frame auxiliary loss (network aux 'rec' or 'pred')."""
+    attention_coef: float = 1.0
+    """Coefficient of the attention auxiliary loss (network aux with 'attention'; not in the paper)."""
     lr: float = 1e-4
     """Adam learning rate (the paper's experts used 1e-5)."""
     max_grad_norm: float = 0.5
@@ -66,7 +68,8 @@ class Batch(NamedTuple):
     terminated: bool[T, E] (the agent reached a terminal state, no bootstrap); done: bool[T, E] (its episode
     ended after this step); final_values: float32[T, E] value of `info["final_obs"]` where the episode was
     truncated (bootstrap through the time limit); valid: bool[T, E] the agent was acting (not done earlier);
-    carry0: the LSTM state before step 0 (network.Carry of float32[E, H]).
+    carry0: the LSTM state before step 0 (network.Carry of float32[E, H]); attention: int32[T, E, K] each
+    other slot's cell in the learner's view (`observe.attention_targets`), None without an attention head.
     """
 
     obs: jax.Array
@@ -79,6 +82,7 @@ class Batch(NamedTuple):
     final_values: jax.Array
     valid: jax.Array
     carry0: network.Carry
+    attention: jax.Array | None = None
 
 
 def gae(
@@ -116,7 +120,7 @@ class Targets(NamedTuple):
     returns: jax.Array
 
 
-BATCH_ENV_AXES = Batch(*([1] * (len(Batch._fields) - 1)), carry0=0)
+BATCH_ENV_AXES = Batch(**{name: 1 for name in Batch._fields})._replace(carry0=0)
 """The environment axis of each Batch field."""
 TARGETS_ENV_AXES = Targets(carries=1, advantages=1, returns=1)
 
@@ -182,6 +186,7 @@ def minibatch(batch: Batch, targets: Targets, idx: jax.Array, length: int) -> di
         "advantages": take(targets.advantages),
         "returns": take(targets.returns),
         "carry": jax.tree.map(lambda c: c.reshape(-1, c.shape[-1])[idx], targets.carries),
+        "attention": None if batch.attention is None else take(batch.attention),
     }
 
 
@@ -191,7 +196,8 @@ def _masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
 
 
 def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array], dp: Any = None):
-    """The paper's total loss on one minibatch: L_pi + c_V L_V + c_aux L_aux - c_ent H.
+    """The paper's total loss on one minibatch: L_pi + c_V L_V + c_aux L_aux - c_ent H (+ c_att L_att with
+    the attention head).
 
     Returns (loss, metrics dict with 'kl' = estimated KL(rollout || current) on valid steps). With `dp` the
     network runs on each device's chunks of the minibatch ([L, M] arrays split along M).
@@ -233,13 +239,18 @@ def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]
         "clip_frac": _masked_mean((jnp.abs(ratio - 1.0) > cfg.clip).astype(jnp.float32), valid),
         "ratio_mean": _masked_mean(ratio, valid),
     }
-    if net.aux != "none":
-        target = mb["next_obs"] if net.aux == "pred" else mb["obs"]
+    if net.frame_aux != "none":
+        predict = net.frame_aux == "pred"
+        target = mb["next_obs"] if predict else mb["obs"]
         # A next observation after the episode ended belongs to a new episode: nothing to predict.
-        aux_mask = (valid & ~mb["done"] if net.aux == "pred" else valid).astype(jnp.float32)
+        aux_mask = (valid & ~mb["done"] if predict else valid).astype(jnp.float32)
         weight = aux_mask / jnp.maximum(jnp.sum(aux_mask), 1.0)  # the masked mean of the frames' errors
         metrics["aux_loss"] = jnp.sum(aux_part(params, out.hidden, mb["actions"], target, weight))
         loss = loss + cfg.aux_coef * metrics["aux_loss"]
+    if net.attention:
+        weight = valid.astype(jnp.float32) / jnp.maximum(jnp.sum(valid), 1.0)
+        metrics["attention_loss"] = network.attention_loss(params, net, out.hidden, mb["attention"], weight)
+        loss = loss + cfg.attention_coef * metrics["attention_loss"]
     return loss, metrics
 
 

@@ -182,6 +182,24 @@ def symbolic(state: EnvState, params: EnvParams) -> jax.Array:
     return jnp.stack([tile, agent, rel, blue], -1).astype(jnp.int8)
 
 
+def attention_targets(state: EnvState, params: EnvParams) -> jax.Array:
+    """int32[N, N-1] where each agent's view window holds each other agent (slots in order, skipping itself):
+    the view cell `row * V + col`, or `V * V` when the other agent is absent or outside the window.
+
+    Geometric: occlusion is ignored, so an agent hidden behind a wall still has its cell (the target of the
+    attention auxiliary loss, `network.attention_loss`, which asks the learner to keep track of the others).
+    """
+    n, v = params.n_agents, params.view_size
+    others = np.array([[j for j in range(n) if j != i] for i in range(n)], np.int32).reshape(n, n - 1)
+    delta = state.pos[others] - state.pos[:, None, :]  # [N, N-1, 2]
+    forward = jnp.asarray(DIR_VEC)[state.dir][:, None, :]  # [N, 1, 2]
+    right = jnp.stack([-forward[..., 1], forward[..., 0]], -1)
+    row = v - 1 - params.view_offset - jnp.sum(delta * forward, -1)
+    col = v // 2 + jnp.sum(delta * right, -1)
+    inside = (row >= 0) & (row < v) & (col >= 0) & (col < v) & state.present[others]
+    return jnp.where(inside, row * v + col, v * v).astype(jnp.int32)
+
+
 def observe(state: EnvState, params: EnvParams) -> jax.Array:
     """Every agent's observation, of shape `(N, *params.obs_shape)`."""
     return rgb(state, params) if params.observation == "rgb" else symbolic(state, params)

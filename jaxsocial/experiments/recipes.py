@@ -112,6 +112,9 @@ class Condition:
 
 
 IMPERFECT_EXPERT = "expert:explorer:epsilon=0.2,forget=0.01"
+EXPERT_DROPOUT = "dropout_prob=0.5,dropin_prob=0.25"
+"""Cultural-transmission training (not in the paper): each expert leaves half the episodes and joins a quarter
+of them, at a uniform random step (`EnvParams.dropout_prob`, `dropin_prob`)."""
 
 CONDITIONS = {
     "solo_pred": Condition("solo PPO + aux pred", env="goalcycle3-solo", flags=("--net.aux", "pred")),
@@ -146,6 +149,17 @@ CONDITIONS = {
         flags=("--net.aux", "pred"),
         penalty_curriculum=True,
     ),
+    "social_pred_dropout": Condition(
+        "social PPO + aux pred, expert dropout", flags=("--net.aux", "pred"), env_args=EXPERT_DROPOUT
+    ),
+    "social_pred_attention": Condition(
+        "social PPO + aux pred + attention", flags=("--net.aux", "pred+attention")
+    ),
+    "social_medal": Condition(
+        "social PPO + aux pred + attention, expert dropout (MEDAL without ADR)",
+        flags=("--net.aux", "pred+attention"),
+        env_args=EXPERT_DROPOUT,
+    ),
     "social_pred_distractors": Condition(
         "social PPO + aux pred, 2 random distractors",
         env="goalcycle3-distractors",
@@ -163,7 +177,8 @@ class Recipe:
     conditions: tuple[str, ...]
     kind: str
     """'curves' (return through training, final-return CIs), 'transfer' (zero-shot bars), 'mixing'
-    (return through training in three environments) or 'predictions' (a trained learner's next frames)."""
+    (return through training in three environments), 'predictions' (a trained learner's next frames) or 'ct'
+    (the cultural-transmission evaluation, `jaxsocial.evaluate --protocol ct`, after training)."""
     transfer_envs: tuple[str, ...] = ()
     """Evaluation environments after training ('transfer'); Goal Cycle ones take the scale's env_args."""
 
@@ -187,6 +202,8 @@ RECIPES = {
                ("expert_curriculum", "solo_pred"), "curves"),
         Recipe("predictions", "A trained learner's predicted next frames (paper Fig. 2)", ("social_pred",),
                "predictions"),
+        Recipe("ct", "Beyond the paper: cultural transmission (expert dropout, attention loss)",
+               ("social_pred", "social_pred_dropout", "social_pred_attention", "social_medal"), "ct"),
     )
 }  # fmt: skip
 
