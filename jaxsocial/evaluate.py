@@ -4,11 +4,19 @@
     python -m jaxsocial.evaluate --ckpt runs/a runs/b --env goalcycle4 --slots learner,expert:explorer,random
     python -m jaxsocial.evaluate --env maze --slots expert:navigator,random,random     # no saved agent
 
+    python -m jaxsocial.evaluate --ckpt runs/a runs/b runs/c --env goalcycle3 --protocol ct
+
 The saved agent (`--ckpt`: run directories, one per training seed; `RUN_DIR@k` picks its k-th learner) plays
 the `learner` slot; the other slots are scripted experts, frozen policies or random distractors (default:
 the environment's scripted experts, as in training). Every episode runs to its end (no auto-reset). The
 result is JSON: each slot's mean episode return with a 95% confidence interval, over training seeds when
 there are several checkpoints (Student t on the per-seed means) and over episodes otherwise.
+
+`--protocol ct` is the cultural-transmission evaluation (after Bhoopchand et al. 2023; not in the paper): the
+same episodes (same layouts and spawns) are played three times, with the other slots present throughout,
+leaving at half time, and absent (solo). The CT score is the learner's gain from the experts, `(R_with -
+R_solo) / R_experts`; recall is the gain kept after they left, the same over the second half of the episode
+with the dropout case in place of `R_with` (see `cultural_transmission`).
 """
 
 from __future__ import annotations
@@ -18,7 +26,7 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -52,6 +60,11 @@ class EvalConfig:
     """Also write the JSON here (an existing file is not replaced without --overwrite)."""
     overwrite: bool = False
     """Replace an existing --out file."""
+    protocol: str = "returns"
+    """'returns' (each slot's episode return) or 'ct' (the cultural-transmission scores, see above)."""
+
+
+PROTOCOLS = ("returns", "ct")
 
 
 T_975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145)
@@ -71,6 +84,16 @@ def mean_ci95(values: np.ndarray) -> tuple[float, float, float]:
     return mean, mean - half, mean + half
 
 
+class Episodes(NamedTuple):
+    """Per-episode results, [E, N] each: the slots' returns, their returns over the second half of the
+    episode (steps after `max_steps // 2`), and whether the slot was present at the start (solo episodes
+    leave experts out)."""
+
+    returns: jax.Array
+    late_returns: jax.Array
+    present: jax.Array
+
+
 def episode_returns(
     key: jax.Array,
     pop: population.Population,
@@ -78,15 +101,13 @@ def episode_returns(
     env_params: EnvParams,
     params,
     n_episodes: int,
-) -> tuple[jax.Array, jax.Array]:
+) -> Episodes:
     """Play `n_episodes` episodes in parallel, each to its end. Jittable (static pop, net, env_params,
-    n_episodes).
+    n_episodes). The episodes depend on `key` only through their layouts, spawns and actions: playing
+    the same key with other presence settings (`solo_prob`, `dropout_prob`) gives the same layouts.
 
     Args:
         params: neural-slot params stacked [S, ...] in `pop.neural` order, or None.
-    Returns:
-        float32[E, N] each slot's episode return and bool[E, N] whether the slot took part (solo episodes
-        leave experts out).
     """
     k_reset, k_run = jax.random.split(key)
     obs, states = jax.vmap(core.reset, in_axes=(0, None))(jax.random.split(k_reset, n_episodes), env_params)
@@ -94,26 +115,22 @@ def episode_returns(
     slots = population.init_slot_state(pop, net, env_params, n_episodes)
 
     def body(carry, key):
-        obs, states, slots, first, done, returns = carry
+        obs, states, slots, first, done, returns, late = carry
         actions, slots, _, _ = population.act(key, pop, net, env_params, params, slots, obs, states, first)
         obs, states, reward, terminated, truncated = jax.vmap(core.step_env, in_axes=(0, 0, None))(
             states, actions, env_params
         )
-        returns = returns + jnp.where(done[:, None], 0.0, reward)
+        reward = jnp.where(done[:, None], 0.0, reward)
+        returns = returns + reward
+        late = late + jnp.where(states.time[:, None] > env_params.max_steps // 2, reward, 0.0)
         done = done | jnp.all(terminated, -1) | truncated
         slots = population.record_rewards(slots, reward)
-        return (obs, states, slots, jnp.zeros_like(first), done, returns), None
+        return (obs, states, slots, jnp.zeros_like(first), done, returns, late), None
 
-    start = (
-        obs,
-        states,
-        slots,
-        jnp.ones(n_episodes, bool),
-        jnp.zeros(n_episodes, bool),
-        jnp.zeros((n_episodes, env_params.n_agents), jnp.float32),
-    )
-    (*_, returns), _ = jax.lax.scan(body, start, jax.random.split(k_run, env_params.max_steps))
-    return returns, present
+    zeros = jnp.zeros((n_episodes, env_params.n_agents), jnp.float32)
+    start = (obs, states, slots, jnp.ones(n_episodes, bool), jnp.zeros(n_episodes, bool), zeros, zeros)
+    (*_, returns, late), _ = jax.lax.scan(body, start, jax.random.split(k_run, env_params.max_steps))
+    return Episodes(returns, late, present)
 
 
 def parse_env_spec(spec: str) -> EnvParams:
@@ -140,8 +157,8 @@ def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episod
         stacked = jax.tree.map(lambda x: x[None], params)
         out = {}
         for (spec, pop, env_params), k in zip(setups, jax.random.split(key, len(setups)), strict=True):
-            returns, present = jax.device_get(play(k, pop, net, env_params, stacked, episodes))
-            out[spec] = float(returns[present[:, 0], 0].mean())
+            played = jax.device_get(play(k, pop, net, env_params, stacked, episodes))
+            out[spec] = float(played.returns[played.present[:, 0], 0].mean())
         return out
 
     return run
@@ -151,6 +168,8 @@ def _setup(cfg: EvalConfig):
     """Validate everything and load the policies; raises ValueError before compiling."""
     if cfg.episodes < 1:
         raise ValueError(f"--episodes {cfg.episodes} must be >= 1")
+    if cfg.protocol not in PROTOCOLS:
+        raise ValueError(f"unknown --protocol {cfg.protocol!r}; choose one of {PROTOCOLS}")
     _, env_params = jaxsocial.make(cfg.env, **schedule.parse_assignments(cfg.env_args))
     population.require_rgb(env_params, f"--env {cfg.env}")
     slots_text = cfg.slots or population.default_slots(env_params)
@@ -166,6 +185,14 @@ def _setup(cfg: EvalConfig):
     first = (list(cfg.ckpt) + paths)[:1]
     net = population.saved_net(first[0]) if first else network.NetworkConfig()
     frozen = [population.load_policy(p, net) for p in paths]
+    if cfg.protocol == "ct" and (
+        pop.learners != (0,) or env_params.n_agents < 2 or env_params.solo_agents != 1
+    ):
+        raise ValueError(
+            "--protocol ct plays the learner in slot 0 with and without the others: it needs --ckpt, the "
+            f"learner first, at least 2 agent slots and solo_agents=1 (got slots "
+            f"{[s.label for s in pop.slots]}, solo_agents={env_params.solo_agents})"
+        )
     per_ckpt = [population.stack([population.load_policy(c, net), *frozen]) for c in cfg.ckpt]
     if not cfg.ckpt:
         per_ckpt = [population.stack(frozen) if frozen else None]
@@ -173,14 +200,31 @@ def _setup(cfg: EvalConfig):
 
 
 def evaluate(cfg: EvalConfig) -> dict[str, Any]:
-    """Run the evaluation and return the JSON-able results."""
+    """Run the evaluation (`cfg.protocol`) and return the JSON-able results."""
     env_params, pop, net, per_ckpt = _setup(cfg)
     play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
     key = jax.random.key(cfg.seed)
+    header = {
+        "env": cfg.env,
+        "env_args": cfg.env_args,
+        "slots": [s.label for s in pop.slots],
+        "checkpoints": list(cfg.ckpt),
+        "episodes_per_checkpoint": cfg.episodes,
+        "seed": cfg.seed,
+        "max_steps": env_params.max_steps,
+    }
+    if cfg.protocol == "ct":
+        cases = ct_cases(env_params)
+        played = {
+            name: [jax.device_get(play(key, pop, net, case, params, cfg.episodes)) for params in per_ckpt]
+            for name, case in cases.items()
+        }
+        demonstrators = pop.demonstrators or tuple(range(1, env_params.n_agents))
+        return {**header, "protocol": "ct", **cultural_transmission(played, demonstrators)}
     results = [jax.device_get(play(key, pop, net, env_params, params, cfg.episodes)) for params in per_ckpt]
     slots = []
     for i, slot in enumerate(pop.slots):
-        samples = [returns[present[:, i], i] for returns, present in results]
+        samples = [r.returns[r.present[:, i], i] for r in results]
         seed_means = np.array([s.mean() for s in samples if len(s)])
         over_seeds = len(seed_means) > 1
         all_samples = np.concatenate(samples)
@@ -200,15 +244,67 @@ def evaluate(cfg: EvalConfig) -> dict[str, Any]:
                 "per_seed_mean": seed_means.tolist(),
             }
         )
+    return {**header, "results": slots}
+
+
+def ct_cases(env_params: EnvParams) -> dict[str, EnvParams]:
+    """The three presence settings of the CT protocol: the other slots present throughout ('with'),
+    leaving after half the episode ('dropout'), absent ('solo')."""
+    social = env_params.replace(solo_prob=0.0, dropout_prob=0.0, dropin_prob=0.0)
+    half = env_params.max_steps // 2
     return {
-        "env": cfg.env,
-        "env_args": cfg.env_args,
-        "slots": [s.label for s in pop.slots],
-        "checkpoints": list(cfg.ckpt),
-        "episodes_per_checkpoint": cfg.episodes,
-        "seed": cfg.seed,
-        "max_steps": env_params.max_steps,
-        "results": slots,
+        "with": social,
+        "dropout": social.replace(dropout_prob=1.0, dropout_min_step=half, dropout_max_step=half),
+        "solo": social.replace(solo_prob=1.0),
+    }
+
+
+def _interval(values: np.ndarray) -> dict[str, Any]:
+    mean, low, high = mean_ci95(values)
+    return {"mean": mean, "ci95": [low, high]}
+
+
+def cultural_transmission(played: dict[str, list[Episodes]], experts: tuple[int, ...]) -> dict[str, Any]:
+    """CT scores from the `ct_cases` episodes of each checkpoint (the same episodes in every case), with the
+    learner in slot 0 and the experts (the demonstrating slots) in `experts`.
+
+    Per checkpoint, with `E` the experts' mean return in 'with' (over the whole episode, and `E_late` over
+    its second half): `ct = (R_with - R_solo) / E` and `recall = (R_dropout_late - R_solo_late) / E_late`,
+    where R are the learner's mean returns. Intervals are over checkpoints (seeds) when there are several,
+    otherwise over episodes (the paired per-episode differences, divided by the same E).
+    """
+    learner = {name: [(r.returns[:, 0], r.late_returns[:, 0]) for r in runs] for name, runs in played.items()}
+    cols = list(experts)
+    expert_returns = [(r.returns[:, cols].mean(), r.late_returns[:, cols].mean()) for r in played["with"]]
+    per_episode = {"ct": [], "recall": []}
+    for k, (expert, expert_late) in enumerate(expert_returns):
+        if expert <= 0 or expert_late <= 0:
+            raise ValueError(
+                f"checkpoint {k}: the other slots' return ({expert:.3f}) must be > 0 to normalise"
+            )
+        per_episode["ct"].append((learner["with"][k][0] - learner["solo"][k][0]) / expert)
+        per_episode["recall"].append((learner["dropout"][k][1] - learner["solo"][k][1]) / expert_late)
+    over_seeds = len(expert_returns) > 1
+    scores = {
+        name: _interval(np.array([v.mean() for v in values]) if over_seeds else values[0])
+        for name, values in per_episode.items()
+    }
+    returns = {
+        name: {
+            part: _interval(np.array([r[j].mean() for r in runs]) if over_seeds else runs[0][j])
+            for j, part in enumerate(("episode", "second_half"))
+        }
+        for name, runs in learner.items()
+    }
+    return {
+        **scores,
+        "learner_returns": returns,
+        "expert_return": {
+            "episode": float(np.mean([e for e, _ in expert_returns])),
+            "second_half": float(np.mean([e for _, e in expert_returns])),
+        },
+        "per_seed": {name: [float(v.mean()) for v in values] for name, values in per_episode.items()},
+        "ci_over": "seeds" if over_seeds else "episodes",
     }
 
 

@@ -145,3 +145,26 @@ def test_figure_leaves_out_conditions_not_run(mixing_runs, tmp_path):
     assert summary["missing_conditions"] == ["solo_pred", "social_none", "social_rec"]
     assert list(summary["conditions"]) == ["social_pred"]
     assert (tmp_path / "h1-tiny.png").stat().st_size > 1000
+
+
+@pytest.mark.slow
+def test_ct_recipe_trains_evaluates_and_summarises(mixing_runs, tmp_path):
+    """The ct recipe reuses mixing's social PPO + pred run, trains the three others, writes each seed's CT
+    evaluation and summarises the scores from those files."""
+    cli.main(["run", "ct", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs)])
+    cli.main(["figure", "ct", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs),
+              "--out-dir", str(tmp_path)])  # fmt: skip
+    summary = json.loads((tmp_path / "ct-tiny.json").read_text())
+    assert (tmp_path / "ct-tiny.png").stat().st_size > 1000
+    assert list(summary["conditions"]) == list(recipes.RECIPES["ct"].conditions)
+    for name, entry in summary["conditions"].items():
+        cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
+        (seed_dir,) = runner.seed_dirs(cfg)
+        result = json.loads(runner.ct_path(seed_dir, recipes.TINY).read_text())
+        assert result["protocol"] == "ct" and result["checkpoints"] == [str(seed_dir)]
+        assert entry["ct"]["final_returns"] == [round(result["ct"]["mean"], 4)]
+        assert entry["recall"]["final_returns"] == [round(result["recall"]["mean"], 4)]
+        assert entry["final_returns"] == [round(figures.final_return(logs.read_metrics(seed_dir)), 4)]
+    medal = recipes.condition_config(recipes.TINY, "social_medal", 0, 1, str(mixing_runs))
+    assert "attention_loss/0" in logs.read_metrics(runner.seed_dirs(medal)[0])[-1]
+    assert set(summary["separated_ci95"]) == {"final", "ct", "recall"}

@@ -255,8 +255,17 @@ def _policy_dir(path: str) -> tuple[Path, int]:
 
 
 def saved_net(path: str) -> network.NetworkConfig:
-    """The network config a policy (`RUN_DIR[@k]`) was trained with."""
+    """The network config a policy (`RUN_DIR[@k]`) was trained with (fields added since take defaults)."""
     return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(path)[0])["net"])
+
+
+SPEED_FIELDS = ("conv_impl", "chunk")
+"""NetworkConfig fields that change how the network is computed, not what it computes."""
+
+
+def architecture(net: network.NetworkConfig) -> dict:
+    """The fields that decide the params and the function (JSON types): what a loaded policy must match."""
+    return {k: v for k, v in json_net(net).items() if k not in SPEED_FIELDS}
 
 
 def load_policy(path: str, net: network.NetworkConfig):
@@ -267,11 +276,11 @@ def load_policy(path: str, net: network.NetworkConfig):
     """
     directory, k = _policy_dir(path)
     meta = checkpoint.read_metadata(directory)
-    saved_net = meta.get("net")
-    if saved_net != json_net(net):
+    saved = architecture(saved_net(path))
+    if saved != architecture(net):
         raise ValueError(
-            f"frozen slot {path}: the checkpoint's network {saved_net} differs from this run's network "
-            f"{json_net(net)} (a checkpoint of another architecture)"
+            f"frozen slot {path}: the checkpoint's network {saved} differs from this run's network "
+            f"{architecture(net)} (a checkpoint of another architecture)"
         )
     n_saved = int(meta["n_learners"])
     if not 0 <= k < n_saved:

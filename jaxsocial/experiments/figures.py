@@ -56,6 +56,12 @@ def curve(
     return x, y
 
 
+def metric_curve(rows: list[dict[str, Any]], key: str) -> tuple[np.ndarray, np.ndarray]:
+    """(iterations, value) float64[I] of every row, e.g. key 'kl/0'; nan where a row has no (finite) value."""
+    iterations = np.array([r["iteration"] for r in rows], np.float64)
+    return iterations, np.array([np.nan if r.get(key) is None else r[key] for r in rows], np.float64)
+
+
 def eval_curve(rows: list[dict[str, Any]], key: str) -> tuple[np.ndarray, np.ndarray]:
     """(iterations, value) of the rows that logged the evaluation `key` (e.g. 'eval/goalcycle4')."""
     logged = [r for r in rows if r.get(key) is not None]
@@ -73,6 +79,15 @@ def stats(values: list[float]) -> dict[str, Any]:
         "mean": round(mean, 4),
         "ci95": [round(lo, 4), round(hi, 4)],
     }
+
+
+CT_SCORES = ("ct", "recall")
+"""The cultural-transmission protocol's scores (`jaxsocial.evaluate.cultural_transmission`)."""
+
+
+def ct_score(condition: dict[str, Any], score: str) -> dict[str, Any]:
+    """A ct recipe condition's stats of `score`: 'final' (the training return), 'ct' or 'recall'."""
+    return condition if score == "final" else condition[score]
 
 
 def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
@@ -159,6 +174,17 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
                 [float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows]
             )
         out["separated_ci95"] = separations(conditions)
+    elif kind == "ct":  # the training return, and the CT protocol's scores after training
+        for c, seed_rows in runs.rows.items():
+            conditions[c] = stats([final_return(rows) for rows in seed_rows])
+            results = [_read_json(runner.ct_path(d, runs.scale)) for d in runs.seed_dirs[c]]
+            for score in CT_SCORES:
+                conditions[c][score] = stats([r[score]["mean"] for r in results])
+            conditions[c]["expert_return"] = stats([r["expert_return"]["episode"] for r in results])
+        out["separated_ci95"] = {
+            score: separations({c: ct_score(v, score) for c, v in conditions.items()})
+            for score in ("final", *CT_SCORES)
+        }
     else:  # transfer: learner and expert returns in each evaluation environment
         for spec in runner.transfer_specs(runs.recipe, runs.scale):
             per_cond = {
@@ -194,14 +220,17 @@ def _final_eval(rows: list[dict[str, Any]], key: str) -> float:
     return float(values[-n:].mean()) if len(values) else float("nan")
 
 
-def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
-    path = runner.eval_path(seed_dir, spec)
+def _read_json(path: Path) -> dict[str, Any]:
     if not path.exists():
         raise FileNotFoundError(f"no evaluation {path}: run the recipe first")
-    return json.loads(path.read_text())["results"]
+    return json.loads(path.read_text())
 
 
-def _band(ax, xs: list[np.ndarray], ys: list[np.ndarray], label: str, color) -> None:
+def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
+    return _read_json(runner.eval_path(seed_dir, spec))["results"]
+
+
+def band(ax, xs: list[np.ndarray], ys: list[np.ndarray], label: str, color) -> None:
     """Per-seed faint lines, the mean and a 95% CI band over seeds."""
     n = min(len(x) for x in xs)
     x, y = xs[0][:n], np.stack([v[:n] for v in ys])
@@ -230,19 +259,13 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
             xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
             xs = [x * steps_per_iteration[c] / 1e6 for x in xs]
             for ax in (returns_ax, zoom_ax):
-                _band(ax, xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
+                band(ax, xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
             key = next((k for k in LOSS_PANEL if k in seed_rows[0][-1]), None)
             if key is not None:
                 used.add(key)
-                its = [
-                    np.array([r["iteration"] for r in rows]) * steps_per_iteration[c] / 1e6
-                    for rows in seed_rows
-                ]
-                losses = [
-                    np.array([r[key] if r.get(key) is not None else np.nan for r in rows])
-                    for rows in seed_rows
-                ]
-                _band(loss_ax, its, losses, recipes.CONDITIONS[c].label, colors[i])
+                its, losses = zip(*(metric_curve(rows, key) for rows in seed_rows), strict=True)
+                its = [x * steps_per_iteration[c] / 1e6 for x in its]
+                band(loss_ax, its, list(losses), recipes.CONDITIONS[c].label, colors[i])
         if "experts" in summary and summary["experts"]["mean"] is not None:
             returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
         returns_ax.set(
@@ -258,10 +281,10 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
         for i, (c, seed_rows) in enumerate(runs.rows.items()):
             label = recipes.CONDITIONS[c].label
             xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
-            _band(axes[0], list(xs), list(ys), label, colors[i])
+            band(axes[0], list(xs), list(ys), label, colors[i])
             for ax, key in zip(axes[1:], keys, strict=True):
                 xs, ys = zip(*(eval_curve(rows, key) for rows in seed_rows), strict=True)
-                _band(ax, list(xs), list(ys), label, colors[i])
+                band(ax, list(xs), list(ys), label, colors[i])
         for i, c in enumerate(runs.rows):
             if recipes.CONDITIONS[c].mixed_from is not None:
                 for ax in axes:
@@ -272,29 +295,45 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
         for ax, key in zip(axes[1:], keys, strict=True):
             ax.set(title=key.removeprefix("eval/"), xlabel="iteration")
         axes[0].legend(fontsize=8)
+    elif runs.recipe.kind == "ct":
+        panels = {
+            "final": "final training return",
+            "ct": "CT score: (R_with - R_solo) / R_experts",
+            "recall": "recall: 2nd half after the experts left",
+        }
+        fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 4.2))
+        for ax, (score, title) in zip(axes, panels.items(), strict=True):
+            per_cond = {c: ct_score(v, score) for c, v in summary["conditions"].items()}
+            _bars(ax, per_cond, colors)
+            ax.axhline(0, color="k", lw=0.5)
+            ax.set(title=title)
     else:
         specs = list(summary["conditions"])
         fig, axes = plt.subplots(1, len(specs), figsize=(4.5 * len(specs), 4), squeeze=False)
         for ax, spec in zip(axes[0], specs, strict=True):
-            names = list(summary["conditions"][spec])
-            for j, name in enumerate(names):
-                s = summary["conditions"][spec][name]
-                if s["mean"] is None:
-                    continue
-                lo, hi = s["ci95"]
-                ax.bar(j, s["mean"], color=colors[j], yerr=[[s["mean"] - lo], [hi - s["mean"]]], capsize=4)
-                marks = s.get("final_returns", [])
-                ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
-            labels = [
-                recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts"
-                for n in names
-            ]
-            ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
+            _bars(ax, summary["conditions"][spec], colors)
             ax.set(title=spec, ylabel="mean episode return")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=70)
     plt.close(fig)
+
+
+def _bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
+    """One bar per condition (mean, 95% CI whiskers, a cross per seed), labelled below."""
+    names = list(per_cond)
+    for j, name in enumerate(names):
+        s = per_cond[name]
+        if s["mean"] is None:
+            continue
+        lo, hi = s["ci95"]
+        ax.bar(j, s["mean"], color=colors[j], yerr=[[s["mean"] - lo], [hi - s["mean"]]], capsize=4)
+        marks = s.get("final_returns", [])
+        ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
+    labels = [
+        recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts" for n in names
+    ]
+    ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
 
 
 def write(runs: RecipeRuns, out_dir: Path) -> tuple[Path, Path]:

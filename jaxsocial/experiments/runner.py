@@ -1,6 +1,6 @@
 """Run a recipe: train each condition that is not finished (resuming interrupted ones), then evaluate the
-trained learners where the recipe asks (zero-shot transfer). Everything lands in run directories; figures
-are drawn from them (`jaxsocial.experiments.figures`)."""
+trained learners where the recipe asks (zero-shot transfer, the cultural-transmission protocol). Everything
+lands in run directories; figures are drawn from them (`jaxsocial.experiments.figures`)."""
 
 from __future__ import annotations
 
@@ -40,6 +40,19 @@ def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
     return [recipes.goalcycle_spec(name, scale) for name in recipe.transfer_envs]
 
 
+def ct_path(seed_dir: Path, scale: Scale) -> Path:
+    """Where a seed's cultural-transmission evaluation (in the scale's 3-goal Goal Cycle) is written."""
+    return eval_path(seed_dir, "ct-" + recipes.goalcycle_spec("goalcycle3", scale))
+
+
+def _evaluate(out: Path, cfg: evaluate.EvalConfig) -> dict:
+    """Run one evaluation and write its JSON to `out`."""
+    result = evaluate.evaluate(cfg)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    return result
+
+
 def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_run: bool = False) -> None:
     """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
 
@@ -58,18 +71,24 @@ def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_
             continue
         if state != "done":
             train.run(dataclasses.replace(cfg, resume=state == "partial"))
-    for name in recipe.conditions if recipe.kind == "transfer" else ():
-        for spec in transfer_specs(recipe, scale):
+    specs = transfer_specs(recipe, scale) if recipe.kind == "transfer" else []
+    if recipe.kind == "ct":
+        specs = [recipes.goalcycle_spec("goalcycle3", scale)]
+    for name in recipe.conditions if specs and not dry_run else ():
+        for spec in specs:
+            env, _, env_args = spec.partition(":")
             for seed_dir in seed_dirs(configs[name]):
-                out = eval_path(seed_dir, spec)
-                if out.exists() or dry_run:
+                protocol = "ct" if recipe.kind == "ct" else "returns"
+                out = ct_path(seed_dir, scale) if protocol == "ct" else eval_path(seed_dir, spec)
+                if out.exists():
                     continue
-                env, _, env_args = spec.partition(":")
-                result = evaluate.evaluate(
-                    evaluate.EvalConfig(
-                        ckpt=(str(seed_dir),), env=env, env_args=env_args, episodes=scale.eval_episodes
-                    )
+                eval_cfg = evaluate.EvalConfig(
+                    ckpt=(str(seed_dir),),
+                    env=env,
+                    env_args=env_args,
+                    episodes=scale.eval_episodes,
+                    protocol=protocol,
                 )
-                out.parent.mkdir(parents=True, exist_ok=True)
-                out.write_text(json.dumps(result, indent=2) + "\n")
-                print(f"  {name} {seed_dir.name} in {spec}: {result['results'][0]['mean_return']:.2f}")
+                result = _evaluate(out, eval_cfg)
+                score = result["ct"]["mean"] if protocol == "ct" else result["results"][0]["mean_return"]
+                print(f"  {name} {seed_dir.name} in {spec} ({protocol}): {score:.3f}")
