@@ -209,6 +209,7 @@ def evaluate(cfg: EvalConfig) -> dict[str, Any]:
         "env_args": cfg.env_args,
         "slots": [s.label for s in pop.slots],
         "checkpoints": list(cfg.ckpt),
+        "policy_iterations": [population.policy_iteration(c) for c in cfg.ckpt],
         "episodes_per_checkpoint": cfg.episodes,
         "seed": cfg.seed,
         "max_steps": env_params.max_steps,
@@ -318,6 +319,8 @@ def main(argv: list[str] | None = None) -> None:
         result = evaluate(cfg)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
+    for ckpt, iteration in zip(cfg.ckpt, result["policy_iterations"], strict=True):
+        print(f"loaded {ckpt}: the policy of training iteration {iteration}", file=sys.stderr)
     text = json.dumps(result, indent=2)
     print(text)
     if cfg.out:

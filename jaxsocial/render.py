@@ -1,9 +1,18 @@
-"""Render one episode of random actions to a GIF or MP4.
+"""Render one episode to a GIF or MP4: random actions, or a trained learner beside its companions.
 
     python -m jaxsocial.render --env goalcycle3 --out goalcycle3.gif [--seed 0] [--steps 100] [--fps 8]
+    python -m jaxsocial.render --ckpt runs/goalcycle3-s0 [--env goalcycle3] --out learner.gif
 
 Each frame shows the whole map (agents as triangles in their current colour, fields of view outlined in each
-agent's identity colour) and every agent's egocentric view (border green on a reward, red on a penalty).
+agent's identity colour, a strip of coloured segments on a cell several agents share) and every agent's
+egocentric view (border green on a reward, red on a penalty).
+
+With `--ckpt RUN_DIR` (one seed's run directory) the run's learner plays with its saved policy and the
+other slots act as configured in the run (e.g. scripted experts; `--slots` overrides them), in the run's
+environment unless `--env` names another (NAME or NAME:field=value,...). If its network has a decoder
+(aux 'pred' or 'rec', trained with PPO), the decoder's output for the action taken (the predicted next view,
+or the reconstructed view) is drawn beside the learner's view, with a striped strip. Such a video has a
+frame per step; a random-action one also shows the final state.
 """
 
 from __future__ import annotations
@@ -11,18 +20,57 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
 
 import jaxsocial
+from jaxsocial import logs
+from jaxsocial.agents import network, population
 from jaxsocial.env.render import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
+from jaxsocial.evaluate import parse_env_spec
+from jaxsocial.experiments import predictions
+from jaxsocial.plot import seed_dirs
+
+
+def learner_setup(
+    ckpt: str, env: str | None, slots: str | None
+) -> tuple[predictions.EpisodeSetup, str, bool]:
+    """The episode set-up of `--ckpt RUN_DIR[@k]`, its env spec and whether to draw its decoder's output.
+    ValueError, before anything compiles, for a directory that is not one seed's run or an env the policy
+    cannot act in."""
+    run_dir = Path(ckpt.partition("@")[0])
+    dirs = seed_dirs(run_dir)
+    if len(dirs) > 1:
+        raise ValueError(f"{run_dir} holds {len(dirs)} seeds: pass one of them, e.g. --ckpt {dirs[0]}")
+    config = logs.read_config(run_dir)
+    spec = env or f"{config['env']}:{config.get('env_args', '')}"
+    if slots is None and config.get("slots"):  # else the environment's default companions, as in training
+        try:
+            population.parse_slots(config["slots"], parse_env_spec(spec).n_agents)
+        except ValueError as err:
+            raise ValueError(f"the run's slots do not fit {spec}: {err}; choose them with --slots") from None
+        slots = config["slots"]
+    setup = predictions.episode_setup(ckpt, spec, slots)
+    decoder = network.DECODER_PARAMS[0] in setup.params and config.get("algo", "ppo") == "ppo"
+    return setup, spec, decoder
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.render", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--env", required=True, help=f"one of: {', '.join(jaxsocial.registered_envs())}")
+    parser.add_argument(
+        "--env",
+        help=f"NAME[:field=value,...], NAME one of: {', '.join(jaxsocial.registered_envs())} (default with "
+        "--ckpt: the run's)",
+    )
     parser.add_argument("--out", required=True, help="output file, .gif or .mp4 (.mp4 needs imageio-ffmpeg)")
+    parser.add_argument(
+        "--ckpt", metavar="RUN_DIR", help="play the learner saved in this run (one seed's directory)"
+    )
+    parser.add_argument(
+        "--slots", help="with --ckpt: one entry per agent, as in training (default: the run's)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
     parser.add_argument(
         "--steps", type=int, default=None, help="at most this many steps (default: the env's max_steps)"
@@ -32,18 +80,18 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--policy",
         choices=POLICIES,
-        default="random-move",
-        help="random: all 7 actions; random-move (default): turn or forward",
+        help="without --ckpt: random: all 7 actions; random-move (default): turn or forward",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     args = parser.parse_args(argv)
 
     # Everything is checked before JAX compiles anything.
-    try:
-        _, args.params = jaxsocial.make(args.env)
-        check_video_path(args.out)
-    except (ValueError, RuntimeError) as e:
-        parser.error(str(e))
+    if args.ckpt is None and args.env is None:
+        parser.error("give --env (random actions) or --ckpt RUN_DIR (a trained learner)")
+    if args.ckpt is None and args.slots is not None:
+        parser.error("--slots needs --ckpt")
+    if args.ckpt is not None and args.policy is not None:
+        parser.error("--policy is for random actions; with --ckpt the saved policy acts")
     if os.path.exists(args.out) and not args.overwrite:
         parser.error(f"{args.out} already exists; pass --overwrite to replace it")
     if args.steps is not None and args.steps < 1:
@@ -52,29 +100,48 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error(f"--fps {args.fps} must be > 0")
     if args.tile < 3:
         parser.error(f"--tile {args.tile} must be >= 3")
+    try:
+        check_video_path(args.out)
+        if args.ckpt is None:
+            args.params = parse_env_spec(args.env)
+        else:
+            args.setup, args.env, args.decoder = learner_setup(args.ckpt, args.env, args.slots)
+            args.params = args.setup.env_params
+    except (ValueError, RuntimeError) as e:
+        parser.error(str(e))
     return args
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     params = args.params
-    episode = rollout_episode(jax.random.key(args.seed), params, args.policy, args.steps)
-    frames = episode_frames(episode, params, args.tile)
+    steps = params.max_steps if args.steps is None else args.steps
+    if args.ckpt is None:
+        episode = rollout_episode(jax.random.key(args.seed), params, args.policy or "random-move", steps)
+        frames = episode_frames(episode, params, args.tile)
+        rewards = np.array(episode["rewards"]).reshape(-1, params.n_agents)
+        labels = ["random"] * params.n_agents
+        terminated, truncated = episode["terminated"], episode["truncated"]
+        print(f"env: {args.env} (seed {args.seed}, {args.policy or 'random-move'} policy)")
+    else:
+        episode = predictions.play_episode(args.setup, steps, args.seed)
+        predicted = predictions.predicted_views(episode) if args.decoder else None
+        frames = predictions.episode_video(episode, args.tile, predicted)
+        rewards = episode["rewards"]
+        labels = [s.label for s in args.setup.pop.slots]
+        terminated, truncated = episode["terminated"][-1], episode["truncated"][-1]
+        shown = "its decoder's output beside its view" if args.decoder else "no decoder output"
+        print(f"run: {args.ckpt} (learner in slot {episode['learner']}, {shown})")
+        print(f"env: {args.env} (seed {args.seed}, slots {','.join(labels)})")
     parent = os.path.dirname(os.path.abspath(args.out))
     os.makedirs(parent, exist_ok=True)
     save_episode(frames, args.out, args.fps)
 
-    rewards = np.array(episode["rewards"]).reshape(-1, params.n_agents)
-    ending = (
-        "all agents finished"
-        if episode["terminated"].all()
-        else ("time limit" if episode["truncated"] else "step cap")
-    )
-    print(f"env: {args.env} (seed {args.seed}, {args.policy} policy)")
-    print(f"steps: {episode['steps']} ({ending})")
-    for i in range(params.n_agents):
+    ending = "all agents finished" if terminated.all() else ("time limit" if truncated else "step cap")
+    print(f"steps: {len(rewards)} ({ending})")
+    for i, label in enumerate(labels):
         print(
-            f"agent {i}: return {episode['returns'][i]:+.3f}, "
+            f"agent {i} ({label}): return {rewards[:, i].sum():+.3f}, "
             f"{int((rewards[:, i] > 0).sum())} rewards, {int((rewards[:, i] < 0).sum())} penalties"
         )
     print(f"wrote {len(frames)} frames to {args.out}")

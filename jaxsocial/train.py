@@ -64,6 +64,8 @@ class TrainConfig:
     """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
     checkpoint_every: int = 100
     """Save a checkpoint every this many iterations (rounded up to whole chunks) and at the end."""
+    keep_checkpoints: int = 3
+    """Checkpoints (and exported policies) kept per seed: the latest N; older ones are deleted."""
     run_name: str | None = None
     """Run directory name under runs_dir (default: '<env>-s<seed>')."""
     runs_dir: str = "runs"
@@ -199,6 +201,10 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         _check_stage(jaxsocial.make(cfg.env, **overrides)[1], env_params, pop, f"stage {index}")
     if cfg.algo not in ALGOS:
         raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
+    for name in ("num_envs", "rollout_steps", "keep_checkpoints"):
+        value = getattr(cfg, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name}={value!r} must be a whole number >= 1 (for every --algo)")
     if cfg.algo == "bc" and not pop.demonstrators:
         raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
     if cfg.algo == "bc" and cfg.net.n_actions != NUM_ACTIONS:
@@ -461,6 +467,7 @@ DRIVER_FIELDS = {
     "progress",
     "logger",
     "checkpoint_every",
+    "keep_checkpoints",
     "run_name",
     "runs_dir",
     "devices",
@@ -583,18 +590,14 @@ def metric_rows(
     return rows
 
 
-def progress_fields(metrics: dict[str, np.ndarray], sps: float) -> dict[str, Any]:
+def progress_fields(metrics: dict[str, np.ndarray], sps: float, pop: population.Population) -> dict[str, Any]:
     """What the progress line shows for a chunk: speed and each slot's mean return over the episodes that
-    finished in the chunk ('-' where none did)."""
+    finished in the chunk ('-' where none did), named `return[<slot> <kind>]`, e.g. 'return[1 explorer]'."""
     episodes = metrics["episodes"].sum(0)
     returns = (metrics["return"] * metrics["episodes"]).sum(0) / np.maximum(episodes, 1)
     shown: dict[str, Any] = {"env-steps/s": int(sps)}
-    shown.update(
-        {
-            f"return[{s}]": float(r) if n else "-"
-            for s, (r, n) in enumerate(zip(returns, episodes, strict=True))
-        }
-    )
+    for s, (r, n) in enumerate(zip(returns, episodes, strict=True)):
+        shown[f"return[{s} {pop.slots[s].label.split(':')[-1]}]"] = float(r) if n else "-"
     return shown
 
 
@@ -652,10 +655,15 @@ def run(cfg: TrainConfig) -> Path:
             diff = [k for k in logs.config_diff(logs.read_config(run_dir), config) if k not in DRIVER_FIELDS]
             if diff:
                 raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
-        logs.write_config(run_dir, config)
-        for seed_cfg, seed_dir in seeds:
+        for _, seed_dir in seeds:
             for sub in ("checkpoints", population.POLICY_DIR):  # made here, before any process looks
                 (seed_dir / sub).mkdir(parents=True, exist_ok=True)
+        if not cfg.resume:  # a resumed run's config is rewritten once it has succeeded
+            write_configs()
+
+    def write_configs() -> None:
+        logs.write_config(run_dir, config)
+        for seed_cfg, seed_dir in seeds:
             if seed_cfg is not cfg:
                 logs.write_config(seed_dir, config_dict(seed_cfg))
 
@@ -667,18 +675,17 @@ def run(cfg: TrainConfig) -> Path:
     if frozen is not None:
         frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
     if cfg.resume:
-        state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
+        state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage, pop)
     start = int(np.asarray(state.iteration).reshape(-1)[0])
     metrics_logs = [logs.MetricsLog(d) for _, d in seeds] if main else []
     for metrics_log in metrics_logs:
         metrics_log.truncate_after(start)
     extras = [logs.make_logger(cfg.logger, d, config_dict(c)) for c, d in seeds] if main else []
     progress = None
-    if cfg.progress and main:
-        parts = [f"{cfg.seeds} seeds"] if cfg.seeds > 1 else []
-        parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
-        desc = f"{name} ({', '.join(parts)})" if parts else name
-        progress = logs.Progress(cfg.iterations, desc=desc, initial=start)
+    parts = [f"{cfg.seeds} seeds"] if cfg.seeds > 1 else []
+    parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
+    desc = f"{name} ({', '.join(parts)})" if parts else name
+    executables: dict[tuple[int, int], Any] = {}  # (stage, n) -> compiled chunk of n iterations
     steps_per_iteration = cfg.num_envs * cfg.rollout_steps
     learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
     last_saved = start
@@ -690,15 +697,26 @@ def run(cfg: TrainConfig) -> Path:
             n = min(n, switch - it)  # land exactly on the next stage's first iteration
         if cfg.eval_envs:
             n = min(n, cfg.eval_every - it % cfg.eval_every)  # end chunks on evaluation iterations
-        program = compiled(stage_config(cfg, stages, stage), mesh)
+        compile_s = None
+        if (stage, n) not in executables:  # compiled ahead of time, so the speed below excludes it
+            if cfg.progress and main:
+                print(f"{desc}: compiling the {n}-iteration chunk (stage {stage}) ...", flush=True)
+            t0 = time.perf_counter()
+            program = compiled(stage_config(cfg, stages, stage), mesh)
+            executables[stage, n] = program.run_chunk.lower(state, frozen, n).compile()
+            compile_s = time.perf_counter() - t0
+        if progress is None and cfg.progress and main:
+            progress = logs.Progress(cfg.iterations, desc=desc, initial=it)
         t0 = time.perf_counter()
-        state, metrics = program.run_chunk(state, frozen, n)
+        state, metrics = executables[stage, n](state, frozen)
         metrics = jax.device_get(metrics)
         sps = n * steps_per_iteration / (time.perf_counter() - t0)  # per seed
         for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
             rows = metric_rows(seed_part(metrics, k, cfg.seeds), it, round(sps), pop)
             for row in rows:
                 row["stage"] = stage
+            if compile_s is not None:
+                rows[0]["compile_s"] = round(compile_s, 2)
             end = it + n
             if cfg.eval_envs and (end % cfg.eval_every == 0 or end == cfg.iterations):
                 seed = seeds[k][0].seed
@@ -717,11 +735,13 @@ def run(cfg: TrainConfig) -> Path:
             last_saved = it
         if progress is not None:
             shown = {"stage": stage} if stages else {}
-            progress.update(it, **shown, **progress_fields(all_seeds, sps * cfg.seeds))
+            progress.update(it, **shown, **progress_fields(all_seeds, sps * cfg.seeds, pop))
     if progress is not None:
         progress.close()
     for extra in extras:
         extra.close()
+    if cfg.resume:
+        distributed.on_main(write_configs)
     return run_dir
 
 
@@ -733,44 +753,119 @@ def seed_part(tree: Any, k: int, seeds: int) -> Any:
 def save_seeds(
     cfg: TrainConfig, seeds: list[tuple[TrainConfig, Path]], it: int, state: RunnerState, pop, stage: int
 ) -> None:
-    """Checkpoint (with the stage to resume in) and policy of every seed at iteration `it` (every process
-    takes part)."""
+    """Policy, then checkpoint (with the stage to resume in), of every seed at iteration `it` (every process
+    takes part). The policy goes first, so a checkpoint always has its policy: an interruption between the
+    two leaves a policy ahead of the checkpoints, which the resumed run reaches again (and skips)."""
     host = distributed.to_host(state)
-    policy_meta = {"net": population.json_net(cfg.net), "n_learners": len(pop.learners), "slots": cfg.slots}
     for k, (seed_cfg, seed_dir) in enumerate(seeds):
         seed_state = seed_part(host, k, cfg.seeds)
+        export_policy(cfg, seed_dir, it, seed_state.params, pop)
         ckpt_dir = seed_dir / "checkpoints"
-        if it in checkpoint.all_steps(ckpt_dir):  # saved before an interruption: the same state
-            continue
-        checkpoint.save(ckpt_dir, it, seed_state, metadata={**config_dict(seed_cfg), "stage": stage})
-        checkpoint.save(
-            seed_dir / population.POLICY_DIR, it, {"params": seed_state.params}, metadata=policy_meta
-        )
+        if it not in checkpoint.all_steps(ckpt_dir):  # else saved before an interruption: the same state
+            metadata = {**config_dict(seed_cfg), "stage": stage}
+            checkpoint.save(ckpt_dir, it, seed_state, metadata=metadata, keep=cfg.keep_checkpoints)
+
+
+def export_policy(cfg: TrainConfig, seed_dir: Path, it: int, params: Any, pop: population.Population) -> None:
+    """Write the learners' params (stacked [S_l, ...]) to `seed_dir/policy/<it>` unless that step exists."""
+    if it in checkpoint.all_steps(seed_dir / population.POLICY_DIR):
+        return
+    meta = {"net": population.json_net(cfg.net), "n_learners": len(pop.learners), "slots": cfg.slots}
+    path = seed_dir / population.POLICY_DIR
+    checkpoint.save(path, it, {"params": params}, metadata=meta, keep=cfg.keep_checkpoints)
 
 
 def restore_seeds(
-    cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, program: Program, stage: int
+    cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, program: Program, stage: int, pop
 ) -> tuple[RunnerState, int]:
-    """The state and stage from the latest checkpoint that every seed has (unchanged if none has one)."""
-    steps = [checkpoint.latest_step(d) for d in ckpt_dirs]
-    if all(s is None for s in steps):
+    """The state and stage from the latest checkpoint that every seed has and can read (unchanged if none
+    has one). An unreadable checkpoint (a truncated or emptied file) is skipped with a warning naming it, for
+    the one before; a checkpoint of another config raises. A seed whose policy export is missing at that
+    step (an interruption between the two writes of an older version) gets it re-exported."""
+    steps = [checkpoint.all_steps(d) for d in ckpt_dirs]
+    if not any(steps):
         return state, stage
-    if any(s is None for s in steps):
-        missing = [str(d.parent) for d, s in zip(ckpt_dirs, steps, strict=True) if s is None]
+    if not all(steps):
+        missing = [str(d.parent) for d, s in zip(ckpt_dirs, steps, strict=True) if not s]
         raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
-    step = min(steps)
     lead = int(cfg.seeds > 1)
     template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), state)
-    restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
-    host = restored[0] if cfg.seeds == 1 else population.stack(restored)
-    stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", stage))
-    return distributed.put(host, program.shardings), stage
+    for step in sorted(set.intersection(*map(set, steps)), reverse=True):
+        try:
+            restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
+            stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", stage))
+        except checkpoint.CheckpointMismatchError:
+            raise
+        except Exception as err:  # noqa: BLE001 - orbax, json and OS errors of a damaged checkpoint
+            where = [str(d / str(step)) for d in ckpt_dirs]
+            print(f"warning: {where} unreadable ({type(err).__name__}: {err}); trying the checkpoint before",
+                  file=sys.stderr)  # fmt: skip
+            continue
+        for restored_state, ckpt_dir in zip(restored, ckpt_dirs, strict=True):
+            export_policy(cfg, ckpt_dir.parent, step, restored_state.params, pop)
+        host = restored[0] if cfg.seeds == 1 else population.stack(restored)
+        return distributed.put(host, program.shardings), stage
+    raise ValueError(f"cannot resume: no readable checkpoint in {[str(d) for d in ckpt_dirs]}")
+
+
+USAGE = """Train independent conv-LSTM PPO learners (or behaviour cloning) beside experts in a jaxsocial
+environment. Every option below is a flag; `--preset small|paper|expert` picks the defaults first.
+
+  python -m jaxsocial.train --env goalcycle3                  # the small default, minutes on 2 CPU cores
+  python -m jaxsocial.train --preset paper --env goalcycle3   # the paper's network and PPO (for GPUs)
+  python -m jaxsocial.train --resume runs/goalcycle3-s0       # continue a run with its own config
+
+Environments: {envs}. Results go to runs_dir/run_name: config.json, metrics.jsonl, checkpoints/, policy/."""
+
+
+def config_from_dict(values: dict[str, Any]) -> TrainConfig:
+    """A TrainConfig from `config_dict` output (config.json): nested configs rebuilt, lists made tuples,
+    fields added since the run was written take their defaults."""
+
+    def build(cls, raw: dict[str, Any]):
+        kwargs = {}
+        for field in dataclasses.fields(cls):
+            if field.name not in raw:
+                continue
+            value = raw[field.name]
+            default = getattr(cls(), field.name)
+            if dataclasses.is_dataclass(default):
+                value = build(type(default), value)
+            elif isinstance(value, list):
+                value = tuple(value)
+            kwargs[field.name] = value
+        return cls(**kwargs)
+
+    return build(TrainConfig, values)
+
+
+def _resume_from(argv: list[str]) -> tuple[TrainConfig | None, list[str]]:
+    """`--resume RUN_DIR`: the run's saved config (to resume with) and argv without the path."""
+    for i, arg in enumerate(argv[:-1]):
+        if arg == "--resume" and not argv[i + 1].startswith("-"):
+            run_dir = Path(argv[i + 1])
+            if not (run_dir / logs.CONFIG_FILE).is_file():
+                raise SystemExit(
+                    f"error: --resume {run_dir}: no {logs.CONFIG_FILE} there (not a run directory)"
+                )
+            saved = config_from_dict(logs.read_config(run_dir))
+            saved = dataclasses.replace(saved, runs_dir=str(run_dir.parent), run_name=run_dir.name)
+            return saved, argv[:i] + argv[i + 2 :]
+    return None, argv
 
 
 def parse_args(argv: list[str]) -> TrainConfig:
-    """Parse the CLI: `--preset NAME` picks the defaults, every TrainConfig field is a flag."""
+    """Parse the CLI: `--preset NAME` picks the defaults, every TrainConfig field is a flag; `--resume
+    RUN_DIR` starts from the run's saved config instead (flags given with it still apply)."""
     import tyro
 
+    saved, argv = _resume_from(argv)
+    usage = USAGE.format(envs=", ".join(jaxsocial.registered_envs()))
+    if saved is not None:
+        cfg = tyro.cli(
+            TrainConfig, default=saved, args=argv, description=usage, prog="python -m jaxsocial.train"
+        )
+        return dataclasses.replace(cfg, resume=True, overwrite=False)
     preset = "small"
     for i, arg in enumerate(argv):  # '--preset NAME' or '--preset=NAME' (the last one counts)
         if arg == "--preset":
@@ -779,7 +874,9 @@ def parse_args(argv: list[str]) -> TrainConfig:
             preset = arg.removeprefix("--preset=")
     if preset not in PRESETS:
         raise SystemExit(f"unknown --preset {preset!r}; choose one of {sorted(PRESETS)}")
-    return tyro.cli(TrainConfig, default=PRESETS[preset], args=argv, description=__doc__)
+    return tyro.cli(
+        TrainConfig, default=PRESETS[preset], args=argv, description=usage, prog="python -m jaxsocial.train"
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -788,6 +885,12 @@ def main(argv: list[str] | None = None) -> None:
         run_dir = run(cfg)
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
+    except OSError as err:  # e.g. an unwritable runs_dir or a full disk while checkpointing
+        where = f" ({err.filename})" if err.filename else ""
+        raise SystemExit(
+            f"error: cannot write the run{where}: {err.strerror or err}. Checkpoints and metrics written "
+            "before this are kept; fix the cause and continue with --resume."
+        ) from err
     if distributed.is_main():
         seed_dirs = [d for _, d in seed_runs(cfg, run_dir)]
         rows = logs.read_metrics(seed_dirs[0])

@@ -1,5 +1,7 @@
-"""Rendering for people: map, frames, episodes, video files and the `python -m jaxsocial.render` CLI."""
+"""Rendering for people: map, frames, episodes, video files and the `python -m jaxsocial.render` CLI (random
+actions, or a trained learner beside its companions with its predicted view)."""
 
+import dataclasses
 import subprocess
 import sys
 
@@ -7,9 +9,11 @@ import imageio.v3 as iio
 import jax
 import numpy as np
 import pytest
+from test_plot import TINY  # the plot tests' run: one compiled training program for both files
 
 import jaxsocial
 from jaxsocial import render as cli
+from jaxsocial import train
 from jaxsocial.env import sprites
 from jaxsocial.env.render import (
     episode_frames,
@@ -20,6 +24,7 @@ from jaxsocial.env.render import (
     upscale,
 )
 from jaxsocial.env.types import BONUS, COLORS, EMPTY
+from jaxsocial.experiments import predictions
 
 LAYOUT = [
     "#############",
@@ -37,6 +42,8 @@ LAYOUT = [
     "#############",
 ]
 TILE = 12
+STRIP = 3
+"""Rows of the shared-cell strip at TILE pixels per cell (the last one black)."""
 
 
 def fixed_params():
@@ -66,9 +73,13 @@ def test_render_map_tiles_and_agents():
     assert (cell(image, 10, 7) == (74, 65, 42)).all()  # clutter wall at x=10, y=7
     assert (cell(image, 1, 1) == COLORS["yellow"]).all()  # bonus tile 0, no agent
     assert (cell(image, 2, 2) == 0).all()  # empty
-    # Shared cell: the earliest arrival (agent 2, purple, facing south) is drawn.
-    purple = COLORS["purple"]
-    np.testing.assert_array_equal(cell(image, 3, 3), expected_cell(EMPTY, 1, purple, "fixed"))
+    # Shared cell: the earliest arrival (agent 2, purple, facing south) is drawn, and a strip along the top
+    # has a segment per agent, the drawn one first: both agents are visible.
+    purple, red = COLORS["purple"], COLORS["red"]
+    shared = cell(image, 3, 3)
+    np.testing.assert_array_equal(shared[STRIP:], expected_cell(EMPTY, 1, purple, "fixed")[STRIP:])
+    assert (shared[: STRIP - 1, :5] == purple).all() and (shared[: STRIP - 1, 6:11] == red).all()
+    assert (shared[STRIP - 1] == 0).all() and (shared[:STRIP, [5, 11]] == 0).all()
     # Agent 1 (blue, facing north) blended over its bonus tile.
     on_bonus = expected_cell(BONUS, 3, COLORS["blue"], "fixed")
     np.testing.assert_array_equal(cell(image, 6, 5), on_bonus)
@@ -79,8 +90,10 @@ def test_render_map_draw_order_ties_and_fov():
     params = fixed_params()
     state = scene(params, arrival=[0, 0, 0])  # tie: lowest index (agent 0, red, east) wins
     image = render_map(state, params, tile=TILE)
-    centre = cell(image, 3, 3)[1:-1, 1:-1]
-    np.testing.assert_array_equal(centre, expected_cell(EMPTY, 0, COLORS["red"], "fixed")[1:-1, 1:-1])
+    below_strip = cell(image, 3, 3)[STRIP:-1, 1:-1]
+    np.testing.assert_array_equal(
+        below_strip, expected_cell(EMPTY, 0, COLORS["red"], "fixed")[STRIP:-1, 1:-1]
+    )
     # The field-of-view outline only touches cell edges: the wall colour survives inside the cells.
     assert (cell(image, 0, 0)[1:-1, 1:-1] == COLORS["worst"]).all()
     assert not np.array_equal(image, render_map(state, params, tile=TILE, fov=False))
@@ -89,6 +102,22 @@ def test_render_map_draw_order_ties_and_fov():
     assert small.shape == (39, 39, 3)
     np.testing.assert_array_equal(
         cell(small, 6, 5, 3), sprites.cell_sprite(BONUS, 3, COLORS["blue"], "fixed")
+    )
+
+
+def test_render_map_shows_every_agent_on_a_shared_cell():
+    params = fixed_params()
+    state = scene(params, arrival=[3, 1, 2])
+    state = state.replace(pos=state.pos.at[1].set(state.pos[0]))  # all three on (3, 3); agent 1 drawn
+    shared = cell(render_map(state, params, tile=TILE, fov=False), 3, 3)
+    segments = [shared[0, 0:3], shared[0, 4:7], shared[0, 8:11]]  # 4 pixels each, the last one black
+    for segment, name in zip(segments, ["blue", "purple", "red"], strict=True):
+        assert (segment == COLORS[name]).all()
+    np.testing.assert_array_equal(shared[STRIP:], expected_cell(EMPTY, 3, COLORS["blue"], "fixed")[STRIP:])
+    # At 3 pixels per cell there is no room for a strip: the map is the observation sprites.
+    small = render_map(state, params, tile=3, fov=False)
+    np.testing.assert_array_equal(
+        cell(small, 3, 3, 3), sprites.cell_sprite(EMPTY, 3, COLORS["blue"], "fixed")
     )
 
 
@@ -170,3 +199,82 @@ def test_cli_refuses_to_overwrite_and_bad_extension(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli.main(["--env", "goalcycle3", "--out", str(tmp_path / "x.avi")])
     assert ".gif or .mp4" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def learner_run(tmp_path_factory):
+    """A tiny trained two-seed run (slots learner,random,random; aux 'pred'); its seeds are run/s0, run/s1."""
+    runs_dir = tmp_path_factory.mktemp("runs")
+    return train.run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="tiny"))
+
+
+def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, capsys):
+    out, random_out = tmp_path / "learner.gif", tmp_path / "random.gif"
+    # In the run's environment (max_steps=6) with the run's slots: the episode ends after 6 steps.
+    assert cli.main(["--ckpt", str(learner_run / "s0"), "--out", str(out), "--steps", "100"]) == 0
+    stdout = capsys.readouterr().out
+    assert "slots learner,random,random" in stdout and "decoder's output beside its view" in stdout
+    assert "steps: 6 (time limit)" in stdout and "wrote 6 frames" in stdout
+    frames = iio.imread(out, index=None)
+    assert frames.shape[0] == 6
+    assert cli.main(["--env", TINY.env + ":" + TINY.env_args, "--out", str(random_out), "--steps", "5"]) == 0
+    random_frames = iio.imread(random_out, index=None)
+    assert random_frames.shape[0] == 6  # 5 steps and the final state
+    # The same layout, with one more panel: the learner's predicted view.
+    assert frames.shape[1] == random_frames.shape[1] and frames.shape[2] > random_frames.shape[2]
+
+
+def test_predicted_view_beside_the_learners_view(learner_run):
+    spec = f"{TINY.env}:{TINY.env_args}"
+    episode = predictions.learner_episode(str(learner_run / "s0"), spec, steps=6, slots=TINY.slots)
+    assert episode["learner"] == 0 and episode["actions"].shape == (6, 3) and episode["truncated"][-1]
+    predicted = predictions.predicted_views(episode)
+    assert predicted.shape == (6, 21, 21, 3) and predicted.dtype == np.uint8
+    plain = predictions.episode_video(episode, TILE)
+    shown = predictions.episode_video(episode, TILE, predicted)
+    assert len(shown) == len(plain) == 6
+    # Panels sit right of the 7x7 map, 4 pixels apart: an 84-pixel view under a 3-pixel strip, 2-pixel border.
+    gap, border, side, strip = 4, 2, 84, 3
+    panel = [2 * gap + 7 * TILE + k * (side + 2 * border + gap) + border for k in range(4)]
+
+    def view(frame, k):
+        return frame[gap + border + strip : gap + border + strip + side, panel[k] : panel[k] + side]
+
+    for t in (0, 5):
+        assert shown[t].shape == (plain[t].shape[0], plain[t].shape[1] + side + 2 * border + gap, 3)
+        np.testing.assert_array_equal(view(shown[t], 0), upscale(episode["obs"][t, 0], 1, 4))
+        np.testing.assert_array_equal(view(shown[t], 1), upscale(predicted[t], 1, 4))
+        np.testing.assert_array_equal(view(shown[t], 2), view(plain[t], 1))  # agent 1's view, moved right
+    first = jax.tree.map(lambda x: x[0], episode["states"])
+    with pytest.raises(ValueError, match="predicted view must be uint8"):
+        render_frame(first, None, episode["env_params"], predicted={0: predicted[0].astype(np.float32)})
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--ckpt", "{tmp}/nope"], "does not exist"),
+        (["--ckpt", "{tmp}"], "is not a run directory"),
+        (["--ckpt", "{run}"], "holds 2 seeds: pass one of them, e.g. --ckpt {run}/s0"),
+        (["--ckpt", "{run}/s0", "--env", "goalcycle3:observation=symbolic"], "take RGB observations"),
+        (["--ckpt", "{run}/s0", "--env", "goalcycle3:view_size=5"], "the network takes (21, 21, 3)"),
+        (["--ckpt", "{run}/s0", "--env", "goalcycle3-solo"], "the run's slots do not fit goalcycle3-solo"),
+        (
+            ["--ckpt", "{run}/s0", "--env", "fourrooms", "--slots", "learner,expert:explorer,random"],
+            "explorer",
+        ),
+        (["--ckpt", "{run}/s0", "--policy", "random"], "--policy is for random actions"),
+        (["--env", "goalcycle3", "--slots", "learner,random,random"], "--slots needs --ckpt"),
+    ],
+)
+def test_cli_ckpt_errors_before_compiling(learner_run, tmp_path, capsys, monkeypatch, args, message):
+    def must_not_run(*_):
+        raise AssertionError("played an episode")
+
+    monkeypatch.setattr(predictions, "_play", must_not_run)
+    monkeypatch.setattr(cli, "rollout_episode", must_not_run)
+    out = tmp_path / "x.gif"
+    with pytest.raises(SystemExit) as e:
+        cli.main([a.format(tmp=tmp_path, run=learner_run) for a in args] + ["--out", str(out)])
+    assert e.value.code == 2 and message.format(run=learner_run) in capsys.readouterr().err
+    assert not out.exists()

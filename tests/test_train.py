@@ -36,7 +36,8 @@ TINY_FLAGS = [
 
 
 def metrics_without_speed(run_dir):
-    return [{k: v for k, v in row.items() if k != "env_steps_per_s"} for row in logs.read_metrics(run_dir)]
+    timing = ("env_steps_per_s", "compile_s")
+    return [{k: v for k, v in row.items() if k not in timing} for row in logs.read_metrics(run_dir)]
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +82,6 @@ def test_resume_equals_uninterrupted_run_and_frozen_slots(tmp_path):
     frozen_cfg = dataclasses.replace(TINY, slots=f"learner,frozen:{full},random", runs_dir=str(tmp_path))
     frozen_dir = run(dataclasses.replace(frozen_cfg, run_name="frozen"))
     policy_before = json.dumps(checkpoint.read_metadata(full / "policy"))
-    assert population.load_policy(str(full), TINY.net) is not saved
     for a, b in zip(
         jax.tree.leaves(saved), jax.tree.leaves(population.load_policy(str(full), TINY.net)), strict=True
     ):

@@ -254,6 +254,11 @@ def _policy_dir(path: str) -> tuple[Path, int]:
     return directory, int(index or 0)
 
 
+def policy_iteration(path: str) -> int:
+    """The training iteration of the policy `RUN_DIR[@k]` loads (its latest export)."""
+    return int(checkpoint.latest_step(_policy_dir(path)[0]))
+
+
 def saved_net(path: str) -> network.NetworkConfig:
     """The network config a policy (`RUN_DIR[@k]`) was trained with (fields added since take defaults)."""
     return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(path)[0])["net"])

@@ -84,13 +84,21 @@ def reset(key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
 
 
 def check_actions(actions: jax.Array, params: EnvParams) -> None:
-    """Raise (at trace time) unless `actions` is an integer array of shape (n_agents,)."""
+    """Raise ValueError unless `actions` is an integer array of shape (n_agents,) (checked when traced) with
+    values in the action space [0, 7) (checked when the values are known: eager calls; under `jit` or `vmap`
+    an out-of-range action is not checked and does nothing, docs/environment.md 10.1)."""
     shape = getattr(actions, "shape", None)
     if shape != (params.n_agents,) or not jnp.issubdtype(jnp.asarray(actions).dtype, jnp.integer):
         raise ValueError(
             f"actions must be an integer array of shape ({params.n_agents},), one per agent; got "
             f"{getattr(actions, 'dtype', type(actions))} {shape}. Batch with jax.vmap."
         )
+    if not isinstance(actions, jax.core.Tracer):
+        values = np.asarray(actions)
+        if values.min() < 0 or values.max() >= NUM_ACTIONS:
+            raise ValueError(
+                f"actions must be in [0, {NUM_ACTIONS}) (Discrete({NUM_ACTIONS})), got {values.tolist()}"
+            )
 
 
 def step_env(

@@ -2,20 +2,22 @@
 
 `render_map` draws the whole grid with every agent as in the observations (docs/environment.md 4.5, 4.6,
 5): 3x3-pixel cell pictures from `sprites`, upscaled nearest-neighbour to `tile` pixels per cell.
-`render_frame` puts the map next to each agent's egocentric view; `rollout_episode` plays one episode and
-`save_episode` writes a GIF or an MP4.
+`render_frame` puts the map next to each agent's egocentric view (and, optionally, a learner's predicted
+view); `rollout_episode` plays one episode and `save_episode` writes a GIF or an MP4.
 
 Text-free cues: each agent's field of view is outlined on the map, and a strip above its view, in its
 identity colour (marlgrid's default agent colours: red, blue, purple, orange, olive, pink, by index). A
-view's border turns green on a step with a positive reward and red on a penalty. A grey bar along the
-bottom of a frame shows the elapsed fraction of `max_steps`.
+view's border turns green on a step with a positive reward and red on a penalty. A predicted view has a
+striped strip. A cell holding several agents shows one of them (as the observations do) and a strip along
+its top with a segment per agent, in their current colours. A grey bar along the bottom of a frame shows
+the elapsed fraction of `max_steps`.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import imageio.v2 as imageio_v2
@@ -59,14 +61,14 @@ def _as_numpy(state: EnvState) -> EnvState:
     return state
 
 
-def drawn_agents(state: EnvState) -> dict[tuple[int, int], int]:
-    """{(x, y): agent index} the agent drawn on each occupied cell: earliest arrival, ties to lowest index
-    (absent agents are not drawn)."""
+def cell_agents(state: EnvState) -> dict[tuple[int, int], list[int]]:
+    """{(x, y): agent indices} the present agents on each occupied cell, the drawn one first: earliest
+    arrival, ties to the lowest index (absent agents are not drawn)."""
     pos, arrival, present = np.asarray(state.pos), np.asarray(state.arrival), np.asarray(state.present)
-    drawn: dict[tuple[int, int], int] = {}
+    cells: dict[tuple[int, int], list[int]] = {}
     for i in sorted(map(int, np.flatnonzero(present)), key=lambda i: (arrival[i], i)):
-        drawn.setdefault((int(pos[i, 0]), int(pos[i, 1])), i)
-    return drawn
+        cells.setdefault((int(pos[i, 0]), int(pos[i, 1])), []).append(i)
+    return cells
 
 
 def upscale(image: np.ndarray, cell: int, tile: int) -> np.ndarray:
@@ -88,13 +90,25 @@ def _outline(image: np.ndarray, y0: int, x0: int, y1: int, x1: int, color: np.nd
     image[mask] = np.round(blended).astype(np.uint8)
 
 
+def _shared_strip(cell: np.ndarray, colors: np.ndarray) -> None:
+    """Draw, in place, a strip along the top of a uint8[tile, tile, 3] cell: one segment per colour of
+    uint8[k, 3], with a black pixel after each segment (where segments are wider than 1 pixel) and a black
+    row below."""
+    height = max(2, cell.shape[0] // 4)
+    cell[:height] = 0
+    for color, px in zip(colors, np.array_split(np.arange(cell.shape[1]), len(colors)), strict=True):
+        cell[: height - 1, px[0] : px[-1] + (len(px) == 1)] = color
+
+
 def render_map(state: EnvState, params: EnvParams, tile: int = 12, fov: bool = True) -> np.ndarray:
     """The whole map as uint8[H * tile, W * tile, 3] (rows along y).
 
     Tiles are flat colours (wall (74, 65, 42), bonus yellow, goal green, empty black); each occupied cell
     shows one agent (earliest arrival, ties to the lowest index) as a triangle pointing in its absolute
     direction, in its current colour, blended over a bonus tile or goal exactly as in the observations.
-    With `fov` and `tile >= 6`, each active agent's field of view gets a thin outline in its identity colour.
+    With `tile >= 6`, a cell holding k > 1 agents gets a black strip along its top with k segments, one per
+    agent (drawn one first) in its current colour; with `fov` too, each active agent's field of view gets a
+    thin outline in its identity colour.
     """
     if tile < 1:
         raise ValueError(f"tile={tile} must be >= 1")
@@ -104,11 +118,16 @@ def render_map(state: EnvState, params: EnvParams, tile: int = 12, fov: bool = T
     image = upscale(TILE_COLORS[grid], 1, t)  # [H * 3, W * 3, 3]
     colors = agent_colors(state, params)
     directions = np.asarray(state.dir)
-    for (x, y), i in drawn_agents(state).items():
+    cells = cell_agents(state)
+    for (x, y), (i, *_) in cells.items():
         color = tuple(int(c) for c in colors[i])
         cell = sprites.cell_sprite(int(grid[y, x]), int(directions[i]), color, params.agent_colors)
         image[y * t : (y + 1) * t, x * t : (x + 1) * t] = cell
     image = upscale(image, t, tile)
+    if tile >= 6:
+        for (x, y), agents in cells.items():
+            if len(agents) > 1:
+                _shared_strip(image[y * tile : (y + 1) * tile, x * tile : (x + 1) * tile], colors[agents])
     if fov and tile >= 6:
         height, width = grid.shape
         offsets = view_offsets(params.view_size, params.view_offset)
@@ -127,6 +146,7 @@ def render_frame(
     params: EnvParams,
     reward: np.ndarray | None = None,
     tile: int = 12,
+    predicted: Mapping[int, np.ndarray] | None = None,
 ) -> np.ndarray:
     """One video frame, uint8[h, w, 3]: the map on the left, every agent's view on the right.
 
@@ -134,6 +154,8 @@ def render_frame(
         obs: uint8[N, 21, 21, 3] RGB observations of `state`; None (or symbolic observations) re-renders them.
         reward: float[N] the reward each agent received on the step into `state`; it colours the view borders.
         tile: map pixels per cell; views are upscaled to the same size per cell (`max(1, tile // 3)`).
+        predicted: {agent index: uint8[21, 21, 3]} a view an agent's network predicts, drawn as one more
+            panel right after that agent's view, with a striped strip in its identity colour.
     """
     state = _as_numpy(state)
     if obs is None or np.ndim(obs) != 4 or np.shape(obs)[-1] != 3:
@@ -144,12 +166,26 @@ def render_frame(
     map_h, map_w = world.shape[:2]
 
     gap, border, strip = max(2, tile // 3), max(1, tile // 6), max(2, tile // 4)
-    views = np.stack([upscale(v, 1, max(1, tile // 3)) for v in obs])
+    ids = identity_colors(n)
+    signs = np.zeros(n, int) if reward is None else np.sign(np.asarray(reward, np.float64)).astype(int)
+    striped = np.arange(obs.shape[2] * max(1, tile // 3)) // strip % 2 == 0
+    panels = []  # (view, strip colours, border colour)
+    for i in range(n):
+        panels.append((obs[i], ids[i], REWARD_BORDER.get(signs[i], NO_REWARD_BORDER)))
+        if predicted is not None and i in predicted:
+            view = np.asarray(predicted[i])
+            if view.shape != obs.shape[1:] or view.dtype != np.uint8:
+                expected = f"uint8{list(obs.shape[1:])}"
+                raise ValueError(
+                    f"agent {i}'s predicted view must be {expected}, not {view.dtype}{list(view.shape)}"
+                )
+            panels.append((view, np.where(striped[:, None], ids[i], BACKGROUND), NO_REWARD_BORDER))
+    views = np.stack([upscale(v, 1, max(1, tile // 3)) for v, _, _ in panels])
     side = views.shape[1]
     panel_h, panel_w = strip + side + 2 * border, side + 2 * border
-    rows = max(1, min(n, (map_h + gap) // (panel_h + gap)))
-    cols = math.ceil(n / rows)
-    rows = math.ceil(n / cols)
+    rows = max(1, min(len(panels), (map_h + gap) // (panel_h + gap)))
+    cols = math.ceil(len(panels) / rows)
+    rows = math.ceil(len(panels) / cols)
     content_h = max(map_h, rows * panel_h + (rows - 1) * gap)
     bar = max(2, gap // 2)
     height = gap + content_h + gap + bar + gap
@@ -158,15 +194,13 @@ def render_frame(
     frame[:] = BACKGROUND
     frame[gap : gap + map_h, gap : gap + map_w] = world
 
-    ids = identity_colors(n)
-    signs = np.zeros(n, int) if reward is None else np.sign(np.asarray(reward, np.float64)).astype(int)
-    for i in range(n):
-        r, c = divmod(i, cols)
+    for k, ((_, strip_colors, border_color), view) in enumerate(zip(panels, views, strict=True)):
+        r, c = divmod(k, cols)
         y0 = gap + r * (panel_h + gap)
         x0 = 2 * gap + map_w + c * (panel_w + gap)
-        frame[y0 : y0 + panel_h, x0 : x0 + panel_w] = REWARD_BORDER.get(signs[i], NO_REWARD_BORDER)
-        frame[y0 + border : y0 + border + strip, x0 + border : x0 + border + side] = ids[i]
-        frame[y0 + border + strip : y0 + border + strip + side, x0 + border : x0 + border + side] = views[i]
+        frame[y0 : y0 + panel_h, x0 : x0 + panel_w] = border_color
+        frame[y0 + border : y0 + border + strip, x0 + border : x0 + border + side] = strip_colors
+        frame[y0 + border + strip : y0 + border + strip + side, x0 + border : x0 + border + side] = view
 
     progress = min(1.0, float(np.asarray(state.time)) / params.max_steps)
     bar_y = gap + content_h + gap

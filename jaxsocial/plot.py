@@ -1,0 +1,246 @@
+"""Learning curves of training runs, one row of panels per agent slot.
+
+    python -m jaxsocial.plot runs/goalcycle3-s0-2 --out curves.png
+    python -m jaxsocial.plot runs/a-s0 runs/a-s1 runs/b-s0 --out compare.pdf
+
+Each row shows a slot's episode return (episode-weighted, in `--points` blocks of iterations) and, for
+learner slots, the losses it logged per iteration (auxiliary, attention, behaviour cloning), KL and entropy,
+against env steps. Seeds of the same config (every setting but the seed and the driver's, e.g.
+`iterations`) form one group, whether they come from one `--seeds N` run or from separate runs: each seed
+is a faint line, the mean a thick one, with a 95% Student-t band over the seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import jaxsocial
+from jaxsocial import logs, schedule, train
+from jaxsocial.agents import population
+from jaxsocial.experiments import figures
+
+PANELS = {
+    "return": "episode return",
+    "aux_loss": "auxiliary loss",
+    "bc_loss": "behaviour-cloning loss",
+    "attention_loss": "attention loss",
+    "kl": "KL",
+    "entropy": "entropy",
+}
+"""Metric name prefixes (metrics.jsonl keys are 'NAME/SLOT') and their panel titles, in column order."""
+
+REQUIRED = {"env", "seed", "seeds", "num_envs", "rollout_steps"}
+"""Keys a training run's config.json must have to be plotted."""
+
+NOT_GROUPED = train.DRIVER_FIELDS | {"seed", "seeds", "seed_batching"}
+"""Config fields that may differ between the seeds of one group."""
+
+
+@dataclasses.dataclass
+class Group:
+    """Seeds of one config: their run directories, metrics rows (one list per seed) and slot labels."""
+
+    label: str
+    seed_dirs: list[Path]
+    rows: list[list[dict[str, Any]]]
+    slots: list[str]
+    steps_per_iteration: int
+
+
+def seed_dirs(run_dir: Path) -> list[Path]:
+    """The directory of every seed of a training run (the run itself for one seed). ValueError if
+    `run_dir` is not a run written by `python -m jaxsocial.train`."""
+    if not run_dir.is_dir():
+        raise ValueError(f"run directory {run_dir} does not exist")
+    try:
+        config = logs.read_config(run_dir)
+    except FileNotFoundError:
+        raise ValueError(
+            f"{run_dir} is not a run directory (no {logs.CONFIG_FILE}): expected a directory written by "
+            "python -m jaxsocial.train"
+        ) from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not valid JSON: {err}") from None
+    if not isinstance(config, dict) or not set(config) >= REQUIRED:
+        raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not the config of a training run")
+    layout = dataclasses.replace(train.TrainConfig(), seed=config["seed"], seeds=config["seeds"])
+    dirs = [d for _, d in train.seed_runs(layout, run_dir)]
+    for d in dirs:
+        if not (d / logs.CONFIG_FILE).is_file():
+            raise ValueError(f"{d} is missing ({run_dir} was trained with --seeds {config['seeds']})")
+    return dirs
+
+
+def slot_labels(config: dict[str, Any]) -> list[str]:
+    """Each slot's label ('learner', 'expert:explorer', ...) from a run's config."""
+    _, env_params = jaxsocial.make(config["env"], **schedule.parse_assignments(config.get("env_args", "")))
+    text = config.get("slots") or population.default_slots(env_params)
+    return [s.label for s in population.parse_slots(text, env_params.n_agents, need_learner=False)]
+
+
+def _group_key(config: dict[str, Any]) -> str:
+    return json.dumps({k: v for k, v in config.items() if k not in NOT_GROUPED}, sort_keys=True)
+
+
+def _label(run_dir: Path) -> str:
+    """A run's name in legends: its directory name, 'RUN/sK' for one seed of a multi-seed run."""
+    config = logs.read_config(run_dir)
+    one_seed_of_many = (config.get("run_name") or "").endswith(f"/s{config['seed']}")  # see `train.seed_runs`
+    run_dir = run_dir.resolve()
+    return f"{run_dir.parent.name}/{run_dir.name}" if one_seed_of_many else run_dir.name
+
+
+def load_groups(run_dirs: list[str | Path]) -> list[Group]:
+    """Every seed's config and metrics, grouped by config (in order of first appearance; a seed given twice
+    counts once). ValueError for a directory that is not a run, a seed without metrics, or two copies of the
+    same seed of a config."""
+    found: dict[str, list[tuple[str, Path, dict[str, Any]]]] = {}  # group key -> (label, seed dir, config)
+    seen = set()
+    for run_dir in map(Path, run_dirs):
+        for d in seed_dirs(run_dir):
+            if d.resolve() in seen:
+                continue
+            seen.add(d.resolve())
+            config = logs.read_config(d)
+            members = found.setdefault(_group_key(config), [])
+            for _, other, c in members:
+                if c["seed"] == config["seed"]:
+                    raise ValueError(
+                        f"{other} and {d} are seed {c['seed']} of the same config: pass each once"
+                    )
+            members.append((_label(run_dir), d, config))
+    groups = []
+    for members in found.values():
+        labels = list(dict.fromkeys(label for label, _, _ in members))
+        rows = []
+        for _, d, _ in members:
+            rows.append(logs.read_metrics(d))
+            if not rows[-1]:
+                raise ValueError(f"no metrics yet in {d} ({logs.METRICS_FILE} is missing or empty)")
+        config = members[0][2]
+        groups.append(
+            Group(
+                label=labels[0] if len(labels) == 1 else f"{labels[0]} +{len(labels) - 1}",
+                seed_dirs=[d for _, d, _ in members],
+                rows=rows,
+                slots=slot_labels(config),
+                steps_per_iteration=config["num_envs"] * config["rollout_steps"],
+            )
+        )
+    return groups
+
+
+def panels(groups: list[Group]) -> list[list[str]]:
+    """Per slot, the PANELS keys some group logged for it (the return always)."""
+    n_slots = max(len(g.slots) for g in groups)
+    return [
+        [k for k in PANELS if k == "return" or any(f"{k}/{slot}" in g.rows[0][0] for g in groups)]
+        for slot in range(n_slots)
+    ]
+
+
+def draw(groups: list[Group], points: int = figures.CURVE_POINTS):
+    """The curves as a matplotlib Figure (not managed by pyplot): a row per slot, a column per panel (unused
+    axes removed). Returns are episode-weighted means over `points` blocks of iterations; losses are per
+    iteration."""
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    layout = panels(groups)
+    ncols = max(len(p) for p in layout)
+    fig = Figure(figsize=(4 * ncols, 3 * len(layout)))
+    axes = fig.subplots(len(layout), ncols, squeeze=False)
+    colors = matplotlib.colormaps["tab10"].colors
+    for slot, (keys, row_axes) in enumerate(zip(layout, axes, strict=True)):
+        for ax in row_axes[len(keys) :]:
+            fig.delaxes(ax)
+        for key, ax in zip(keys, row_axes, strict=False):
+            for i, g in enumerate(groups):
+                if slot >= len(g.slots) or (key != "return" and f"{key}/{slot}" not in g.rows[0][0]):
+                    continue
+                if key == "return":
+                    xs, ys = zip(*(figures.curve(r, slot, points) for r in g.rows), strict=True)
+                else:
+                    xs, ys = zip(*(figures.metric_curve(r, f"{key}/{slot}") for r in g.rows), strict=True)
+                label = f"{g.label} ({len(g.rows)} seed{'s' if len(g.rows) > 1 else ''})"
+                xs = [x * g.steps_per_iteration for x in xs]
+                figures.band(ax, xs, list(ys), label, colors[i % len(colors)])
+            names = sorted({g.slots[slot] for g in groups if slot < len(g.slots)})
+            ax.set_title(f"slot {slot} ({' / '.join(names)}): {PANELS[key]}", fontsize=9)
+            ax.set_xlabel("env steps", fontsize=8)
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def summary(groups: list[Group]) -> list[str]:
+    """Lines with each group's final return per slot: mean and 95% CI over seeds (`figures.final_return`)."""
+    lines = []
+    for g in groups:
+        shortest, longest = min(map(len, g.rows)), max(map(len, g.rows))
+        iterations = f"{shortest}" if shortest == longest else f"{shortest} to {longest}"
+        lines.append(f"{g.label}: {len(g.rows)} seed(s), {iterations} iterations")
+        for slot, name in enumerate(g.slots):
+            s = figures.stats([figures.final_return(r, slot) for r in g.rows])
+            if s["mean"] is None:
+                final = "no episode ended"
+            else:
+                lo, hi = s["ci95"]
+                final = f"{s['mean']:+.3f}" + (f" (95% CI {lo:+.3f} to {hi:+.3f})" if len(g.rows) > 1 else "")
+            lines.append(f"  slot {slot} {name}: final return {final}")
+    return lines
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.plot", description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="runs of python -m jaxsocial.train")
+    parser.add_argument("--out", required=True, help="output image, e.g. curves.png (.pdf, .svg, ...)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    parser.add_argument(
+        "--points",
+        type=int,
+        default=figures.CURVE_POINTS,
+        help="blocks the returns are averaged in (default 50)",
+    )
+    args = parser.parse_args(argv)
+
+    # Everything is checked before plotting.
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError:
+        parser.error("plotting needs matplotlib: pip install matplotlib")
+    formats = FigureCanvasBase.get_supported_filetypes()
+    ext = os.path.splitext(args.out)[1].lower().lstrip(".")
+    if ext not in formats:
+        parser.error(f"unsupported output file {args.out!r}: use one of .{', .'.join(sorted(formats))}")
+    if os.path.exists(args.out) and not args.overwrite:
+        parser.error(f"{args.out} already exists; pass --overwrite to replace it")
+    if args.points < 1:
+        parser.error(f"--points {args.points} must be >= 1")
+    try:
+        args.groups = load_groups(args.runs)
+    except ValueError as err:
+        parser.error(str(err))
+    return args
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    fig = draw(args.groups, args.points)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    print("\n".join(summary(args.groups)))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""Bad input and damaged runs, as a newcomer meets them: each ends in a clear error (no traceback), raised
+before anything compiles, with nothing written or lost; crash windows and corrupt checkpoints resume."""
+
+import dataclasses
+import json
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from test_train import TINY, TINY_FLAGS
+
+import jaxsocial
+from jaxsocial import checkpoint, logs, train
+from jaxsocial.agents import population
+
+
+@pytest.fixture
+def no_compile(monkeypatch):
+    """Fail the test if the training program is built (it is built just before compiling)."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("compiled although the input was bad")
+
+    monkeypatch.setattr(train, "compiled", refuse)
+
+
+def fail(argv, message):
+    """Run the training CLI, expecting a one-line error containing `message`."""
+    with pytest.raises(SystemExit) as exc:
+        train.main(argv)
+    assert str(exc.value).startswith("error:") and message in str(exc.value), exc.value
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--env-args", "penalty=abc"], "penalty='abc' must be of type float"),
+        (["--env-args", "width='13'"], "width='13' must be of type int"),
+        (["--env-args", "max_steps=2.5"], "max_steps=2.5 must be of type int"),
+        (["--env-args", "prestige_beta=5.0"], "prestige_beta=5.0 must be in [0, 1]"),
+        (["--algo", "bc", "--num-envs", "0"], "num_envs=0 must be a whole number >= 1"),
+        (["--algo", "bc", "--num-envs", "-5"], "num_envs=-5 must be a whole number >= 1"),
+        (["--num-envs", "0"], "num_envs=0 must be a whole number >= 1"),
+        (["--keep-checkpoints", "0"], "keep_checkpoints=0"),
+        (["--env", "goalcycle9"], "unknown environment"),
+    ],
+)
+def test_bad_input_fails_before_writing_or_compiling(tmp_path, no_compile, flags, message):
+    fail([*TINY_FLAGS, "--runs-dir", str(tmp_path), "--run-name", "x", *flags], message)
+    assert not any(tmp_path.iterdir())
+
+
+def test_overwrite_with_bad_input_keeps_the_old_run(tmp_path, no_compile):
+    old = tmp_path / "x"
+    old.mkdir()
+    (old / "metrics.jsonl").write_text('{"iteration": 1}\n')
+    argv = [*TINY_FLAGS, "--runs-dir", str(tmp_path), "--run-name", "x", "--overwrite"]
+    fail([*argv, "--env-args", "penalty=abc"], "penalty='abc'")
+    assert (old / "metrics.jsonl").read_text() == '{"iteration": 1}\n'
+
+
+def test_unwritable_runs_dir_is_one_clear_line(tmp_path, no_compile):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    with pytest.raises(SystemExit) as exc:
+        train.main([*TINY_FLAGS, "--runs-dir", str(blocker), "--run-name", "x"])
+    assert str(exc.value).startswith("error:") and str(blocker) in str(exc.value)
+
+
+def test_help_shows_the_command_and_the_environments(capsys):
+    with pytest.raises(SystemExit) as exc:
+        train.parse_args(["--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert "python -m jaxsocial.train" in out and "goalcycle3-distractors" in out and "maze" in out
+    assert "make_train(cfg)" not in out
+
+
+def test_out_of_range_actions_raise_in_eager_calls():
+    env, params = jaxsocial.make("goalcycle3")
+    _, state = env.reset(jax.random.key(0), params)
+    for bad in ([99, 0, 0], [0, -1, 0], [0, 0, 7]):
+        with pytest.raises(ValueError, match=r"actions must be in \[0, 7\)"):
+            env.step_env(state, jnp.array(bad, jnp.int32), params)
+    # Under jit the values are not checked: an out-of-range action does nothing, like a no-op.
+    jitted = jax.jit(env.step_env, static_argnums=2)
+    noop, out_of_range = (jitted(state, jnp.array(a, jnp.int32), params) for a in ([3, 3, 3], [99, -1, 7]))
+    assert all(
+        np.array_equal(a, b)
+        for a, b in zip(jax.tree.leaves(noop), jax.tree.leaves(out_of_range), strict=True)
+    )
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    """A 6-iteration tiny run checkpointed every 2 iterations, keeping the last 2."""
+    cfg = dataclasses.replace(
+        TINY,
+        iterations=6,
+        checkpoint_every=2,
+        keep_checkpoints=2,
+        runs_dir=str(tmp_path_factory.mktemp("runs")),
+        run_name="done",
+    )
+    return cfg, train.run(cfg)
+
+
+def test_keep_checkpoints_and_resume_reads_the_saved_config(finished_run):
+    cfg, run_dir = finished_run
+    assert checkpoint.all_steps(run_dir / "checkpoints") == [4, 6]
+    assert checkpoint.all_steps(run_dir / population.POLICY_DIR) == [4, 6]
+    resumed = train.parse_args(["--resume", str(run_dir)])
+    assert resumed == dataclasses.replace(cfg, resume=True, runs_dir=str(run_dir.parent), run_name="done")
+    assert train.parse_args(["--resume", str(run_dir), "--iterations", "8"]).iterations == 8
+    with pytest.raises(SystemExit, match="not a run directory"):
+        train.parse_args(["--resume", str(run_dir / "checkpoints")])
+
+
+def copy_run(run_dir, tmp_path, name):
+    copy = tmp_path / name
+    shutil.copytree(run_dir, copy)
+    return copy
+
+
+def test_crash_between_checkpoint_and_policy_is_repaired_on_resume(finished_run, tmp_path):
+    """A run killed after writing checkpoint 6 but before policy 6 (the order of older versions): resuming
+    re-exports policy 6 from the checkpoint instead of leaving iteration 4's policy to be evaluated."""
+    cfg, run_dir = finished_run
+    copy = copy_run(run_dir, tmp_path, "crashed")
+    shutil.rmtree(copy / population.POLICY_DIR / "6")
+    assert population.policy_iteration(str(copy)) == 4
+    train.run(dataclasses.replace(cfg, runs_dir=str(tmp_path), run_name="crashed", resume=True))
+    assert population.policy_iteration(str(copy)) == 6
+    want = population.load_policy(str(run_dir), cfg.net)
+    got = population.load_policy(str(copy), cfg.net)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got), strict=True))
+
+
+@pytest.mark.parametrize("damage", ["manifest/metadata", "state/ocdbt.process_0/d/*"])
+def test_corrupt_latest_checkpoint_falls_back_to_the_one_before(finished_run, tmp_path, capsys, damage):
+    """An emptied manifest or emptied data files in checkpoint 6: resuming warns, naming it, restarts from
+    checkpoint 4 and trains iterations 5-6 again, exactly as the first time."""
+    cfg, run_dir = finished_run
+    copy = copy_run(run_dir, tmp_path, "corrupt")
+    for path in (copy / "checkpoints" / "6").glob(damage):
+        path.write_bytes(b"")
+    train.run(dataclasses.replace(cfg, runs_dir=str(tmp_path), run_name="corrupt", resume=True))
+    err = capsys.readouterr().err
+    assert "warning:" in err and str(copy / "checkpoints" / "6") in err
+
+    def without_timing(rows):
+        return [{k: v for k, v in r.items() if k not in ("env_steps_per_s", "compile_s")} for r in rows]
+
+    assert without_timing(logs.read_metrics(copy)) == without_timing(logs.read_metrics(run_dir))
+    assert json.loads((copy / logs.CONFIG_FILE).read_text())["run_name"] == "corrupt"  # rewritten at the end
+
+
+def test_resume_with_every_checkpoint_unreadable_fails_and_keeps_the_config(finished_run, tmp_path):
+    cfg, run_dir = finished_run
+    copy = copy_run(run_dir, tmp_path, "broken")
+    for path in (copy / "checkpoints").glob("*/manifest/metadata"):
+        path.write_bytes(b"")
+    config_before = (copy / logs.CONFIG_FILE).read_text()
+    fail(["--resume", str(copy), "--no-progress"], "no readable checkpoint")
+    assert (copy / logs.CONFIG_FILE).read_text() == config_before

@@ -1,0 +1,136 @@
+"""Learning curves (`python -m jaxsocial.plot`) of a real tiny two-seed run: panels, bands, groups, errors."""
+
+import dataclasses
+import json
+import shutil
+import subprocess
+import sys
+
+import imageio.v3 as iio
+import numpy as np
+import pytest
+
+from jaxsocial import logs, plot, train
+from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.experiments import figures
+
+TINY = train.TrainConfig(
+    env="goalcycle3",
+    env_args="max_steps=6,width=7,height=7",  # an episode ends in every 8-step rollout
+    slots="learner,random,random",
+    num_envs=4,
+    rollout_steps=8,
+    iterations=4,
+    chunk_iterations=4,
+    checkpoint_every=4,
+    progress=False,
+    seeds=2,
+    net=NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8),
+    ppo=PPOConfig(chunk_length=4, minibatch_chunks=4, num_minibatches=2, lr=3e-3),
+)
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    """A two-seed run: run_dir/s0 and run_dir/s1."""
+    runs_dir = tmp_path_factory.mktemp("runs")
+    return train.run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="tiny"))
+
+
+def copy_seed(src, dst, **changes):
+    """A run of its own with one seed's config and metrics, and config `changes`."""
+    dst.mkdir(parents=True)
+    shutil.copy(src / logs.METRICS_FILE, dst)
+    logs.write_config(dst, {**logs.read_config(src), "run_name": None, **changes})
+    return dst
+
+
+def test_two_seeds_panels_mean_and_band(run_dir):
+    (group,) = plot.load_groups([run_dir])
+    assert group.slots == ["learner", "random", "random"] and len(group.rows) == 2
+    assert group.seed_dirs == [run_dir / "s0", run_dir / "s1"] and group.steps_per_iteration == 32
+    fig = plot.draw([group])
+    titles = [ax.get_title() for ax in fig.axes]
+    assert titles == [
+        "slot 0 (learner): episode return",
+        "slot 0 (learner): auxiliary loss",
+        "slot 0 (learner): KL",
+        "slot 0 (learner): entropy",
+        "slot 1 (random): episode return",
+        "slot 2 (random): episode return",
+    ]
+    for ax in fig.axes:  # two faint seed lines, the mean, and the CI band
+        assert len(ax.lines) == 3 and len(ax.collections) == 1
+    returns = fig.axes[0]
+    curves = [figures.curve(rows, 0) for rows in group.rows]
+    np.testing.assert_allclose(returns.lines[2].get_xdata(), curves[0][0] * 32)
+    mean = np.mean([y for _, y in curves], axis=0)
+    np.testing.assert_allclose(returns.lines[2].get_ydata(), mean)
+    band = returns.collections[0].get_paths()[0].vertices
+    assert band[:, 1].min() <= mean.min() and band[:, 1].max() >= mean.max()
+    kl = [r["kl/0"] for r in group.rows[1]]
+    np.testing.assert_allclose(fig.axes[2].lines[1].get_ydata(), kl)  # seed 1's KL, per iteration
+    assert [t.get_text() for t in returns.get_legend().get_texts()] == ["tiny (2 seeds)"]
+
+
+def test_seeds_group_by_config(run_dir, tmp_path):
+    other = copy_seed(run_dir / "s0", tmp_path / "other", env_args="max_steps=6,width=7,height=7,penalty=0.5")
+    # The whole run, one of its seeds again (counted once) and a run of another config.
+    groups = plot.load_groups([run_dir / "s1", run_dir, other])
+    assert [(g.label, len(g.rows)) for g in groups] == [("tiny/s1 +1", 2), ("other", 1)]
+    fig = plot.draw(groups)
+    returns = fig.axes[0]
+    assert len(returns.lines) == 3 + 2 and len(returns.collections) == 1  # one seed: no band
+    twin = copy_seed(run_dir / "s0", tmp_path / "twin")
+    with pytest.raises(ValueError, match="seed 0 of the same config"):
+        plot.load_groups([run_dir, twin])
+
+
+def test_cli_writes_image_and_refuses_to_overwrite(run_dir, tmp_path):
+    out = tmp_path / "curves.png"
+    cmd = [sys.executable, "-m", "jaxsocial.plot", str(run_dir), "--out", str(out)]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "tiny: 2 seed(s), 4 iterations" in done.stdout and "slot 0 learner: final return" in done.stdout
+    image = iio.imread(out)
+    assert image.ndim == 3 and image.shape[1] > image.shape[0] > 100
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 2 and "--overwrite" in again.stderr and "Traceback" not in again.stderr
+    assert np.array_equal(iio.imread(out), image)
+
+
+@pytest.mark.parametrize(
+    ("case", "message"),
+    [
+        ("missing", "does not exist"),
+        ("not_a_run", "is not a run directory"),
+        ("bad_config", "not the config of a training run"),
+        ("missing_seed", "trained with --seeds 2"),
+        ("no_metrics", "no metrics yet"),
+        ("exists", "already exists; pass --overwrite"),
+        ("extension", "unsupported output file"),
+    ],
+)
+def test_cli_errors_before_plotting(run_dir, tmp_path, capsys, case, message):
+    out = tmp_path / ("curves.txt" if case == "extension" else "curves.png")
+    target = tmp_path / "run"
+    if case == "not_a_run":
+        target.mkdir()
+    elif case == "bad_config":
+        target.mkdir()
+        (target / logs.CONFIG_FILE).write_text(json.dumps({"env": "goalcycle3"}))
+    elif case == "missing_seed":
+        shutil.copytree(run_dir, target)
+        shutil.rmtree(target / "s1")
+    elif case == "no_metrics":
+        copy_seed(run_dir / "s0", target)
+        (target / logs.METRICS_FILE).write_text("")
+    elif case in ("exists", "extension"):
+        target = run_dir
+    if case == "exists":
+        out.write_bytes(b"keep me")
+    with pytest.raises(SystemExit) as e:
+        plot.main([str(target), "--out", str(out)])
+    assert e.value.code == 2 and message in capsys.readouterr().err
+    assert out.read_bytes() == b"keep me" if case == "exists" else not out.exists()
