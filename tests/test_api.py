@@ -95,31 +95,31 @@ def test_episode_ends_when_every_agent_is_terminated(rollout):
 
 
 def test_vmap_and_step_batch_equal_per_env_step():
-    params = jaxsocial.make("goalcycle3", max_steps=3)[1]
-    keys = jax.random.split(jax.random.key(9), 4)
-    vmapped = jax.jit(jax.vmap(lambda k: play(params, k, 7)))(keys)
-    batched_step = jax.vmap(step, in_axes=(0, 0, 0, None))
-    for step_fn in (batched_step, step_batch):
-        k_reset, k_run = jax.random.split(jax.random.key(11))
-        obs, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_reset, 4), params)
-        actions = jax.random.randint(k_run, (7, 4, params.n_agents), 0, 7)
+    """Under vmap the auto-reset is a cond on "some episode ended" plus a select: with episodes ending at
+    different steps in different environments, every environment of the batch is the same as running it
+    alone, and `step_batch` is the same as the vmap."""
+    params = jaxsocial.make("goalcycle3", max_steps=4)[1]
+    n_envs, n_steps = 4, 9
+    _, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(jax.random.key(9), n_envs), params)
+    states = states.replace(time=jnp.arange(n_envs, dtype=jnp.int32))  # truncated at steps 4, 3, 2, 1, ...
+    keys = jax.random.split(jax.random.key(10), (n_steps, n_envs))
+    actions = jax.random.randint(jax.random.key(11), (n_steps, n_envs, params.n_agents), 0, 7)
 
-        def run(states, actions, step_fn=step_fn, k_run=k_run):
-            def body(s, a_k):
-                a, k = a_k
-                out = step_fn(jax.random.split(k, 4), s, a, params)
-                return out[1], out[:5] + (out[5]["final_obs"], out[5]["done"])
+    def run(step_fn, states, keys, actions):
+        def body(s, inputs):
+            out = step_fn(*inputs[:1], s, inputs[1], params)
+            return out[1], (*out[:5], out[5]["final_obs"], out[5]["done"])
 
-            return jax.lax.scan(body, states, (actions, jax.random.split(k_run, 7)))[1]
+        return jax.lax.scan(body, states, (keys, actions))[1]
 
-        outs = jax.jit(run)(states, actions)
-        if step_fn is batched_step:
-            reference = outs
-        else:
-            assert tree_equal(outs, reference)
-    # each environment of a vmap is the same as running it alone
-    alone = jax.jit(play, static_argnums=(0, 2))(params, keys[2], 7)
-    assert tree_equal(jax.tree.map(lambda x: x[2], vmapped), alone)
+    vmapped = jax.jit(lambda *a: run(jax.vmap(step, in_axes=(0, 0, 0, None)), *a))(states, keys, actions)
+    done = np.asarray(vmapped[-1])
+    assert np.all((done.sum(1) > 0) & (done.sum(1) < n_envs))  # every step resets some environments only
+    assert tree_equal(vmapped, jax.jit(lambda *a: run(step_batch, *a))(states, keys, actions))
+    alone = jax.jit(lambda *a: run(step, *a))
+    for i in range(n_envs):
+        one = alone(jax.tree.map(lambda x, i=i: x[i], states), keys[:, i], actions[:, i])
+        assert tree_equal(jax.tree.map(lambda x, i=i: x[:, i], vmapped), one)
 
 
 def test_no_retracing():

@@ -124,15 +124,16 @@ def copy_run(run_dir, tmp_path, name):
     return copy
 
 
-def test_crash_between_checkpoint_and_policy_is_repaired_on_resume(finished_run, tmp_path):
-    """A run killed after writing checkpoint 6 but before policy 6 (the order of older versions): resuming
-    re-exports policy 6 from the checkpoint instead of leaving iteration 4's policy to be evaluated."""
+@pytest.mark.parametrize("lost", ["checkpoints", population.POLICY_DIR])
+def test_crash_between_the_policy_and_checkpoint_writes_resumes_consistently(finished_run, tmp_path, lost):
+    """A run killed between writing iteration 6's policy and its checkpoint ('checkpoints/6' lost), or, in
+    the order of older versions, between the checkpoint and the policy ('policy/6' lost): the resumed run
+    ends with both at iteration 6, equal to the uninterrupted run's, instead of evaluating iteration 4."""
     cfg, run_dir = finished_run
     copy = copy_run(run_dir, tmp_path, "crashed")
-    shutil.rmtree(copy / population.POLICY_DIR / "6")
-    assert population.policy_iteration(str(copy)) == 4
+    shutil.rmtree(copy / lost / "6")
     train.run(dataclasses.replace(cfg, runs_dir=str(tmp_path), run_name="crashed", resume=True))
-    assert population.policy_iteration(str(copy)) == 6
+    assert checkpoint.latest_step(copy / "checkpoints") == population.policy_iteration(str(copy)) == 6
     want = population.load_policy(str(run_dir), cfg.net)
     got = population.load_policy(str(copy), cfg.net)
     assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got), strict=True))

@@ -123,29 +123,13 @@ def _episode_done(terminated: jax.Array, truncated: jax.Array) -> jax.Array:
     return jnp.all(terminated, axis=-1) | truncated
 
 
-def step(
-    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams
-) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
-    """One step with auto-reset (gymnax 1.0 shape).
-
-    When every agent is terminated or time runs out, the returned `obs` and `state` belong to a new
-    episode drawn with `key`; `info["final_obs"]` holds the last observation of the finished episode
-    (equal to `obs` otherwise) and `info["done"]` says whether the episode ended. The reset is a
-    `lax.cond`, so it costs nothing on other steps unless the call is vmapped (then use `step_batch`).
-    """
-    obs, new_state, reward, terminated, truncated = step_env(state, actions, params)
-    done = _episode_done(terminated, truncated)
-    next_obs, next_state = jax.lax.cond(done, lambda: reset(key, params), lambda: (obs, new_state))
-    return next_obs, next_state, reward, terminated, truncated, {"final_obs": obs, "done": done}
-
-
 @jax.custom_batching.custom_vmap
 def any_in_batch(x: jax.Array) -> jax.Array:
     """`jnp.any(x)`, and under `vmap` the any over the vmapped axes too (an unbatched bool[]).
 
     For the predicate of a `lax.cond` that only skips work whose results are masked anyway (new episodes
     where none ended): with a batched predicate a vmapped cond runs both branches every time; with this one
-    it stays a cond (e.g. `step_batch` vmapped over independent training seeds).
+    it stays a cond (e.g. `step` vmapped over environments, or over independent training seeds).
     """
     return jnp.any(x)
 
@@ -155,29 +139,35 @@ def _any_in_batch_vmap(axis_size: int, in_batched: list[bool], x: jax.Array):
     return jnp.any(x), False
 
 
+def step(
+    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams
+) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
+    """One step with auto-reset (gymnax 1.0 shape).
+
+    When every agent is terminated or time runs out, the returned `obs` and `state` belong to a new
+    episode drawn with `key`; `info["final_obs"]` holds the last observation of the finished episode
+    (equal to `obs` otherwise) and `info["done"]` says whether the episode ended. The reset is a `lax.cond`
+    on `any_in_batch(done)`, so it costs nothing on steps where no episode ended, also under `jax.vmap`
+    (where it then resets, and selects, only the environments whose episode ended).
+    """
+    obs, new_state, reward, terminated, truncated = step_env(state, actions, params)
+    done = _episode_done(terminated, truncated)
+
+    def with_reset():
+        reset_obs, reset_state = reset(key, params)
+        return jax.tree.map(lambda r, s: jnp.where(done, r, s), (reset_obs, reset_state), (obs, new_state))
+
+    next_obs, next_state = jax.lax.cond(any_in_batch(done), with_reset, lambda: (obs, new_state))
+    return next_obs, next_state, reward, terminated, truncated, {"final_obs": obs, "done": done}
+
+
 def step_batch(
     keys: jax.Array, states: EnvState, actions: jax.Array, params: EnvParams
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
-    """`step` over a leading batch axis (keys [B], states [B, ...], actions int32[B, N]).
-
-    Equal to `jax.vmap(step, in_axes=(0, 0, 0, None))` but faster: under vmap a `lax.cond` evaluates both
-    branches, so here new episodes are generated and rendered only on steps where some episode ended.
-    """
-    obs, new_states, reward, terminated, truncated = jax.vmap(step_env, in_axes=(0, 0, None))(
-        states, actions, params
-    )
-    done = _episode_done(terminated, truncated)
-
-    def with_resets():
-        reset_obs, reset_states = jax.vmap(reset, in_axes=(0, None))(keys, params)
-
-        def pick(r, s):
-            return jnp.where(done.reshape(done.shape + (1,) * (s.ndim - 1)), r, s)
-
-        return pick(reset_obs, obs), jax.tree.map(pick, reset_states, new_states)
-
-    next_obs, next_states = jax.lax.cond(any_in_batch(done), with_resets, lambda: (obs, new_states))
-    return next_obs, next_states, reward, terminated, truncated, {"final_obs": obs, "done": done}
+    """`step` over a leading batch axis (keys [B], states [B, ...], actions int32[B, N]): exactly
+    `jax.vmap(step, in_axes=(0, 0, 0, None))`, which generates and renders new episodes only on steps where
+    some episode of the batch ended."""
+    return jax.vmap(step, in_axes=(0, 0, 0, None))(keys, states, actions, params)
 
 
 def state_from_layout(
