@@ -1,7 +1,7 @@
 """Environment throughput: steps per second of `jaxsocial.env.step_batch` under `lax.scan`.
 
-`step_batch` is `jax.vmap(jaxsocial.env.step)`, the standard gymnax-style path: the auto-reset inside `step` is
-a `lax.cond` on "some episode of the batch ended", so plain `vmap(env.step)` runs at this speed too.
+`step_batch` is `jax.vmap(jaxsocial.env.step)`, the standard gymnax-style path: the auto-reset inside `step`
+is a `lax.cond` on "some episode of the batch ended", so plain `vmap(env.step)` runs at this speed too.
 
 For each environment, observation kind and batch size B, one jitted call runs `--steps` steps of B
 environments with uniformly random actions (drawn inside the scan) and auto-reset. Episodes last at most
