@@ -1,10 +1,21 @@
 """Shared, compiled-once helpers for the test suite (jit compile time dominates on CPU)."""
 
+import tempfile
+from pathlib import Path
+
 import jax
 import pytest
 
+from jaxsocial import compile_cache
 from jaxsocial.env import core
 from jaxsocial.env.observe import observe
+
+
+def pytest_configure(config):
+    """One persistent XLA cache for every test process: the pytest-xdist workers (and later runs) load the
+    programs another one compiled (the same training programs recur across test files) instead of
+    compiling them again. Keyed by program, JAX version and devices, so it is safe to share."""
+    compile_cache.enable(Path(tempfile.gettempdir()) / "jaxsocial-tests-xla-cache", min_compile_seconds=1.0)
 
 
 @pytest.fixture(scope="session")

@@ -42,11 +42,12 @@ def test_social_learning_notebook(tmp_path, monkeypatch):
         assert x[-1] == tiny.iterations and np.isfinite(y).all()
     finals = ns["summary"]["conditions"]["social_pred"]["final_returns"]
     assert finals == [round(ns["figures"].final_return(rows), 4) for rows in ns["runs"].rows["social_pred"]]
-    # The GIF: one frame per step, each the map beside the three views.
+    # The GIF: one frame per step (60 asked for, at most the episode's length), each the map beside the views.
+    steps = min(60, ns["episode"]["env_params"].max_steps)
     frames = iio.imread(ns["gif_bytes"], extension=".gif", index=None)
-    assert frames.shape[0] == len(ns["frames"]) == 60
+    assert frames.shape[0] == len(ns["frames"]) == steps
     assert frames.shape[1:3] == ns["frames"][0].shape[:2]
-    assert ns["episode"]["obs"].shape == (60, 3, 21, 21, 3)
+    assert ns["episode"]["obs"].shape == (steps, 3, 21, 21, 3)
     # Predictions: one frame per movement action, in [0, 1], from the step with the most agent pixels.
     pred = ns["pred"]
     assert set(pred["predicted"]) == {"left", "right", "forward"}
