@@ -281,7 +281,8 @@ def cultural_transmission(played: dict[str, list[Episodes]], experts: tuple[int,
     for k, (expert, expert_late) in enumerate(expert_returns):
         if expert <= 0 or expert_late <= 0:
             raise ValueError(
-                f"checkpoint {k}: the other slots' return ({expert:.3f}) must be > 0 to normalise"
+                f"checkpoint {k}: the experts' return over the episode ({expert:.3f}) and over its second "
+                f"half ({expert_late:.3f}) must be > 0 to normalise"
             )
         per_episode["ct"].append((learner["with"][k][0] - learner["solo"][k][0]) / expert)
         per_episode["recall"].append((learner["dropout"][k][1] - learner["solo"][k][1]) / expert_late)

@@ -823,12 +823,12 @@ def config_from_dict(values: dict[str, Any]) -> TrainConfig:
     fields added since the run was written take their defaults."""
 
     def build(cls, raw: dict[str, Any]):
-        kwargs = {}
+        kwargs, defaults = {}, cls()
         for field in dataclasses.fields(cls):
             if field.name not in raw:
                 continue
             value = raw[field.name]
-            default = getattr(cls(), field.name)
+            default = getattr(defaults, field.name)
             if dataclasses.is_dataclass(default):
                 value = build(type(default), value)
             elif isinstance(value, list):
@@ -860,23 +860,22 @@ def parse_args(argv: list[str]) -> TrainConfig:
     import tyro
 
     saved, argv = _resume_from(argv)
+    default = saved
+    if saved is None:
+        preset = "small"
+        for i, arg in enumerate(argv):  # '--preset NAME' or '--preset=NAME' (the last one counts)
+            if arg == "--preset":
+                preset = argv[i + 1] if i + 1 < len(argv) else ""
+            elif arg.startswith("--preset="):
+                preset = arg.removeprefix("--preset=")
+        if preset not in PRESETS:
+            raise SystemExit(f"unknown --preset {preset!r}; choose one of {sorted(PRESETS)}")
+        default = PRESETS[preset]
     usage = USAGE.format(envs=", ".join(jaxsocial.registered_envs()))
-    if saved is not None:
-        cfg = tyro.cli(
-            TrainConfig, default=saved, args=argv, description=usage, prog="python -m jaxsocial.train"
-        )
-        return dataclasses.replace(cfg, resume=True, overwrite=False)
-    preset = "small"
-    for i, arg in enumerate(argv):  # '--preset NAME' or '--preset=NAME' (the last one counts)
-        if arg == "--preset":
-            preset = argv[i + 1] if i + 1 < len(argv) else ""
-        elif arg.startswith("--preset="):
-            preset = arg.removeprefix("--preset=")
-    if preset not in PRESETS:
-        raise SystemExit(f"unknown --preset {preset!r}; choose one of {sorted(PRESETS)}")
-    return tyro.cli(
-        TrainConfig, default=PRESETS[preset], args=argv, description=usage, prog="python -m jaxsocial.train"
+    cfg = tyro.cli(
+        TrainConfig, default=default, args=argv, description=usage, prog="python -m jaxsocial.train"
     )
+    return cfg if saved is None else dataclasses.replace(cfg, resume=True, overwrite=False)
 
 
 def main(argv: list[str] | None = None) -> None:

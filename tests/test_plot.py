@@ -9,25 +9,17 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 import pytest
+from test_train import TINY as TRAIN_TINY
 
 from jaxsocial import logs, plot, train
-from jaxsocial.agents.network import NetworkConfig
-from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.experiments import figures
 
-TINY = train.TrainConfig(
-    env="goalcycle3",
+TINY = dataclasses.replace(
+    TRAIN_TINY,
     env_args="max_steps=6,width=7,height=7",  # an episode ends in every 8-step rollout
-    slots="learner,random,random",
-    num_envs=4,
-    rollout_steps=8,
-    iterations=4,
     chunk_iterations=4,
     checkpoint_every=4,
-    progress=False,
     seeds=2,
-    net=NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8),
-    ppo=PPOConfig(chunk_length=4, minibatch_chunks=4, num_minibatches=2, lr=3e-3),
 )
 
 

@@ -281,7 +281,7 @@ def load_policy(path: str, net: network.NetworkConfig):
     """
     directory, k = _policy_dir(path)
     meta = checkpoint.read_metadata(directory)
-    saved = architecture(saved_net(path))
+    saved = architecture(network.NetworkConfig(**meta["net"]))
     if saved != architecture(net):
         raise ValueError(
             f"frozen slot {path}: the checkpoint's network {saved} differs from this run's network "

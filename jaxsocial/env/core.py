@@ -31,13 +31,20 @@ NEVER = np.iinfo(np.int32).max
 """A presence-window bound no episode reaches."""
 
 
+def fixed_window(present) -> jax.Array:
+    """int32[N, 2] presence windows of slots that neither leave nor join: [0, never) if present, else
+    [never, never)."""
+    present = jnp.asarray(present, bool)
+    return jnp.stack([jnp.where(present, 0, NEVER), jnp.full(present.shape, NEVER)], -1).astype(jnp.int32)
+
+
 def _window(key: jax.Array, present: jax.Array, params: EnvParams) -> jax.Array:
     """int32[N, 2] each slot's presence window [join, leave) (docs/environment.md 10.4): slots from
     `solo_agents` on leave (`dropout_prob`) or join (`dropin_prob`) at a uniform step in
     [dropout_min_step, dropout_max_step]; slots absent from a solo episode never join."""
     n = params.n_agents
     if not params.changes_presence:
-        return jnp.stack([jnp.where(present, 0, NEVER), jnp.full(n, NEVER)], -1).astype(jnp.int32)
+        return fixed_window(present)
     k_kind, k_step = jax.random.split(key)
     u = jax.random.uniform(k_kind, (n,))
     other = jnp.arange(n) >= params.solo_agents
@@ -230,8 +237,7 @@ def state_from_layout(
         return jnp.asarray(np.broadcast_to(default if values is None else values, (n,)), dtype)
 
     present = per_agent(present, True, bool)
-    if window is None:
-        window = np.stack([np.where(present, 0, NEVER), np.full(n, NEVER)], -1)
+    window = fixed_window(present) if window is None else window
 
     return EnvState(
         grid=jnp.asarray(grid),

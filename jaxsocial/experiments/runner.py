@@ -40,17 +40,14 @@ def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
     return [recipes.goalcycle_spec(name, scale) for name in recipe.transfer_envs]
 
 
+def ct_spec(scale: Scale) -> str:
+    """The environment of the cultural-transmission evaluation: the scale's 3-goal Goal Cycle."""
+    return recipes.goalcycle_spec("goalcycle3", scale)
+
+
 def ct_path(seed_dir: Path, scale: Scale) -> Path:
-    """Where a seed's cultural-transmission evaluation (in the scale's 3-goal Goal Cycle) is written."""
-    return eval_path(seed_dir, "ct-" + recipes.goalcycle_spec("goalcycle3", scale))
-
-
-def _evaluate(out: Path, cfg: evaluate.EvalConfig) -> dict:
-    """Run one evaluation and write its JSON to `out`."""
-    result = evaluate.evaluate(cfg)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    return result
+    """Where a seed's cultural-transmission evaluation is written."""
+    return eval_path(seed_dir, "ct-" + ct_spec(scale))
 
 
 def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_run: bool = False) -> None:
@@ -71,24 +68,25 @@ def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_
             continue
         if state != "done":
             train.run(dataclasses.replace(cfg, resume=state == "partial"))
-    specs = transfer_specs(recipe, scale) if recipe.kind == "transfer" else []
-    if recipe.kind == "ct":
-        specs = [recipes.goalcycle_spec("goalcycle3", scale)]
+    protocol = "ct" if recipe.kind == "ct" else "returns"
+    specs = [ct_spec(scale)] if protocol == "ct" else transfer_specs(recipe, scale)
     for name in recipe.conditions if specs and not dry_run else ():
         for spec in specs:
             env, _, env_args = spec.partition(":")
             for seed_dir in seed_dirs(configs[name]):
-                protocol = "ct" if recipe.kind == "ct" else "returns"
                 out = ct_path(seed_dir, scale) if protocol == "ct" else eval_path(seed_dir, spec)
                 if out.exists():
                     continue
-                eval_cfg = evaluate.EvalConfig(
-                    ckpt=(str(seed_dir),),
-                    env=env,
-                    env_args=env_args,
-                    episodes=scale.eval_episodes,
-                    protocol=protocol,
+                result = evaluate.evaluate(
+                    evaluate.EvalConfig(
+                        ckpt=(str(seed_dir),),
+                        env=env,
+                        env_args=env_args,
+                        episodes=scale.eval_episodes,
+                        protocol=protocol,
+                    )
                 )
-                result = _evaluate(out, eval_cfg)
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_text(json.dumps(result, indent=2) + "\n")
                 score = result["ct"]["mean"] if protocol == "ct" else result["results"][0]["mean_return"]
                 print(f"  {name} {seed_dir.name} in {spec} ({protocol}): {score:.3f}")
