@@ -24,6 +24,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p.add_argument("--runs-dir", default="runs/experiments", help="root of the run directories")
         if name == "run":
             p.add_argument("--dry-run", action="store_true", help="print the training commands and states")
+            p.add_argument(
+                "--no-train",
+                action="store_true",
+                help="train nothing: evaluate the conditions already trained (e.g. on another machine)",
+            )
         else:
             p.add_argument("--out-dir", default=DEFAULT_OUT, help="where <recipe>-<scale>.json/.png go")
     args = parser.parse_args(argv)
@@ -43,7 +48,15 @@ def main(argv: list[str] | None = None) -> None:
     recipe, scale = recipes.RECIPES[args.recipe], recipes.SCALES[args.scale]
     try:
         if args.command == "run":
-            runner.run(recipe, scale, args.seed, args.seeds, args.runs_dir, dry_run=args.dry_run)
+            runner.run(
+                recipe,
+                scale,
+                args.seed,
+                args.seeds,
+                args.runs_dir,
+                dry_run=args.dry_run,
+                train_missing=not args.no_train,
+            )
         else:
             runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir)
             for path in figures.write(runs, Path(args.out_dir)):

@@ -50,11 +50,20 @@ def ct_path(seed_dir: Path, scale: Scale) -> Path:
     return eval_path(seed_dir, "ct-" + ct_spec(scale))
 
 
-def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_run: bool = False) -> None:
+def run(
+    recipe: Recipe,
+    scale: Scale,
+    seed: int,
+    seeds: int,
+    runs_dir: str,
+    dry_run: bool = False,
+    train_missing: bool = True,
+) -> None:
     """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
 
     Every config is validated before anything trains, so a bad recipe fails at once. `dry_run` prints the
-    commands and what is done instead.
+    commands and what is done instead. With `train_missing=False` nothing trains: the conditions already
+    trained (e.g. on another machine) are evaluated and the others are skipped with a note.
     """
     configs = {c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
     for cfg in configs.values():
@@ -66,11 +75,16 @@ def run(recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, dry_
         if dry_run:
             print("  python -m jaxsocial.train " + shlex.join(flags))
             continue
-        if state != "done":
+        if state != "done" and train_missing:
             train.run(dataclasses.replace(cfg, resume=state == "partial"))
+    if not train_missing:
+        skipped = [name for name, cfg in configs.items() if status(cfg) != "done"]
+        for name in skipped:
+            print(f"  {name}: not trained, not evaluated (--no-train)")
+        configs = {name: cfg for name, cfg in configs.items() if name not in skipped}
     protocol = "ct" if recipe.kind == "ct" else "returns"
     specs = [ct_spec(scale)] if protocol == "ct" else transfer_specs(recipe, scale)
-    for name in recipe.conditions if specs and not dry_run else ():
+    for name in configs if specs and not dry_run else ():
         for spec in specs:
             env, _, env_args = spec.partition(":")
             for seed_dir in seed_dirs(configs[name]):
