@@ -320,9 +320,75 @@ def section_train(args: argparse.Namespace) -> dict:
     return {"rows": rows}
 
 
+def synthetic_rollout(cfg: network.NetworkConfig, steps: int, envs: int, seed: int = 0):
+    """A `ppo.Batch` of random frames whose log-probabilities are the initial params' own (so the KL to the
+    rollout policy starts at 0, as after a real rollout), with episodes of 100 steps."""
+    from jaxsocial.agents import ppo
+
+    params, _, obs, _, actions = make_inputs(cfg, steps + 1, envs, seed)
+    resets = jnp.broadcast_to((jnp.arange(steps + 1) % 100 == 0)[:, None], (steps + 1, envs))
+    carry0 = network.initial_carry(cfg, (envs,))
+    _, out = jax.jit(network.unroll, static_argnums=1)(params, cfg, carry0, obs, resets)
+    logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), actions[..., None], -1)[:steps, :, 0]
+    rng = np.random.default_rng(seed)
+    return params, ppo.Batch(
+        obs=obs,
+        resets=resets,
+        actions=actions[:steps],
+        logp=logp,
+        rewards=jnp.asarray(rng.normal(size=(steps, envs)), jnp.float32),
+        terminated=resets[1:],
+        done=resets[1:],
+        final_values=jnp.zeros((steps, envs)),
+        valid=jnp.ones((steps, envs), bool),
+        carry0=carry0,
+    )
+
+
+def section_kl_stop(args: argparse.Namespace) -> dict:
+    """Seconds per PPO update (the paper's PPOConfig: 20 minibatches of 512 chunks x 16 steps) on a
+    256-step x 128-env rollout (the paper preset's), when every minibatch runs, when the KL early stop fires
+    at minibatch 1, and the latter with the stopped minibatches still computed (the code before they were
+    skipped, by replacing `ppo.any_in_batch` with a constant True)."""
+    from jaxsocial.agents import ppo
+
+    rows = []
+    for name in args.configs:
+        cfg = dataclasses.replace(CONFIGS[name], conv_impl="matmul")
+        params, batch = synthetic_rollout(cfg, steps=256, envs=128)
+        cases = {
+            "every minibatch": (ppo.PPOConfig(kl_target=1e9, kl_hard_limit=1e9), ppo.any_in_batch),
+            "stop at minibatch 1": (ppo.PPOConfig(kl_target=1e-12, kl_hard_limit=1e9), ppo.any_in_batch),
+            "stop at minibatch 1, no skip": (
+                ppo.PPOConfig(kl_target=1e-12, kl_hard_limit=1e9),
+                lambda running: jnp.array(True),
+            ),
+        }
+        for case, (ppo_cfg, predicate) in cases.items():
+            ppo.any_in_batch = predicate
+            try:
+                opt_state = ppo.make_optimizer(ppo_cfg).init(params)
+                # A new function each time: jit's cache does not see the patched predicate.
+                fn = jax.jit(lambda *a: ppo.update(*a), static_argnums=(3, 4))
+                t0 = time.perf_counter()
+                compiled = fn.lower(jax.random.key(0), params, opt_state, cfg, ppo_cfg, batch).compile()
+                compile_s = time.perf_counter() - t0
+            finally:
+                ppo.any_in_batch = cases["every minibatch"][1]
+            call = (jax.random.key(0), params, opt_state, batch)
+            times = time_calls(compiled, call, args.repeats)
+            applied = float(compiled(*call)[2]["minibatches"])
+            rows.append({"config": name, "case": case, "minibatches_applied": applied, "times_s": times,
+                         "best_s": min(times), "compile_s": compile_s})  # fmt: skip
+            print(f"  {name:5s} {case:30s} {min(times):7.2f} s/update ({applied:.0f} applied), "
+                  f"compile {compile_s:.1f}s", flush=True)  # fmt: skip
+    return {"rows": rows}
+
+
 SECTIONS: dict[str, Callable[[argparse.Namespace], dict]] = {
     "network": section_network,
     "train": section_train,
+    "kl_stop": section_kl_stop,
     "network_hugepages": section_network_hugepages,
 }
 

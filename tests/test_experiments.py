@@ -131,6 +131,7 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
         rows = logs.read_metrics(runner.seed_dirs(cfg)[0])
         assert entry["final_returns"] == [round(figures.final_return(rows), 4)]
+        assert entry["seeds_above_one_tile"] == int(figures.final_return(rows) > figures.LEARNED_RETURN)
         key = "eval/goalcycle4:width=7,height=7,max_steps=20"
         assert entry[key]["final_returns"] == [round(rows[-1][key], 4)]
     assert summary["experts"]["mean"] > 0  # the scripted experts collect tiles
@@ -145,6 +146,32 @@ def test_figure_leaves_out_conditions_not_run(mixing_runs, tmp_path):
     assert summary["missing_conditions"] == ["solo_pred", "social_none", "social_rec"]
     assert list(summary["conditions"]) == ["social_pred"]
     assert (tmp_path / "h1-tiny.png").stat().st_size > 1000
+
+
+def test_no_train_trains_nothing_and_says_what_it_skipped(tmp_path, capsys):
+    cli.main(
+        ["run", "transfer", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path), "--no-train"]
+    )
+    out = capsys.readouterr().out
+    for name in recipes.RECIPES["transfer"].conditions:
+        assert f"{name}: not trained, not evaluated (--no-train)" in out
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_no_train_evaluates_the_conditions_trained_elsewhere(mixing_runs, capsys):
+    """transfer's social_pred was trained by the mixing recipe; its solo_pred and bc were not."""
+    cli.main(
+        ["run", "transfer", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs), "--no-train"]
+    )
+    out = capsys.readouterr().out
+    assert "solo_pred: not trained" in out and "bc: not trained" in out
+    cfg = recipes.condition_config(recipes.TINY, "social_pred", 0, 1, str(mixing_runs))
+    (seed_dir,) = runner.seed_dirs(cfg)
+    for spec in runner.transfer_specs(recipes.RECIPES["transfer"], recipes.TINY):
+        result = json.loads(runner.eval_path(seed_dir, spec).read_text())
+        assert result["checkpoints"] == [str(seed_dir)]
+        assert f"social_pred {seed_dir.name} in {spec}" in out
 
 
 @pytest.mark.slow

@@ -167,6 +167,43 @@ def test_kl_target_stops_early_and_normal_update_changes_params(setup):
     assert float(metrics["minibatches"]) == CFG.num_minibatches
 
 
+def test_minibatches_after_the_kl_stop_compute_no_loss_or_gradient(setup, monkeypatch):
+    params, batch = setup
+    calls = []
+
+    def counted_loss(*args, **kwargs):
+        jax.debug.callback(lambda: calls.append(1))
+        return loss_fn(*args, **kwargs)
+
+    loss_fn = ppo.loss_fn
+    monkeypatch.setattr(ppo, "loss_fn", counted_loss)
+    # A config of its own, so that no update compiled by another test (without the counter) is reused.
+    changes = {"lr": 0.05, "kl_target": 1e-12, "kl_hard_limit": 9.0, "num_minibatches": 5}
+    cfg = ppo.PPOConfig(**{**CFG.__dict__, **changes})
+    _, (_, _, metrics) = run_update(params, batch, cfg)
+    jax.effects_barrier()
+    # Minibatch 0 is applied; minibatch 1 measures the KL, stops the loop, and is the last to compute.
+    assert float(metrics["minibatches"]) == 1.0
+    assert len(calls) == 2
+
+
+def test_vmapped_learners_stopping_at_different_minibatches_equal_their_own_updates(setup):
+    """Learner 1's rollout policy is far from its params (KL 0.11 at once): it reverts on minibatch 0 while
+    learner 0 runs every minibatch; the vmapped update skips nothing that learner 0 still needs."""
+    params, batch = setup
+    far = batch._replace(logp=batch.logp + 0.5)
+    batches = jax.tree.map(lambda a, b: jnp.stack([a, b]), batch, far)
+    opt_state = ppo.make_optimizer(CFG).init(params)
+    update = jax.jit(jax.vmap(ppo.update, in_axes=(None, None, None, None, None, 0)), static_argnums=(3, 4))
+    both = update(jax.random.key(2), params, opt_state, NET, CFG, batches)
+    for i, b in enumerate((batch, far)):
+        _, alone = run_update(params, b, CFG)
+        for x, y in zip(jax.tree.leaves(alone), jax.tree.leaves(both), strict=True):
+            np.testing.assert_allclose(y[i], x, rtol=1e-5, atol=1e-6)
+    assert both[2]["minibatches"].tolist() == [CFG.num_minibatches, 0.0]
+    assert both[2]["reverted"].tolist() == [0.0, 1.0]
+
+
 @pytest.mark.parametrize(
     ("changes", "steps", "envs", "message"),
     [

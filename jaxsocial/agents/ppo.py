@@ -20,6 +20,7 @@ import optax
 
 from jaxsocial.agents import network
 from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.batching import any_in_batch
 
 
 @dataclasses.dataclass(frozen=True)
@@ -282,6 +283,7 @@ def update(
     states and advantages are recomputed with the current params. Each minibatch measures the KL to the
     rollout policy with the current params: above `kl_hard_limit` every change of this update is reverted
     (params and optimiser state) and the loop ends; above `kl_target` the loop ends without applying it.
+    The minibatches after the end compute nothing (a `lax.cond`; under `vmap` until every member ended).
     Returns new params, optimiser state and metrics (means over the minibatches that ran). `dp`: data
     parallelism (see the module docstring).
     """
@@ -314,7 +316,17 @@ def update(
 
         params = jax.tree.map(pick, new_params, state.params, params0)
         opt = jax.tree.map(pick, new_opt, state.opt_state, opt0)
-        new_state = UpdateState(params, opt, apply, state.reverted | revert, state.steps + apply, targets)
+        return UpdateState(params, opt, apply, state.reverted | revert, state.steps + apply, targets), metrics
+
+    def stopped_step(state: UpdateState, inputs):  # after the stop (or revert): no recompute, no gradient
+        metrics = jax.eval_shape(minibatch_step, state, inputs)[1]
+        return state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metrics)
+
+    def step_or_skip(state: UpdateState, inputs):
+        # Under vmap (learners, seeds) the step runs while any member is running; the others discard it.
+        new_state, metrics = jax.lax.cond(
+            any_in_batch(state.running), minibatch_step, stopped_step, state, inputs
+        )
         return new_state, (metrics, state.running)
 
     params0, opt0 = params, opt_state
@@ -328,7 +340,7 @@ def update(
         jax.tree.map(jnp.zeros_like, targets0),
     )
     steps = (jnp.arange(cfg.num_minibatches), jax.random.split(key, cfg.num_minibatches))
-    final, (metrics, ran) = jax.lax.scan(minibatch_step, init, steps)
+    final, (metrics, ran) = jax.lax.scan(step_or_skip, init, steps)
     summary = {name: _masked_mean(value, ran) for name, value in metrics.items()}
     summary["kl_last"] = metrics["kl"][jnp.maximum(jnp.sum(ran) - 1, 0)]
     summary["minibatches"] = final.steps.astype(jnp.float32)

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsocial.batching import any_in_batch
 from jaxsocial.env.dynamics import world_step
 from jaxsocial.env.layouts import generate, parse_ascii
 from jaxsocial.env.observe import observe
@@ -128,22 +129,6 @@ def step_env(
 
 def _episode_done(terminated: jax.Array, truncated: jax.Array) -> jax.Array:
     return jnp.all(terminated, axis=-1) | truncated
-
-
-@jax.custom_batching.custom_vmap
-def any_in_batch(x: jax.Array) -> jax.Array:
-    """`jnp.any(x)`, and under `vmap` the any over the vmapped axes too (an unbatched bool[]).
-
-    For the predicate of a `lax.cond` that only skips work whose results are masked anyway (new episodes
-    where none ended): with a batched predicate a vmapped cond runs both branches every time; with this one
-    it stays a cond (e.g. `step` vmapped over environments, or over independent training seeds).
-    """
-    return jnp.any(x)
-
-
-@any_in_batch.def_vmap
-def _any_in_batch_vmap(axis_size: int, in_batched: list[bool], x: jax.Array):
-    return jnp.any(x), False
 
 
 def step(

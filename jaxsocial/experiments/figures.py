@@ -26,6 +26,10 @@ FINAL_FRACTION = 0.1
 LOSS_PANEL = {"aux_loss/0": "auxiliary loss (MAE)", "bc_loss/0": "behaviour-cloning loss (cross-entropy)"}
 """The loss drawn beside the returns: each condition's first of these metrics."""
 
+LEARNED_RETURN = 2.0
+"""A seed whose final return exceeds this has learned more than the cautious individual policy, which collects
+the free first tile (+1) and then avoids tiles; the summary counts such seeds per condition."""
+
 CURVE_POINTS = 50
 """Points per learning curve (iterations are averaged in blocks)."""
 
@@ -160,7 +164,9 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
     conditions: dict[str, Any] = {}
     if kind in ("curves", "mixing", "predictions"):
         for c, seed_rows in runs.rows.items():
-            conditions[c] = stats([final_return(rows) for rows in seed_rows])
+            finals = [final_return(rows) for rows in seed_rows]
+            conditions[c] = stats(finals)
+            conditions[c]["seeds_above_one_tile"] = sum(v > LEARNED_RETURN for v in finals)
             if kind == "mixing":
                 for key in _eval_keys(seed_rows):
                     conditions[c][key] = stats([_final_eval(rows, key) for rows in seed_rows])

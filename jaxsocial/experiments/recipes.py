@@ -82,8 +82,8 @@ GPU = Scale(
     note=(
         "The cpu scale's environment, network and PPO settings with 8x the environments (1,024 per seed) and "
         "8x larger minibatches (the same 2 gradient samples per env-step), for 600 iterations: 39M env-steps "
-        "per seed, 25x the cpu scale and about a third of the paper's 125M. Sized for one H100, where the 3 "
-        "seeds of two conditions train side by side in about 15 minutes."
+        "per seed, 25x the cpu scale and about a third of the paper's 125M. On one H100 the 3 seeds of a "
+        "condition train in one program, two conditions side by side, each pair in under 9 minutes."
     ),
 )
 
