@@ -12,10 +12,6 @@ from jaxsocial.env import reset, step, step_batch
 ENVS = jaxsocial.registered_envs()
 
 
-def tree_equal(a, b):
-    return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
-
-
 def play(params, key, n_steps, step_fn=step):
     """Reset then take random actions; returns the stacked per-step outputs."""
     k_reset, k_run = jax.random.split(key)
@@ -58,14 +54,26 @@ def test_preset_values():
     assert jaxsocial.make("goalcycle3", penalty=0.0, view_offset=2)[1].view_offset == 2
 
 
-def test_jit_equals_no_jit_and_determinism():
+class JitEqualsNoJit(chex.TestCase):
+    """Random play (reset, then steps with auto-reset) compiled, and run op by op, equals a reference with
+    jit disabled altogether (`lax.scan` as a Python loop)."""
+
     params = jaxsocial.make("goalcycle3", max_steps=6)[1]
-    eager = play(params, jax.random.key(3), 8)
-    jitted = jax.jit(play, static_argnums=(0, 2))(params, jax.random.key(3), 8)
-    again = jax.jit(play, static_argnums=(0, 2))(params, jax.random.key(3), 8)
-    other = jax.jit(play, static_argnums=(0, 2))(params, jax.random.key(4), 8)
-    assert tree_equal(eager, jitted) and tree_equal(jitted, again)
-    assert not np.array_equal(jitted[0], other[0])
+
+    @chex.variants(with_jit=True, without_jit=True)
+    def test_play_equals_the_disabled_jit_reference(self):
+        with jax.disable_jit():
+            reference = play(self.params, jax.random.key(3), 8)
+        out = self.variant(play, static_argnums=(0, 2))(self.params, jax.random.key(3), 8)
+        chex.assert_trees_all_equal(out, reference)
+
+
+def test_same_key_same_episodes_other_key_others():
+    params = jaxsocial.make("goalcycle3", max_steps=6)[1]
+    run = jax.jit(play, static_argnums=(0, 2))
+    first, again, other = (run(params, jax.random.key(k), 8) for k in (3, 3, 4))
+    chex.assert_trees_all_equal(first, again)
+    assert not np.array_equal(first[0], other[0])
 
 
 def test_auto_reset_and_final_obs():
@@ -115,11 +123,11 @@ def test_vmap_and_step_batch_equal_per_env_step():
     vmapped = jax.jit(lambda *a: run(jax.vmap(step, in_axes=(0, 0, 0, None)), *a))(states, keys, actions)
     done = np.asarray(vmapped[-1])
     assert np.all((done.sum(1) > 0) & (done.sum(1) < n_envs))  # every step resets some environments only
-    assert tree_equal(vmapped, jax.jit(lambda *a: run(step_batch, *a))(states, keys, actions))
+    chex.assert_trees_all_equal(vmapped, jax.jit(lambda *a: run(step_batch, *a))(states, keys, actions))
     alone = jax.jit(lambda *a: run(step, *a))
     for i in range(n_envs):
         one = alone(jax.tree.map(lambda x, i=i: x[i], states), keys[:, i], actions[:, i])
-        assert tree_equal(jax.tree.map(lambda x, i=i: x[:, i], vmapped), one)
+        chex.assert_trees_all_equal(jax.tree.map(lambda x, i=i: x[:, i], vmapped), one)
 
 
 def test_no_retracing():
