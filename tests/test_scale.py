@@ -18,7 +18,7 @@ import pytest
 from test_train import TINY, metrics_without_speed
 
 from jaxsocial import checkpoint, compile_cache, distributed
-from jaxsocial.agents import population
+from jaxsocial.agents import policy_io
 from jaxsocial.train import run
 
 REPO = Path(__file__).resolve().parent.parent
@@ -74,7 +74,7 @@ def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs):
         assert checkpoint.all_steps(seed_dir / "checkpoints") == [2, 4]
         assert_same_metrics(seed_dir, single)
     # Each seed directory is a run of its own: its policy plays in a frozen slot.
-    policies = [population.load_policy(str(run_dir / f"s{s}"), TINY.net) for s in (0, 1)]
+    policies = [policy_io.load_policy(str(run_dir / f"s{s}"), TINY.net) for s in (0, 1)]
     assert not np.array_equal(*(jax.tree.leaves(p)[0] for p in policies))
     # An interrupted run of several seeds resumes to the same metrics.
     run(dataclasses.replace(cfg, run_name="cut", iterations=2))

@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 
 from jaxsocial import checkpoint, logs
-from jaxsocial.agents import population
+from jaxsocial.agents import policy_io
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.train import PRESETS, TrainConfig, make_train, parse_args, run
+from jaxsocial.config import PRESETS, TrainConfig
+from jaxsocial.loop import make_train
+from jaxsocial.train import parse_args, run
 
 TINY = TrainConfig(
     env="goalcycle3",
@@ -78,12 +80,12 @@ def test_resume_equals_uninterrupted_run_and_frozen_slots(tmp_path):
         run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="full", resume=True, seed=3))
 
     # A frozen slot plays the saved learner and is never updated.
-    saved = population.load_policy(str(full), TINY.net)
+    saved = policy_io.load_policy(str(full), TINY.net)
     frozen_cfg = dataclasses.replace(TINY, slots=f"learner,frozen:{full},random", runs_dir=str(tmp_path))
     frozen_dir = run(dataclasses.replace(frozen_cfg, run_name="frozen"))
     policy_before = json.dumps(checkpoint.read_metadata(full / "policy"))
     for a, b in zip(
-        jax.tree.leaves(saved), jax.tree.leaves(population.load_policy(str(full), TINY.net)), strict=True
+        jax.tree.leaves(saved), jax.tree.leaves(policy_io.load_policy(str(full), TINY.net)), strict=True
     ):
         np.testing.assert_array_equal(a, b)
     assert json.dumps(checkpoint.read_metadata(full / "policy")) == policy_before
