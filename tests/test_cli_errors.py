@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_train import TINY, TINY_FLAGS
+from conftest import TINY, TINY_FLAGS
 
 import jaxsocial
 from jaxsocial import checkpoint, logs, loop, train

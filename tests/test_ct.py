@@ -6,8 +6,8 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
+from conftest import TINY
 from test_regimes import save_policy
-from test_train import TINY
 
 import jaxsocial
 from jaxsocial import evaluate

@@ -9,10 +9,10 @@ import sys
 import jax
 import numpy as np
 import pytest
-from test_train import TINY
+from conftest import TINY
 
 import jaxsocial
-from jaxsocial import checkpoint, logs, schedule
+from jaxsocial import logs, schedule
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.config import setup, stage_config
 from jaxsocial.env import core
@@ -134,8 +134,7 @@ def test_ci95():
 def save_policy(run_dir, net, seed=0):
     """A run directory with a saved (untrained) policy, as training leaves it."""
     params = jax.vmap(lambda k: network.init(k, net))(jax.random.split(jax.random.key(seed), 1))
-    meta = {"net": policy_io.json_net(net), "n_learners": 1, "slots": ""}
-    checkpoint.save(run_dir / policy_io.POLICY_DIR, 1, {"params": params}, metadata=meta)
+    policy_io.export_policy(run_dir, 1, params, net)
     return run_dir
 
 
