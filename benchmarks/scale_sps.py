@@ -44,17 +44,17 @@ def worker(spec: dict) -> dict:
     import jax
     import numpy as np
 
-    from jaxsocial import compile_cache, train
+    from jaxsocial import compile_cache, config, loop
 
     if spec.get("compile_cache"):
         compile_cache.enable(spec["compile_cache"])
     cfg = dataclasses.replace(
-        train.PRESETS[spec["preset"]],
+        config.PRESETS[spec["preset"]],
         seeds=spec["seeds"],
         seed_batching=spec["batching"],
         devices=spec["devices"],
     )
-    program = train.compiled(cfg)
+    program = loop.compiled(cfg)
     seeds = np.arange(cfg.seeds, dtype=np.int32) if cfg.seeds > 1 else np.int32(0)
     state = program.init(seeds)
     n = spec["iterations"]

@@ -270,7 +270,8 @@ def section_network_hugepages(args: argparse.Namespace) -> dict:
 def section_train(args: argparse.Namespace) -> dict:
     """End-to-end training throughput of `python -m jaxsocial.train` presets: one compiled chunk of
     iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
-    from jaxsocial.train import PRESETS, make_train, setup
+    from jaxsocial.config import PRESETS, setup
+    from jaxsocial.loop import make_train
 
     rows = []
     runs = [

@@ -13,8 +13,6 @@ The tree structure itself is not stored: ``restore`` rebuilds it from ``target``
 
 from __future__ import annotations
 
-import json
-import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -23,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
+
+from jaxsocial import logs
 
 __all__ = [
     "CheckpointMismatchError",
@@ -152,30 +152,16 @@ def _to_target_type(data: np.ndarray, leaf: Any, entry: Mapping[str, Any]) -> An
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _json_default(x: Any) -> Any:
-    if isinstance(x, Path):
-        return str(x)
-    if isinstance(x, np.generic | np.ndarray | jax.Array):
-        return np.asarray(x).tolist()
-    raise TypeError(f"checkpoint metadata: not JSON serialisable: {type(x).__name__}")
-
-
 def _jsonable(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
+    """`metadata` as plain JSON values (`logs.to_json`: non-finite floats become null)."""
     if metadata is None:
         return {}
     if not isinstance(metadata, Mapping):
         raise TypeError(f"checkpoint metadata must be a dict, got {type(metadata).__name__}")
-
-    def finite(x: Any) -> Any:  # JSON has no NaN/inf: store them as null
-        if isinstance(x, float) and not math.isfinite(x):
-            return None
-        if isinstance(x, dict):
-            return {k: finite(v) for k, v in x.items()}
-        if isinstance(x, list):
-            return [finite(v) for v in x]
-        return x
-
-    return finite(json.loads(json.dumps(dict(metadata), default=_json_default)))
+    try:
+        return logs.to_json(metadata)
+    except TypeError as err:
+        raise TypeError(f"checkpoint metadata: {err}") from None
 
 
 # ----------------------------------------------------------------------------------------------------------

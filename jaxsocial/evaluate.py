@@ -33,8 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsocial
-from jaxsocial import schedule
-from jaxsocial.agents import network, population
+from jaxsocial import logs, schedule
+from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 
@@ -183,8 +183,8 @@ def _setup(cfg: EvalConfig):
         )
     paths = [pop.slots[i].path for i in pop.frozen]
     first = (list(cfg.ckpt) + paths)[:1]
-    net = population.saved_net(first[0]) if first else network.NetworkConfig()
-    frozen = [population.load_policy(p, net) for p in paths]
+    net = policy_io.saved_net(first[0]) if first else network.NetworkConfig()
+    frozen = [policy_io.load_policy(p, net) for p in paths]
     if cfg.protocol == "ct" and (
         pop.learners != (0,) or env_params.n_agents < 2 or env_params.solo_agents != 1
     ):
@@ -193,7 +193,7 @@ def _setup(cfg: EvalConfig):
             f"learner first, at least 2 agent slots and solo_agents=1 (got slots "
             f"{[s.label for s in pop.slots]}, solo_agents={env_params.solo_agents})"
         )
-    per_ckpt = [population.stack([population.load_policy(c, net), *frozen]) for c in cfg.ckpt]
+    per_ckpt = [population.stack([policy_io.load_policy(c, net), *frozen]) for c in cfg.ckpt]
     if not cfg.ckpt:
         per_ckpt = [population.stack(frozen) if frozen else None]
     return env_params, pop, net, per_ckpt
@@ -209,7 +209,7 @@ def evaluate(cfg: EvalConfig) -> dict[str, Any]:
         "env_args": cfg.env_args,
         "slots": [s.label for s in pop.slots],
         "checkpoints": list(cfg.ckpt),
-        "policy_iterations": [population.policy_iteration(c) for c in cfg.ckpt],
+        "policy_iterations": [policy_io.policy_iteration(c) for c in cfg.ckpt],
         "episodes_per_checkpoint": cfg.episodes,
         "seed": cfg.seed,
         "max_steps": env_params.max_steps,
@@ -322,11 +322,10 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"error: {err}") from err
     for ckpt, iteration in zip(cfg.ckpt, result["policy_iterations"], strict=True):
         print(f"loaded {ckpt}: the policy of training iteration {iteration}", file=sys.stderr)
-    text = json.dumps(result, indent=2)
-    print(text)
+    print(json.dumps(logs.to_json(result), indent=2))
     if cfg.out:
         Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(cfg.out).write_text(text + "\n")
+        logs.write_json(cfg.out, result)
 
 
 if __name__ == "__main__":

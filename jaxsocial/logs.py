@@ -28,9 +28,11 @@ __all__ = [
     "make_logger",
     "prepare_run_dir",
     "read_config",
+    "read_json",
     "read_metrics",
     "to_json",
     "write_config",
+    "write_json",
 ]
 
 CONFIG_FILE = "config.json"
@@ -99,11 +101,22 @@ def _atomic_write(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
+def write_json(path: str | Path, obj: Any, *, indent: int | None = 2, sort_keys: bool = False) -> Path:
+    """Writes `obj` (through `to_json`) to the JSON file `path`, atomically (a reader sees the old file or
+    the new one, never part of one). Returns the path."""
+    path = Path(path)
+    _atomic_write(path, json.dumps(to_json(obj), indent=indent, sort_keys=sort_keys) + "\n")
+    return path
+
+
+def read_json(path: str | Path) -> Any:
+    """The contents of the JSON file `path` (FileNotFoundError if missing)."""
+    return json.loads(Path(path).read_text())
+
+
 def write_config(run_dir: str | Path, config: Mapping[str, Any]) -> Path:
     """Writes `config` to `run_dir/config.json` (indent 2, sorted keys; values through `to_json`)."""
-    path = Path(run_dir) / CONFIG_FILE
-    _atomic_write(path, json.dumps(to_json(config), indent=2, sort_keys=True) + "\n")
-    return path
+    return write_json(Path(run_dir) / CONFIG_FILE, config, sort_keys=True)
 
 
 def read_config(run_dir: str | Path) -> dict[str, Any]:
@@ -111,7 +124,7 @@ def read_config(run_dir: str | Path) -> dict[str, Any]:
     path = Path(run_dir) / CONFIG_FILE
     if not path.is_file():
         raise FileNotFoundError(f"no {CONFIG_FILE} in run directory {run_dir}")
-    return json.loads(path.read_text())
+    return read_json(path)
 
 
 def config_diff(a: Mapping[str, Any], b: Mapping[str, Any]) -> list[str]:

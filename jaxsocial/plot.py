@@ -23,6 +23,7 @@ from typing import Any
 import jaxsocial
 from jaxsocial import logs, schedule, train
 from jaxsocial.agents import population
+from jaxsocial.config import DRIVER_FIELDS, TrainConfig
 from jaxsocial.experiments import figures
 
 PANELS = {
@@ -38,7 +39,7 @@ PANELS = {
 REQUIRED = {"env", "seed", "seeds", "num_envs", "rollout_steps"}
 """Keys a training run's config.json must have to be plotted."""
 
-NOT_GROUPED = train.DRIVER_FIELDS | {"seed", "seeds", "seed_batching"}
+NOT_GROUPED = DRIVER_FIELDS | {"seed", "seeds", "seed_batching"}
 """Config fields that may differ between the seeds of one group."""
 
 
@@ -69,7 +70,7 @@ def seed_dirs(run_dir: Path) -> list[Path]:
         raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not valid JSON: {err}") from None
     if not isinstance(config, dict) or not set(config) >= REQUIRED:
         raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not the config of a training run")
-    layout = dataclasses.replace(train.TrainConfig(), seed=config["seed"], seeds=config["seeds"])
+    layout = dataclasses.replace(TrainConfig(), seed=config["seed"], seeds=config["seeds"])
     dirs = [d for _, d in train.seed_runs(layout, run_dir)]
     for d in dirs:
         if not (d / logs.CONFIG_FILE).is_file():

@@ -28,7 +28,7 @@ import numpy as np
 import jaxsocial
 from jaxsocial import logs
 from jaxsocial.agents import network, population
-from jaxsocial.env.render import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
+from jaxsocial.env.pictures import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
 from jaxsocial.evaluate import parse_env_spec
 from jaxsocial.experiments import predictions
 from jaxsocial.plot import seed_dirs

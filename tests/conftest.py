@@ -6,9 +6,49 @@ from pathlib import Path
 import jax
 import pytest
 
-from jaxsocial import compile_cache
+from jaxsocial import compile_cache, logs
+from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.config import TrainConfig
 from jaxsocial.env import core
 from jaxsocial.env.observe import observe
+
+TINY = TrainConfig(
+    env="goalcycle3",
+    env_args="max_steps=12,width=7,height=7",
+    slots="learner,random,random",  # scripted experts cost compile time; the CLI test runs the default slots
+    num_envs=4,
+    rollout_steps=8,
+    iterations=4,
+    chunk_iterations=2,
+    checkpoint_every=2,
+    progress=False,
+    net=NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8),
+    ppo=PPOConfig(chunk_length=4, minibatch_chunks=4, num_minibatches=2, lr=3e-3),
+)
+"""The tiny training run the test files share (one compiled program, in the persistent cache below)."""
+
+_TINY_NET_PPO_FLAGS = [
+    "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8",
+    "--ppo.chunk-length", "4", "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2",
+]  # fmt: skip
+TINY_FLAGS = [
+    "--env-args", TINY.env_args, "--num-envs", "4", "--rollout-steps", "8", "--iterations", "2",
+    "--chunk-iterations", "1", *_TINY_NET_PPO_FLAGS, "--no-progress",
+]  # fmt: skip
+"""Command-line flags of a 2-iteration run of TINY's sizes with the environment's default slots."""
+TINY_RUN_FLAGS = [
+    "--env-args", TINY.env_args, "--slots", TINY.slots, "--num-envs", "4", "--rollout-steps", "8",
+    "--iterations", "4", "--chunk-iterations", "2", "--checkpoint-every", "2", *_TINY_NET_PPO_FLAGS,
+    "--ppo.lr", "3e-3", "--no-progress",
+]  # fmt: skip
+"""TINY itself as command-line flags."""
+
+
+def metrics_without_speed(run_dir):
+    """A run's metrics rows without the timings (which differ between equal runs)."""
+    timing = ("env_steps_per_s", "compile_s")
+    return [{k: v for k, v in row.items() if k not in timing} for row in logs.read_metrics(run_dir)]
 
 
 def pytest_configure(config):

@@ -9,11 +9,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from test_train import TINY, TINY_FLAGS
+from conftest import TINY, TINY_FLAGS
 
 import jaxsocial
-from jaxsocial import checkpoint, logs, train
-from jaxsocial.agents import population
+from jaxsocial import checkpoint, logs, loop, train
+from jaxsocial.agents import policy_io
 
 
 @pytest.fixture
@@ -23,7 +23,7 @@ def no_compile(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("compiled although the input was bad")
 
-    monkeypatch.setattr(train, "compiled", refuse)
+    monkeypatch.setattr(loop, "compiled", refuse)
 
 
 def fail(argv, message):
@@ -110,7 +110,7 @@ def finished_run(tmp_path_factory):
 def test_keep_checkpoints_and_resume_reads_the_saved_config(finished_run):
     cfg, run_dir = finished_run
     assert checkpoint.all_steps(run_dir / "checkpoints") == [4, 6]
-    assert checkpoint.all_steps(run_dir / population.POLICY_DIR) == [4, 6]
+    assert checkpoint.all_steps(run_dir / policy_io.POLICY_DIR) == [4, 6]
     resumed = train.parse_args(["--resume", str(run_dir)])
     assert resumed == dataclasses.replace(cfg, resume=True, runs_dir=str(run_dir.parent), run_name="done")
     assert train.parse_args(["--resume", str(run_dir), "--iterations", "8"]).iterations == 8
@@ -124,7 +124,7 @@ def copy_run(run_dir, tmp_path, name):
     return copy
 
 
-@pytest.mark.parametrize("lost", ["checkpoints", population.POLICY_DIR])
+@pytest.mark.parametrize("lost", ["checkpoints", policy_io.POLICY_DIR])
 def test_crash_between_the_policy_and_checkpoint_writes_resumes_consistently(finished_run, tmp_path, lost):
     """A run killed between writing iteration 6's policy and its checkpoint ('checkpoints/6' lost), or, in
     the order of older versions, between the checkpoint and the policy ('policy/6' lost): the resumed run
@@ -133,9 +133,9 @@ def test_crash_between_the_policy_and_checkpoint_writes_resumes_consistently(fin
     copy = copy_run(run_dir, tmp_path, "crashed")
     shutil.rmtree(copy / lost / "6")
     train.run(dataclasses.replace(cfg, runs_dir=str(tmp_path), run_name="crashed", resume=True))
-    assert checkpoint.latest_step(copy / "checkpoints") == population.policy_iteration(str(copy)) == 6
-    want = population.load_policy(str(run_dir), cfg.net)
-    got = population.load_policy(str(copy), cfg.net)
+    assert checkpoint.latest_step(copy / "checkpoints") == policy_io.policy_iteration(str(copy)) == 6
+    want = policy_io.load_policy(str(run_dir), cfg.net)
+    got = policy_io.load_policy(str(copy), cfg.net)
     assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got), strict=True))
 
 

@@ -6,12 +6,12 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
+from conftest import TINY
 from test_regimes import save_policy
-from test_train import TINY
 
 import jaxsocial
 from jaxsocial import evaluate
-from jaxsocial.agents import population
+from jaxsocial.agents import policy_io, population
 from jaxsocial.evaluate import Episodes, EvalConfig
 
 
@@ -68,7 +68,7 @@ def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     net = TINY.net
     env_params = evaluate.parse_env_spec(f"{CT_ENV}:{CT_ARGS}")
     pop = population.Population(population.parse_slots(CT_SLOTS, 3))
-    params = population.stack([population.load_policy(saved_learner, net)])
+    params = population.stack([policy_io.load_policy(saved_learner, net)])
     play = jax.jit(evaluate.episode_returns, static_argnums=(1, 2, 3, 5))
     cases = evaluate.ct_cases(env_params)
     out = {

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxsocial import logs, train
+from jaxsocial import config, logs
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import figures, recipes, runner
 
@@ -16,7 +16,7 @@ from jaxsocial.experiments import figures, recipes, runner
 def test_every_condition_is_a_valid_run(scale):
     for name, cond in recipes.CONDITIONS.items():
         cfg = recipes.condition_config(recipes.SCALES[scale], name, seed=3, seeds=2, runs_dir="r")
-        train.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
+        config.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
         assert (cfg.seed, cfg.seeds, cfg.iterations) == (3, 2, recipes.SCALES[scale].iterations)
         assert cfg.run_name == f"{scale}/{name}-s3-4"
         assert cfg.env == cond.env
@@ -27,7 +27,7 @@ def test_every_condition_is_a_valid_run(scale):
 
 def test_paper_scale_is_the_paper_preset():
     cfg = recipes.condition_config(recipes.PAPER, "social_pred", 0, 1, "r")
-    paper = train.PRESETS["paper"]
+    paper = config.PRESETS["paper"]
     assert (cfg.net.conv_channels, cfg.net.hidden, cfg.net.aux) == ((32, 64, 64), 192, "pred")
     assert (cfg.ppo, cfg.num_envs, cfg.rollout_steps, cfg.iterations) == (
         paper.ppo,

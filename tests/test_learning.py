@@ -7,7 +7,8 @@ import pytest
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.train import TrainConfig, make_train
+from jaxsocial.config import TrainConfig
+from jaxsocial.loop import make_train
 
 
 def mean_return(returns, episodes):

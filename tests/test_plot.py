@@ -9,7 +9,7 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from test_train import TINY as TRAIN_TINY
+from conftest import TINY as TRAIN_TINY
 
 from jaxsocial import logs, plot, train
 from jaxsocial.experiments import figures

@@ -9,14 +9,15 @@ import sys
 import jax
 import numpy as np
 import pytest
-from test_train import TINY
+from conftest import TINY
 
 import jaxsocial
-from jaxsocial import checkpoint, logs, schedule
-from jaxsocial.agents import network, population
+from jaxsocial import logs, schedule
+from jaxsocial.agents import network, policy_io, population
+from jaxsocial.config import setup, stage_config
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
-from jaxsocial.train import run, setup, stage_config
+from jaxsocial.train import run
 
 CURRICULUM = "2:penalty=1.0;return>=-1000:penalty=1.5"  # 1.5 is the preset's: the first program again
 
@@ -75,11 +76,11 @@ def test_penalty_curriculum_switches_at_the_configured_points(tmp_path):
         (6, 1),
         (7, 1),
     ]
-    stages = setup(cfg).stages
-    penalties = [
-        jaxsocial.make(cfg.env, **stage_config(cfg, stages, i).env_overrides)[1].penalty for i in (-1, 0, 1)
+    static = setup(cfg)
+    assert [static.stage(i)[1].penalty for i in (-1, 0, 1)] == [1.5, 1.0, 1.5]
+    assert [static.stage(i)[0] for i in (-1, 0, 1)] == [
+        stage_config(cfg, static.stages, i) for i in (-1, 0, 1)
     ]
-    assert penalties == [1.5, 1.0, 1.5]
 
 
 def test_solo_mixture_proportion_and_absent_agents(step_env, observe_fn):
@@ -133,8 +134,7 @@ def test_ci95():
 def save_policy(run_dir, net, seed=0):
     """A run directory with a saved (untrained) policy, as training leaves it."""
     params = jax.vmap(lambda k: network.init(k, net))(jax.random.split(jax.random.key(seed), 1))
-    meta = {"net": population.json_net(net), "n_learners": 1, "slots": ""}
-    checkpoint.save(run_dir / population.POLICY_DIR, 1, {"params": params}, metadata=meta)
+    policy_io.export_policy(run_dir, 1, params, net)
     return run_dir
 
 

@@ -15,7 +15,7 @@ import jaxsocial
 from jaxsocial import render as cli
 from jaxsocial import train
 from jaxsocial.env import sprites
-from jaxsocial.env.render import (
+from jaxsocial.env.pictures import (
     episode_frames,
     render_frame,
     render_map,

@@ -15,19 +15,13 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-from test_train import TINY, metrics_without_speed
+from conftest import TINY, TINY_RUN_FLAGS, metrics_without_speed
 
 from jaxsocial import checkpoint, compile_cache, distributed
-from jaxsocial.agents import population
+from jaxsocial.agents import policy_io
 from jaxsocial.train import run
 
 REPO = Path(__file__).resolve().parent.parent
-TINY_FLAGS = [  # TINY as command-line flags
-    "--env-args", TINY.env_args, "--slots", TINY.slots, "--num-envs", "4", "--rollout-steps", "8",
-    "--iterations", "4", "--chunk-iterations", "2", "--checkpoint-every", "2",
-    "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8", "--ppo.chunk-length", "4",
-    "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2", "--ppo.lr", "3e-3", "--no-progress",
-]  # fmt: skip
 
 
 def assert_same_metrics(a: Path, b: Path) -> None:
@@ -74,7 +68,7 @@ def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs):
         assert checkpoint.all_steps(seed_dir / "checkpoints") == [2, 4]
         assert_same_metrics(seed_dir, single)
     # Each seed directory is a run of its own: its policy plays in a frozen slot.
-    policies = [population.load_policy(str(run_dir / f"s{s}"), TINY.net) for s in (0, 1)]
+    policies = [policy_io.load_policy(str(run_dir / f"s{s}"), TINY.net) for s in (0, 1)]
     assert not np.array_equal(*(jax.tree.leaves(p)[0] for p in policies))
     # An interrupted run of several seeds resumes to the same metrics.
     run(dataclasses.replace(cfg, run_name="cut", iterations=2))
@@ -86,7 +80,7 @@ def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs):
 def test_devices_and_processes_match_one_device(tmp_path, single_runs):
     """Two host devices in one process (two seeds, seeds mapped) and two processes with one device each
     give the metrics of one device; the two-device run fills a compilation cache."""
-    cli = [sys.executable, "-m", "jaxsocial.train", *TINY_FLAGS, "--runs-dir", str(tmp_path)]
+    cli = [sys.executable, "-m", "jaxsocial.train", *TINY_RUN_FLAGS, "--runs-dir", str(tmp_path)]
     two_devices = subprocess.Popen(
         [*cli, "--run-name", "d2", "--devices", "2", "--seeds", "2", "--seed-batching", "map"]
         + ["--compile-cache", str(tmp_path / "cache")],

@@ -8,36 +8,15 @@ import sys
 import jax
 import numpy as np
 import pytest
+from conftest import TINY, TINY_FLAGS, metrics_without_speed
 
 from jaxsocial import checkpoint, logs
-from jaxsocial.agents import population
+from jaxsocial.agents import policy_io
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.train import PRESETS, TrainConfig, make_train, parse_args, run
-
-TINY = TrainConfig(
-    env="goalcycle3",
-    env_args="max_steps=12,width=7,height=7",
-    slots="learner,random,random",  # scripted experts cost compile time; the CLI test runs the default slots
-    num_envs=4,
-    rollout_steps=8,
-    iterations=4,
-    chunk_iterations=2,
-    checkpoint_every=2,
-    progress=False,
-    net=NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8),
-    ppo=PPOConfig(chunk_length=4, minibatch_chunks=4, num_minibatches=2, lr=3e-3),
-)
-TINY_FLAGS = [
-    "--env-args", TINY.env_args, "--num-envs", "4", "--rollout-steps", "8", "--iterations", "2",
-    "--chunk-iterations", "1", "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8",
-    "--ppo.chunk-length", "4", "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2", "--no-progress",
-]  # fmt: skip
-
-
-def metrics_without_speed(run_dir):
-    timing = ("env_steps_per_s", "compile_s")
-    return [{k: v for k, v in row.items() if k not in timing} for row in logs.read_metrics(run_dir)]
+from jaxsocial.config import PRESETS
+from jaxsocial.loop import make_train
+from jaxsocial.train import parse_args, run
 
 
 @pytest.fixture(scope="module")
@@ -66,33 +45,76 @@ def test_determinism_and_independent_learners(two_learners):
     assert all(x.shape[0] == 2 for x in jax.tree.leaves(state_a.opt_state) if x.ndim)
 
 
-def test_resume_equals_uninterrupted_run_and_frozen_slots(tmp_path):
-    full = run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="full"))
-    run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="cut", iterations=2))
-    resumed = run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="cut", resume=True))
-    assert metrics_without_speed(resumed) == metrics_without_speed(full)
-    assert checkpoint.all_steps(full / "checkpoints") == [2, 4]
-    with pytest.raises(FileExistsError, match="--resume"):
-        run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="full"))
-    with pytest.raises(ValueError, match="config differs"):
-        run(dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="full", resume=True, seed=3))
+@pytest.fixture(scope="module")
+def tiny_runs(tmp_path_factory):
+    """TINY run in one go ('full'), and cut after 2 iterations then resumed ('cut'); one compiled program."""
+    runs_dir = tmp_path_factory.mktemp("runs")
+    full = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="full"))
+    run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="cut", iterations=2))
+    resumed = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="cut", resume=True))
+    return {"runs_dir": runs_dir, "full": full, "resumed": resumed}
 
-    # A frozen slot plays the saved learner and is never updated.
-    saved = population.load_policy(str(full), TINY.net)
-    frozen_cfg = dataclasses.replace(TINY, slots=f"learner,frozen:{full},random", runs_dir=str(tmp_path))
-    frozen_dir = run(dataclasses.replace(frozen_cfg, run_name="frozen"))
+
+def test_resumed_run_equals_uninterrupted_run(tiny_runs):
+    assert metrics_without_speed(tiny_runs["resumed"]) == metrics_without_speed(tiny_runs["full"])
+
+
+def test_checkpoints_every_checkpoint_every_iterations(tiny_runs):
+    assert checkpoint.all_steps(tiny_runs["full"] / "checkpoints") == [2, 4]
+
+
+def test_existing_run_is_not_overwritten_without_a_flag(tiny_runs):
+    with pytest.raises(FileExistsError, match="--resume"):
+        run(dataclasses.replace(TINY, runs_dir=str(tiny_runs["runs_dir"]), run_name="full"))
+
+
+def test_resume_with_another_program_config_is_refused(tiny_runs):
+    cfg = dataclasses.replace(TINY, runs_dir=str(tiny_runs["runs_dir"]), run_name="full", resume=True, seed=3)
+    with pytest.raises(ValueError, match="config differs"):
+        run(cfg)
+
+
+def test_frozen_slot_plays_the_saved_learner_and_is_never_updated(tiny_runs):
+    full = tiny_runs["full"]
+    saved = policy_io.load_policy(str(full), TINY.net)
     policy_before = json.dumps(checkpoint.read_metadata(full / "policy"))
+    runs_dir = str(tiny_runs["runs_dir"])
+    frozen_dir = run(
+        dataclasses.replace(TINY, slots=f"learner,frozen:{full},random", runs_dir=runs_dir, run_name="frozen")
+    )
     for a, b in zip(
-        jax.tree.leaves(saved), jax.tree.leaves(population.load_policy(str(full), TINY.net)), strict=True
+        jax.tree.leaves(saved), jax.tree.leaves(policy_io.load_policy(str(full), TINY.net)), strict=True
     ):
         np.testing.assert_array_equal(a, b)
     assert json.dumps(checkpoint.read_metadata(full / "policy")) == policy_before
     rows = logs.read_metrics(frozen_dir)
     assert "kl/0" in rows[0] and "kl/1" not in rows[0]  # only the learner is updated
-    # A checkpoint of another architecture is refused with a clear error, before compiling.
-    other = dataclasses.replace(frozen_cfg, net=NetworkConfig(conv_channels=(4, 8, 8), hidden=32, mlp=8))
+
+
+def test_frozen_checkpoint_of_another_architecture_is_refused(tiny_runs):
+    full = tiny_runs["full"]
+    other = dataclasses.replace(
+        TINY,
+        slots=f"learner,frozen:{full},random",
+        runs_dir=str(tiny_runs["runs_dir"]),
+        run_name="other",
+        net=NetworkConfig(conv_channels=(4, 8, 8), hidden=32, mlp=8),
+    )
     with pytest.raises(ValueError, match="another architecture"):
-        run(dataclasses.replace(other, run_name="other"))
+        run(other)
+
+
+def test_load_policy_ignores_how_the_network_is_computed(tiny_runs):
+    """Only the architecture must match: `chunk` and `conv_impl` (policy_io.SPEED_FIELDS) may differ."""
+    full = str(tiny_runs["full"])
+    other_speed = dataclasses.replace(TINY.net, chunk=64, conv_impl="xla")
+    assert set(policy_io.SPEED_FIELDS) == {"chunk", "conv_impl"}
+    for a, b in zip(
+        jax.tree.leaves(policy_io.load_policy(full, TINY.net)),
+        jax.tree.leaves(policy_io.load_policy(full, other_speed)),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_cli_end_to_end(tmp_path):
@@ -167,11 +189,6 @@ def test_attention_loss_learns_where_the_others_are_under_expert_dropout():
     _, metrics = jax.jit(make_train(cfg)[2])(jax.random.key(0))
     losses = np.asarray(metrics["attention_loss"])[:, 0]
     assert losses[0] > 3.0 and losses[-1] < losses[0] - 1.0, losses
-
-
-def test_unknown_aux_mode():
-    with pytest.raises(ValueError, match="aux"):
-        NetworkConfig(aux="next")
 
 
 @pytest.mark.parametrize(

@@ -1,19 +1,19 @@
 """What acts in each environment slot: a learner, a frozen policy (loaded from a checkpoint), a scripted
 expert or a random distractor. Neural slots share one architecture; their parameters are stacked on a
 leading slot axis and applied with `jax.vmap`, so nothing is shared between agents but the code.
+
+This module is the slot mini-language (`parse_slots`) and acting (`act`, `values`, traced under `jit`);
+saved policies are read and written by `jaxsocial.agents.policy_io`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
-from pathlib import Path
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from jaxsocial import checkpoint
 from jaxsocial.agents import experts, network
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 
@@ -240,63 +240,3 @@ def values(
     """float32[S, E] neural slots' values of `obs` (uint8[E, N, ...]) continuing from `carry` (no reset)."""
     _, out = _step_neural(pop, net, params, carry, obs, jnp.zeros(obs.shape[0], bool))
     return out.value
-
-
-POLICY_DIR = "policy"
-"""Sub-directory of a run directory holding the learners' params (stacked [S_l, ...]) for frozen slots."""
-
-
-def _policy_dir(path: str) -> tuple[Path, int]:
-    run_dir, _, index = path.partition("@")
-    directory = Path(run_dir) / POLICY_DIR
-    if checkpoint.latest_step(directory) is None:
-        raise ValueError(f"no saved policy under {directory} (is {run_dir} a training run directory?)")
-    return directory, int(index or 0)
-
-
-def policy_iteration(path: str) -> int:
-    """The training iteration of the policy `RUN_DIR[@k]` loads (its latest export)."""
-    return int(checkpoint.latest_step(_policy_dir(path)[0]))
-
-
-def saved_net(path: str) -> network.NetworkConfig:
-    """The network config a policy (`RUN_DIR[@k]`) was trained with (fields added since take defaults)."""
-    return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(path)[0])["net"])
-
-
-SPEED_FIELDS = ("conv_impl", "chunk")
-"""NetworkConfig fields that change how the network is computed, not what it computes."""
-
-
-def architecture(net: network.NetworkConfig) -> dict:
-    """The fields that decide the params and the function (JSON types): what a loaded policy must match."""
-    return {k: v for k, v in json_net(net).items() if k not in SPEED_FIELDS}
-
-
-def load_policy(path: str, net: network.NetworkConfig):
-    """Params of one learner from a run directory's `policy/` checkpoints, for a frozen slot.
-
-    `path` is `RUN_DIR` (its first learner) or `RUN_DIR@k` (its k-th learner). Raises ValueError if the
-    saved network differs from `net` (a checkpoint of another architecture) or the path has no policy.
-    """
-    directory, k = _policy_dir(path)
-    meta = checkpoint.read_metadata(directory)
-    saved = architecture(network.NetworkConfig(**meta["net"]))
-    if saved != architecture(net):
-        raise ValueError(
-            f"frozen slot {path}: the checkpoint's network {saved} differs from this run's network "
-            f"{architecture(net)} (a checkpoint of another architecture)"
-        )
-    n_saved = int(meta["n_learners"])
-    if not 0 <= k < n_saved:
-        raise ValueError(f"frozen slot {path}: learner index {k} out of range (the run had {n_saved})")
-    template = jax.eval_shape(
-        jax.vmap(lambda k: network.init(k, net)), jax.random.split(jax.random.key(0), n_saved)
-    )
-    params = checkpoint.restore(directory, {"params": template})["params"]
-    return jax.tree.map(lambda x: x[k], params)
-
-
-def json_net(net: network.NetworkConfig) -> dict:
-    """The network config as plain JSON types (for checkpoint metadata)."""
-    return json.loads(json.dumps(dataclasses.asdict(net)))

@@ -8,7 +8,6 @@ last 10% of training iterations (the issue's measure); the 95% confidence interv
 from __future__ import annotations
 
 import itertools
-import json
 import shlex
 from pathlib import Path
 from typing import Any
@@ -229,7 +228,7 @@ def _final_eval(rows: list[dict[str, Any]], key: str) -> float:
 def _read_json(path: Path) -> dict[str, Any]:
     if not path.exists():
         raise FileNotFoundError(f"no evaluation {path}: run the recipe first")
-    return json.loads(path.read_text())
+    return logs.read_json(path)
 
 
 def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
@@ -348,7 +347,7 @@ def write(runs: RecipeRuns, out_dir: Path) -> tuple[Path, Path]:
     stem = out_dir / f"{runs.recipe.name}-{runs.scale.name}"
     json_path, png_path = stem.with_suffix(".json"), stem.with_suffix(".png")
     out_dir.mkdir(parents=True, exist_ok=True)
-    json_path.write_text(json.dumps(summary, indent=1) + "\n")
+    logs.write_json(json_path, summary, indent=1)
     if runs.recipe.kind == "predictions":
         from jaxsocial.experiments import predictions
 

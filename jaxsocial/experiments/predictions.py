@@ -12,8 +12,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.agents import network, population
-from jaxsocial.env import core, render
+from jaxsocial.agents import network, policy_io, population
+from jaxsocial.env import core, pictures
 from jaxsocial.env.types import FORWARD, LEFT, RIGHT, EnvParams
 from jaxsocial.evaluate import parse_env_spec
 
@@ -40,7 +40,7 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     `slots`: one entry per agent as in training ('learner' slots play the run's learners in order, RUN_DIR@0,
     @1, ...); default: the learner in slot 0 beside the environment's default companions.
     """
-    net = population.saved_net(run_dir)
+    net = policy_io.saved_net(run_dir)
     env_params = parse_env_spec(env_spec)
     population.require_rgb(env_params, f"env {env_spec!r}")
     if env_params.obs_shape != network.OBS_SHAPE:
@@ -57,7 +57,7 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
         raise ValueError(f"{run_dir} is one learner, but the slots have {len(pop.learners)}")
     learners = [run_dir] if len(pop.learners) == 1 else [f"{run_dir}@{k}" for k in range(len(pop.learners))]
     frozen = [pop.slots[i].path for i in pop.frozen]
-    params = population.stack([population.load_policy(path, net) for path in learners + frozen])
+    params = population.stack([policy_io.load_policy(path, net) for path in learners + frozen])
     return EpisodeSetup(net, params, env_params, pop)
 
 
@@ -165,7 +165,7 @@ def episode_video(
     episode: dict[str, Any], tile: int = 12, predicted: np.ndarray | None = None
 ) -> list[np.ndarray]:
     """uint8 frames of a `learner_episode`, one per step (the map and every agent's view;
-    `env.render.render_frame`), with `predicted` uint8[T, 21, 21, 3] (`predicted_views`) beside the learner's
+    `pictures.render_frame`), with `predicted` uint8[T, 21, 21, 3] (`predicted_views`) beside the learner's
     view."""
     frames = []
     for t in range(len(episode["actions"])):
@@ -173,7 +173,7 @@ def episode_video(
         reward = episode["rewards"][t - 1] if t else None
         extra = None if predicted is None else {episode["learner"]: predicted[t]}
         frames.append(
-            render.render_frame(state, episode["obs"][t], episode["env_params"], reward, tile, extra)
+            pictures.render_frame(state, episode["obs"][t], episode["env_params"], reward, tile, extra)
         )
     return frames
 

@@ -19,6 +19,7 @@ import dataclasses
 import shlex
 
 from jaxsocial import train
+from jaxsocial.config import PRESETS, TrainConfig
 
 
 def _flags(text: str) -> tuple[str, ...]:
@@ -91,7 +92,7 @@ PAPER = Scale(
     name="paper",
     flags=("--preset", "paper"),
     env_args="",
-    iterations=train.PRESETS["paper"].iterations,
+    iterations=PRESETS["paper"].iterations,
     eval_every=200,
     eval_episodes=100,
     note="The paper's settings (13x13 Goal Cycle, paper network and PPO, 375M env-steps per run).",
@@ -269,6 +270,7 @@ def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_di
     return flags
 
 
-def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> train.TrainConfig:
-    """The `TrainConfig` of a condition (validated by the training CLI's parser, not yet by `train.setup`)."""
+def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> TrainConfig:
+    """The `TrainConfig` of a condition (validated by the training CLI's parser, not yet by
+    `config.setup`)."""
     return train.parse_args(condition_flags(scale, condition, seed, seeds, runs_dir))

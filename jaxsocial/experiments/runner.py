@@ -5,11 +5,11 @@ lands in run directories; figures are drawn from them (`jaxsocial.experiments.fi
 from __future__ import annotations
 
 import dataclasses
-import json
 import shlex
 from pathlib import Path
 
 from jaxsocial import evaluate, logs, train
+from jaxsocial.config import TrainConfig, setup
 from jaxsocial.experiments import recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
 
@@ -17,13 +17,13 @@ EVAL_DIR = "eval"
 """Sub-directory of a seed's run directory holding its post-training evaluations, one JSON per env spec."""
 
 
-def seed_dirs(cfg: train.TrainConfig) -> list[Path]:
+def seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
     run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
     return [d for _, d in train.seed_runs(cfg, run_dir)]
 
 
-def status(cfg: train.TrainConfig) -> str:
+def status(cfg: TrainConfig) -> str:
     """'done' (every seed logged every iteration), 'partial' (a run directory exists) or 'missing'."""
     run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
     if not (run_dir / logs.CONFIG_FILE).exists():
@@ -67,7 +67,7 @@ def run(
     """
     configs = {c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
     for cfg in configs.values():
-        train.setup(cfg, load_frozen=False)
+        setup(cfg, load_frozen=False)
     for name, cfg in configs.items():
         state = status(cfg)
         flags = recipes.condition_flags(scale, name, seed, seeds, runs_dir)
@@ -101,6 +101,6 @@ def run(
                     )
                 )
                 out.parent.mkdir(parents=True, exist_ok=True)
-                out.write_text(json.dumps(result, indent=2) + "\n")
+                logs.write_json(out, result)
                 score = result["ct"]["mean"] if protocol == "ct" else result["results"][0]["mean_return"]
                 print(f"  {name} {seed_dir.name} in {spec} ({protocol}): {score:.3f}")

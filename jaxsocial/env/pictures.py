@@ -1,4 +1,4 @@
-"""Pictures and videos of episodes for people (numpy + imageio, outside jit).
+"""Pictures and videos of episodes for people (numpy + imageio, outside jit; `jaxsocial.render` is its CLI).
 
 `render_map` draws the whole grid with every agent as in the observations (docs/environment.md 4.5, 4.6,
 5): 3x3-pixel cell pictures from `sprites`, upscaled nearest-neighbour to `tile` pixels per cell.

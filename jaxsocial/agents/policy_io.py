@@ -1,0 +1,100 @@
+"""Saved policies: the learners' params a training run exports to `RUN_DIR/policy/<iteration>` with the
+network they were trained with, and loading one learner's params back for a frozen slot, evaluation or
+prediction pictures (`RUN_DIR` for its first learner, `RUN_DIR@k` for its k-th).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from jaxsocial import checkpoint, logs
+from jaxsocial.agents import network, population
+
+POLICY_DIR = "policy"
+"""Sub-directory of a run directory holding the learners' params (stacked [S_l, ...]) for frozen slots."""
+
+SPEED_FIELDS = ("conv_impl", "chunk")
+"""NetworkConfig fields that change how the network is computed, not what it computes."""
+
+
+def json_net(net: network.NetworkConfig) -> dict:
+    """The network config as plain JSON types (for checkpoint metadata)."""
+    return logs.to_json(dataclasses.asdict(net))
+
+
+def architecture(net: network.NetworkConfig) -> dict:
+    """The fields that decide the params and the function (JSON types): what a loaded policy must match."""
+    return {k: v for k, v in json_net(net).items() if k not in SPEED_FIELDS}
+
+
+def export_policy(
+    run_dir: str | Path,
+    step: int,
+    params: Any,
+    net: network.NetworkConfig,
+    *,
+    slots: str = "",
+    keep: int | None = None,
+) -> None:
+    """Write learners' params (stacked [S_l, ...]) trained with `net` to `run_dir/policy/<step>`, with the
+    network and the run's `slots` as metadata, unless that step exists; keep the latest `keep` (None: all)."""
+    directory = Path(run_dir) / POLICY_DIR
+    if step in checkpoint.all_steps(directory):
+        return
+    n_learners = int(jax.tree.leaves(params)[0].shape[0])
+    meta = {"net": json_net(net), "n_learners": n_learners, "slots": slots}
+    checkpoint.save(directory, step, {"params": params}, metadata=meta, keep=keep)
+
+
+def _policy_dir(path: str) -> tuple[Path, int]:
+    run_dir, _, index = path.partition("@")
+    directory = Path(run_dir) / POLICY_DIR
+    if checkpoint.latest_step(directory) is None:
+        raise ValueError(f"no saved policy under {directory} (is {run_dir} a training run directory?)")
+    return directory, int(index or 0)
+
+
+def policy_iteration(path: str) -> int:
+    """The training iteration of the policy `RUN_DIR[@k]` loads (its latest export)."""
+    return int(checkpoint.latest_step(_policy_dir(path)[0]))
+
+
+def saved_net(path: str) -> network.NetworkConfig:
+    """The network config a policy (`RUN_DIR[@k]`) was trained with (fields added since take defaults)."""
+    return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(path)[0])["net"])
+
+
+def load_policy(path: str, net: network.NetworkConfig):
+    """Params of one learner from a run directory's `policy/` checkpoints, for a frozen slot.
+
+    `path` is `RUN_DIR` (its first learner) or `RUN_DIR@k` (its k-th learner). Raises ValueError if the
+    saved network's architecture differs from `net` (a checkpoint of another architecture; `SPEED_FIELDS`
+    may differ) or the path has no policy.
+    """
+    directory, k = _policy_dir(path)
+    meta = checkpoint.read_metadata(directory)
+    saved = architecture(network.NetworkConfig(**meta["net"]))
+    if saved != architecture(net):
+        raise ValueError(
+            f"frozen slot {path}: the checkpoint's network {saved} differs from this run's network "
+            f"{architecture(net)} (a checkpoint of another architecture)"
+        )
+    n_saved = int(meta["n_learners"])
+    if not 0 <= k < n_saved:
+        raise ValueError(f"frozen slot {path}: learner index {k} out of range (the run had {n_saved})")
+    template = jax.eval_shape(
+        jax.vmap(lambda k: network.init(k, net)), jax.random.split(jax.random.key(0), n_saved)
+    )
+    params = checkpoint.restore(directory, {"params": template})["params"]
+    return jax.tree.map(lambda x: x[k], params)
+
+
+def load_frozen(pop: population.Population, net: network.NetworkConfig) -> Any:
+    """The frozen slots' params stacked [S_f, ...] in slot order, or None if `pop` has no frozen slot."""
+    if not pop.frozen:
+        return None
+    return population.stack([load_policy(pop.slots[i].path, net) for i in pop.frozen])

@@ -1,0 +1,283 @@
+"""A training run's configuration: `TrainConfig` (every field a command-line flag), the presets, and
+`setup(cfg) -> Setup`, the validated static part of a run (environment of every stage, slots, frozen
+policies), computed once per run before anything is written or compiled.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jaxsocial
+from jaxsocial import evaluate, logs, schedule
+from jaxsocial.agents import policy_io, population, ppo
+from jaxsocial.agents.bc import BCConfig
+from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.env import registry
+from jaxsocial.env.types import NUM_ACTIONS, EnvParams
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """A training run. Every field is a command-line flag."""
+
+    env: str = "goalcycle3"
+    """Environment preset (see `jaxsocial.registered_envs()`)."""
+    algo: str = "ppo"
+    """'ppo' (reinforcement learning) or 'bc' (behaviour cloning of the expert and frozen slots)."""
+    env_args: str = ""
+    """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
+    slots: str = ""
+    """One entry per agent slot: learner | random | frozen:RUN_DIR[@k] | expert:ckpt=RUN_DIR[@k] (a trained
+    expert) | expert:KIND[:epsilon=E,forget=F] (scripted: explorer, oracle, navigator). Default: a learner in
+    slot 0, the environment's scripted expert in the next two (explorer in Goal Cycle, navigator in Four
+    Rooms and Maze), random distractors in any others."""
+    stages: str = ""
+    """Environment changes during training, e.g. the penalty curriculum
+    '0:penalty=0.5;return>=20:penalty=1.0;return>=20:penalty=1.5' or the switch to mixed solo/social
+    training '5000:solo_prob=0.75' (see jaxsocial.schedule)."""
+    seed: int = 0
+    """PRNG seed."""
+    iterations: int = 500
+    """PPO iterations (one rollout + one update each)."""
+    num_envs: int = 32
+    """Parallel environments per rollout."""
+    rollout_steps: int = 32
+    """Steps per rollout (a multiple of ppo.chunk_length)."""
+    chunk_iterations: int = 10
+    """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
+    checkpoint_every: int = 100
+    """Save a checkpoint every this many iterations (rounded up to whole chunks) and at the end."""
+    keep_checkpoints: int = 3
+    """Checkpoints (and exported policies) kept per seed: the latest N; older ones are deleted."""
+    run_name: str | None = None
+    """Run directory name under runs_dir (default: '<env>-s<seed>')."""
+    runs_dir: str = "runs"
+    """Where run directories go."""
+    resume: bool = False
+    """Continue the run in the existing run directory from its latest checkpoint."""
+    overwrite: bool = False
+    """Delete an existing run directory of the same name and start again."""
+    logger: str | None = None
+    """Extra metrics sink: 'tensorboard' or 'wandb' (off by default)."""
+    progress: bool = True
+    """Show a progress line."""
+    preset: str = "small"
+    """Hyperparameter preset the other defaults came from: 'small', 'paper' or 'expert'."""
+    net: NetworkConfig = NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32)
+    """Network (the paper's is conv (32, 64, 64), hidden 192, mlp 64)."""
+    ppo: PPOConfig = PPOConfig(
+        lr=5e-4, num_minibatches=8, minibatch_chunks=64, kl_target=0.02, kl_hard_limit=0.05
+    )
+    """PPO hyperparameters."""
+    bc: BCConfig = BCConfig()
+    """Behaviour-cloning hyperparameters (with --algo bc)."""
+    # Scale-out (see jaxsocial/distributed.py and the README section "Seeds, devices and hosts").
+    seeds: int = 1
+    """Independent seeds seed, seed + 1, ... trained together in one compiled program; each seed's metrics,
+    checkpoints and policy go to run_dir/s<seed>/."""
+    seed_batching: str = "auto"
+    """How the seeds share the program: 'vmap' (batched), 'map' (one after another, `lax.map`) or 'auto'
+    (map on CPUs, where it measured as fast and compiles faster; vmap on GPUs and TPUs)."""
+    devices: int = 0
+    """Devices the environments are split over (data parallel; 0: all devices of all processes)."""
+    coordinator: str | None = None
+    """Multi-host: HOST:PORT of process 0, the same for every process, or 'auto' (Slurm, Open MPI, TPU);
+    default $JAX_COORDINATOR_ADDRESS."""
+    num_processes: int | None = None
+    """Multi-host: number of processes, one per host (default $JAX_NUM_PROCESSES)."""
+    process_id: int | None = None
+    """Multi-host: this process's index, 0 to num_processes - 1 (default $JAX_PROCESS_ID)."""
+    compile_cache: str | None = None
+    """Persistent compilation cache directory: a later run of the same program skips compiling (off by
+    default; see `python -m jaxsocial.compile_cache`)."""
+    # Evaluation during training (see `jaxsocial.evaluate.make_learner_eval`).
+    eval_envs: tuple[str, ...] = ()
+    """Environments the first learner is evaluated in during training, each NAME or NAME:field=value,...
+    (e.g. goalcycle3-solo goalcycle4), beside that environment's default companions; logged in
+    metrics.jsonl as 'eval/<spec>' on every eval_every-th iteration and the last."""
+    eval_every: int = 100
+    """Iterations between evaluations (with eval_envs)."""
+    eval_episodes: int = 64
+    """Episodes per evaluation environment and evaluation."""
+
+    @property
+    def env_overrides(self) -> dict[str, Any]:
+        return schedule.parse_assignments(self.env_args)
+
+
+EXPERT_CURRICULUM = "0:penalty=0.5;return>=10:penalty=1.0;return>=10:penalty=1.5"
+"""The penalty curriculum (paper section 3.1): low penalty first, raised once the learner's mean episode
+return reaches 10 (a third of what a perfect 250-step Goal Cycle episode collects)."""
+
+PRESETS = {
+    "small": TrainConfig(),
+    "paper": TrainConfig(
+        preset="paper",
+        iterations=11445,  # 375M env steps, the paper's budget
+        num_envs=128,
+        rollout_steps=256,
+        chunk_iterations=10,
+        checkpoint_every=500,
+        net=NetworkConfig(),
+        ppo=PPOConfig(),
+    ),
+}
+PRESETS["expert"] = dataclasses.replace(
+    PRESETS["paper"],
+    preset="expert",
+    env="goalcycle3-solo",
+    stages=EXPERT_CURRICULUM,
+    ppo=PPOConfig(lr=1e-5),
+)
+"""The paper's expert training: paper network and PPO with the expert learning rate 1e-5, alone, through
+the penalty curriculum; later runs load the result with `expert:ckpt=RUN_DIR`."""
+
+
+ALGOS = ("ppo", "bc")
+SEED_BATCHING = ("auto", "vmap", "map")
+
+DRIVER_FIELDS = {
+    "iterations",
+    "resume",
+    "overwrite",
+    "progress",
+    "logger",
+    "checkpoint_every",
+    "keep_checkpoints",
+    "run_name",
+    "runs_dir",
+    "devices",
+    "coordinator",
+    "num_processes",
+    "process_id",
+    "compile_cache",
+    "eval_envs",
+    "eval_every",
+    "eval_episodes",
+}
+"""Fields that do not change the compiled program (or only its placement: `devices`), so a run can be resumed
+with other values."""
+
+
+class Setup(NamedTuple):
+    """Everything static about a run, validated (`setup`)."""
+
+    env_params: EnvParams  # before the first stage (`--env` with `--env-args`)
+    pop: population.Population
+    stages: tuple[schedule.Stage, ...]
+    frozen_params: Any  # stacked params of frozen slots, or None (also None when not loaded)
+    programs: tuple[tuple[TrainConfig, EnvParams], ...]  # (single-stage config, env) of stages -1, 0, 1, ...
+
+    def stage(self, index: int) -> tuple[TrainConfig, EnvParams]:
+        """The single-stage config (see `stage_config`) and environment of stage `index` (-1: before the
+        first stage)."""
+        return self.programs[index + 1]
+
+
+def stage_config(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], index: int) -> TrainConfig:
+    """The single-stage config whose program runs stage `index` of `cfg` (-1: before the first stage).
+
+    Its `env_args` are canonical (sorted, without values equal to the preset's), so stages with the same
+    environment share one compiled program. `cfg.env` must be a registered environment.
+    """
+    base = registry.PRESETS[cfg.env]
+    env_args = {**cfg.env_overrides, **schedule.overrides_at(stages, index)}
+    env_args = {k: v for k, v in sorted(env_args.items()) if not hasattr(base, k) or getattr(base, k) != v}
+    return dataclasses.replace(cfg, env_args=schedule.format_assignments(env_args), stages="")
+
+
+def _check_stage(env_params: EnvParams, first: EnvParams, pop: population.Population, where: str) -> None:
+    changed = [f for f in schedule.STRUCTURAL_FIELDS if getattr(env_params, f) != getattr(first, f)]
+    if changed:
+        raise ValueError(f"{where} changes {changed}, which set array shapes; a stage may not change them")
+    population.require_rgb(env_params, where)
+    if env_params.solo_prob > 0 and any(i >= env_params.solo_agents for i in pop.learners):
+        raise ValueError(
+            f"{where}: solo episodes keep only the first solo_agents={env_params.solo_agents} slots, but "
+            f"learners are in slots {pop.learners}; put learners first or raise solo_agents"
+        )
+    pop.validate(env_params)
+
+
+def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
+    """Validate the config (every stage) and load frozen policies; raises ValueError before anything
+    compiles. Builds each stage's environment once (`jaxsocial.make`); a run calls this once."""
+    stages = schedule.parse_stages(cfg.stages)
+    _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+    pop = population.Population(
+        population.parse_slots(cfg.slots or population.default_slots(env_params), env_params.n_agents)
+    )
+    _check_stage(env_params, env_params, pop, "--env-args")
+    programs = [(stage_config(cfg, stages, -1), env_params)]
+    for index in range(len(stages)):
+        stage_cfg = stage_config(cfg, stages, index)
+        stage_params = jaxsocial.make(cfg.env, **stage_cfg.env_overrides)[1]
+        _check_stage(stage_params, env_params, pop, f"stage {index}")
+        programs.append((stage_cfg, stage_params))
+    if cfg.algo not in ALGOS:
+        raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
+    for name in ("num_envs", "rollout_steps", "keep_checkpoints"):
+        value = getattr(cfg, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name}={value!r} must be a whole number >= 1 (for every --algo)")
+    if cfg.algo == "bc" and not pop.demonstrators:
+        raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
+    if cfg.algo == "bc" and cfg.net.n_actions != NUM_ACTIONS:
+        raise ValueError(
+            f"--algo bc clones demonstrators that use all {NUM_ACTIONS} actions (scripted experts idle with "
+            f"'done' and act at random with epsilon), so net.n_actions must be {NUM_ACTIONS}, not "
+            f"{cfg.net.n_actions}"
+        )
+    if cfg.net.attention and (cfg.algo != "ppo" or cfg.net.n_others != env_params.n_agents - 1):
+        raise ValueError(
+            f"net.aux={cfg.net.aux!r}: the attention loss trains PPO learners to locate the "
+            f"{env_params.n_agents - 1} other agent slots, so it needs --algo ppo and net.n_others "
+            f"{env_params.n_agents - 1} (got --algo {cfg.algo}, net.n_others {cfg.net.n_others})"
+        )
+    if cfg.algo == "ppo":
+        ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
+    if cfg.iterations < 1 or cfg.chunk_iterations < 1 or cfg.checkpoint_every < 1:
+        raise ValueError("iterations, chunk_iterations and checkpoint_every must be >= 1")
+    if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
+        raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
+    if cfg.seed_batching not in SEED_BATCHING:
+        raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
+    if cfg.eval_envs:
+        if cfg.eval_every < 1:
+            raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
+        evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # validates, compiles nothing
+    if cfg.seeds > 1 and any(stage.threshold is not None for stage in stages):
+        raise ValueError(
+            "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
+            "triggered by the return would start at another iteration for each seed: train them one by one"
+        )
+    frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
+    return Setup(env_params, pop, stages, frozen, tuple(programs))
+
+
+def config_dict(cfg: TrainConfig) -> dict[str, Any]:
+    """`cfg` as plain JSON values (what config.json holds)."""
+    return logs.to_json(dataclasses.asdict(cfg))
+
+
+def config_from_dict(values: dict[str, Any]) -> TrainConfig:
+    """A TrainConfig from `config_dict` output (config.json): nested configs rebuilt, lists made tuples,
+    fields added since the run was written take their defaults."""
+
+    def build(cls, raw: dict[str, Any]):
+        kwargs, defaults = {}, cls()
+        for field in dataclasses.fields(cls):
+            if field.name not in raw:
+                continue
+            value = raw[field.name]
+            default = getattr(defaults, field.name)
+            if dataclasses.is_dataclass(default):
+                value = build(type(default), value)
+            elif isinstance(value, list):
+                value = tuple(value)
+            kwargs[field.name] = value
+        return cls(**kwargs)
+
+    return build(TrainConfig, values)

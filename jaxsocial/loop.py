@@ -1,0 +1,345 @@
+"""The compiled training loop: `make_train(cfg) -> (init, run_chunk, train)`, the `RunnerState` it carries,
+and `compiled(cfg)`, its jitted `Program` placed on a device mesh (several seeds in one program), cached per
+program.
+
+One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
+neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
+(`lax.map` over learners). A chunk of iterations is one `lax.scan` inside one `jit`; the driver
+(`jaxsocial.train.run`) loops over chunks to log, checkpoint and draw progress.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxsocial import config, distributed
+from jaxsocial.agents import bc, network, policy_io, population, ppo
+from jaxsocial.config import DRIVER_FIELDS, TrainConfig
+from jaxsocial.env import core, observe
+from jaxsocial.env.types import EnvParams, EnvState
+
+
+class RunnerState(NamedTuple):
+    """The whole training state between iterations (a pytree; checkpointed at chunk boundaries)."""
+
+    params: Any  # learner params stacked [S_l, ...]
+    opt_state: Any  # learner optimiser states stacked [S_l, ...]
+    env_states: EnvState  # [E]
+    obs: jax.Array  # uint8[E, N, 21, 21, 3]
+    resets: jax.Array  # bool[E]: the next step starts an episode
+    slots: population.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
+    demo_carry: network.Carry | None  # bc: learners' LSTM states on the demonstration streams [S_l, E*D, H]
+    episode_return: jax.Array  # float32[E, N] return so far in the current episode
+    key: jax.Array
+    iteration: jax.Array  # int32[]
+
+
+ENV_AXES = RunnerState(
+    params=None,
+    opt_state=None,
+    env_states=0,
+    obs=0,
+    resets=0,
+    slots=population.SlotState(carry=1, memory=0, reward=0),
+    demo_carry=1,  # the streams are environment-major
+    episode_return=0,
+    key=None,
+    iteration=None,
+)
+"""The environment axis of the RunnerState's arrays, split over devices (pytree prefix; None: replicated)."""
+
+
+class Transition(NamedTuple):
+    """One rollout step. obs, actions and valid are of the recorded slots (learners for PPO, demonstrators
+    for BC), the rest of the learners. The fields are those of `ppo.Batch` but `carry0` (see `ppo_batch`)."""
+
+    obs: jax.Array  # uint8[E, S_r, ...]
+    resets: jax.Array
+    actions: jax.Array  # int32[S_l, E]
+    logp: jax.Array
+    rewards: jax.Array
+    terminated: jax.Array
+    done: jax.Array
+    final_values: jax.Array
+    valid: jax.Array
+    attention: jax.Array | None  # int32[S_l, E, N-1] with an attention head (`observe.attention_targets`)
+
+
+def ppo_batch(
+    traj: Transition, last_obs: jax.Array, last_resets: jax.Array, carry0: network.Carry
+) -> ppo.Batch:
+    """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (scan-stacked
+    Transitions, [T, ...]) that ended with the learners' observations `last_obs` uint8[E, S_l, ...] and
+    `last_resets` bool[E] (the bootstrap step), starting from the learners' LSTM states `carry0`."""
+    obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
+    resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
+    n_learners = last_obs.shape[1]
+    per_learner = traj._replace(obs=None, resets=None)  # the rest are [T, S_l, E, ...]
+    fields = jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)._replace(
+        obs=jnp.moveaxis(obs, 2, 0), resets=jnp.broadcast_to(resets, (n_learners, *resets.shape))
+    )
+    return ppo.Batch(**fields._asdict(), carry0=carry0)
+
+
+def make_train(
+    cfg: TrainConfig,
+    mesh: jax.sharding.Mesh | None = None,
+    *,
+    env_params: EnvParams | None = None,
+    pop: population.Population | None = None,
+):
+    """Build the pure training functions for `cfg`, a single-stage config (see `config.stage_config`);
+    validated first (`config.setup`) unless its validated environment and population are given.
+
+    Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
+    (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
+    None); `train(key) -> (state, metrics)` is the whole run (it loads frozen policies when traced).
+    Metrics are dicts of arrays with a leading iteration axis. One seed (`cfg.seeds` is handled by
+    `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
+    minibatches over them too).
+    """
+    if cfg.stages:
+        raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
+    if env_params is None or pop is None:
+        static = config.setup(cfg, load_frozen=False)
+        env_params, pop = static.env_params, static.pop
+    dp = distributed.data_parallel(mesh)
+    net, ppo_cfg = cfg.net, cfg.ppo
+    learners = jnp.asarray(pop.learners)
+    n_learners, n_neural = len(pop.learners), len(pop.neural)
+    n_envs, n_steps = cfg.num_envs, cfg.rollout_steps
+    bc_mode = cfg.algo == "bc"
+    recorded = jnp.asarray(pop.demonstrators if bc_mode else pop.learners)
+    n_demo_streams = n_envs * len(pop.demonstrators)
+    optimizer = bc.make_optimizer(cfg.bc) if bc_mode else ppo.make_optimizer(ppo_cfg)
+
+    def init(key: jax.Array) -> RunnerState:
+        k_params, k_env, k_run = jax.random.split(key, 3)
+        params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(k_params, n_learners), net)
+        obs, env_states = jax.vmap(core.reset, in_axes=(0, None))(jax.random.split(k_env, n_envs), env_params)
+        return RunnerState(
+            params=params,
+            opt_state=jax.vmap(optimizer.init)(params),
+            env_states=env_states,
+            obs=obs,
+            resets=jnp.ones(n_envs, bool),
+            slots=population.init_slot_state(pop, net, env_params, n_envs),
+            demo_carry=network.initial_carry(net, (n_learners, n_demo_streams)) if bc_mode else None,
+            episode_return=jnp.zeros((n_envs, env_params.n_agents), jnp.float32),
+            key=k_run,
+            iteration=jnp.zeros((), jnp.int32),
+        )
+
+    def all_params(state: RunnerState, frozen_params):
+        if frozen_params is None:
+            return state.params
+        return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), state.params, frozen_params)
+
+    def attention_targets(env_states: EnvState) -> jax.Array | None:
+        if not net.attention:
+            return None
+        targets = jax.vmap(observe.attention_targets, in_axes=(0, None))(env_states, env_params)
+        return jnp.moveaxis(targets[:, learners], 1, 0)
+
+    def env_step(carry, key):
+        state, params = carry
+        k_act, k_env = jax.random.split(key)
+        actions, slots, logp, _ = population.act(
+            k_act, pop, net, env_params, params, state.slots, state.obs, state.env_states, state.resets
+        )
+        alive, present = state.env_states.active, state.env_states.present  # [E, N] at the step's start
+        obs, env_states, reward, terminated, truncated, info = core.step_batch(
+            jax.random.split(k_env, n_envs), state.env_states, actions, env_params
+        )
+        done = info["done"]
+        final_values = jax.lax.cond(
+            core.any_in_batch(done),
+            lambda: population.values(pop, net, params, slots.carry, info["final_obs"]),
+            lambda: jnp.zeros((n_neural, n_envs), jnp.float32),
+        )
+        episode_return = state.episode_return + reward
+        finished = (done[:, None] & present).astype(jnp.float32)  # episodes each slot took part in
+        stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0))
+        agent_done = terminated | done[:, None]
+        transition = Transition(
+            obs=state.obs[:, recorded],
+            resets=state.resets,
+            actions=actions[:, recorded].T,
+            logp=logp[:n_learners],
+            rewards=reward[:, learners].T,
+            terminated=terminated[:, learners].T,
+            done=agent_done[:, learners].T,
+            final_values=final_values[:n_learners],
+            valid=alive[:, recorded].T,
+            attention=attention_targets(state.env_states),
+        )
+        new_state = state._replace(
+            env_states=env_states,
+            obs=obs,
+            resets=done,
+            slots=population.record_rewards(slots, reward),
+            episode_return=jnp.where(done[:, None], 0.0, episode_return),
+        )
+        return (new_state, params), (transition, stats)
+
+    def ppo_update(state: RunnerState, traj: Transition, carry0, k_update):
+        batch = ppo_batch(traj, state.obs[:, learners], state.resets, carry0)  # [S_l, T(+1), E, ...]
+
+        # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
+        # vmapped paper-size network, whose chunked convolutions are themselves a `lax.map`.
+        def update(args):
+            key, params, opt_state, learner_batch = args
+            return ppo.update(key, params, opt_state, net, ppo_cfg, learner_batch, dp)
+
+        new_params, new_opt, losses = jax.lax.map(
+            update, (jax.random.split(k_update, n_learners), state.params, state.opt_state, batch)
+        )
+        return state._replace(params=new_params, opt_state=new_opt), losses
+
+    def bc_update(state: RunnerState, traj: Transition):
+        # Demonstration streams, time-major [T, E * D, ...] (environment-major, demonstrator-minor).
+        def streams(x):  # [T, E, D, ...] -> [T, E * D, ...]
+            return x.reshape(n_steps, n_demo_streams, *x.shape[3:])
+
+        n_demo = len(pop.demonstrators)
+        obs = streams(traj.obs)
+        resets = jnp.repeat(traj.resets, n_demo, axis=1)
+        actions, valid = (streams(jnp.moveaxis(x, 1, 2)) for x in (traj.actions, traj.valid))
+
+        def update(args):
+            params, opt_state, carry = args
+            return bc.update(params, opt_state, carry, net, cfg.bc, obs, resets, actions, valid)
+
+        new_params, new_opt, carry, losses = jax.lax.map(
+            update, (state.params, state.opt_state, state.demo_carry)
+        )
+        return state._replace(params=new_params, opt_state=new_opt, demo_carry=carry), losses
+
+    def iteration(state: RunnerState, frozen_params):
+        key, k_roll, k_update = jax.random.split(state.key, 3)
+        params = all_params(state, frozen_params)
+        carry0 = jax.tree.map(lambda c: c[:n_learners], state.slots.carry)
+        (state, _), (traj, (return_sum, episodes)) = jax.lax.scan(
+            env_step, (state, params), jax.random.split(k_roll, n_steps)
+        )
+        if bc_mode:
+            state, losses = bc_update(state, traj)
+        else:
+            state, losses = ppo_update(state, traj, carry0, k_update)
+        episodes_per_slot = jnp.sum(episodes, 0)
+        metrics = {
+            "episodes": episodes_per_slot,
+            "return": jnp.sum(return_sum, 0) / jnp.maximum(episodes_per_slot, 1.0),
+            **losses,
+        }
+        return state._replace(key=key, iteration=state.iteration + 1), metrics
+
+    def run_chunk(state: RunnerState, frozen_params, n: int):
+        return jax.lax.scan(lambda s, _: iteration(s, frozen_params), state, None, length=n)
+
+    def train(key: jax.Array):
+        return run_chunk(init(key), policy_io.load_frozen(pop, net), cfg.iterations)
+
+    return init, run_chunk, train
+
+
+def over_seeds(run_chunk, batching: str = "vmap"):
+    """`run_chunk` of `make_train` over a leading seed axis of the state and the metrics (the frozen params
+    are shared): 'vmap' batches the seeds, 'map' runs them one after another (`lax.map`); both give every
+    seed the result of a run of its own (vmap up to floating-point summation order)."""
+
+    def run_seeds(state, frozen_params, n: int):
+        if batching == "vmap":
+            return jax.vmap(lambda s: run_chunk(s, frozen_params, n))(state)
+        return jax.lax.map(lambda s: run_chunk(s, frozen_params, n), state)
+
+    return run_seeds
+
+
+class Program(NamedTuple):
+    """A run's compiled functions, placed on a device mesh.
+
+    init(seeds): int32[] (or int32[K] for K seeds) -> RunnerState ([K, ...] for K seeds) on `shardings`;
+    run_chunk(state, frozen_params, n) -> (state, metrics) (n static; the state is donated; metrics
+    replicated, [K, n, ...] for K seeds); frozen params must be placed with `distributed.put`.
+    """
+
+    init: Any
+    run_chunk: Any
+    shardings: RunnerState
+    mesh: jax.sharding.Mesh
+
+
+@functools.lru_cache(maxsize=8)
+def _compiled(
+    program_cfg: TrainConfig,
+    mesh: jax.sharding.Mesh,
+    env_params: EnvParams | None,
+    pop: population.Population | None,
+) -> Program:
+    init, run_chunk, _ = make_train(program_cfg, mesh, env_params=env_params, pop=pop)
+    replicated = distributed.replicated(mesh)
+
+    def init_from_seed(seed):
+        return init(jax.random.key(seed))
+
+    one_seed = jax.eval_shape(init_from_seed, jax.ShapeDtypeStruct((), jnp.int32))
+    shardings = distributed.state_shardings(one_seed, mesh, ENV_AXES)
+    init_one = jax.jit(init_from_seed, in_shardings=replicated, out_shardings=shardings)
+    program_init = init_one
+    if program_cfg.seeds > 1:  # each seed's state as in a run of its own, stacked
+        batching = program_cfg.seed_batching
+        if batching == "auto":
+            batching = "map" if mesh.devices.flat[0].platform == "cpu" else "vmap"
+        run_chunk = over_seeds(run_chunk, batching)
+        stacked = jax.eval_shape(population.stack, [one_seed] * program_cfg.seeds)
+        shardings = distributed.state_shardings(stacked, mesh, ENV_AXES, offset=1)
+        stack = jax.jit(population.stack, out_shardings=shardings)
+
+        def program_init(seeds):
+            return stack([init_one(np.int32(seed)) for seed in seeds])
+
+    return Program(
+        program_init,
+        jax.jit(
+            run_chunk,
+            static_argnums=2,
+            donate_argnums=0,
+            in_shardings=(shardings, replicated),
+            out_shardings=(shardings, replicated),
+        ),
+        shardings,
+        mesh,
+    )
+
+
+def data_mesh(cfg: TrainConfig) -> jax.sharding.Mesh:
+    """The devices `cfg` splits its environments over (ValueError, before compiling, if they do not split)."""
+    sizes = {"num_envs": cfg.num_envs}
+    if cfg.algo == "ppo":
+        sizes["minibatch_chunks"] = cfg.ppo.minibatch_chunks
+    return distributed.data_mesh(cfg.devices, **sizes)
+
+
+def compiled(
+    cfg: TrainConfig,
+    mesh: jax.sharding.Mesh | None = None,
+    *,
+    env_params: EnvParams | None = None,
+    pop: population.Population | None = None,
+) -> Program:
+    """The `Program` of `cfg` (a single-stage config) on `mesh` (default: `data_mesh(cfg)`), shared between
+    runs whose programs are the same (tests, notebooks and sweeps in one process compile once).
+    `env_params`, `pop`: cfg's, validated (`config.Setup.stage`); default: validated here."""
+    if mesh is None:
+        mesh = data_mesh(cfg)
+    defaults = TrainConfig()
+    unused = DRIVER_FIELDS | {"seed"}  # the seeds are an argument of `init`
+    program_cfg = dataclasses.replace(cfg, **{f: getattr(defaults, f) for f in unused})
+    return _compiled(program_cfg, mesh, env_params, pop)
