@@ -20,6 +20,7 @@ import numpy as np
 
 from jaxsocial import config, distributed
 from jaxsocial.agents import bc, network, policy_io, population, ppo
+from jaxsocial.batching import any_in_batch
 from jaxsocial.config import DRIVER_FIELDS, TrainConfig
 from jaxsocial.env import core, observe
 from jaxsocial.env.types import EnvParams, EnvState
@@ -159,7 +160,7 @@ def make_train(
         )
         done = info["done"]
         final_values = jax.lax.cond(
-            core.any_in_batch(done),
+            any_in_batch(done),
             lambda: population.values(pop, net, params, slots.carry, info["final_obs"]),
             lambda: jnp.zeros((n_neural, n_envs), jnp.float32),
         )
