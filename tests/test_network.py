@@ -3,6 +3,7 @@
 import dataclasses
 import functools
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -163,79 +164,6 @@ def _get(tree, path):
     return tree
 
 
-def _hwnc(x):
-    return np.asarray(x).transpose(1, 2, 0, 3)
-
-
-@pytest.mark.parametrize("stride, size", [(1, 7), (1, 5), (3, 21)])
-def test_conv_cross_correlation(stride, size):
-    """Convolutions (HWNC activations, HWIO kernels) are PyTorch Conv2d's VALID cross-correlation:
-    out[i, j] = sum over di, dj of x[s*i + di, s*j + dj] @ kernel[di, dj]; stride 1 goes through Winograd."""
-    rng = np.random.default_rng(size)
-    x = rng.normal(size=(2, size, size, 4)).astype(np.float32)
-    kernel = rng.normal(size=(3, 3, 4, 5)).astype(np.float32)
-    bias = rng.normal(size=(5,)).astype(np.float32)
-    out_size = (size - 3) // stride + 1
-    expected = np.zeros((2, out_size, out_size, 5), np.float64) + bias
-    for di in range(3):
-        for dj in range(3):
-            window = x[
-                :,
-                di : di + stride * (out_size - 1) + 1 : stride,
-                dj : dj + stride * (out_size - 1) + 1 : stride,
-            ]
-            expected += window.astype(np.float64) @ kernel[di, dj]
-    for fn in (net._conv_matmul, net._conv_xla):
-        # Winograd's float32 error grows with the tile (see `network._winograd_transforms`): relative to the
-        # largest output
-        np.testing.assert_allclose(
-            fn(_hwnc(x), kernel, bias, stride), _hwnc(expected), rtol=1e-5, atol=1e-5 * np.abs(expected).max()
-        )
-
-
-@pytest.mark.parametrize("stride, size", [(1, 3), (1, 5), (3, 7)])
-def test_deconv_scatter_semantics(stride, size):
-    """Deconvolutions follow PyTorch ConvTranspose2d: out[s*i + di, s*j + dj] += x[i, j] @ kernel[di, dj]."""
-    rng = np.random.default_rng(size)
-    x = rng.normal(size=(2, size, size, 4)).astype(np.float32)
-    kernel = rng.normal(size=(3, 3, 4, 5)).astype(np.float32)
-    bias = rng.normal(size=(5,)).astype(np.float32)
-    out_size = (size - 1) * stride + 3
-    expected = np.zeros((2, out_size, out_size, 5), np.float64) + bias
-    for i in range(size):
-        for j in range(size):
-            for di in range(3):
-                for dj in range(3):
-                    expected[:, stride * i + di, stride * j + dj] += (
-                        x[:, i, j].astype(np.float64) @ kernel[di, dj]
-                    )
-    for fn in (net._deconv_matmul, net._deconv_xla):
-        # Winograd's float32 error grows with the tile (see `network._winograd_transforms`): relative to the
-        # largest output
-        np.testing.assert_allclose(
-            fn(_hwnc(x), kernel, bias, stride), _hwnc(expected), rtol=1e-5, atol=1e-5 * np.abs(expected).max()
-        )
-
-
-@pytest.mark.parametrize("m", [3, 5])
-def test_winograd_transforms_are_exact(m):
-    """In exact arithmetic (float64 here), the Winograd transforms reproduce every output of a 3x3
-    cross-correlation of one (m+2)x(m+2) tile: output @ diag(filter @ g) @ data = the correlation matrix."""
-    data, filter_, out = (t.astype(np.float64) for t in net._winograd_transforms(m))
-    a = m + 2
-    rng = np.random.default_rng(m)
-    for _ in range(3):
-        g = rng.normal(size=(3, 3))
-        as_matrix = out @ np.diag(filter_ @ g.ravel()) @ data  # [m*m outputs, a*a inputs]
-        expected = np.zeros((m, m, a, a))
-        for i in range(m):
-            for j in range(m):
-                expected[i, j, i : i + 3, j : j + 3] = g
-        np.testing.assert_allclose(as_matrix, expected.reshape(m * m, a * a), atol=1e-5)
-    with pytest.raises(NotImplementedError, match="output sizes"):
-        net._winograd_transforms(6)
-
-
 def test_unroll_equals_steps_with_resets(small_params):
     cfg = SMALL
     obs = _obs(6, (T, B, *net.OBS_SHAPE))
@@ -250,10 +178,7 @@ def test_unroll_equals_steps_with_resets(small_params):
         carry, o = step(small_params, cfg, carry, obs[t], resets[t])
         outs.append(o)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *outs)
-    for a, b in zip(
-        jax.tree_util.tree_leaves((final, out)), jax.tree_util.tree_leaves((carry, stacked)), strict=True
-    ):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    chex.assert_trees_all_close((final, out), (carry, stacked), rtol=1e-5, atol=1e-6)
 
     # After sequence 0's reset at t=2, its outputs equal a fresh unroll of obs[2:] from a zero carry.
     _, fresh = unroll(
@@ -356,3 +281,15 @@ def test_decode_without_aux_raises():
 def test_bad_config_raises(kwargs, match):
     with pytest.raises(ValueError, match=match):
         net.NetworkConfig(**kwargs)
+
+
+def test_flax_modules_are_the_functional_network(small_params):
+    """``ActorCritic(cfg).init`` builds the tree `init` builds (also with more frames than a chunk: chunked
+    layers under ``nn.scan``), and ``.apply`` is `unroll`."""
+    cfg = dataclasses.replace(SMALL, chunk=4)
+    args = (net.initial_carry(cfg, (B,)), _obs(10, (T, B, *net.OBS_SHAPE)), jnp.zeros((T, B), bool))
+    variables = jax.eval_shape(lambda k: net.ActorCritic(cfg).init(k, *args), jax.random.key(0))
+    assert set(variables) == {"params"}
+    chex.assert_trees_all_equal_shapes_and_dtypes(variables["params"], small_params)
+    applied = jax.jit(net.ActorCritic(cfg).apply)({"params": small_params}, *args)
+    chex.assert_trees_all_close(applied, unroll(small_params, SMALL, *args), rtol=1e-5, atol=1e-6)
