@@ -9,7 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxsocial import checkpoint
 from jaxsocial.agents import network as net
+from jaxsocial.agents import population
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
 T, B = 5, 3
@@ -293,3 +295,47 @@ def test_flax_modules_are_the_functional_network(small_params):
     chex.assert_trees_all_equal_shapes_and_dtypes(variables["params"], small_params)
     applied = jax.jit(net.ActorCritic(cfg).apply)({"params": small_params}, *args)
     chex.assert_trees_all_close(applied, unroll(small_params, SMALL, *args), rtol=1e-5, atol=1e-6)
+
+
+# The params tree of the pre-Flax network (commit 3f6e052) for SMALL, written out so that a change of layout
+# shows here: exported policies and checkpoints of earlier runs hold exactly this tree.
+PRE_FLAX_SMALL_LAYOUT = {
+    "conv1": {"kernel": (3, 3, 3, 4), "bias": (4,)},
+    "conv2": {"kernel": (3, 3, 4, 6), "bias": (6,)},
+    "conv3": {"kernel": (3, 3, 6, 5), "bias": (5,)},
+    "fc": {"kernel": (45, 8), "bias": (8,)},
+    "lstm": {"wi": (8, 32), "wh": (8, 32), "b": (32,)},
+    **{
+        head: {
+            "dense0": {"kernel": (8, 6), "bias": (6,)},
+            "dense1": {"kernel": (6, 6), "bias": (6,)},
+            "out": {"kernel": (6, n_out), "bias": (n_out,)},
+        }
+        for head, n_out in (("policy", 7), ("value", 1))
+    },
+    "aux_fc": {"kernel": (15, 45), "bias": (45,)},
+    "deconv1": {"kernel": (3, 3, 5, 6), "bias": (6,)},
+    "deconv2": {"kernel": (3, 3, 6, 4), "bias": (4,)},
+    "deconv3": {"kernel": (3, 3, 4, 3), "bias": (3,)},
+}
+
+
+def _export(run_dir, params, cfg):
+    """A policy export as `train.export_policy` writes it (one learner)."""
+    meta = {"net": population.json_net(cfg), "n_learners": 1, "slots": "LX"}
+    checkpoint.save(run_dir / population.POLICY_DIR, 0, {"params": params}, metadata=meta)
+
+
+def test_pre_flax_policy_exports_load(tmp_path):
+    """A policy exported with the pre-Flax params tree loads unchanged (the tree is the same); one with other
+    tree fails with `CheckpointMismatchError` naming the entries that differ."""
+    is_shape = lambda x: isinstance(x, tuple) and all(isinstance(d, int) for d in x)  # noqa: E731
+    stored = _normal(11, jax.tree.map(np.zeros, PRE_FLAX_SMALL_LAYOUT, is_leaf=is_shape))
+    stacked = jax.tree.map(lambda x: x[None], stored)
+    _export(tmp_path / "old", stacked, SMALL)
+    chex.assert_trees_all_close(population.load_policy(str(tmp_path / "old"), SMALL), stored)
+
+    nested = {"encoder": {k: stacked.pop(k) for k in ("conv1", "conv2", "conv3", "fc")}, **stacked}
+    _export(tmp_path / "nested", nested, SMALL)
+    with pytest.raises(checkpoint.CheckpointMismatchError, match="conv1"):
+        population.load_policy(str(tmp_path / "nested"), SMALL)
