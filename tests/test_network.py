@@ -3,12 +3,15 @@
 import dataclasses
 import functools
 
+import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxsocial import checkpoint
 from jaxsocial.agents import network as net
+from jaxsocial.agents import population
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
 T, B = 5, 3
@@ -163,79 +166,6 @@ def _get(tree, path):
     return tree
 
 
-def _hwnc(x):
-    return np.asarray(x).transpose(1, 2, 0, 3)
-
-
-@pytest.mark.parametrize("stride, size", [(1, 7), (1, 5), (3, 21)])
-def test_conv_cross_correlation(stride, size):
-    """Convolutions (HWNC activations, HWIO kernels) are PyTorch Conv2d's VALID cross-correlation:
-    out[i, j] = sum over di, dj of x[s*i + di, s*j + dj] @ kernel[di, dj]; stride 1 goes through Winograd."""
-    rng = np.random.default_rng(size)
-    x = rng.normal(size=(2, size, size, 4)).astype(np.float32)
-    kernel = rng.normal(size=(3, 3, 4, 5)).astype(np.float32)
-    bias = rng.normal(size=(5,)).astype(np.float32)
-    out_size = (size - 3) // stride + 1
-    expected = np.zeros((2, out_size, out_size, 5), np.float64) + bias
-    for di in range(3):
-        for dj in range(3):
-            window = x[
-                :,
-                di : di + stride * (out_size - 1) + 1 : stride,
-                dj : dj + stride * (out_size - 1) + 1 : stride,
-            ]
-            expected += window.astype(np.float64) @ kernel[di, dj]
-    for fn in (net._conv_matmul, net._conv_xla):
-        # Winograd's float32 error grows with the tile (see `network._winograd_transforms`): relative to the
-        # largest output
-        np.testing.assert_allclose(
-            fn(_hwnc(x), kernel, bias, stride), _hwnc(expected), rtol=1e-5, atol=1e-5 * np.abs(expected).max()
-        )
-
-
-@pytest.mark.parametrize("stride, size", [(1, 3), (1, 5), (3, 7)])
-def test_deconv_scatter_semantics(stride, size):
-    """Deconvolutions follow PyTorch ConvTranspose2d: out[s*i + di, s*j + dj] += x[i, j] @ kernel[di, dj]."""
-    rng = np.random.default_rng(size)
-    x = rng.normal(size=(2, size, size, 4)).astype(np.float32)
-    kernel = rng.normal(size=(3, 3, 4, 5)).astype(np.float32)
-    bias = rng.normal(size=(5,)).astype(np.float32)
-    out_size = (size - 1) * stride + 3
-    expected = np.zeros((2, out_size, out_size, 5), np.float64) + bias
-    for i in range(size):
-        for j in range(size):
-            for di in range(3):
-                for dj in range(3):
-                    expected[:, stride * i + di, stride * j + dj] += (
-                        x[:, i, j].astype(np.float64) @ kernel[di, dj]
-                    )
-    for fn in (net._deconv_matmul, net._deconv_xla):
-        # Winograd's float32 error grows with the tile (see `network._winograd_transforms`): relative to the
-        # largest output
-        np.testing.assert_allclose(
-            fn(_hwnc(x), kernel, bias, stride), _hwnc(expected), rtol=1e-5, atol=1e-5 * np.abs(expected).max()
-        )
-
-
-@pytest.mark.parametrize("m", [3, 5])
-def test_winograd_transforms_are_exact(m):
-    """In exact arithmetic (float64 here), the Winograd transforms reproduce every output of a 3x3
-    cross-correlation of one (m+2)x(m+2) tile: output @ diag(filter @ g) @ data = the correlation matrix."""
-    data, filter_, out = (t.astype(np.float64) for t in net._winograd_transforms(m))
-    a = m + 2
-    rng = np.random.default_rng(m)
-    for _ in range(3):
-        g = rng.normal(size=(3, 3))
-        as_matrix = out @ np.diag(filter_ @ g.ravel()) @ data  # [m*m outputs, a*a inputs]
-        expected = np.zeros((m, m, a, a))
-        for i in range(m):
-            for j in range(m):
-                expected[i, j, i : i + 3, j : j + 3] = g
-        np.testing.assert_allclose(as_matrix, expected.reshape(m * m, a * a), atol=1e-5)
-    with pytest.raises(NotImplementedError, match="output sizes"):
-        net._winograd_transforms(6)
-
-
 def test_unroll_equals_steps_with_resets(small_params):
     cfg = SMALL
     obs = _obs(6, (T, B, *net.OBS_SHAPE))
@@ -250,10 +180,7 @@ def test_unroll_equals_steps_with_resets(small_params):
         carry, o = step(small_params, cfg, carry, obs[t], resets[t])
         outs.append(o)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *outs)
-    for a, b in zip(
-        jax.tree_util.tree_leaves((final, out)), jax.tree_util.tree_leaves((carry, stacked)), strict=True
-    ):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    chex.assert_trees_all_close((final, out), (carry, stacked), rtol=1e-5, atol=1e-6)
 
     # After sequence 0's reset at t=2, its outputs equal a fresh unroll of obs[2:] from a zero carry.
     _, fresh = unroll(
@@ -356,3 +283,59 @@ def test_decode_without_aux_raises():
 def test_bad_config_raises(kwargs, match):
     with pytest.raises(ValueError, match=match):
         net.NetworkConfig(**kwargs)
+
+
+def test_flax_modules_are_the_functional_network(small_params):
+    """``ActorCritic(cfg).init`` builds the tree `init` builds (also with more frames than a chunk: chunked
+    layers under ``nn.scan``), and ``.apply`` is `unroll`."""
+    cfg = dataclasses.replace(SMALL, chunk=4)
+    args = (net.initial_carry(cfg, (B,)), _obs(10, (T, B, *net.OBS_SHAPE)), jnp.zeros((T, B), bool))
+    variables = jax.eval_shape(lambda k: net.ActorCritic(cfg).init(k, *args), jax.random.key(0))
+    assert set(variables) == {"params"}
+    chex.assert_trees_all_equal_shapes_and_dtypes(variables["params"], small_params)
+    applied = jax.jit(net.ActorCritic(cfg).apply)({"params": small_params}, *args)
+    chex.assert_trees_all_close(applied, unroll(small_params, SMALL, *args), rtol=1e-5, atol=1e-6)
+
+
+# The params tree of the pre-Flax network (commit 3f6e052) for SMALL, written out so that a change of layout
+# shows here: exported policies and checkpoints of earlier runs hold exactly this tree.
+PRE_FLAX_SMALL_LAYOUT = {
+    "conv1": {"kernel": (3, 3, 3, 4), "bias": (4,)},
+    "conv2": {"kernel": (3, 3, 4, 6), "bias": (6,)},
+    "conv3": {"kernel": (3, 3, 6, 5), "bias": (5,)},
+    "fc": {"kernel": (45, 8), "bias": (8,)},
+    "lstm": {"wi": (8, 32), "wh": (8, 32), "b": (32,)},
+    **{
+        head: {
+            "dense0": {"kernel": (8, 6), "bias": (6,)},
+            "dense1": {"kernel": (6, 6), "bias": (6,)},
+            "out": {"kernel": (6, n_out), "bias": (n_out,)},
+        }
+        for head, n_out in (("policy", 7), ("value", 1))
+    },
+    "aux_fc": {"kernel": (15, 45), "bias": (45,)},
+    "deconv1": {"kernel": (3, 3, 5, 6), "bias": (6,)},
+    "deconv2": {"kernel": (3, 3, 6, 4), "bias": (4,)},
+    "deconv3": {"kernel": (3, 3, 4, 3), "bias": (3,)},
+}
+
+
+def _export(run_dir, params, cfg):
+    """A policy export as `train.export_policy` writes it (one learner)."""
+    meta = {"net": population.json_net(cfg), "n_learners": 1, "slots": "LX"}
+    checkpoint.save(run_dir / population.POLICY_DIR, 0, {"params": params}, metadata=meta)
+
+
+def test_pre_flax_policy_exports_load(tmp_path):
+    """A policy exported with the pre-Flax params tree loads unchanged (the tree is the same); one with other
+    tree fails with `CheckpointMismatchError` naming the entries that differ."""
+    is_shape = lambda x: isinstance(x, tuple) and all(isinstance(d, int) for d in x)  # noqa: E731
+    stored = _normal(11, jax.tree.map(np.zeros, PRE_FLAX_SMALL_LAYOUT, is_leaf=is_shape))
+    stacked = jax.tree.map(lambda x: x[None], stored)
+    _export(tmp_path / "old", stacked, SMALL)
+    chex.assert_trees_all_close(population.load_policy(str(tmp_path / "old"), SMALL), stored)
+
+    nested = {"encoder": {k: stacked.pop(k) for k in ("conv1", "conv2", "conv3", "fc")}, **stacked}
+    _export(tmp_path / "nested", nested, SMALL)
+    with pytest.raises(checkpoint.CheckpointMismatchError, match="conv1"):
+        population.load_policy(str(tmp_path / "nested"), SMALL)

@@ -1,20 +1,30 @@
 """Recurrent actor-critic network of Ndousse et al. (2021), appendix "Network architecture details".
 
-Pure functions over a plain params pytree (nested dicts of float32 arrays), so independent agents can stack
-params on a leading axis and ``jax.vmap(unroll, in_axes=(0, None, 0, 0, 0))``.
+Flax linen modules: `ActorCritic` (encoder -> LSTM -> policy and value heads, plus the auxiliary heads the
+config asks for), built from `Encoder`, `LSTM`, `MLP`, `Decoder` (the auxiliary frame head), `Conv` and
+`Dense`. Linen, because its params are plain nested dicts of float32 arrays: independent agents stack them on
+a leading axis (``jax.vmap(unroll, in_axes=(0, None, 0, 0, 0))``), seeds ``lax.map`` over them, and orbax
+saves them as they are. The module-level functions (`init`, `unroll`, `step`, `decode`, `aux_loss`,
+`attention_loss`) apply the modules to such a params dict; ``ActorCritic(cfg).init(key, carry, obs, resets)``
+and ``.apply`` are the same model for use with other Flax code (`init` draws the same distributions from two
+random buffers, which compiles ~10x faster than one draw per tensor).
+
+The params tree is flat: ``conv1, conv2, conv3, fc`` (`Encoder`), ``lstm`` (``wi, wh, b``), ``policy`` and
+``value`` (``dense0, dense1, out``), ``attention`` and ``aux_fc, deconv1, deconv2, deconv3`` (`Decoder`);
+every layer holds ``kernel`` and ``bias``.
 
 Architecture (paper widths; every width is a `NetworkConfig` field)::
 
-    obs uint8[21, 21, 3] / 255
+    obs uint8[T, B, 21, 21, 3] / 255
       -> Conv(3->32, 3x3, stride 3) -> leaky ReLU       21x21 -> 7x7
       -> Conv(32->64, 3x3, stride 1) -> leaky ReLU      7x7 -> 5x5
-      -> Conv(64->64, 3x3, stride 1) -> leaky ReLU      5x5 -> 3x3, flattened to 576
-      -> FC(576->192) -> tanh -> LSTM(192)               hidden h
-    value  = MLP(192->64->64->1), tanh hidden layers
-    logits = MLP(192->64->64->7), tanh hidden layers
+      -> Conv(64->64, 3x3, stride 1) -> leaky ReLU      5x5 -> 3x3, flattened (h, w, c) to 576
+      -> FC(576->192) -> tanh -> LSTM(192)               hidden h f32[T, B, 192]
+    value  = MLP(192->64->64->1), tanh hidden layers     f32[T, B]
+    logits = MLP(192->64->64->7), tanh hidden layers     f32[T, B, 7]
     aux    = FC(192+7 -> 576) on concat(h, one_hot(action)) -> tanh -> reshape (3, 3, 64)
       -> DeConv(64->64, 3x3, s1) -> leaky ReLU -> DeConv(64->32, 3x3, s1) -> leaky ReLU
-      -> DeConv(32->3, 3x3, stride 3)                    3x3 -> 5x5 -> 7x7 -> 21x21x3, linear output
+      -> DeConv(32->3, 3x3, stride 3)                    3x3 -> 5x5 -> 7x7 -> f32[21, 21, 3], linear output
          (compared by the learner with an MAE against obs / 255: the current frame for aux="rec",
           the next frame for aux="pred"; both build the same decoder)
     attention = FC(192 -> K * 50), K = n_others          with aux "attention", "rec+attention" or
@@ -26,43 +36,16 @@ Parameter count: 667,787 for the paper configuration. The PyTorch reference
 bias vectors (``b_ih`` and ``b_hh``, 4 * 192 each) of which only the sum matters; here the LSTM has one.
 Without the auxiliary decoder (aux="none"): 496,328. The attention head adds 193 * 50 * n_others.
 
-Layouts and conventions:
-  * frames are [n, h, w, c] at the interface (uint8 observations, decoded predictions); inside, the conv
-    layers take and return HWNC activations [h, w, n, c] (see "matmul" below); conv kernels are HWIO
-    ``[3, 3, C_in, C_out]`` (cross-correlation, like torch Conv2d);
-  * deconv kernels are ``[3, 3, C_in, C_out]`` with torch ConvTranspose2d (scatter) semantics:
-    ``out[s*i + di, s*j + dj, :] += x[i, j, :] @ kernel[di, dj]``;
-  * LSTM gates are ordered (i, f, g, o) like PyTorch: ``gates = x @ wi + h @ wh + b``.
+Conventions: conv kernels are HWIO ``[3, 3, C_in, C_out]``, and the conv layers take and return HWNC
+activations (`conv`); deconv kernels are ``[3, 3, C_in, C_out]`` with torch ConvTranspose2d (scatter)
+semantics; LSTM gates are ordered (i, f, g, o) like PyTorch: ``gates = x @ wi + h @ wh + b``. Initialisation:
+convs PyTorch's default U(-1/sqrt(fan_in), 1/sqrt(fan_in)) (deconvs with the effective fan-in C_in * 9 /
+stride^2), dense layers orthogonal with gain sqrt(2) (hidden), 1 (value output) or 0.01 (policy and attention
+outputs) and zero bias, LSTM N(0, 1/hidden) input weights, orthogonal recurrent weights per gate, zero bias.
 
-Convolution implementations (``NetworkConfig.conv_impl``; same function of the same params):
-  * "matmul": matrix products only; XLA's CPU convolutions, and especially their gradients, are slow for
-    these small images, matrix products are not. The stride-1 layers (conv2, conv3, deconv1, deconv2) use
-    Winograd's minimal filtering with one tile per image: F(5x5, 3x3) on the 7x7 maps and F(3x3, 3x3) on the
-    5x5 maps (`_winograd_transforms`), 49 and 25 multiplies per channel pair instead of 225 and 81. With HWNC
-    activations each layer is a transform of the pixels (one matrix product ``[a^2, a^2] @ [a^2, n * C]``),
-    a batched product over the a^2 transformed pixels (``[n, C_in] @ [C_in, C_out]`` each) and an output
-    transform; the deconvolutions are the adjoints (transposed transforms). The matrix-product FLOPs of a
-    paper-network gradient sample drop from 13.2 M to 7.8 M, and the step ran ~1.35x faster than the im2col
-    formulation it replaced (patch concatenation + one product with K = 9 * C_in; interleaved A/B in one
-    process). float32 error: ~5e-6 of a layer's largest output for F(5x5, 3x3), against ~1e-7 for a direct
-    product; the tests hold outputs and gradients to 1e-5 of the exact "xla" implementation's. conv1 and
-    deconv3 (stride 3 = kernel size) have non-overlapping 3x3 blocks: a transpose and one matrix product.
-  * "xla": ``lax.conv_general_dilated`` / ``lax.conv_transpose`` (exact reference; slow gradients on CPU).
-
-CPU performance (benchmarks/train_sps.py): besides the matrix-product convolutions, the conv encoder and the
-decoder run in chunks of `NetworkConfig.chunk` frames under `lax.map` (`_map_chunks`), which keeps
-activations in cache, and save only each layer's activation for the backward pass; the encoder's dense
-layers run on the whole batch. The learner's auxiliary loss (`aux_loss`) goes further: the decoder's backward
-pass runs right after its forward pass, chunk by chunk, so no decoder activation or predicted frame of the
-whole batch is ever stored. Together 10-20% faster than chunked layers with every decoder activation saved.
-``jax.default_matmul_precision`` has no effect on CPU (float32 throughout), and no XLA flag tried
-(XNNPACK/YNNPACK fusion types, oneDNN, vector width, fast math) helped; none is set here. Tried with the
-im2col formulation and slower: im2col and col2im as gathers with constant indices; no faster: conv1's
-patches and deconv3's output kept in the 3x3-block layout (no float32 transposes), and (per layer) a
-batch-minor [C, H, W, N] layout. With Winograd: chunks of 256 or 512 frames measure alike, 128 and 1024
-slower; no faster: separable (two 1D) pixel transforms instead of the Kronecker products (measured per
-transform), and the batched products' weight gradients as explicitly transposed products (whole step;
-XLA:CPU runs those gradients, which contract the batch rows, outside YNNPACK).
+`NetworkConfig.conv_impl` and `NetworkConfig.chunk` change how, not what, the network computes: the conv
+kernels (`conv.IMPLS`), and the frames per chunk in which the conv encoder and the decoder run (`_map_chunks`,
+saving only each layer's activation for the backward pass). Why and how fast: docs/performance.md.
 """
 
 from __future__ import annotations
@@ -70,24 +53,31 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import chex
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import numpy as np
+from flax import traverse_util
 from jax import lax
 from jax.ad_checkpoint import checkpoint_name
+
+from jaxsocial.agents import conv
+from jaxsocial.agents.conv import KERNEL
 
 Params = dict[str, Any]
 
 OBS_SHAPE = (21, 21, 3)  # 7x7 grid cells of 3x3 pixels (marlgrid tile size 3)
-KERNEL = 3
 STRIDES = (3, 1, 1)  # encoder strides; the decoder mirrors them in reverse order
 LEAKY_SLOPE = 0.01  # torch.nn.functional.leaky_relu default
 AUX_KINDS = ("none", "rec", "pred", "attention", "rec+attention", "pred+attention")
 ATTENTION_CLASSES = (OBS_SHAPE[0] // KERNEL) ** 2 + 1  # the 7x7 view cells, then "not in view"
-CONV_IMPLS = ("matmul", "xla")
+CONV_IMPLS = conv.IMPLS
+DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")  # the `Decoder`'s entries of the params tree
 _SAVED = "activation"  # checkpoint name of the layer outputs saved for the backward pass (`_map_chunks`)
+_INITS = "intermediates"  # collection where `_param` records each initialiser (see `init`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,7 +89,7 @@ class NetworkConfig:
     mlp: int = 64  # hidden width of the value and policy MLPs
     aux: str = "pred"  # one of AUX_KINDS: a frame loss ("rec", "pred") and/or "attention"
     n_actions: int = 7
-    conv_impl: str = "matmul"  # "matmul" (patches + dot, fast on CPU) | "xla" (lax.conv / conv_transpose)
+    conv_impl: str = "matmul"  # one of conv.IMPLS: "matmul" (fast on CPU) | "xla" (lax.conv)
     chunk: int = 512  # frames per chunk of the conv encoder and decoder (speed only, see `_map_chunks`)
     n_others: int = 2  # other agent slots the attention head locates (n_agents - 1; aux with "attention")
 
@@ -160,58 +150,50 @@ class Output(NamedTuple):
     hidden: jax.Array
 
 
-# ----------------------------------------------------------------------------------------------- init
+# ------------------------------------------------------------------------------------------ initialisers
 
 
-# Every parameter is drawn from one of two flat random buffers (standard normal and U(-1, 1)): a separate
-# `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time each (11 s for the whole network).
-# Specs: (shape, kind, arg) with kind "uniform" (arg = bound), "orthogonal" (arg = gain; a leading axis of
-# independent blocks is concatenated along the output axis), "normal" (arg = std) or "zeros".
-_Spec = tuple[tuple[int, ...], str, float]
+@jax.tree_util.register_static
+@dataclasses.dataclass(frozen=True)
+class Init:
+    """A parameter's initialiser, usable as a Flax initialiser ``(key, shape, dtype) -> array``.
+
+    kind: "uniform" (U(-arg, arg)), "normal" (N(0, arg^2)), "orthogonal" (gain arg; `blocks` independent
+    orthogonal blocks side by side along the last axis) or "zeros". A static pytree (no leaves), so `_param`
+    can record it in a collection that `jax.eval_shape` passes through.
+    """
+
+    kind: str
+    arg: float = 0.0
+    blocks: int = 1
+
+    @property
+    def noise(self) -> str | None:
+        """The random buffer this initialiser transforms: "uniform" (U(-1, 1)), "normal" or None."""
+        return {"uniform": "uniform", "normal": "normal", "orthogonal": "normal"}.get(self.kind)
+
+    def __call__(self, key: jax.Array, shape: tuple[int, ...], dtype=jnp.float32) -> jax.Array:
+        size = math.prod(shape)
+        if self.noise == "uniform":
+            return self.from_noise(jax.random.uniform(key, (size,), dtype, -1.0, 1.0), shape)
+        return self.from_noise(jax.random.normal(key, (size,), dtype) if self.noise else None, shape)
+
+    def from_noise(self, z: jax.Array | None, shape: tuple[int, ...]) -> jax.Array:
+        """The parameter f32[shape] from flat noise z f32[prod(shape)] drawn from `noise` (None: "zeros")."""
+        if self.kind == "zeros":
+            return jnp.zeros(shape, jnp.float32)
+        if self.kind != "orthogonal":
+            return self.arg * z.reshape(shape)
+        *lead, n_in, n_out = shape
+        q = _orthogonal(z.reshape(*lead, self.blocks, n_in, n_out // self.blocks), self.arg)
+        return jnp.concatenate(jnp.unstack(q, axis=-3), axis=-1)
 
 
-def _conv_spec(c_in: int, c_out: int, fan_in: float) -> dict[str, _Spec]:
-    """PyTorch's default conv init: weight and bias ~ U(-1/sqrt(fan_in), 1/sqrt(fan_in))."""
-    bound = 1.0 / math.sqrt(fan_in)
-    return {"kernel": ((KERNEL, KERNEL, c_in, c_out), "uniform", bound), "bias": ((c_out,), "uniform", bound)}
-
-
-def _dense_spec(n_in: int, n_out: int, gain: float) -> dict[str, _Spec]:
-    """Orthogonal weight with gain `gain`, zero bias (the usual actor-critic initialisation)."""
-    return {"kernel": ((n_in, n_out), "orthogonal", gain), "bias": ((n_out,), "zeros", 0.0)}
-
-
-def _mlp_spec(cfg: NetworkConfig, n_out: int, out_gain: float) -> dict[str, dict[str, _Spec]]:
-    return {
-        "dense0": _dense_spec(cfg.hidden, cfg.mlp, math.sqrt(2.0)),
-        "dense1": _dense_spec(cfg.mlp, cfg.mlp, math.sqrt(2.0)),
-        "out": _dense_spec(cfg.mlp, n_out, out_gain),
-    }
-
-
-def _param_specs(cfg: NetworkConfig) -> dict[str, Any]:
-    c1, c2, c3 = cfg.conv_channels
-    hid = cfg.hidden
-    specs: dict[str, Any] = {}
-    for name, (c_in, c_out) in zip(("conv1", "conv2", "conv3"), [(3, c1), (c1, c2), (c2, c3)], strict=True):
-        specs[name] = _conv_spec(c_in, c_out, c_in * KERNEL * KERNEL)
-    specs["fc"] = _dense_spec(cfg.feature_size, hid, math.sqrt(2.0))
-    specs["lstm"] = {
-        "wi": ((hid, 4 * hid), "normal", 1.0 / math.sqrt(hid)),
-        "wh": ((4, hid, hid), "orthogonal", 1.0),
-        "b": ((4 * hid,), "zeros", 0.0),
-    }
-    specs["value"] = _mlp_spec(cfg, 1, 1.0)
-    specs["policy"] = _mlp_spec(cfg, cfg.n_actions, 0.01)
-    if cfg.attention:
-        specs["attention"] = _dense_spec(hid, cfg.n_others * ATTENTION_CLASSES, 0.01)
-    if cfg.frame_aux != "none":
-        specs["aux_fc"] = _dense_spec(hid + cfg.n_actions, cfg.feature_size, math.sqrt(2.0))
-        for name, (c_in, c_out), stride in zip(
-            ("deconv1", "deconv2", "deconv3"), [(c3, c2), (c2, c1), (c1, 3)], STRIDES[::-1], strict=True
-        ):
-            specs[name] = _conv_spec(c_in, c_out, c_in * KERNEL * KERNEL / stride**2)
-    return specs
+def _param(module: nn.Module, name: str, init: Init, shape: tuple[int, ...]) -> jax.Array:
+    """``module.param(name, init, shape)``, recording `init` in the `_INITS` collection when it is mutable
+    (only `init` asks: Flax's own ``Module.init`` leaves that collection immutable)."""
+    module.sow(_INITS, name, init)
+    return module.param(name, init, shape)
 
 
 def _gram_schmidt(z: jax.Array) -> jax.Array:
@@ -241,57 +223,7 @@ def _orthogonal(z: jax.Array, gain: float) -> jax.Array:
     return gain * (jnp.swapaxes(q, -1, -2) if transpose else q)
 
 
-def init(key: jax.Array, cfg: NetworkConfig) -> Params:
-    """Initial params (a nested dict of float32 arrays); pure, so it can be vmapped over keys.
-
-    Convs: PyTorch's default uniform init (deconvs with the effective fan-in C_in * 9 / stride^2, the
-    number of terms summed into one output pixel). Dense layers: orthogonal, gain sqrt(2) for hidden layers,
-    1 for the value output and 0.01 for the policy output (near-uniform initial policy). LSTM: normal(0,
-    1/hidden) input weights (LeCun), orthogonal recurrent weights per gate, zero bias.
-    """
-    specs = _param_specs(cfg)
-    is_spec = lambda x: isinstance(x, tuple) and len(x) == 3 and isinstance(x[1], str)  # noqa: E731
-    leaves, treedef = jax.tree_util.tree_flatten(specs, is_leaf=is_spec)
-    sizes = {"normal": 0, "uniform": 0}
-    for shape, kind, _ in leaves:
-        sizes["uniform" if kind == "uniform" else "normal"] += math.prod(shape) if kind != "zeros" else 0
-    k_normal, k_uniform = jax.random.split(key)
-    buffers = {
-        "normal": jax.random.normal(k_normal, (sizes["normal"],), jnp.float32),
-        "uniform": jax.random.uniform(k_uniform, (sizes["uniform"],), jnp.float32, -1.0, 1.0),
-    }
-    offsets = {"normal": 0, "uniform": 0}
-    params = []
-    for shape, kind, arg in leaves:
-        if kind == "zeros":
-            params.append(jnp.zeros(shape, jnp.float32))
-            continue
-        source = "uniform" if kind == "uniform" else "normal"
-        start, size = offsets[source], math.prod(shape)
-        offsets[source] += size
-        x = buffers[source][start : start + size].reshape(shape)
-        if kind == "orthogonal":
-            x = _orthogonal(x, arg)
-            if len(shape) == 3:  # independent blocks (LSTM gates) side by side: [n_in, blocks * n_out]
-                x = jnp.concatenate(list(x), axis=-1)
-        else:
-            x = arg * x
-        params.append(x)
-    return treedef.unflatten(params)
-
-
-def initial_carry(cfg: NetworkConfig, batch_shape: tuple[int, ...]) -> Carry:
-    """Zero LSTM state for a batch of shape `batch_shape`."""
-    zeros = jnp.zeros((*batch_shape, cfg.hidden), jnp.float32)
-    return Carry(c=zeros, h=zeros)
-
-
-def param_count(params: Params) -> int:
-    """Total number of scalars in `params` (works on arrays and on `jax.ShapeDtypeStruct`s)."""
-    return sum(math.prod(leaf.shape) for leaf in jax.tree_util.tree_leaves(params))
-
-
-# ------------------------------------------------------------------------------------ convolutions
+# ------------------------------------------------------------------------------------------------ layers
 
 
 def _leaky_relu_unsaved(x):
@@ -313,175 +245,22 @@ def _leaky_relu_fwd(x):
 _leaky_relu.defvjp(_leaky_relu_fwd, lambda y, g: (jnp.where(y >= 0, g, LEAKY_SLOPE * g),))
 
 
-# Convolution layers take and return HWNC activations [h, w, n, c]: spatial axes first, so a linear map over
-# the pixels of every (frame, channel) is one matrix product with ``x.reshape(h * w, n * c)`` (Winograd's
-# transforms below), and a product over the channels of every pixel is a batched matrix product over h * w.
+def _map_chunks(fn: Callable, module: nn.Module, args: tuple[jax.Array, ...], chunk: int) -> jax.Array:
+    """``fn(module, *args)`` for a row-wise `fn` (row i of each arg -> row i of the output), `chunk` rows at a
+    time.
 
-
-def _to_hwnc(images: jax.Array) -> jax.Array:
-    """Frames [n, h, w, c] -> [h, w, n, c] (the conv layers' layout)."""
-    return images.transpose(1, 2, 0, 3)
-
-
-def _to_nhwc(x: jax.Array) -> jax.Array:
-    """HWNC [h, w, n, c] -> frames [n, h, w, c]."""
-    return x.transpose(2, 0, 1, 3)
-
-
-def _blocks(x: jax.Array) -> jax.Array:
-    """HWNC [3h, 3w, n, c] -> its non-overlapping 3x3 blocks [h, w, n, 9c], entries in (di, dj, c) order (the
-    rows of an HWIO kernel)."""
-    h, w, n, c = x.shape
-    k = KERNEL
-    return (
-        x.reshape(h // k, k, w // k, k, n, c)
-        .transpose(0, 2, 4, 1, 3, 5)
-        .reshape(h // k, w // k, n, k * k * c)
-    )
-
-
-@functools.cache
-def _winograd_transforms(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Single-tile Winograd F(m x m, 3 x 3): float32 matrices data [a^2, a^2], filter [a^2, 9] and output
-    [m^2, a^2], a = m + 2, such that the VALID 3x3 cross-correlation of one a x a input tile d with a kernel g
-    (one channel pair) is ``output @ ((filter @ vec(g)) * (data @ vec(d)))``: a^2 multiplies, not 9 m^2.
-
-    Toom-Cook construction (Lavin & Gray 2016) in float64 with interpolation points 0, 1, -1, 2, -2, 1/2 (the
-    first a - 1 of them) and infinity: the 1D output (A^T) and filter (G) matrices from the points, the data
-    matrix (B^T) solved from the identity ``sum_j At[i, j] G[j, k] Bt[j, l] = [l == i + k]``; the 2D
-    transforms are Kronecker products. float32 error of a whole layer: ~1e-6 (m = 3) and ~5e-6 (m = 5)
-    relative to its largest output, against ~1e-7 for a direct product.
-    """
-    points = (0.0, 1.0, -1.0, 2.0, -2.0, 0.5)[: m + 1]
-    if len(points) != m + 1:
-        raise NotImplementedError(f"Winograd transforms are defined for output sizes up to 5, got {m}")
-    a = m + KERNEL - 1
-    out_1d, filter_1d = np.zeros((m, a)), np.zeros((a, KERNEL))
-    for j, p in enumerate(points):
-        out_1d[:, j] = [p**i for i in range(m)]
-        filter_1d[j] = [p**k / math.prod(p - q for q in points if q != p) for k in range(KERNEL)]
-    out_1d[m - 1, a - 1] = filter_1d[a - 1, KERNEL - 1] = 1.0  # the point at infinity
-    # Equation (i, k, l) in the unknowns Bt[j, q]: sum_j At[i, j] G[j, k] Bt[j, q] [q == l] = [l == i + k].
-    system = np.einsum("ij,jk,lq->ikljq", out_1d, filter_1d, np.eye(a)).reshape(-1, a * a)
-    target = np.arange(a)[None, None, :] == np.arange(m)[:, None, None] + np.arange(KERNEL)[None, :, None]
-    data_1d = np.linalg.lstsq(system, target.ravel().astype(np.float64), rcond=None)[0].reshape(a, a)
-    assert np.abs(system @ data_1d.ravel() - target.ravel()).max() < 1e-9, "inconsistent Winograd system"
-    return tuple(np.kron(t, t).astype(np.float32) for t in (data_1d, filter_1d, out_1d))
-
-
-def _winograd_kernel(kernel: jax.Array, m: int) -> jax.Array:
-    """HWIO kernel [3, 3, c_in, c_out] -> its F(m x m, 3 x 3) transform [(m + 2)^2, c_in, c_out]."""
-    _, filter_, _ = _winograd_transforms(m)
-    return (filter_ @ kernel.reshape(KERNEL * KERNEL, -1)).reshape(-1, *kernel.shape[2:])
-
-
-def _winograd_conv(x, kernel, bias):
-    """VALID stride-1 3x3 cross-correlation of x f32[m+2, m+2, n, c_in] (one Winograd tile per frame and
-    channel) with HWIO kernel [3, 3, c_in, c_out] -> f32[m, m, n, c_out]."""
-    a, _, n, c_in = x.shape
-    m = a - KERNEL + 1
-    data, _, out = _winograd_transforms(m)
-    v = (data @ x.reshape(a * a, -1)).reshape(a * a, n, c_in)
-    y = out @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
-    return y.reshape(m, m, n, -1) + bias
-
-
-def _winograd_deconv(x, kernel, bias):
-    """Stride-1 transposed convolution (scatter semantics) of x f32[m, m, n, c_in] with kernel
-    [3, 3, c_in, c_out] -> f32[m+2, m+2, n, c_out]: `_winograd_conv`'s adjoint (transposed transforms)."""
-    m, _, n, c_in = x.shape
-    a = m + KERNEL - 1
-    data, _, out = _winograd_transforms(m)
-    v = (out.T @ x.reshape(m * m, -1)).reshape(a * a, n, c_in)
-    y = data.T @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
-    return y.reshape(a, a, n, -1) + bias
-
-
-def _check_stride(stride: int) -> None:
-    if stride not in (1, KERNEL):
-        raise NotImplementedError(
-            f"matmul convolutions support stride 1 or {KERNEL} (kernel size), got {stride}"
-        )
-
-
-def _conv_matmul(x, kernel, bias, stride: int):
-    """VALID cross-correlation of HWNC `x` with HWIO `kernel`: Winograd for stride 1; for stride 3 (= kernel
-    size, non-overlapping patches) a reshape/transpose into patches and one matrix product."""
-    _check_stride(stride)
-    if stride == 1:
-        return _winograd_conv(x, kernel, bias)
-    h, w, _, c = x.shape
-    k = KERNEL
-    return _blocks(x[: h // k * k, : w // k * k]) @ kernel.reshape(k * k * c, -1) + bias
-
-
-def _deconv_matmul(x, kernel, bias, stride: int):
-    """Transposed convolution (scatter semantics, VALID) of HWNC `x`: Winograd for stride 1; for stride 3 one
-    matrix product to [*, 3 * 3 * c_out] and a transpose (the 3x3 output blocks do not overlap)."""
-    _check_stride(stride)
-    if stride == 1:
-        return _winograd_deconv(x, kernel, bias)
-    h, w, n, c = x.shape
-    k, c_out = KERNEL, kernel.shape[-1]
-    # (the bias is added before the transpose: its gradient then reduces [*, k*k*c_out], not a 3-wide axis)
-    cols = x @ kernel.transpose(2, 0, 1, 3).reshape(c, k * k * c_out) + jnp.tile(bias, k * k)
-    return cols.reshape(h, w, n, k, k, c_out).transpose(0, 3, 1, 4, 2, 5).reshape(h * k, w * k, n, c_out)
-
-
-# XLA:CPU's convolutions run NHWC (its HWNC convolutions measured 12x slower): transposes around them.
-_NHWC = ("NHWC", "HWIO", "NHWC")
-
-
-def _conv_xla(x, kernel, bias, stride: int):
-    out = lax.conv_general_dilated(_to_nhwc(x), kernel, (stride, stride), "VALID", dimension_numbers=_NHWC)
-    return _to_hwnc(out + bias)
-
-
-def _deconv_xla(x, kernel, bias, stride: int):
-    # lax.conv_transpose (transpose_kernel=False) correlates the dilated, padded input with the kernel;
-    # flipping the kernel spatially gives the scatter semantics documented above.
-    out = lax.conv_transpose(
-        _to_nhwc(x), kernel[::-1, ::-1], (stride, stride), "VALID", dimension_numbers=_NHWC
-    )
-    return _to_hwnc(out + bias)
-
-
-def _conv_fns(cfg: NetworkConfig):
-    if cfg.conv_impl == "matmul":
-        return _conv_matmul, _deconv_matmul
-    return _conv_xla, _deconv_xla
-
-
-# ------------------------------------------------------------------------------------------ forward
-
-
-def _dense(p, x):
-    return x @ p["kernel"] + p["bias"]
-
-
-def _mlp(p, x):
-    x = jnp.tanh(_dense(p["dense0"], x))
-    x = jnp.tanh(_dense(p["dense1"], x))
-    return _dense(p["out"], x)
-
-
-def _map_chunks(fn, args: tuple[jax.Array, ...], chunk: int) -> jax.Array:
-    """``fn(*args)`` for a row-wise `fn` (row i of each arg -> row i of the output), `chunk` rows at a time.
-
-    A `lax.map` over chunks keeps each layer's activations in cache: large XLA:CPU buffers are much slower
-    (cache misses, and page faults on the freshly allocated memory of every call); chunking the paper
-    network's gradient step makes it ~1.7x faster. For the backward pass only the values `fn` names `_SAVED`
-    (each hidden layer's activation) are stored; the rest, e.g. the Winograd layers' transformed inputs, is
-    recomputed from them (transforms only: no channel-mixing product is recomputed). Rows are padded to a
+    An ``nn.scan`` over chunks (params broadcast) keeps each layer's activations in cache; for the backward
+    pass (``nn.remat``) only the values `fn` names `_SAVED` (each hidden layer's activation) are stored, the
+    rest (e.g. the Winograd layers' transformed inputs) is recomputed from them. Rows are zero-padded to a
     multiple of `chunk`.
     """
     n = args[0].shape[0]
     if n <= chunk:
-        return fn(*args)
+        return fn(module, *args)
     policy = jax.checkpoint_policies.save_only_these_names(_SAVED)
-    out = lax.map(
-        lambda a: jax.checkpoint(fn, policy=policy, prevent_cse=False)(*a), _split_chunks(args, chunk)
-    )
+    body = nn.remat(lambda mdl, carry, rows: (carry, fn(mdl, *rows)), policy=policy, prevent_cse=False)
+    scan = nn.scan(body, variable_broadcast="params", split_rngs={"params": False})
+    _, out = scan(module, None, _split_chunks(args, chunk))
     return out.reshape(-1, *out.shape[2:])[:n]
 
 
@@ -493,60 +272,284 @@ def _split_chunks(args: tuple[jax.Array, ...], chunk: int) -> tuple[jax.Array, .
     return tuple(x.reshape(-1, chunk, *x.shape[1:]) for x in args)
 
 
-def _encode(params: Params, cfg: NetworkConfig, obs: jax.Array) -> jax.Array:
-    """uint8[N, 21, 21, 3] -> LSTM input projection f32[N, 4 * hidden] (convs, FC, tanh, ``@ wi + b``).
+class Dense(nn.Module):
+    """``x @ kernel + bias``: f32[..., n_in] -> f32[..., features]; orthogonal kernel (gain), zero bias."""
 
-    The convolutions run in chunks (`_map_chunks`), up to conv3's pre-activation; its activation, the FC
-    layer and the projection run on all N frames at once, as large matrix products."""
-    conv, _ = _conv_fns(cfg)
+    features: int
+    gain: float
 
-    def encode_chunk(obs):
-        x = _to_hwnc(obs).astype(jnp.float32) * (1.0 / 255.0)
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = _param(self, "kernel", Init("orthogonal", self.gain), (x.shape[-1], self.features))
+        return x @ kernel + _param(self, "bias", Init("zeros"), (self.features,))
+
+
+class MLP(nn.Module):
+    """f32[..., n_in] -> f32[..., n_out]: two tanh hidden layers of `width` (gain sqrt 2), a linear output."""
+
+    width: int
+    n_out: int
+    out_gain: float
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), name="dense0")(x))
+        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), name="dense1")(x))
+        return Dense(self.n_out, self.out_gain, name="out")(x)
+
+
+class Conv(nn.Module):
+    """3x3 VALID convolution of HWNC activations f32[h, w, n, c_in] -> f32[h', w', n, features] (`conv.conv`;
+    transpose: `conv.deconv`), PyTorch's default uniform init with fan-in c_in * 9 (/ stride^2 transposed)."""
+
+    features: int
+    stride: int
+    impl: str
+    transpose: bool = False
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        c_in = x.shape[-1]
+        bound = 1.0 / math.sqrt(c_in * KERNEL * KERNEL / (self.stride**2 if self.transpose else 1))
+        kernel = _param(self, "kernel", Init("uniform", bound), (KERNEL, KERNEL, c_in, self.features))
+        bias = _param(self, "bias", Init("uniform", bound), (self.features,))
+        return (conv.deconv if self.transpose else conv.conv)(x, kernel, bias, self.stride, self.impl)
+
+
+class Encoder(nn.Module):
+    """Frames uint8[N, 21, 21, 3] -> features f32[N, hidden]: three leaky-ReLU convs, FC, tanh.
+
+    The convolutions run in chunks of `NetworkConfig.chunk` frames (`_map_chunks`), up to conv3's
+    pre-activation; its activation and the FC layer run on all N frames at once, as large matrix products.
+    """
+
+    cfg: NetworkConfig
+
+    def setup(self):
+        (c1, c2, c3), impl = self.cfg.conv_channels, self.cfg.conv_impl
+        self.conv1 = Conv(c1, STRIDES[0], impl)
+        self.conv2 = Conv(c2, STRIDES[1], impl)
+        self.conv3 = Conv(c3, STRIDES[2], impl)
+        self.fc = Dense(self.cfg.hidden, math.sqrt(2.0))
+
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        chex.assert_shape(obs, (None, *OBS_SHAPE))
+        chex.assert_type(obs, jnp.uint8)
+        x = _leaky_relu(_map_chunks(Encoder.conv_features, self, (obs,), self.cfg.chunk))
+        return jnp.tanh(self.fc(x))
+
+    def conv_features(self, obs: jax.Array) -> jax.Array:
+        """uint8[n, 21, 21, 3] -> conv3's pre-activation f32[n, feature_size], flattened (h, w, c)."""
+        x = conv.to_hwnc(obs).astype(jnp.float32) * (1.0 / 255.0)
         # conv1's activation is recomputed from obs, not saved (+0.6% FLOPs, 6 KB less memory per frame)
-        x = _leaky_relu_unsaved(conv(x, params["conv1"]["kernel"], params["conv1"]["bias"], STRIDES[0]))
-        x = _leaky_relu(conv(x, params["conv2"]["kernel"], params["conv2"]["bias"], STRIDES[1]))
-        x = conv(x, params["conv3"]["kernel"], params["conv3"]["bias"], STRIDES[2])
-        return _to_nhwc(x).reshape(x.shape[2], -1)  # rows, flattened in (h, w, c) order
-
-    x = _leaky_relu(_map_chunks(encode_chunk, (obs,), cfg.chunk))
-    x = jnp.tanh(_dense(params["fc"], x))
-    return x @ params["lstm"]["wi"] + params["lstm"]["b"]
+        x = _leaky_relu_unsaved(self.conv1(x))
+        x = _leaky_relu(self.conv2(x))
+        x = self.conv3(x)
+        return conv.to_nhwc(x).reshape(x.shape[2], -1)
 
 
-def _lstm_scan(p: Params, carry: Carry, xproj: jax.Array, resets: jax.Array) -> tuple[Carry, jax.Array]:
-    """LSTM over T steps given the precomputed input projection xproj f32[T, B, 4H] (including the bias)."""
-    wh = p["wh"]
+class LSTM(nn.Module):
+    """LSTM over T steps of B sequences: carry `Carry` f32[B, features] x 2, x f32[T, B, n_in], resets
+    bool[T, B] (before step t, the carry of every sequence with resets[t, b] is zeroed) -> (final `Carry`,
+    h f32[T, B, features]). The input projection ``x @ wi + b`` runs on all T * B rows at once, only
+    ``h @ wh`` and the gates inside the `lax.scan` over T."""
 
-    def cell(carry, inputs):
-        xp, reset = inputs
-        keep = ~reset[:, None]
-        c = jnp.where(keep, carry.c, 0.0)
-        h = jnp.where(keep, carry.h, 0.0)
-        gates = xp + h @ wh
-        i, f, g, o = jnp.split(gates, 4, axis=-1)
-        c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
-        h = jax.nn.sigmoid(o) * jnp.tanh(c)
-        return Carry(c=c, h=h), h
+    features: int
 
-    return lax.scan(cell, carry, (xproj, resets))
+    @nn.compact
+    def __call__(self, carry: Carry, x: jax.Array, resets: jax.Array) -> tuple[Carry, jax.Array]:
+        n_in, gates = x.shape[-1], 4 * self.features
+        wi = _param(self, "wi", Init("normal", 1.0 / math.sqrt(n_in)), (n_in, gates))
+        wh = _param(self, "wh", Init("orthogonal", 1.0, blocks=4), (self.features, gates))
+        xproj = x @ wi + _param(self, "b", Init("zeros"), (gates,))
+
+        def cell(carry, inputs):
+            xp, reset = inputs
+            keep = ~reset[:, None]
+            c = jnp.where(keep, carry.c, 0.0)
+            h = jnp.where(keep, carry.h, 0.0)
+            i, f, g, o = jnp.split(xp + h @ wh, 4, axis=-1)
+            c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
+            h = jax.nn.sigmoid(o) * jnp.tanh(c)
+            return Carry(c=c, h=h), h
+
+        return lax.scan(cell, carry, (xproj, resets))
+
+
+class Decoder(nn.Module):
+    """The auxiliary frame head: LSTM outputs f32[..., H] and actions int[...] -> frames f32[..., 21, 21, 3].
+
+    Unbounded (linear output layer); the learner compares it with obs / 255 (`aux_loss`). Runs in chunks of
+    `NetworkConfig.chunk` frames (`_map_chunks`).
+    """
+
+    cfg: NetworkConfig
+
+    def setup(self):
+        (c1, c2, _), impl = self.cfg.conv_channels, self.cfg.conv_impl
+        self.aux_fc = Dense(self.cfg.feature_size, math.sqrt(2.0))
+        self.deconv1 = Conv(c2, STRIDES[2], impl, transpose=True)
+        self.deconv2 = Conv(c1, STRIDES[1], impl, transpose=True)
+        self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True)
+
+    def __call__(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
+        batch = hidden.shape[:-1]
+        chex.assert_shape(hidden, (*batch, self.cfg.hidden))
+        chex.assert_shape(action, batch)
+        rows = (hidden.reshape(-1, hidden.shape[-1]), jnp.asarray(action).reshape(-1))
+        frames = _map_chunks(
+            lambda mdl, *rows: conv.to_nhwc(mdl.frames_hwnc(*rows)), self, rows, self.cfg.chunk
+        )
+        return frames.reshape(*batch, *OBS_SHAPE)
+
+    def frames_hwnc(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
+        """Rows hidden f32[N, H], action int[N] -> frames f32[21, 21, N, 3] (HWNC), in one piece."""
+        z = jnp.concatenate([hidden, jax.nn.one_hot(action, self.cfg.n_actions, dtype=hidden.dtype)], axis=-1)
+        x = checkpoint_name(jnp.tanh(self.aux_fc(z)), _SAVED)
+        x = conv.to_hwnc(x.reshape(-1, *self.cfg.feature_shape))
+        x = _leaky_relu(self.deconv1(x))
+        x = _leaky_relu(self.deconv2(x))
+        return self.deconv3(x)  # linear output
+
+    def frame_errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
+        """Mean absolute error of each frame's prediction against target / 255, f32[N], for rows hidden
+        f32[N, H], action int[N], target uint8[N, 21, 21, 3], in one piece."""
+        # Compared in 3x3 blocks, the layout of deconv3's matrix product: XLA then cancels the deconvolution's
+        # transpose to HWNC with this one, here and in the backward pass (+12% for the small training preset).
+        prediction = conv.blocks(self.frames_hwnc(hidden, action))
+        error = jnp.abs(prediction - conv.blocks(conv.to_hwnc(target)).astype(jnp.float32) / 255.0)
+        h, w, n, c = error.shape
+        # The sum over pixels as a matrix-vector product: XLA:CPU's reduction over axes (0, 1, 3) took 10x
+        # longer.
+        return (jnp.ones(h * w) @ error.reshape(h * w, n * c)).reshape(n, c).sum(axis=-1) / (h * w * c)
+
+    def errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
+        """`frame_errors` of rows f32[N, H], int[N], uint8[N, 21, 21, 3] -> f32[N], in chunks."""
+        return _map_chunks(Decoder.frame_errors, self, (hidden, action, target), self.cfg.chunk)
+
+
+class ActorCritic(nn.Module):
+    """The recurrent actor-critic: ``ActorCritic(cfg).apply({"params": params}, carry, obs, resets)`` runs it
+    over T steps of B sequences and returns the final `Carry` and per-step `Output`s.
+
+    carry: `Carry` f32[B, hidden] x 2; obs uint8[T, B, 21, 21, 3]; resets bool[T, B] (before step t, the
+    carry of every sequence with resets[t, b] is zeroed: a reset step starts a fresh episode). ``init`` with
+    the same arguments also creates the auxiliary heads' params (`decode`, `attention_logits`).
+    """
+
+    cfg: NetworkConfig
+
+    def setup(self):
+        cfg = self.cfg
+        self.encoder = Encoder(cfg)
+        nn.share_scope(self, self.encoder)  # its layers are top-level entries of the params tree
+        self.lstm = LSTM(cfg.hidden)
+        self.policy = MLP(cfg.mlp, cfg.n_actions, 0.01)
+        self.value = MLP(cfg.mlp, 1, 1.0)
+        if cfg.attention:
+            self.attention = Dense(cfg.n_others * ATTENTION_CLASSES, 0.01)
+        if cfg.frame_aux != "none":
+            self.decoder = Decoder(cfg)
+            nn.share_scope(self, self.decoder)
+
+    def __call__(self, carry: Carry, obs: jax.Array, resets: jax.Array) -> tuple[Carry, Output]:
+        cfg = self.cfg
+        t, b = obs.shape[:2]
+        chex.assert_shape(obs, (t, b, *OBS_SHAPE))
+        chex.assert_shape(resets, (t, b))
+        chex.assert_shape([carry.c, carry.h], (b, cfg.hidden))
+        chex.assert_type([resets, carry.c, carry.h], [bool, jnp.float32, jnp.float32])
+        x = self.encoder(obs.reshape(t * b, *OBS_SHAPE)).reshape(t, b, -1)
+        carry, hidden = self.lstm(carry, x, resets)
+        out = Output(logits=self.policy(hidden), value=self.value(hidden)[..., 0], hidden=hidden)
+        if self.is_initializing():  # create the auxiliary heads' params too
+            if cfg.attention:
+                self.attention_logits(hidden)
+            if cfg.frame_aux != "none":
+                self.decode(hidden, jnp.zeros((t, b), jnp.int32))
+        return carry, out
+
+    def attention_logits(self, hidden: jax.Array) -> jax.Array:
+        """LSTM outputs f32[..., H] -> logits f32[..., n_others, 50] over each other slot's view cell."""
+        if not self.cfg.attention:
+            raise ValueError(f"cfg.aux == {self.cfg.aux!r} has no attention head")
+        logits = self.attention(hidden)
+        return logits.reshape(*hidden.shape[:-1], self.cfg.n_others, ATTENTION_CLASSES)
+
+    def decode(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
+        """`Decoder`: hidden f32[..., H], action int[...] -> frames f32[..., 21, 21, 3]."""
+        _check_decoder(self.cfg)
+        return self.decoder(hidden, action)
+
+
+def _check_decoder(cfg: NetworkConfig) -> None:
+    if cfg.frame_aux == "none":
+        raise ValueError(f"decoding needs an auxiliary decoder, but cfg.aux == {cfg.aux!r} built none")
+
+
+# ------------------------------------------------------------------------------------ functional API
+
+
+@functools.cache
+def _initialisers(cfg: NetworkConfig) -> dict[tuple[str, ...], tuple[tuple[int, ...], Init]]:
+    """Every parameter's path -> (shape, `Init`), from an abstract ``ActorCritic.init`` that records them."""
+    b = 1
+    args = (initial_carry(cfg, (b,)), jnp.zeros((1, b, *OBS_SHAPE), jnp.uint8), jnp.zeros((1, b), bool))
+    variables = jax.eval_shape(
+        lambda key: ActorCritic(cfg).init(key, *args, mutable=["params", _INITS]), jax.random.key(0)
+    )
+    shapes = traverse_util.flatten_dict(variables["params"])
+    inits = traverse_util.flatten_dict(variables[_INITS])
+    return {path: (shapes[path].shape, inits[path][0]) for path in shapes}
+
+
+def init(key: jax.Array, cfg: NetworkConfig) -> Params:
+    """Initial params of ``ActorCritic(cfg)`` (a nested dict of float32 arrays); pure, so it can be vmapped
+    over keys.
+
+    Every parameter is a slice of one of two flat random buffers (standard normal and U(-1, 1)), in the
+    params' sorted path order: a separate `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time
+    each (11 s for the whole network).
+    """
+    specs = sorted(_initialisers(cfg).items())
+    sizes = {"normal": 0, "uniform": 0}
+    for _, (shape, initialiser) in specs:
+        if initialiser.noise:
+            sizes[initialiser.noise] += math.prod(shape)
+    k_normal, k_uniform = jax.random.split(key)
+    buffers = {
+        "normal": jax.random.normal(k_normal, (sizes["normal"],), jnp.float32),
+        "uniform": jax.random.uniform(k_uniform, (sizes["uniform"],), jnp.float32, -1.0, 1.0),
+    }
+    offsets = {"normal": 0, "uniform": 0}
+    params = {}
+    for path, (shape, initialiser) in specs:
+        noise = None
+        if initialiser.noise:
+            start, size = offsets[initialiser.noise], math.prod(shape)
+            offsets[initialiser.noise] += size
+            noise = buffers[initialiser.noise][start : start + size]
+        params[path] = initialiser.from_noise(noise, shape)
+    return traverse_util.unflatten_dict(params)
+
+
+def initial_carry(cfg: NetworkConfig, batch_shape: tuple[int, ...]) -> Carry:
+    """Zero LSTM state for a batch of shape `batch_shape`."""
+    zeros = jnp.zeros((*batch_shape, cfg.hidden), jnp.float32)
+    return Carry(c=zeros, h=zeros)
+
+
+def param_count(params: Params) -> int:
+    """Total number of scalars in `params` (works on arrays and on `jax.ShapeDtypeStruct`s)."""
+    return sum(math.prod(leaf.shape) for leaf in jax.tree_util.tree_leaves(params))
 
 
 def unroll(
     params: Params, cfg: NetworkConfig, carry: Carry, obs: jax.Array, resets: jax.Array
 ) -> tuple[Carry, Output]:
-    """Run the network over T steps of B sequences.
-
-    obs uint8[T, B, 21, 21, 3]; resets bool[T, B]: before step t, the carry of every sequence b with
-    resets[t, b] is zeroed (a reset step starts a fresh episode). Returns the final carry and per-step
-    `Output`s. The conv encoder and the LSTM input projection run on all T * B frames at once (in chunks);
-    only ``h @ wh`` and the gates are inside the `lax.scan` over T.
-    """
-    t, b = obs.shape[:2]
-    xproj = _encode(params, cfg, obs.reshape(t * b, *obs.shape[2:])).reshape(t, b, -1)
-    carry, hidden = _lstm_scan(params["lstm"], carry, xproj, resets)
-    logits = _mlp(params["policy"], hidden)
-    value = _mlp(params["value"], hidden)[..., 0]
-    return carry, Output(logits=logits, value=value, hidden=hidden)
+    """`ActorCritic` over T steps of B sequences: carry `Carry` f32[B, H] x 2, obs uint8[T, B, 21, 21, 3],
+    resets bool[T, B] -> (final `Carry`, `Output` with T and B axes)."""
+    return ActorCritic(cfg).apply({"params": params}, carry, obs, resets)
 
 
 def step(
@@ -563,32 +566,11 @@ def attention_loss(params: Params, cfg: NetworkConfig, hidden: jax.Array, target
     hidden f32[..., H]; target int[..., K] each other slot's view cell (`observe.attention_targets`:
     row * 7 + col, or 49 when not in view); weight f32[...]. Raises ValueError without the attention head.
     """
-    if not cfg.attention:
-        raise ValueError(f"cfg.aux == {cfg.aux!r} has no attention head")
-    logits = _dense(params["attention"], hidden).reshape(*hidden.shape[:-1], cfg.n_others, ATTENTION_CLASSES)
+    chex.assert_shape(target, (*hidden.shape[:-1], cfg.n_others))
+    logits = ActorCritic(cfg).apply({"params": params}, hidden, method=ActorCritic.attention_logits)
     log_probs = jax.nn.log_softmax(logits)
     nll = -jnp.take_along_axis(log_probs, target[..., None].astype(jnp.int32), -1)[..., 0]
     return jnp.sum(weight * jnp.mean(nll, -1))
-
-
-DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")
-
-
-def _check_decoder(cfg: NetworkConfig) -> None:
-    if cfg.frame_aux == "none":
-        raise ValueError(f"decoding needs an auxiliary decoder, but cfg.aux == {cfg.aux!r} built none")
-
-
-def _decode_hwnc(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Array) -> jax.Array:
-    """The decoder on rows hidden f32[N, H], action int[N] -> frames f32[21, 21, N, 3] (HWNC)."""
-    _, deconv = _conv_fns(cfg)
-    z = jnp.concatenate([hidden, jax.nn.one_hot(action, cfg.n_actions, dtype=hidden.dtype)], axis=-1)
-    x = checkpoint_name(jnp.tanh(_dense(params["aux_fc"], z)), _SAVED)
-    x = _to_hwnc(x.reshape(-1, *cfg.feature_shape))
-    for name, stride in zip(("deconv1", "deconv2", "deconv3"), STRIDES[::-1], strict=True):
-        x = deconv(x, params[name]["kernel"], params[name]["bias"], stride)
-        x = _leaky_relu(x) if name != "deconv3" else x  # linear output
-    return x
 
 
 def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Array) -> jax.Array:
@@ -597,11 +579,7 @@ def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Ar
     Unbounded (linear output layer); the learner compares it with obs / 255 (see `aux_loss`, which
     computes that comparison and its gradient faster). Raises ValueError without a decoder.
     """
-    _check_decoder(cfg)
-    batch = hidden.shape[:-1]
-    hidden, action = hidden.reshape(-1, hidden.shape[-1]), jnp.asarray(action).reshape(-1)
-    fn = lambda hidden, action: _to_nhwc(_decode_hwnc(params, cfg, hidden, action))  # noqa: E731
-    return _map_chunks(fn, (hidden, action), cfg.chunk).reshape(*batch, *OBS_SHAPE)
+    return ActorCritic(cfg).apply({"params": params}, hidden, action, method=ActorCritic.decode)
 
 
 def aux_loss(
@@ -627,35 +605,30 @@ def aux_loss(
     than every frame's activations; the backward pass only scales them by the incoming cotangent.
     """
     _check_decoder(cfg)
+    batch = hidden.shape[:-1]
+    chex.assert_shape([hidden, target], [(*batch, cfg.hidden), (*batch, *OBS_SHAPE)])
+    chex.assert_type(target, jnp.uint8)
     decoder = {name: params[name] for name in DECODER_PARAMS}
     if axis_name is not None:  # per-device gradients; pcast's transpose sums them over the devices
         decoder = lax.pcast(decoder, axis_name, to="varying")
-    n = math.prod(hidden.shape[:-1])
+    n = math.prod(batch)
     rows = (
         hidden.reshape(n, hidden.shape[-1]),
         jnp.asarray(action).reshape(n),
         target.reshape(n, *OBS_SHAPE),
-        jnp.broadcast_to(jnp.asarray(weight, jnp.float32), hidden.shape[:-1]).reshape(n),
+        jnp.broadcast_to(jnp.asarray(weight, jnp.float32), batch).reshape(n),
     )
     return _aux_loss(cfg, decoder, *rows)
 
 
-def _frame_errors(decoder: Params, cfg: NetworkConfig, hidden, action, target) -> jax.Array:
-    """Mean absolute error of each frame's prediction, f32[N], for rows hidden f32[N, H], action int[N],
-    target uint8[N, 21, 21, 3]."""
-    # Compared in 3x3 blocks, the layout of deconv3's matrix product: XLA then cancels the deconvolution's
-    # transpose to HWNC with this one, here and in the backward pass (+12% for the small training preset).
-    prediction = _blocks(_decode_hwnc(decoder, cfg, hidden, action))
-    error = jnp.abs(prediction - _blocks(_to_hwnc(target)).astype(jnp.float32) / 255.0)
-    h, w, n, c = error.shape
-    # The sum over pixels as a matrix-vector product: XLA:CPU's reduction over axes (0, 1, 3) took 10x longer.
-    return (jnp.ones(h * w) @ error.reshape(h * w, n * c)).reshape(n, c).sum(axis=-1) / (h * w * c)
+def _decoder_apply(cfg: NetworkConfig, decoder: Params, method: Callable, *args) -> jax.Array:
+    """A `Decoder` method applied to the decoder's entries of the params tree (`DECODER_PARAMS`)."""
+    return Decoder(cfg).apply({"params": decoder}, *args, method=method)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
 def _aux_loss(cfg: NetworkConfig, decoder: Params, hidden, action, target, weight) -> jax.Array:
-    errors = _map_chunks(functools.partial(_frame_errors, decoder, cfg), (hidden, action, target), cfg.chunk)
-    return jnp.sum(weight * errors)
+    return jnp.sum(weight * _decoder_apply(cfg, decoder, Decoder.errors, hidden, action, target))
 
 
 def _aux_loss_fwd(cfg: NetworkConfig, decoder: Params, hidden, action, target, weight):
@@ -668,7 +641,7 @@ def _aux_loss_fwd(cfg: NetworkConfig, decoder: Params, hidden, action, target, w
         hidden, action, target, weight = inputs
 
         def weighted_error(decoder, hidden):
-            errors = _frame_errors(decoder, cfg, hidden, action, target)
+            errors = _decoder_apply(cfg, decoder, Decoder.frame_errors, hidden, action, target)
             return jnp.sum(weight * errors), errors
 
         (d_chunk, d_hidden), errors = jax.grad(weighted_error, argnums=(0, 1), has_aux=True)(decoder, hidden)

@@ -1,0 +1,173 @@
+"""3x3 convolutions of the network (`network.Conv`): fast matrix-product kernels and the XLA reference.
+
+Activations are HWNC ``f32[h, w, n, c]`` (spatial axes first: a linear map over the pixels of every frame and
+channel is one matrix product with ``x.reshape(h * w, n * c)``, a product over the channels of every pixel a
+batched product over the h * w pixels); kernels are HWIO ``f32[3, 3, c_in, c_out]``; biases ``f32[c_out]``.
+
+* `conv`: VALID cross-correlation, like torch Conv2d: ``out[i, j] = sum_{di, dj} x[s*i + di, s*j + dj] @
+  kernel[di, dj] + bias``.
+* `deconv`: VALID transposed convolution with scatter semantics, like torch ConvTranspose2d:
+  ``out[s*i + di, s*j + dj] += x[i, j] @ kernel[di, dj]``, plus the bias.
+
+Implementations (`IMPLS`; the same function of the same arguments):
+
+* "matmul": matrix products only (XLA:CPU's convolutions and their gradients are slow for these small
+  images). Stride 1: Winograd's minimal filtering with one tile per frame, F(m x m, 3 x 3) for an m x m
+  output (`winograd_transforms`; m <= 5); the transposed convolution is its adjoint. Stride 3 (= kernel size,
+  non-overlapping 3x3 blocks): a reshape/transpose into blocks and one matrix product. float32 error: ~5e-6
+  of a layer's largest output for m = 5, ~1e-7 for a direct product.
+* "xla": ``lax.conv_general_dilated`` / ``lax.conv_transpose`` in NHWC (exact reference).
+
+Measurements behind these choices: docs/performance.md.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import lax
+
+KERNEL = 3
+IMPLS = ("matmul", "xla")
+
+
+def conv(x: jax.Array, kernel: jax.Array, bias: jax.Array, stride: int, impl: str) -> jax.Array:
+    """VALID cross-correlation: x f32[h, w, n, c_in] -> f32[(h - 3) // s + 1, (w - 3) // s + 1, n, c_out]."""
+    return {"matmul": _conv_matmul, "xla": _conv_xla}[impl](x, kernel, bias, stride)
+
+
+def deconv(x: jax.Array, kernel: jax.Array, bias: jax.Array, stride: int, impl: str) -> jax.Array:
+    """VALID transposed convolution: x f32[h, w, n, c_in] -> f32[s (h - 1) + 3, s (w - 1) + 3, n, c_out]."""
+    return {"matmul": _deconv_matmul, "xla": _deconv_xla}[impl](x, kernel, bias, stride)
+
+
+def to_hwnc(images: jax.Array) -> jax.Array:
+    """Frames [n, h, w, c] -> [h, w, n, c] (the conv layers' layout)."""
+    return images.transpose(1, 2, 0, 3)
+
+
+def to_nhwc(x: jax.Array) -> jax.Array:
+    """HWNC [h, w, n, c] -> frames [n, h, w, c]."""
+    return x.transpose(2, 0, 1, 3)
+
+
+def blocks(x: jax.Array) -> jax.Array:
+    """HWNC [3h, 3w, n, c] -> its non-overlapping 3x3 blocks [h, w, n, 9c], entries in (di, dj, c) order (the
+    rows of an HWIO kernel)."""
+    h, w, n, c = x.shape
+    k = KERNEL
+    return (
+        x.reshape(h // k, k, w // k, k, n, c)
+        .transpose(0, 2, 4, 1, 3, 5)
+        .reshape(h // k, w // k, n, k * k * c)
+    )
+
+
+# ---------------------------------------------------------------------------------------------- matmul
+
+
+@functools.cache
+def winograd_transforms(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Single-tile Winograd F(m x m, 3 x 3): float32 matrices data [a^2, a^2], filter [a^2, 9] and output
+    [m^2, a^2], a = m + 2, such that the VALID 3x3 cross-correlation of one a x a input tile d with a kernel g
+    (one channel pair) is ``output @ ((filter @ vec(g)) * (data @ vec(d)))``: a^2 multiplies, not 9 m^2.
+
+    Toom-Cook construction (Lavin & Gray 2016) in float64 with interpolation points 0, 1, -1, 2, -2, 1/2 (the
+    first a - 1 of them) and infinity: the 1D output (A^T) and filter (G) matrices from the points, the data
+    matrix (B^T) solved from the identity ``sum_j At[i, j] G[j, k] Bt[j, l] = [l == i + k]``; the 2D
+    transforms are Kronecker products.
+    """
+    points = (0.0, 1.0, -1.0, 2.0, -2.0, 0.5)[: m + 1]
+    if len(points) != m + 1:
+        raise NotImplementedError(f"Winograd transforms are defined for output sizes up to 5, got {m}")
+    a = m + KERNEL - 1
+    out_1d, filter_1d = np.zeros((m, a)), np.zeros((a, KERNEL))
+    for j, p in enumerate(points):
+        out_1d[:, j] = [p**i for i in range(m)]
+        filter_1d[j] = [p**k / math.prod(p - q for q in points if q != p) for k in range(KERNEL)]
+    out_1d[m - 1, a - 1] = filter_1d[a - 1, KERNEL - 1] = 1.0  # the point at infinity
+    # Equation (i, k, l) in the unknowns Bt[j, q]: sum_j At[i, j] G[j, k] Bt[j, q] [q == l] = [l == i + k].
+    system = np.einsum("ij,jk,lq->ikljq", out_1d, filter_1d, np.eye(a)).reshape(-1, a * a)
+    target = np.arange(a)[None, None, :] == np.arange(m)[:, None, None] + np.arange(KERNEL)[None, :, None]
+    data_1d = np.linalg.lstsq(system, target.ravel().astype(np.float64), rcond=None)[0].reshape(a, a)
+    assert np.abs(system @ data_1d.ravel() - target.ravel()).max() < 1e-9, "inconsistent Winograd system"
+    return tuple(np.kron(t, t).astype(np.float32) for t in (data_1d, filter_1d, out_1d))
+
+
+def _winograd_kernel(kernel: jax.Array, m: int) -> jax.Array:
+    """HWIO kernel [3, 3, c_in, c_out] -> its F(m x m, 3 x 3) transform [(m + 2)^2, c_in, c_out]."""
+    _, filter_, _ = winograd_transforms(m)
+    return (filter_ @ kernel.reshape(KERNEL * KERNEL, -1)).reshape(-1, *kernel.shape[2:])
+
+
+def _winograd_conv(x, kernel, bias):
+    """VALID stride-1 cross-correlation of x f32[m+2, m+2, n, c_in] -> f32[m, m, n, c_out]: a transform of the
+    pixels, a batched product over the (m+2)^2 transformed pixels, an output transform."""
+    a, _, n, c_in = x.shape
+    m = a - KERNEL + 1
+    data, _, out = winograd_transforms(m)
+    v = (data @ x.reshape(a * a, -1)).reshape(a * a, n, c_in)
+    y = out @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
+    return y.reshape(m, m, n, -1) + bias
+
+
+def _winograd_deconv(x, kernel, bias):
+    """Stride-1 transposed convolution of x f32[m, m, n, c_in] -> f32[m+2, m+2, n, c_out]: `_winograd_conv`'s
+    adjoint (transposed transforms)."""
+    m, _, n, c_in = x.shape
+    a = m + KERNEL - 1
+    data, _, out = winograd_transforms(m)
+    v = (out.T @ x.reshape(m * m, -1)).reshape(a * a, n, c_in)
+    y = data.T @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
+    return y.reshape(a, a, n, -1) + bias
+
+
+def _check_stride(stride: int) -> None:
+    if stride not in (1, KERNEL):
+        raise NotImplementedError(
+            f"matmul convolutions support stride 1 or {KERNEL} (kernel size), got {stride}"
+        )
+
+
+def _conv_matmul(x, kernel, bias, stride: int):
+    _check_stride(stride)
+    if stride == 1:
+        return _winograd_conv(x, kernel, bias)
+    h, w, _, c = x.shape
+    k = KERNEL
+    return blocks(x[: h // k * k, : w // k * k]) @ kernel.reshape(k * k * c, -1) + bias
+
+
+def _deconv_matmul(x, kernel, bias, stride: int):
+    _check_stride(stride)
+    if stride == 1:
+        return _winograd_deconv(x, kernel, bias)
+    h, w, n, c = x.shape
+    k, c_out = KERNEL, kernel.shape[-1]
+    # (the bias is added before the transpose: its gradient then reduces [*, k*k*c_out], not a 3-wide axis)
+    cols = x @ kernel.transpose(2, 0, 1, 3).reshape(c, k * k * c_out) + jnp.tile(bias, k * k)
+    return cols.reshape(h, w, n, k, k, c_out).transpose(0, 3, 1, 4, 2, 5).reshape(h * k, w * k, n, c_out)
+
+
+# ------------------------------------------------------------------------------------------------- xla
+
+# XLA:CPU's convolutions run NHWC (its HWNC convolutions measured 12x slower): transposes around them.
+_NHWC = ("NHWC", "HWIO", "NHWC")
+
+
+def _conv_xla(x, kernel, bias, stride: int):
+    out = lax.conv_general_dilated(to_nhwc(x), kernel, (stride, stride), "VALID", dimension_numbers=_NHWC)
+    return to_hwnc(out + bias)
+
+
+def _deconv_xla(x, kernel, bias, stride: int):
+    # lax.conv_transpose (transpose_kernel=False) correlates the dilated, padded input with the kernel;
+    # flipping the kernel spatially gives the scatter semantics.
+    out = lax.conv_transpose(
+        to_nhwc(x), kernel[::-1, ::-1], (stride, stride), "VALID", dimension_numbers=_NHWC
+    )
+    return to_hwnc(out + bias)
