@@ -14,6 +14,19 @@ def _hwnc(x):
     return np.asarray(x).transpose(1, 2, 0, 3)
 
 
+def assert_every_impl_matches(layer, x, kernel, bias, stride, expected):
+    """`layer` (conv.conv or conv.deconv) in every implementation equals `expected` (NHWC, float64).
+    Winograd's float32 error grows with the tile (see `conv.winograd_transforms`): relative to the largest
+    output."""
+    for impl in conv.IMPLS:
+        np.testing.assert_allclose(
+            layer(_hwnc(x), kernel, bias, stride, impl),
+            _hwnc(expected),
+            rtol=1e-5,
+            atol=1e-5 * np.abs(expected).max(),
+        )
+
+
 @pytest.mark.parametrize("stride, size", [(1, 7), (1, 5), (3, 21)])
 def test_conv_cross_correlation(stride, size):
     """Convolutions (HWNC activations, HWIO kernels) are PyTorch Conv2d's VALID cross-correlation:
@@ -32,15 +45,7 @@ def test_conv_cross_correlation(stride, size):
                 dj : dj + stride * (out_size - 1) + 1 : stride,
             ]
             expected += window.astype(np.float64) @ kernel[di, dj]
-    for impl in conv.IMPLS:
-        # Winograd's float32 error grows with the tile (see `conv.winograd_transforms`): relative to the
-        # largest output
-        np.testing.assert_allclose(
-            conv.conv(_hwnc(x), kernel, bias, stride, impl),
-            _hwnc(expected),
-            rtol=1e-5,
-            atol=1e-5 * np.abs(expected).max(),
-        )
+    assert_every_impl_matches(conv.conv, x, kernel, bias, stride, expected)
 
 
 @pytest.mark.parametrize("stride, size", [(1, 3), (1, 5), (3, 7)])
@@ -59,15 +64,7 @@ def test_deconv_scatter_semantics(stride, size):
                     expected[:, stride * i + di, stride * j + dj] += (
                         x[:, i, j].astype(np.float64) @ kernel[di, dj]
                     )
-    for impl in conv.IMPLS:
-        # Winograd's float32 error grows with the tile (see `conv.winograd_transforms`): relative to the
-        # largest output
-        np.testing.assert_allclose(
-            conv.deconv(_hwnc(x), kernel, bias, stride, impl),
-            _hwnc(expected),
-            rtol=1e-5,
-            atol=1e-5 * np.abs(expected).max(),
-        )
+    assert_every_impl_matches(conv.deconv, x, kernel, bias, stride, expected)
 
 
 @pytest.mark.parametrize("m", [3, 5])

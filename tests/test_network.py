@@ -11,7 +11,7 @@ import pytest
 
 from jaxsocial import checkpoint
 from jaxsocial.agents import network as net
-from jaxsocial.agents import population
+from jaxsocial.agents import policy_io
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
 T, B = 5, 3
@@ -320,22 +320,16 @@ PRE_FLAX_SMALL_LAYOUT = {
 }
 
 
-def _export(run_dir, params, cfg):
-    """A policy export as `train.export_policy` writes it (one learner)."""
-    meta = {"net": population.json_net(cfg), "n_learners": 1, "slots": "LX"}
-    checkpoint.save(run_dir / population.POLICY_DIR, 0, {"params": params}, metadata=meta)
-
-
 def test_pre_flax_policy_exports_load(tmp_path):
     """A policy exported with the pre-Flax params tree loads unchanged (the tree is the same); one with other
     tree fails with `CheckpointMismatchError` naming the entries that differ."""
     is_shape = lambda x: isinstance(x, tuple) and all(isinstance(d, int) for d in x)  # noqa: E731
     stored = _normal(11, jax.tree.map(np.zeros, PRE_FLAX_SMALL_LAYOUT, is_leaf=is_shape))
     stacked = jax.tree.map(lambda x: x[None], stored)
-    _export(tmp_path / "old", stacked, SMALL)
-    chex.assert_trees_all_close(population.load_policy(str(tmp_path / "old"), SMALL), stored)
+    policy_io.export_policy(tmp_path / "old", 0, stacked, SMALL)
+    chex.assert_trees_all_close(policy_io.load_policy(str(tmp_path / "old"), SMALL), stored)
 
     nested = {"encoder": {k: stacked.pop(k) for k in ("conv1", "conv2", "conv3", "fc")}, **stacked}
-    _export(tmp_path / "nested", nested, SMALL)
+    policy_io.export_policy(tmp_path / "nested", 0, nested, SMALL)
     with pytest.raises(checkpoint.CheckpointMismatchError, match="conv1"):
-        population.load_policy(str(tmp_path / "nested"), SMALL)
+        policy_io.load_policy(str(tmp_path / "nested"), SMALL)
