@@ -11,7 +11,11 @@ random buffers, which compiles ~10x faster than one draw per tensor).
 
 The params tree is flat: ``conv1, conv2, conv3, fc`` (`Encoder`), ``lstm`` (``wi, wh, b``), ``policy`` and
 ``value`` (``dense0, dense1, out``), ``attention`` and ``aux_fc, deconv1, deconv2, deconv3`` (`Decoder`);
-every layer holds ``kernel`` and ``bias``.
+every layer holds ``kernel`` and ``bias``. Symbolic views (``NetworkConfig(obs="symbolic")``, int8[7, 7, 4]
+per step: tile, agent, heading, colour; `observe.symbolic`) swap the two layers that map pixels to view
+cells: ``embed`` (one learned vector per channel value, summed per cell: `Embed`) replaces ``conv1``, and
+``cell_logits`` (per-cell logits over each channel's values, trained by a masked cross-entropy:
+`symbolic_errors`) replaces ``deconv3``.
 
 Architecture (paper widths; every width is a `NetworkConfig` field)::
 
