@@ -51,15 +51,15 @@ def test_symbolic_network_shapes_and_dtypes(params):
     assert out.logits.shape == (T, B, 7) and out.value.shape == (T, B) and out.hidden.shape == (T, B, 8)
     assert all(x.dtype == jnp.float32 and np.isfinite(x).all() for x in out)
     logits = decode(params, SMALL, out.hidden, jnp.zeros((T, B), jnp.int32))
-    assert logits.shape == (T, B, 7, 7, net.SYMBOLIC_VOCAB) and logits.dtype == jnp.float32
+    assert logits.shape == (T, B, 7, 7, net.PREDICTED_VOCAB) and logits.dtype == jnp.float32
     with pytest.raises(AssertionError):  # RGB frames are not symbolic views
         net.unroll(params, SMALL, net.initial_carry(SMALL, (B,)), jnp.zeros((1, B, 21, 21, 3), jnp.uint8),
                    jnp.zeros((1, B), bool))  # fmt: skip
 
 
 def _hand_cross_entropy(logits: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """f32[N]: per view, the mean over 4 channels x 49 cells of -log softmax(target class), heading and
-    colour only where an agent is drawn, computed cell by cell."""
+    """f32[N]: per view, the mean over 4 channels x 49 cells of -log softmax(target class) (colour levels
+    in bins of 8), heading and colour only where an agent is drawn, computed cell by cell."""
     n = target.shape[0]
     out = np.zeros(n)
     for i in range(n):
@@ -68,10 +68,11 @@ def _hand_cross_entropy(logits: np.ndarray, target: np.ndarray) -> np.ndarray:
                 for k in range(4):
                     if k >= 2 and target[i, r, c, 1] == 0:
                         continue
-                    lo = net.SYMBOLIC_OFFSETS[k]
-                    z = logits[i, r, c, lo : lo + net.SYMBOLIC_CLASSES[k]].astype(np.float64)
+                    lo = net.offsets(net.PREDICTED_CLASSES)[k]
+                    z = logits[i, r, c, lo : lo + net.PREDICTED_CLASSES[k]].astype(np.float64)
                     log_p = z - np.log(np.exp(z - z.max()).sum()) - z.max()
-                    out[i] -= log_p[target[i, r, c, k] + net.SYMBOLIC_SHIFT[k]]
+                    value = target[i, r, c, k] + net.SYMBOLIC_SHIFT[k]
+                    out[i] -= log_p[value // 8 if k == 3 else value]
     return out / (4 * 49)
 
 

@@ -64,6 +64,7 @@ import chex
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import traverse_util
 from jax import lax
 from jax.ad_checkpoint import checkpoint_name
@@ -79,8 +80,9 @@ OBS_KINDS = ("rgb", "symbolic")  # `NetworkConfig.obs`: the environment's `EnvPa
 SYMBOLIC_SHAPE = (7, 7, 4)  # per view cell: tile, agent index + 1, heading, colour (`observe.symbolic`)
 SYMBOLIC_SHIFT = (1, 0, 1, 0)  # added to each channel's value to make a class index (tile and heading use -1)
 SYMBOLIC_CLASSES = (NUM_TILE_TYPES + 1, MAX_AGENTS + 1, 5, 128)  # classes per channel (colour: 0-127)
-SYMBOLIC_OFFSETS = tuple(sum(SYMBOLIC_CLASSES[:k]) for k in range(len(SYMBOLIC_CLASSES)))
-SYMBOLIC_VOCAB = sum(SYMBOLIC_CLASSES)  # rows of the embedding table and logits per cell of the decoder
+SYMBOLIC_VOCAB = sum(SYMBOLIC_CLASSES)  # rows of the embedding table
+PREDICTED_CLASSES = (*SYMBOLIC_CLASSES[:3], 16)  # the decoder's classes: colour in 16 bins of 8 levels
+PREDICTED_VOCAB = sum(PREDICTED_CLASSES)  # logits per view cell of the decoder
 STRIDES = (3, 1, 1)  # encoder strides; the decoder mirrors them in reverse order
 LEAKY_SLOPE = 0.01  # torch.nn.functional.leaky_relu default
 AUX_KINDS = ("none", "rec", "pred", "attention", "rec+attention", "pred+attention")
@@ -141,8 +143,8 @@ class NetworkConfig:
 
     @property
     def decoded_shape(self) -> tuple[int, int, int]:
-        """`decode`'s output per step: frames (21, 21, 3), or logits (7, 7, SYMBOLIC_VOCAB) per view cell."""
-        return (*SYMBOLIC_SHAPE[:2], SYMBOLIC_VOCAB) if self.symbolic else OBS_SHAPE
+        """`decode`'s output per step: frames (21, 21, 3), or logits (7, 7, PREDICTED_VOCAB) per view cell."""
+        return (*SYMBOLIC_SHAPE[:2], PREDICTED_VOCAB) if self.symbolic else OBS_SHAPE
 
     @property
     def decoder_params(self) -> tuple[str, ...]:
@@ -367,10 +369,17 @@ class Embed(nn.Module):
         return kernel[symbolic_classes(cells)].sum(-2) + _param(self, "bias", Init("zeros"), (self.features,))
 
 
-def symbolic_classes(cells: jax.Array) -> jax.Array:
+def symbolic_classes(cells: jax.Array, classes: tuple[int, ...] = SYMBOLIC_CLASSES) -> jax.Array:
     """int8[..., 4] symbolic cells -> int32[..., 4] each channel's class, offset into a shared vocabulary of
-    `SYMBOLIC_VOCAB` (channel k's classes are SYMBOLIC_OFFSETS[k] + [0, SYMBOLIC_CLASSES[k]))."""
-    return cells.astype(jnp.int32) + jnp.asarray(SYMBOLIC_SHIFT) + jnp.asarray(SYMBOLIC_OFFSETS)
+    ``sum(classes)`` (channel k's classes are ``offsets(classes)[k] + [0, classes[k])``); `classes` with fewer
+    classes than `SYMBOLIC_CLASSES` merge neighbouring values (`PREDICTED_CLASSES`: colour levels 8 by 8)."""
+    merge = np.asarray(SYMBOLIC_CLASSES) // np.asarray(classes)
+    return (cells.astype(jnp.int32) + jnp.asarray(SYMBOLIC_SHIFT)) // merge + jnp.asarray(offsets(classes))
+
+
+def offsets(classes: tuple[int, ...]) -> tuple[int, ...]:
+    """Where each channel's classes start in a vocabulary of ``sum(classes)``."""
+    return tuple(sum(classes[:k]) for k in range(len(classes)))
 
 
 class Encoder(nn.Module):
@@ -447,7 +456,7 @@ class Decoder(nn.Module):
 
     Unbounded (linear output layer); the learner compares it with obs / 255 (`aux_loss`). Runs in chunks of
     `NetworkConfig.chunk` frames (`_map_chunks`). Symbolic views: ``cell_logits``, a dense layer per view
-    cell, in place of deconv3 gives logits f32[..., 7, 7, SYMBOLIC_VOCAB] (`symbolic_errors`).
+    cell, in place of deconv3 gives logits f32[..., 7, 7, PREDICTED_VOCAB] (`symbolic_errors`).
     """
 
     cfg: NetworkConfig
@@ -458,7 +467,7 @@ class Decoder(nn.Module):
         self.deconv1 = Conv(c2, STRIDES[2], impl, transpose=True)
         self.deconv2 = Conv(c1, STRIDES[1], impl, transpose=True)
         if self.cfg.symbolic:
-            self.cell_logits = Dense(SYMBOLIC_VOCAB, 1.0)
+            self.cell_logits = Dense(PREDICTED_VOCAB, 1.0)
         else:
             self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True)
 
@@ -474,7 +483,7 @@ class Decoder(nn.Module):
 
     def frames_hwnc(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
         """Rows hidden f32[N, H], action int[N] -> frames f32[21, 21, N, 3] (HWNC), in one piece (symbolic:
-        logits f32[7, 7, N, SYMBOLIC_VOCAB])."""
+        logits f32[7, 7, N, PREDICTED_VOCAB])."""
         z = jnp.concatenate([hidden, jax.nn.one_hot(action, self.cfg.n_actions, dtype=hidden.dtype)], axis=-1)
         x = checkpoint_name(jnp.tanh(self.aux_fc(z)), _SAVED)
         x = conv.to_hwnc(x.reshape(-1, *self.cfg.feature_shape))
@@ -503,20 +512,21 @@ class Decoder(nn.Module):
 
 
 def symbolic_errors(logits: jax.Array, target: jax.Array) -> jax.Array:
-    """Masked cross-entropy of symbolic views, f32[N]: logits f32[7, 7, N, SYMBOLIC_VOCAB] and target
-    int8[7, 7, N, 4] (HWNC). Each channel's classes get a softmax of their own; the negative log-likelihood of
-    the target class is averaged over the 4 channels and 49 cells, where heading and colour count only in
-    cells that hold an agent (elsewhere they are zero terms: no agent, nothing to predict)."""
-    classes = symbolic_classes(target)
+    """Masked cross-entropy of symbolic views, f32[N]: logits f32[7, 7, N, PREDICTED_VOCAB] and target
+    int8[7, 7, N, 4] (HWNC). Each channel's classes (`PREDICTED_CLASSES`: the colour in 16 bins, which keeps
+    the output 4.4x smaller than all 128 levels would) get a softmax of their own; the negative
+    log-likelihood of the target class is averaged over the 4 channels and 49 cells, where heading and colour
+    count only in cells that hold an agent (elsewhere they are zero terms: no agent, nothing to predict)."""
+    classes = symbolic_classes(target, PREDICTED_CLASSES)
     has_agent = target[..., 1] > 0
     total = 0.0
-    for k, (offset, size) in enumerate(zip(SYMBOLIC_OFFSETS, SYMBOLIC_CLASSES, strict=True)):
+    for k, (offset, size) in enumerate(zip(offsets(PREDICTED_CLASSES), PREDICTED_CLASSES, strict=True)):
         channel = logits[..., offset : offset + size]
         picked = jnp.take_along_axis(channel, classes[..., k, None] - offset, -1)[..., 0]
         nll = jax.nn.logsumexp(channel, -1) - picked
         total = total + (jnp.where(has_agent, nll, 0.0) if k >= 2 else nll)
     h, w, n = total.shape
-    return jnp.ones(h * w) @ total.reshape(h * w, n) / (h * w * len(SYMBOLIC_CLASSES))
+    return jnp.ones(h * w) @ total.reshape(h * w, n) / (h * w * len(PREDICTED_CLASSES))
 
 
 class ActorCritic(nn.Module):
@@ -671,7 +681,7 @@ def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Ar
     """Auxiliary prediction f32[..., 21, 21, 3] from LSTM outputs f32[..., H] and actions int[...].
 
     Unbounded (linear output layer); the learner compares it with obs / 255 (see `aux_loss`, which
-    computes that comparison and its gradient faster). Symbolic views: logits f32[..., 7, 7, SYMBOLIC_VOCAB]
+    computes that comparison and its gradient faster). Symbolic views: logits f32[..., 7, 7, PREDICTED_VOCAB]
     (`symbolic_errors`). Raises ValueError without a decoder.
     """
     return ActorCritic(cfg).apply({"params": params}, hidden, action, method=ActorCritic.decode)
