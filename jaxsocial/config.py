@@ -188,11 +188,23 @@ def stage_config(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], index: in
     return dataclasses.replace(cfg, env_args=schedule.format_assignments(env_args), stages="")
 
 
-def _check_stage(env_params: EnvParams, first: EnvParams, pop: population.Population, where: str) -> None:
+def with_env_observation(cfg: TrainConfig) -> TrainConfig:
+    """`cfg` with `net.obs` the observations its environment gives (`--env` with `--env-args`: "rgb" or
+    "symbolic"); `cfg` itself if that environment cannot be built (`setup` then says why)."""
+    try:
+        _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+    except ValueError:
+        return cfg
+    return dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, obs=env_params.observation))
+
+
+def _check_stage(
+    cfg: TrainConfig, env_params: EnvParams, first: EnvParams, pop: population.Population, where: str
+) -> None:
     changed = [f for f in schedule.STRUCTURAL_FIELDS if getattr(env_params, f) != getattr(first, f)]
     if changed:
         raise ValueError(f"{where} changes {changed}, which set array shapes; a stage may not change them")
-    population.require_rgb(env_params, where)
+    population.require_obs(cfg.net, env_params, where)
     if env_params.solo_prob > 0 and any(i >= env_params.solo_agents for i in pop.learners):
         raise ValueError(
             f"{where}: solo episodes keep only the first solo_agents={env_params.solo_agents} slots, but "
@@ -209,12 +221,12 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     pop = population.Population(
         population.parse_slots(cfg.slots or population.default_slots(env_params), env_params.n_agents)
     )
-    _check_stage(env_params, env_params, pop, "--env-args")
+    _check_stage(cfg, env_params, env_params, pop, "--env-args")
     programs = [(stage_config(cfg, stages, -1), env_params)]
     for index in range(len(stages)):
         stage_cfg = stage_config(cfg, stages, index)
         stage_params = jaxsocial.make(cfg.env, **stage_cfg.env_overrides)[1]
-        _check_stage(stage_params, env_params, pop, f"stage {index}")
+        _check_stage(cfg, stage_params, env_params, pop, f"stage {index}")
         programs.append((stage_cfg, stage_params))
     if cfg.algo not in ALGOS:
         raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")

@@ -149,7 +149,7 @@ def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episod
     setups = []
     for spec in specs:
         env_params = parse_env_spec(spec)
-        population.require_rgb(env_params, f"eval env {spec!r}")
+        population.require_obs(net, env_params, f"eval env {spec!r}")
         setups.append((spec, population.default_population(env_params), env_params))
     play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
 
@@ -171,7 +171,6 @@ def _setup(cfg: EvalConfig):
     if cfg.protocol not in PROTOCOLS:
         raise ValueError(f"unknown --protocol {cfg.protocol!r}; choose one of {PROTOCOLS}")
     _, env_params = jaxsocial.make(cfg.env, **schedule.parse_assignments(cfg.env_args))
-    population.require_rgb(env_params, f"--env {cfg.env}")
     slots_text = cfg.slots or population.default_slots(env_params)
     pop = population.Population(population.parse_slots(slots_text, env_params.n_agents, need_learner=False))
     pop.validate(env_params)
@@ -183,7 +182,9 @@ def _setup(cfg: EvalConfig):
         )
     paths = [pop.slots[i].path for i in pop.frozen]
     first = (list(cfg.ckpt) + paths)[:1]
-    net = policy_io.saved_net(first[0]) if first else network.NetworkConfig()
+    net = policy_io.saved_net(first[0]) if first else network.NetworkConfig(obs=env_params.observation)
+    if first:
+        population.require_obs(net, env_params, f"--env {cfg.env} with the policy {first[0]}")
     frozen = [policy_io.load_policy(p, net) for p in paths]
     if cfg.protocol == "ct" and (
         pop.learners != (0,) or env_params.n_agents < 2 or env_params.solo_agents != 1

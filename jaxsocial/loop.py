@@ -32,7 +32,7 @@ class RunnerState(NamedTuple):
     params: Any  # learner params stacked [S_l, ...]
     opt_state: Any  # learner optimiser states stacked [S_l, ...]
     env_states: EnvState  # [E]
-    obs: jax.Array  # uint8[E, N, 21, 21, 3]
+    obs: jax.Array  # uint8[E, N, 21, 21, 3] (symbolic views: int8[E, N, 7, 7, 4])
     resets: jax.Array  # bool[E]: the next step starts an episode
     slots: population.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
     demo_carry: network.Carry | None  # bc: learners' LSTM states on the demonstration streams [S_l, E*D, H]
@@ -60,7 +60,7 @@ class Transition(NamedTuple):
     """One rollout step. obs, actions and valid are of the recorded slots (learners for PPO, demonstrators
     for BC), the rest of the learners. The fields are those of `ppo.Batch` but `carry0` (see `ppo_batch`)."""
 
-    obs: jax.Array  # uint8[E, S_r, ...]
+    obs: jax.Array  # uint8 or int8 [E, S_r, ...] (the environment's observations)
     resets: jax.Array
     actions: jax.Array  # int32[S_l, E]
     logp: jax.Array
@@ -76,7 +76,7 @@ def ppo_batch(
     traj: Transition, last_obs: jax.Array, last_resets: jax.Array, carry0: network.Carry
 ) -> ppo.Batch:
     """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (scan-stacked
-    Transitions, [T, ...]) that ended with the learners' observations `last_obs` uint8[E, S_l, ...] and
+    Transitions, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...] and
     `last_resets` bool[E] (the bootstrap step), starting from the learners' LSTM states `carry0`."""
     obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
     resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners

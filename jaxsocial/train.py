@@ -310,6 +310,8 @@ def parse_args(argv: list[str]) -> TrainConfig:
     cfg = tyro.cli(
         TrainConfig, default=default, args=argv, description=usage, prog="python -m jaxsocial.train"
     )
+    if not any(arg.partition("=")[0] == "--net.obs" for arg in argv):  # the network takes the env's views
+        cfg = config.with_env_observation(cfg)
     return cfg if saved is None else dataclasses.replace(cfg, resume=True, overwrite=False)
 
 

@@ -256,8 +256,11 @@ def test_predicted_view_beside_the_learners_view(learner_run):
         (["--ckpt", "{tmp}/nope"], "does not exist"),
         (["--ckpt", "{tmp}"], "is not a run directory"),
         (["--ckpt", "{run}"], "holds 2 seeds: pass one of them, e.g. --ckpt {run}/s0"),
-        (["--ckpt", "{run}/s0", "--env", "goalcycle3:observation=symbolic"], "take RGB observations"),
-        (["--ckpt", "{run}/s0", "--env", "goalcycle3:view_size=5"], "the network takes (21, 21, 3)"),
+        (["--ckpt", "{run}/s0", "--env", "goalcycle3:observation=symbolic"], "the network takes 'rgb' ones"),
+        (
+            ["--ckpt", "{run}/s0", "--env", "goalcycle3:view_size=5"],
+            "takes observations of shape (21, 21, 3)",
+        ),
         (["--ckpt", "{run}/s0", "--env", "goalcycle3-solo"], "the run's slots do not fit goalcycle3-solo"),
         (
             ["--ckpt", "{run}/s0", "--env", "fourrooms", "--slots", "learner,expert:explorer,random"],

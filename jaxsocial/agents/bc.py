@@ -43,8 +43,8 @@ def make_optimizer(cfg: BCConfig) -> optax.GradientTransformation:
 def loss_fn(params, net: NetworkConfig, carry: network.Carry, obs, resets, actions, valid):
     """Mean cross-entropy of the demonstrators' actions over valid steps.
 
-    obs uint8[T, B, 21, 21, 3]; resets bool[T, B]; actions int32[T, B]; valid bool[T, B] (the demonstrator
-    was acting). Returns (loss, (final carry, metrics)).
+    obs uint8[T, B, 21, 21, 3] (or int8[T, B, 7, 7, 4]); resets bool[T, B]; actions int32[T, B]; valid
+    bool[T, B] (the demonstrator was acting). Returns (loss, (final carry, metrics)).
     """
     carry, out = network.unroll(params, net, carry, obs, resets)
     log_probs = jax.nn.log_softmax(out.logits)

@@ -11,7 +11,11 @@ random buffers, which compiles ~10x faster than one draw per tensor).
 
 The params tree is flat: ``conv1, conv2, conv3, fc`` (`Encoder`), ``lstm`` (``wi, wh, b``), ``policy`` and
 ``value`` (``dense0, dense1, out``), ``attention`` and ``aux_fc, deconv1, deconv2, deconv3`` (`Decoder`);
-every layer holds ``kernel`` and ``bias``.
+every layer holds ``kernel`` and ``bias``. Symbolic views (``NetworkConfig(obs="symbolic")``, int8[7, 7, 4]
+per step: tile, agent, heading, colour; `observe.symbolic`) swap the two layers that map pixels to view
+cells: ``embed`` (one learned vector per channel value, summed per cell: `Embed`) replaces ``conv1``, and
+``cell_logits`` (per-cell logits over each channel's values, trained by a masked cross-entropy:
+`symbolic_errors`) replaces ``deconv3``.
 
 Architecture (paper widths; every width is a `NetworkConfig` field)::
 
@@ -60,16 +64,25 @@ import chex
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import traverse_util
 from jax import lax
 from jax.ad_checkpoint import checkpoint_name
 
 from jaxsocial.agents import conv
 from jaxsocial.agents.conv import KERNEL
+from jaxsocial.env.types import MAX_AGENTS, NUM_TILE_TYPES
 
 Params = dict[str, Any]
 
 OBS_SHAPE = (21, 21, 3)  # 7x7 grid cells of 3x3 pixels (marlgrid tile size 3)
+OBS_KINDS = ("rgb", "symbolic")  # `NetworkConfig.obs`: the environment's `EnvParams.observation`
+SYMBOLIC_SHAPE = (7, 7, 4)  # per view cell: tile, agent index + 1, heading, colour (`observe.symbolic`)
+SYMBOLIC_SHIFT = (1, 0, 1, 0)  # added to each channel's value to make a class index (tile and heading use -1)
+SYMBOLIC_CLASSES = (NUM_TILE_TYPES + 1, MAX_AGENTS + 1, 5, 128)  # classes per channel (colour: 0-127)
+SYMBOLIC_VOCAB = sum(SYMBOLIC_CLASSES)  # rows of the embedding table
+PREDICTED_CLASSES = (*SYMBOLIC_CLASSES[:3], 16)  # the decoder's classes: colour in 16 bins of 8 levels
+PREDICTED_VOCAB = sum(PREDICTED_CLASSES)  # logits per view cell of the decoder
 STRIDES = (3, 1, 1)  # encoder strides; the decoder mirrors them in reverse order
 LEAKY_SLOPE = 0.01  # torch.nn.functional.leaky_relu default
 AUX_KINDS = ("none", "rec", "pred", "attention", "rec+attention", "pred+attention")
@@ -92,6 +105,7 @@ class NetworkConfig:
     conv_impl: str = "matmul"  # one of conv.IMPLS: "matmul" (fast on CPU) | "xla" (lax.conv)
     chunk: int = 512  # frames per chunk of the conv encoder and decoder (speed only, see `_map_chunks`)
     n_others: int = 2  # other agent slots the attention head locates (n_agents - 1; aux with "attention")
+    obs: str = "rgb"  # one of OBS_KINDS: the observations taken (the trainer sets it from the environment)
 
     def __post_init__(self):
         channels = tuple(self.conv_channels)
@@ -111,6 +125,31 @@ class NetworkConfig:
             raise ValueError(f"unknown aux {self.aux!r}; choose from {AUX_KINDS}")
         if self.conv_impl not in CONV_IMPLS:
             raise ValueError(f"unknown conv_impl {self.conv_impl!r}; choose from {CONV_IMPLS}")
+        if self.obs not in OBS_KINDS:
+            raise ValueError(f"unknown obs {self.obs!r}; choose from {OBS_KINDS}")
+
+    @property
+    def symbolic(self) -> bool:
+        return self.obs == "symbolic"
+
+    @property
+    def obs_shape(self) -> tuple[int, int, int]:
+        """One observation's shape: (21, 21, 3) RGB or (7, 7, 4) symbolic."""
+        return SYMBOLIC_SHAPE if self.symbolic else OBS_SHAPE
+
+    @property
+    def obs_dtype(self):
+        return jnp.int8 if self.symbolic else jnp.uint8
+
+    @property
+    def decoded_shape(self) -> tuple[int, int, int]:
+        """`decode`'s output per step: frames (21, 21, 3), or logits (7, 7, PREDICTED_VOCAB) per view cell."""
+        return (*SYMBOLIC_SHAPE[:2], PREDICTED_VOCAB) if self.symbolic else OBS_SHAPE
+
+    @property
+    def decoder_params(self) -> tuple[str, ...]:
+        """The `Decoder`'s entries of the params tree."""
+        return (*DECODER_PARAMS[:-1], "cell_logits") if self.symbolic else DECODER_PARAMS
 
     @property
     def frame_aux(self) -> str:
@@ -125,8 +164,9 @@ class NetworkConfig:
     @property
     def feature_shape(self) -> tuple[int, int, int]:
         """Shape of the last conv feature map (3, 3, C3)."""
-        size = OBS_SHAPE[0]
-        for stride in STRIDES:
+        # symbolic: the embedding is per cell, in place of conv1 (which maps 3x3 pixel blocks to cells)
+        size, strides = (SYMBOLIC_SHAPE[0], STRIDES[1:]) if self.symbolic else (OBS_SHAPE[0], STRIDES)
+        for stride in strides:
             size = (size - KERNEL) // stride + 1
         return (size, size, self.conv_channels[-1])
 
@@ -316,8 +356,36 @@ class Conv(nn.Module):
         return (conv.deconv if self.transpose else conv.conv)(x, kernel, bias, self.stride, self.impl)
 
 
+class Embed(nn.Module):
+    """Symbolic view cells int8[..., 4] -> f32[..., features]: the sum of one learned vector per channel value
+    (the concatenated per-channel embeddings times a linear map), plus a bias. N(0, 1) init like
+    ``torch.nn.Embedding``, zero bias."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, cells: jax.Array) -> jax.Array:
+        kernel = _param(self, "kernel", Init("normal", 1.0), (SYMBOLIC_VOCAB, self.features))
+        return kernel[symbolic_classes(cells)].sum(-2) + _param(self, "bias", Init("zeros"), (self.features,))
+
+
+def symbolic_classes(cells: jax.Array, classes: tuple[int, ...] = SYMBOLIC_CLASSES) -> jax.Array:
+    """int8[..., 4] symbolic cells -> int32[..., 4] each channel's class, offset into a shared vocabulary of
+    ``sum(classes)`` (channel k's classes are ``offsets(classes)[k] + [0, classes[k])``); `classes` with fewer
+    classes than `SYMBOLIC_CLASSES` merge neighbouring values (`PREDICTED_CLASSES`: colour levels 8 by 8)."""
+    merge = np.asarray(SYMBOLIC_CLASSES) // np.asarray(classes)
+    return (cells.astype(jnp.int32) + jnp.asarray(SYMBOLIC_SHIFT)) // merge + jnp.asarray(offsets(classes))
+
+
+def offsets(classes: tuple[int, ...]) -> tuple[int, ...]:
+    """Where each channel's classes start in a vocabulary of ``sum(classes)``."""
+    return tuple(sum(classes[:k]) for k in range(len(classes)))
+
+
 class Encoder(nn.Module):
-    """Frames uint8[N, 21, 21, 3] -> features f32[N, hidden]: three leaky-ReLU convs, FC, tanh.
+    """Frames uint8[N, 21, 21, 3] -> features f32[N, hidden]: three leaky-ReLU convs, FC, tanh. Symbolic
+    views int8[N, 7, 7, 4] (`NetworkConfig.obs`): an `Embed` per cell in place of conv1 (7x7 cells either
+    way).
 
     The convolutions run in chunks of `NetworkConfig.chunk` frames (`_map_chunks`), up to conv3's
     pre-activation; its activation and the FC layer run on all N frames at once, as large matrix products.
@@ -327,22 +395,29 @@ class Encoder(nn.Module):
 
     def setup(self):
         (c1, c2, c3), impl = self.cfg.conv_channels, self.cfg.conv_impl
-        self.conv1 = Conv(c1, STRIDES[0], impl)
+        if self.cfg.symbolic:
+            self.embed = Embed(c1)
+        else:
+            self.conv1 = Conv(c1, STRIDES[0], impl)
         self.conv2 = Conv(c2, STRIDES[1], impl)
         self.conv3 = Conv(c3, STRIDES[2], impl)
         self.fc = Dense(self.cfg.hidden, math.sqrt(2.0))
 
     def __call__(self, obs: jax.Array) -> jax.Array:
-        chex.assert_shape(obs, (None, *OBS_SHAPE))
-        chex.assert_type(obs, jnp.uint8)
+        chex.assert_shape(obs, (None, *self.cfg.obs_shape))
+        chex.assert_type(obs, self.cfg.obs_dtype)
         x = _leaky_relu(_map_chunks(Encoder.conv_features, self, (obs,), self.cfg.chunk))
         return jnp.tanh(self.fc(x))
 
     def conv_features(self, obs: jax.Array) -> jax.Array:
-        """uint8[n, 21, 21, 3] -> conv3's pre-activation f32[n, feature_size], flattened (h, w, c)."""
-        x = conv.to_hwnc(obs).astype(jnp.float32) * (1.0 / 255.0)
+        """uint8[n, 21, 21, 3] (or int8[n, 7, 7, 4]) -> conv3's pre-activation f32[n, feature_size], flattened
+        (h, w, c)."""
+        if self.cfg.symbolic:
+            x = self.embed(conv.to_hwnc(obs))
+        else:
+            x = self.conv1(conv.to_hwnc(obs).astype(jnp.float32) * (1.0 / 255.0))
         # conv1's activation is recomputed from obs, not saved (+0.6% FLOPs, 6 KB less memory per frame)
-        x = _leaky_relu_unsaved(self.conv1(x))
+        x = _leaky_relu_unsaved(x)
         x = _leaky_relu(self.conv2(x))
         x = self.conv3(x)
         return conv.to_nhwc(x).reshape(x.shape[2], -1)
@@ -380,7 +455,8 @@ class Decoder(nn.Module):
     """The auxiliary frame head: LSTM outputs f32[..., H] and actions int[...] -> frames f32[..., 21, 21, 3].
 
     Unbounded (linear output layer); the learner compares it with obs / 255 (`aux_loss`). Runs in chunks of
-    `NetworkConfig.chunk` frames (`_map_chunks`).
+    `NetworkConfig.chunk` frames (`_map_chunks`). Symbolic views: ``cell_logits``, a dense layer per view
+    cell, in place of deconv3 gives logits f32[..., 7, 7, PREDICTED_VOCAB] (`symbolic_errors`).
     """
 
     cfg: NetworkConfig
@@ -390,7 +466,10 @@ class Decoder(nn.Module):
         self.aux_fc = Dense(self.cfg.feature_size, math.sqrt(2.0))
         self.deconv1 = Conv(c2, STRIDES[2], impl, transpose=True)
         self.deconv2 = Conv(c1, STRIDES[1], impl, transpose=True)
-        self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True)
+        if self.cfg.symbolic:
+            self.cell_logits = Dense(PREDICTED_VOCAB, 1.0)
+        else:
+            self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True)
 
     def __call__(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
         batch = hidden.shape[:-1]
@@ -400,20 +479,23 @@ class Decoder(nn.Module):
         frames = _map_chunks(
             lambda mdl, *rows: conv.to_nhwc(mdl.frames_hwnc(*rows)), self, rows, self.cfg.chunk
         )
-        return frames.reshape(*batch, *OBS_SHAPE)
+        return frames.reshape(*batch, *self.cfg.decoded_shape)
 
     def frames_hwnc(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
-        """Rows hidden f32[N, H], action int[N] -> frames f32[21, 21, N, 3] (HWNC), in one piece."""
+        """Rows hidden f32[N, H], action int[N] -> frames f32[21, 21, N, 3] (HWNC), in one piece (symbolic:
+        logits f32[7, 7, N, PREDICTED_VOCAB])."""
         z = jnp.concatenate([hidden, jax.nn.one_hot(action, self.cfg.n_actions, dtype=hidden.dtype)], axis=-1)
         x = checkpoint_name(jnp.tanh(self.aux_fc(z)), _SAVED)
         x = conv.to_hwnc(x.reshape(-1, *self.cfg.feature_shape))
         x = _leaky_relu(self.deconv1(x))
         x = _leaky_relu(self.deconv2(x))
-        return self.deconv3(x)  # linear output
+        return self.cell_logits(x) if self.cfg.symbolic else self.deconv3(x)  # linear output
 
     def frame_errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
         """Mean absolute error of each frame's prediction against target / 255, f32[N], for rows hidden
-        f32[N, H], action int[N], target uint8[N, 21, 21, 3], in one piece."""
+        f32[N, H], action int[N], target uint8[N, 21, 21, 3], in one piece (symbolic: `symbolic_errors`)."""
+        if self.cfg.symbolic:
+            return symbolic_errors(self.frames_hwnc(hidden, action), conv.to_hwnc(target))
         # Compared in 3x3 blocks, the layout of deconv3's matrix product: XLA then cancels the deconvolution's
         # transpose to HWNC with this one, here and in the backward pass (+12% for the small training preset).
         prediction = conv.blocks(self.frames_hwnc(hidden, action))
@@ -424,17 +506,37 @@ class Decoder(nn.Module):
         return (jnp.ones(h * w) @ error.reshape(h * w, n * c)).reshape(n, c).sum(axis=-1) / (h * w * c)
 
     def errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
-        """`frame_errors` of rows f32[N, H], int[N], uint8[N, 21, 21, 3] -> f32[N], in chunks."""
+        """`frame_errors` of rows f32[N, H], int[N], uint8[N, 21, 21, 3] (or int8[N, 7, 7, 4]) -> f32[N], in
+        chunks."""
         return _map_chunks(Decoder.frame_errors, self, (hidden, action, target), self.cfg.chunk)
+
+
+def symbolic_errors(logits: jax.Array, target: jax.Array) -> jax.Array:
+    """Masked cross-entropy of symbolic views, f32[N]: logits f32[7, 7, N, PREDICTED_VOCAB] and target
+    int8[7, 7, N, 4] (HWNC). Each channel's classes (`PREDICTED_CLASSES`: the colour in 16 bins, which keeps
+    the output 4.4x smaller than all 128 levels would) get a softmax of their own; the negative
+    log-likelihood of the target class is averaged over the 4 channels and 49 cells, where heading and colour
+    count only in cells that hold an agent (elsewhere they are zero terms: no agent, nothing to predict)."""
+    classes = symbolic_classes(target, PREDICTED_CLASSES)
+    has_agent = target[..., 1] > 0
+    total = 0.0
+    for k, (offset, size) in enumerate(zip(offsets(PREDICTED_CLASSES), PREDICTED_CLASSES, strict=True)):
+        channel = logits[..., offset : offset + size]
+        picked = jnp.take_along_axis(channel, classes[..., k, None] - offset, -1)[..., 0]
+        nll = jax.nn.logsumexp(channel, -1) - picked
+        total = total + (jnp.where(has_agent, nll, 0.0) if k >= 2 else nll)
+    h, w, n = total.shape
+    return jnp.ones(h * w) @ total.reshape(h * w, n) / (h * w * len(PREDICTED_CLASSES))
 
 
 class ActorCritic(nn.Module):
     """The recurrent actor-critic: ``ActorCritic(cfg).apply({"params": params}, carry, obs, resets)`` runs it
     over T steps of B sequences and returns the final `Carry` and per-step `Output`s.
 
-    carry: `Carry` f32[B, hidden] x 2; obs uint8[T, B, 21, 21, 3]; resets bool[T, B] (before step t, the
-    carry of every sequence with resets[t, b] is zeroed: a reset step starts a fresh episode). ``init`` with
-    the same arguments also creates the auxiliary heads' params (`decode`, `attention_logits`).
+    carry: `Carry` f32[B, hidden] x 2; obs uint8[T, B, 21, 21, 3] (int8[T, B, 7, 7, 4] symbolic); resets
+    bool[T, B] (before step t, the carry of every sequence with resets[t, b] is zeroed: a reset step starts a
+    fresh episode). ``init`` with the same arguments also creates the auxiliary heads' params (`decode`,
+    `attention_logits`).
     """
 
     cfg: NetworkConfig
@@ -455,11 +557,11 @@ class ActorCritic(nn.Module):
     def __call__(self, carry: Carry, obs: jax.Array, resets: jax.Array) -> tuple[Carry, Output]:
         cfg = self.cfg
         t, b = obs.shape[:2]
-        chex.assert_shape(obs, (t, b, *OBS_SHAPE))
+        chex.assert_shape(obs, (t, b, *cfg.obs_shape))
         chex.assert_shape(resets, (t, b))
         chex.assert_shape([carry.c, carry.h], (b, cfg.hidden))
         chex.assert_type([resets, carry.c, carry.h], [bool, jnp.float32, jnp.float32])
-        x = self.encoder(obs.reshape(t * b, *OBS_SHAPE)).reshape(t, b, -1)
+        x = self.encoder(obs.reshape(t * b, *cfg.obs_shape)).reshape(t, b, -1)
         carry, hidden = self.lstm(carry, x, resets)
         out = Output(logits=self.policy(hidden), value=self.value(hidden)[..., 0], hidden=hidden)
         if self.is_initializing():  # create the auxiliary heads' params too
@@ -477,7 +579,7 @@ class ActorCritic(nn.Module):
         return logits.reshape(*hidden.shape[:-1], self.cfg.n_others, ATTENTION_CLASSES)
 
     def decode(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
-        """`Decoder`: hidden f32[..., H], action int[...] -> frames f32[..., 21, 21, 3]."""
+        """`Decoder`: hidden f32[..., H], action int[...] -> f32[..., *cfg.decoded_shape]."""
         _check_decoder(self.cfg)
         return self.decoder(hidden, action)
 
@@ -494,7 +596,8 @@ def _check_decoder(cfg: NetworkConfig) -> None:
 def _initialisers(cfg: NetworkConfig) -> dict[tuple[str, ...], tuple[tuple[int, ...], Init]]:
     """Every parameter's path -> (shape, `Init`), from an abstract ``ActorCritic.init`` that records them."""
     b = 1
-    args = (initial_carry(cfg, (b,)), jnp.zeros((1, b, *OBS_SHAPE), jnp.uint8), jnp.zeros((1, b), bool))
+    obs = jnp.zeros((1, b, *cfg.obs_shape), cfg.obs_dtype)
+    args = (initial_carry(cfg, (b,)), obs, jnp.zeros((1, b), bool))
     variables = jax.eval_shape(
         lambda key: ActorCritic(cfg).init(key, *args, mutable=["params", _INITS]), jax.random.key(0)
     )
@@ -547,15 +650,16 @@ def param_count(params: Params) -> int:
 def unroll(
     params: Params, cfg: NetworkConfig, carry: Carry, obs: jax.Array, resets: jax.Array
 ) -> tuple[Carry, Output]:
-    """`ActorCritic` over T steps of B sequences: carry `Carry` f32[B, H] x 2, obs uint8[T, B, 21, 21, 3],
-    resets bool[T, B] -> (final `Carry`, `Output` with T and B axes)."""
+    """`ActorCritic` over T steps of B sequences: carry `Carry` f32[B, H] x 2, obs uint8[T, B, 21, 21, 3]
+    (symbolic: int8[T, B, 7, 7, 4]), resets bool[T, B] -> (final `Carry`, `Output` with T and B axes)."""
     return ActorCritic(cfg).apply({"params": params}, carry, obs, resets)
 
 
 def step(
     params: Params, cfg: NetworkConfig, carry: Carry, obs: jax.Array, reset: jax.Array
 ) -> tuple[Carry, Output]:
-    """One step for acting: obs uint8[B, 21, 21, 3], reset bool[B]; `Output` fields have no T axis."""
+    """One step for acting: obs uint8[B, 21, 21, 3] (or int8[B, 7, 7, 4]), reset bool[B]; `Output` fields
+    have no T axis."""
     carry, out = unroll(params, cfg, carry, obs[None], reset[None])
     return carry, jax.tree_util.tree_map(lambda x: x[0], out)
 
@@ -577,7 +681,8 @@ def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Ar
     """Auxiliary prediction f32[..., 21, 21, 3] from LSTM outputs f32[..., H] and actions int[...].
 
     Unbounded (linear output layer); the learner compares it with obs / 255 (see `aux_loss`, which
-    computes that comparison and its gradient faster). Raises ValueError without a decoder.
+    computes that comparison and its gradient faster). Symbolic views: logits f32[..., 7, 7, PREDICTED_VOCAB]
+    (`symbolic_errors`). Raises ValueError without a decoder.
     """
     return ActorCritic(cfg).apply({"params": params}, hidden, action, method=ActorCritic.decode)
 
@@ -591,12 +696,14 @@ def aux_loss(
     weight: jax.Array,
     axis_name: str | None = None,
 ) -> jax.Array:
-    """Weighted auxiliary loss ``sum(weight * mean|decode(hidden, action) - target / 255|)``, f32[].
+    """Weighted auxiliary loss ``sum(weight * mean|decode(hidden, action) - target / 255|)``, f32[] (symbolic
+    views: ``sum(weight * symbolic_errors(...))``, the masked cross-entropy per view).
 
-    hidden f32[..., H]; action int[...]; target uint8[..., 21, 21, 3]; weight f32[...] (the mean absolute
-    error of each frame over its pixels is weighted). `axis_name`: called inside `jax.shard_map` with params
-    replicated and every other argument the device's share of the rows, the mesh axis the rows are split
-    over (the params' gradient is then summed over it). Raises ValueError without a decoder.
+    hidden f32[..., H]; action int[...]; target uint8[..., 21, 21, 3] (or int8[..., 7, 7, 4]); weight f32[...]
+    (the mean absolute error of each frame over its pixels is weighted). `axis_name`: called inside
+    `jax.shard_map` with params replicated and every other argument the device's share of the rows, the mesh
+    axis the rows are split over (the params' gradient is then summed over it). Raises ValueError without a
+    decoder.
 
     Differentiable in params, hidden and weight, with the value and gradients of writing it with `decode`,
     but faster: as only a scalar leaves the decoder, the forward pass of a differentiated call runs the
@@ -606,16 +713,16 @@ def aux_loss(
     """
     _check_decoder(cfg)
     batch = hidden.shape[:-1]
-    chex.assert_shape([hidden, target], [(*batch, cfg.hidden), (*batch, *OBS_SHAPE)])
-    chex.assert_type(target, jnp.uint8)
-    decoder = {name: params[name] for name in DECODER_PARAMS}
+    chex.assert_shape([hidden, target], [(*batch, cfg.hidden), (*batch, *cfg.obs_shape)])
+    chex.assert_type(target, cfg.obs_dtype)
+    decoder = {name: params[name] for name in cfg.decoder_params}
     if axis_name is not None:  # per-device gradients; pcast's transpose sums them over the devices
         decoder = lax.pcast(decoder, axis_name, to="varying")
     n = math.prod(batch)
     rows = (
         hidden.reshape(n, hidden.shape[-1]),
         jnp.asarray(action).reshape(n),
-        target.reshape(n, *OBS_SHAPE),
+        target.reshape(n, *cfg.obs_shape),
         jnp.broadcast_to(jnp.asarray(weight, jnp.float32), batch).reshape(n),
     )
     return _aux_loss(cfg, decoder, *rows)

@@ -94,9 +94,24 @@ def default_slots(params: EnvParams) -> str:
 
 
 def require_rgb(params: EnvParams, where: str) -> None:
-    """ValueError unless `params` gives RGB observations, the only input the networks take."""
+    """ValueError unless `params` gives RGB observations (for pictures of the decoder's predicted frames)."""
     if params.observation != "rgb":
-        raise ValueError(f"{where}: the networks take RGB observations (observation='rgb')")
+        raise ValueError(f"{where}: pictures of predicted frames need RGB observations (observation='rgb')")
+
+
+def require_obs(net: network.NetworkConfig, params: EnvParams, where: str) -> None:
+    """ValueError unless the network `net` takes the observations `params` gives (`NetworkConfig.obs`, and
+    their shape: the networks see a 7x7 view)."""
+    if net.obs != params.observation:
+        raise ValueError(
+            f"{where}: the environment gives {params.observation!r} observations, but the network takes "
+            f"{net.obs!r} ones (net.obs={net.obs!r}; a policy trained on one kind cannot act on the other)"
+        )
+    if tuple(params.obs_shape) != net.obs_shape:
+        raise ValueError(
+            f"{where}: the network takes observations of shape {net.obs_shape} (view_size=7), the "
+            f"environment gives {tuple(params.obs_shape)}"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -195,8 +210,9 @@ def act(
 
     Args:
         params: neural-slot params stacked [S, ...] in `pop.neural` order (None when there are none);
-        obs: uint8[E, N, 21, 21, 3]; env_states: EnvState [E] (scripted experts read it); resets: bool[E]
-        the step starts an episode (zero the LSTM state, clear the experts' memory).
+        obs: uint8[E, N, 21, 21, 3] (symbolic: int8[E, N, 7, 7, 4]); env_states: EnvState [E] (scripted
+        experts read it); resets: bool[E] the step starts an episode (zero the LSTM state, clear the
+        experts' memory).
     Returns:
         actions int32[E, N]; the new slot state (rewards still those of the previous step, see
         `record_rewards`); log-probabilities and values float32[S, E] of the neural slots.
@@ -237,6 +253,6 @@ def record_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:
 def values(
     pop: Population, net: network.NetworkConfig, params, carry: network.Carry, obs: jax.Array
 ) -> jax.Array:
-    """float32[S, E] neural slots' values of `obs` (uint8[E, N, ...]) continuing from `carry` (no reset)."""
+    """float32[S, E] neural slots' values of `obs` ([E, N, ...]) continuing from `carry` (no reset)."""
     _, out = _step_neural(pop, net, params, carry, obs, jnp.zeros(obs.shape[0], bool))
     return out.value

@@ -64,7 +64,8 @@ class PPOConfig:
 class Batch(NamedTuple):
     """One learner's rollout. Time axis first; obs has T + 1 steps (the last one bootstraps).
 
-    obs: uint8[T+1, E, 21, 21, 3]; resets: bool[T+1, E] (the step starts a new episode: reset the LSTM);
+    obs: uint8[T+1, E, 21, 21, 3] (symbolic: int8[T+1, E, 7, 7, 4]); resets: bool[T+1, E] (the step starts
+    a new episode: reset the LSTM);
     actions: int32[T, E]; logp: float32[T, E] rollout log-probabilities; rewards: float32[T, E];
     terminated: bool[T, E] (the agent reached a terminal state, no bootstrap); done: bool[T, E] (its episode
     ended after this step); final_values: float32[T, E] value of `info["final_obs"]` where the episode was

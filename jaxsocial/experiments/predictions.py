@@ -42,12 +42,8 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     """
     net = policy_io.saved_net(run_dir)
     env_params = parse_env_spec(env_spec)
+    population.require_obs(net, env_params, f"env {env_spec!r} with the policy {run_dir}")
     population.require_rgb(env_params, f"env {env_spec!r}")
-    if env_params.obs_shape != network.OBS_SHAPE:
-        raise ValueError(
-            f"env {env_spec!r}: its views are {env_params.obs_shape}, but the network takes "
-            f"{network.OBS_SHAPE} (view_size=7)"
-        )
     if slots is None:
         pop = population.default_population(env_params)
     else:
