@@ -60,12 +60,16 @@ class JitEqualsNoJit(chex.TestCase):
 
     params = jaxsocial.make("goalcycle3", max_steps=6)[1]
 
+    @classmethod
+    def setUpClass(cls):
+        super().setUpClass()
+        with jax.disable_jit():
+            cls.reference = play(cls.params, jax.random.key(3), 8)
+
     @chex.variants(with_jit=True, without_jit=True)
     def test_play_equals_the_disabled_jit_reference(self):
-        with jax.disable_jit():
-            reference = play(self.params, jax.random.key(3), 8)
         out = self.variant(play, static_argnums=(0, 2))(self.params, jax.random.key(3), 8)
-        chex.assert_trees_all_equal(out, reference)
+        chex.assert_trees_all_equal(out, self.reference)
 
 
 def test_same_key_same_episodes_other_key_others():
