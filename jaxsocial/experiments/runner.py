@@ -68,20 +68,20 @@ def run(
     configs = {c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
     for cfg in configs.values():
         setup(cfg, load_frozen=False)
+    skipped = []
     for name, cfg in configs.items():
         state = status(cfg)
         flags = recipes.condition_flags(scale, name, seed, seeds, runs_dir)
         print(f"[{recipe.name}/{scale.name}] {name}: {state}")
         if dry_run:
             print("  python -m jaxsocial.train " + shlex.join(flags))
-            continue
-        if state != "done" and train_missing:
+        elif state != "done" and train_missing:
             train.run(dataclasses.replace(cfg, resume=state == "partial"))
-    if not train_missing:
-        skipped = [name for name, cfg in configs.items() if status(cfg) != "done"]
-        for name in skipped:
-            print(f"  {name}: not trained, not evaluated (--no-train)")
-        configs = {name: cfg for name, cfg in configs.items() if name not in skipped}
+        elif state != "done":
+            skipped.append(name)
+    for name in skipped:
+        print(f"  {name}: not trained, not evaluated (--no-train)")
+        del configs[name]
     protocol = "ct" if recipe.kind == "ct" else "returns"
     specs = [ct_spec(scale)] if protocol == "ct" else transfer_specs(recipe, scale)
     for name in configs if specs and not dry_run else ():
