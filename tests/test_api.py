@@ -8,6 +8,7 @@ import pytest
 
 import jaxsocial
 from jaxsocial.env import reset, step, step_batch
+from jaxsocial.env.observe import observe
 
 ENVS = jaxsocial.registered_envs()
 
@@ -104,6 +105,24 @@ def test_episode_ends_when_every_agent_is_terminated(rollout):
     _, state2, _, terminated, truncated, info = step(key, state1, jnp.array([0, 2]), params)
     assert terminated.all() and not truncated and info["done"]
     assert int(state2.time) == 0 and state2.active.all()  # auto-reset
+
+
+def test_step_renders_once_when_final_obs_is_unused():
+    """A vmapped `step` whose `info["final_obs"]` is unused renders one observation per step (the reset draws
+    a state, not a picture): its program holds the gathers of the state update plus those of one `observe`,
+    also in the branch that resets (before, that branch rendered the new episodes a second time)."""
+    params = jaxsocial.make("goalcycle3", max_steps=4)[1]
+    keys = jax.random.split(jax.random.key(0), 2)
+    states = jax.vmap(reset, in_axes=(0, None))(keys, params)[1]
+    actions = jnp.zeros((2, params.n_agents), jnp.int32)
+
+    def gathers(fn, *args):
+        return jax.jit(fn).lower(*args).as_text().count("stablehlo.gather")
+
+    render = gathers(jax.vmap(lambda s: observe(s, params)), states)
+    state_only = gathers(lambda k, s, a: step_batch(k, s, a, params)[1], keys, states, actions)
+    with_obs = gathers(lambda k, s, a: step_batch(k, s, a, params)[0], keys, states, actions)
+    assert render > 0 and with_obs == state_only + render
 
 
 def test_vmap_and_step_batch_equal_per_env_step():

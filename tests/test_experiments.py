@@ -77,6 +77,56 @@ def test_stats_and_ci_separation():
     }
 
 
+def test_fisher_exact_one_sided():
+    # 2 of 6 against 0 of 6: the learned pair lands in a's 6 seeds in C(6,2) of the C(12,2) ways
+    assert figures.fisher_greater(2, 6, 0, 6) == pytest.approx(math.comb(6, 2) / math.comb(12, 2))
+    assert figures.fisher_greater(6, 6, 0, 6) == pytest.approx(1 / math.comb(12, 6))
+    assert figures.fisher_greater(0, 3, 0, 3) == 1.0  # nothing learned: no evidence
+    # one-sided tail: 2 of 3 against 1 of 3 sums P(2 in a) + P(3 in a) = (9 + 1) / 20
+    assert figures.fisher_greater(2, 3, 1, 3) == pytest.approx(0.5)
+    conditions = {c: {"seeds_above_one_tile": k, "final_returns": [1.0] * n} for c, k, n in
+                  (("a", 2, 6), ("b", 0, 6), ("c", 0, 3))}  # fmt: skip
+    tests = figures.learned_seed_tests(conditions)
+    assert tests == {"a > b": pytest.approx(0.2273, abs=1e-4), "a > c": pytest.approx(15 / 36, abs=1e-4)}
+
+
+def _fake_run(root, scale, condition, first, last, iterations):
+    """A run directory of `condition` holding seeds first..last, each with `iterations` metrics rows."""
+    run = root / scale.name / f"{condition}-s{first}-{last}"
+    for seed in range(first, last + 1):
+        seed_dir = run / f"s{seed}" if last > first else run
+        seed_dir.mkdir(parents=True)
+        logs.MetricsLog(seed_dir).append(
+            _rows([float(seed)] * iterations, [1] * iterations)
+        )
+    (run / logs.CONFIG_FILE).write_text("{}")
+
+
+def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
+    """Seeds trained in two programs (`--seeds 3`, then `--seed 3 --seeds 3`) read together as `--seeds 6`;
+    a seed no run holds is left out of its condition, and listed."""
+    scale, n = recipes.TINY, recipes.TINY.iterations
+    _fake_run(tmp_path, scale, "social_rec", 0, 2, n)
+    _fake_run(tmp_path, scale, "social_rec", 3, 5, n)
+    _fake_run(tmp_path, scale, "social_none", 0, 0, n)
+    _fake_run(tmp_path, scale, "social_rec", 0, 5, n)
+    (tmp_path / "tiny" / "social_rec-s0-5").rename(tmp_path / "tiny" / "social_rec-s0-5-old")  # not a run name
+    dirs = runner.condition_seed_dirs(scale, "social_rec", 0, 6, str(tmp_path))
+    base = tmp_path / "tiny"
+    assert dirs == [base / "social_rec-s0-2" / f"s{s}" for s in range(3)] + [
+        base / "social_rec-s3-5" / f"s{s}" for s in range(3, 6)
+    ]
+    assert runner.status(recipes.condition_config(scale, "social_rec", 0, 6, str(tmp_path)), dirs) == "done"
+    runs = figures.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 6, str(tmp_path))
+    assert runs.missing == ["solo_pred", "social_pred"]
+    assert runs.missing_seeds == {"social_none": [1, 2, 3, 4, 5]}
+    assert [figures.final_return(rows) for rows in runs.rows["social_rec"]] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    assert runs.seed_dirs["social_none"] == [base / "social_none-s0-0"]
+    summary = figures.summarize(runs)
+    assert summary["conditions"]["social_rec"]["seeds_above_one_tile"] == 3  # seeds 3, 4, 5 return > 2
+    assert summary["learned_seeds_fisher_p"] == {"social_rec > social_none": pytest.approx(4 / 7, abs=1e-4)}
+
+
 def test_cli_rejects_bad_input(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli.main(["run", "nonexistent"])

@@ -85,10 +85,15 @@ def reset(key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
     """A new episode: a fresh layout and agents placed independently and uniformly on spawn cells
     (they may share a cell or stand on a bonus tile, docs/environment.md 1.3); with `params.solo_prob` it
     is a solo episode (see `EnvParams.solo_prob`, docs/environment.md 10.2). Returns `(obs, state)`."""
+    state = _new_episode(key, params)
+    return observe(state, params), state
+
+
+def _new_episode(key: jax.Array, params: EnvParams) -> EnvState:
+    """The state of `reset`, without rendering it."""
     k_layout, k_spawn = jax.random.split(key)
     layout = generate(k_layout, params)
-    state = _spawn(k_spawn, layout.grid, layout.goal_id, layout.spawn_mask, params)
-    return observe(state, params), state
+    return _spawn(k_spawn, layout.grid, layout.goal_id, layout.spawn_mask, params)
 
 
 def check_actions(actions: jax.Array, params: EnvParams) -> None:
@@ -109,6 +114,17 @@ def check_actions(actions: jax.Array, params: EnvParams) -> None:
             )
 
 
+def _advance(
+    state: EnvState, actions: jax.Array, params: EnvParams
+) -> tuple[EnvState, jax.Array, jax.Array, jax.Array]:
+    """The world step of `step_env`, without rendering: (state, reward, terminated, truncated)."""
+    check_actions(actions, params)
+    state, reward = world_step(state, actions.astype(jnp.int32), params)
+    terminated = ~state.active
+    truncated = (state.time >= params.max_steps) & ~jnp.all(terminated)
+    return state, reward, terminated, truncated
+
+
 def step_env(
     state: EnvState, actions: jax.Array, params: EnvParams
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array]:
@@ -120,10 +136,7 @@ def step_env(
         obs, state, reward float32[N], terminated bool[N] (agent is on a terminal goal; stays True for the
         rest of the episode), truncated bool[] (time limit reached while some agent is still active).
     """
-    check_actions(actions, params)
-    state, reward = world_step(state, actions.astype(jnp.int32), params)
-    terminated = ~state.active
-    truncated = (state.time >= params.max_steps) & ~jnp.all(terminated)
+    state, reward, terminated, truncated = _advance(state, actions, params)
     return observe(state, params), state, reward, terminated, truncated
 
 
@@ -138,19 +151,25 @@ def step(
 
     When every agent is terminated or time runs out, the returned `obs` and `state` belong to a new
     episode drawn with `key`; `info["final_obs"]` holds the last observation of the finished episode
-    (equal to `obs` otherwise) and `info["done"]` says whether the episode ended. The reset is a `lax.cond`
-    on `any_in_batch(done)`, so it costs nothing on steps where no episode ended, also under `jax.vmap`
-    (where it then resets, and selects, only the environments whose episode ended).
+    (equal to `obs` otherwise) and `info["done"]` says whether the episode ended.
+
+    Each observation is rendered once. The reset and the final observation are `lax.cond`s on
+    `any_in_batch(done)`, so steps where no episode ended neither draw a new episode nor render twice, also
+    under `jax.vmap` (where a step in which some episode ended resets, and selects, only the environments
+    whose episode ended). A caller that ignores `final_obs` never renders it (it is dead code under `jit`).
     """
-    obs, new_state, reward, terminated, truncated = step_env(state, actions, params)
+    new_state, reward, terminated, truncated = _advance(state, actions, params)
     done = _episode_done(terminated, truncated)
+    some_ended = any_in_batch(done)
 
     def with_reset():
-        reset_obs, reset_state = reset(key, params)
-        return jax.tree.map(lambda r, s: jnp.where(done, r, s), (reset_obs, reset_state), (obs, new_state))
+        fresh = _new_episode(key, params)
+        return jax.tree.map(lambda r, s: jnp.where(done, r, s), fresh, new_state)
 
-    next_obs, next_state = jax.lax.cond(any_in_batch(done), with_reset, lambda: (obs, new_state))
-    return next_obs, next_state, reward, terminated, truncated, {"final_obs": obs, "done": done}
+    next_state = jax.lax.cond(some_ended, with_reset, lambda: new_state)
+    obs = observe(next_state, params)
+    final_obs = jax.lax.cond(some_ended, lambda: observe(new_state, params), lambda: obs)
+    return obs, next_state, reward, terminated, truncated, {"final_obs": final_obs, "done": done}
 
 
 def step_batch(

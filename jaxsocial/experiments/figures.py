@@ -8,6 +8,7 @@ last 10% of training iterations (the issue's measure); the 95% confidence interv
 from __future__ import annotations
 
 import itertools
+import math
 import shlex
 from pathlib import Path
 from typing import Any
@@ -103,18 +104,49 @@ def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
     return out
 
 
+def fisher_greater(learned_a: int, n_a: int, learned_b: int, n_b: int) -> float:
+    """One-sided Fisher exact test: the probability, if learning did not depend on the condition, that a's
+    seeds hold at least `learned_a` of the `learned_a + learned_b` learned seeds (n_a, n_b seeds in all)."""
+    learned, total = learned_a + learned_b, n_a + n_b
+    tail = range(learned_a, min(n_a, learned) + 1)
+    return sum(math.comb(n_a, k) * math.comb(n_b, learned - k) for k in tail) / math.comb(total, learned)
+
+
+def learned_seed_tests(conditions: dict[str, dict[str, Any]]) -> dict[str, float]:
+    """For each ordered pair with more learned seeds (`seeds_above_one_tile`) in a than in b, 'a > b': the
+    one-sided Fisher exact p-value of that difference."""
+    out = {}
+    for a, b in itertools.permutations(conditions, 2):
+        (la, na), (lb, nb) = ((conditions[c]["seeds_above_one_tile"], _seeds(conditions[c])) for c in (a, b))
+        if la > lb:
+            out[f"{a} > {b}"] = round(fisher_greater(la, na, lb, nb), 4)
+    return out
+
+
+def _seeds(condition: dict[str, Any]) -> int:
+    return sum(np.isfinite(v) for v in condition["final_returns"] if v is not None)
+
+
 class RecipeRuns:
-    """The run directories of a recipe at a scale and seed range, with their metrics. Conditions without
-    metrics in every seed are left out (`missing`); FileNotFoundError if all are."""
+    """The run directories of a recipe at a scale and seed range, with their metrics. Seeds without metrics
+    are left out of their condition (`missing_seeds`), and conditions without any are left out (`missing`);
+    FileNotFoundError if all are."""
 
     def __init__(self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str):
         self.recipe, self.scale = recipe, scale
         self.configs = {
             c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions
         }
-        self.seed_dirs = {c: runner.seed_dirs(cfg) for c, cfg in self.configs.items()}
-        self.rows = {c: [logs.read_metrics(d) for d in dirs] for c, dirs in self.seed_dirs.items()}
-        self.missing = [c for c, seed_rows in self.rows.items() if not all(seed_rows)]
+        self.seed_dirs, self.rows, self.missing_seeds = {}, {}, {}
+        for c in recipe.conditions:
+            dirs = runner.condition_seed_dirs(scale, c, seed, seeds, runs_dir)
+            rows = [logs.read_metrics(d) for d in dirs]
+            self.seed_dirs[c] = [d for d, r in zip(dirs, rows, strict=True) if r]
+            self.rows[c] = [r for r in rows if r]
+            absent = [s for s, r in zip(range(seed, seed + seeds), rows, strict=True) if not r]
+            if absent and self.rows[c]:
+                self.missing_seeds[c] = absent
+        self.missing = [c for c, seed_rows in self.rows.items() if not seed_rows]
         if len(self.missing) == len(self.configs):
             raise FileNotFoundError(
                 f"no metrics for any condition of {recipe.name} under {runs_dir}/{scale.name}: "
@@ -150,9 +182,11 @@ class RecipeRuns:
                 c: {"flags": shlex.join(self.flags(c)), "label": recipes.CONDITIONS[c].label}
                 for c in self.configs
             },
+            "seed_dirs": {c: [str(d) for d in dirs] for c, dirs in self.seed_dirs.items()},
             "env_steps_per_run": cfg.iterations * cfg.num_envs * cfg.rollout_steps,
             "unfinished_runs": unfinished,
             "missing_conditions": self.missing,
+            "missing_seeds": self.missing_seeds,
         }
 
 
@@ -179,6 +213,7 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
                 [float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows]
             )
         out["separated_ci95"] = separations(conditions)
+        out["learned_seeds_fisher_p"] = learned_seed_tests(conditions)
     elif kind == "ct":  # the training return, and the CT protocol's scores after training
         for c, seed_rows in runs.rows.items():
             conditions[c] = stats([final_return(rows) for rows in seed_rows])

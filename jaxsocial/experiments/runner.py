@@ -5,6 +5,7 @@ lands in run directories; figures are drawn from them (`jaxsocial.experiments.fi
 from __future__ import annotations
 
 import dataclasses
+import re
 import shlex
 from pathlib import Path
 
@@ -23,13 +24,32 @@ def seed_dirs(cfg: TrainConfig) -> list[Path]:
     return [d for _, d in train.seed_runs(cfg, run_dir)]
 
 
-def status(cfg: TrainConfig) -> str:
-    """'done' (every seed logged every iteration), 'partial' (a run directory exists) or 'missing'."""
+def condition_seed_dirs(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[Path]:
+    """The run directory of each seed seed..seed+seeds-1 of a condition, from whichever of the condition's
+    runs at this scale holds it: the recipe's own run (`<condition>-s<seed>-<last>`) first, then any other
+    (e.g. seeds trained in two programs, `--seeds 3` then `--seed 3 --seeds 3`, read together as `--seeds
+    6`). A seed that no run holds keeps the directory the recipe's own run would give it."""
+    own = seed_dirs(recipes.condition_config(scale, condition, seed, seeds, runs_dir))
+    held: dict[int, Path] = {}
+    for run_dir in sorted((Path(runs_dir) / scale.name).glob(f"{condition}-s*")):
+        match = re.fullmatch(rf"{re.escape(condition)}-s(\d+)-(\d+)", run_dir.name)
+        if not match:
+            continue
+        first, last = int(match[1]), int(match[2])
+        for s in range(first, last + 1):
+            d = run_dir if first == last else run_dir / f"s{s}"
+            if logs.read_metrics(d):
+                held.setdefault(s, d)
+    return [d if logs.read_metrics(d) else held.get(s, d) for s, d in zip(range(seed, seed + seeds), own)]
+
+
+def status(cfg: TrainConfig, dirs: list[Path]) -> str:
+    """'done' (each seed's directory `dirs` logged every iteration), 'partial' (the config's own run
+    directory exists, so training resumes it) or 'missing'."""
+    if all(len(logs.read_metrics(d)) >= cfg.iterations for d in dirs):
+        return "done"
     run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
-    if not (run_dir / logs.CONFIG_FILE).exists():
-        return "missing"
-    done = all(len(logs.read_metrics(d)) >= cfg.iterations for d in seed_dirs(cfg))
-    return "done" if done else "partial"
+    return "partial" if (run_dir / logs.CONFIG_FILE).exists() else "missing"
 
 
 def eval_path(seed_dir: Path, spec: str) -> Path:
@@ -68,15 +88,17 @@ def run(
     configs = {c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
     for cfg in configs.values():
         setup(cfg, load_frozen=False)
+    dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir) for c in configs}
     skipped = []
     for name, cfg in configs.items():
-        state = status(cfg)
+        state = status(cfg, dirs[name])
         flags = recipes.condition_flags(scale, name, seed, seeds, runs_dir)
         print(f"[{recipe.name}/{scale.name}] {name}: {state}")
         if dry_run:
             print("  python -m jaxsocial.train " + shlex.join(flags))
         elif state != "done" and train_missing:
             train.run(dataclasses.replace(cfg, resume=state == "partial"))
+            dirs[name] = seed_dirs(cfg)
         elif state != "done":
             skipped.append(name)
     for name in skipped:
@@ -87,7 +109,7 @@ def run(
     for name in configs if specs and not dry_run else ():
         for spec in specs:
             env, _, env_args = spec.partition(":")
-            for seed_dir in seed_dirs(configs[name]):
+            for seed_dir in dirs[name]:
                 out = ct_path(seed_dir, scale) if protocol == "ct" else eval_path(seed_dir, spec)
                 if out.exists():
                     continue
