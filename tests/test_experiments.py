@@ -96,9 +96,7 @@ def _fake_run(root, scale, condition, first, last, iterations):
     for seed in range(first, last + 1):
         seed_dir = run / f"s{seed}" if last > first else run
         seed_dir.mkdir(parents=True)
-        logs.MetricsLog(seed_dir).append(
-            _rows([float(seed)] * iterations, [1] * iterations)
-        )
+        logs.MetricsLog(seed_dir).append(_rows([float(seed)] * iterations, [1] * iterations))
     (run / logs.CONFIG_FILE).write_text("{}")
 
 
@@ -109,8 +107,8 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     _fake_run(tmp_path, scale, "social_rec", 0, 2, n)
     _fake_run(tmp_path, scale, "social_rec", 3, 5, n)
     _fake_run(tmp_path, scale, "social_none", 0, 0, n)
-    _fake_run(tmp_path, scale, "social_rec", 0, 5, n)
-    (tmp_path / "tiny" / "social_rec-s0-5").rename(tmp_path / "tiny" / "social_rec-s0-5-old")  # not a run name
+    _fake_run(tmp_path, scale, "social_rec", 0, 5, n)  # renamed below to a name that is not a run's
+    (tmp_path / "tiny" / "social_rec-s0-5").rename(tmp_path / "tiny" / "social_rec-s0-5-old")
     dirs = runner.condition_seed_dirs(scale, "social_rec", 0, 6, str(tmp_path))
     base = tmp_path / "tiny"
     assert dirs == [base / "social_rec-s0-2" / f"s{s}" for s in range(3)] + [

@@ -19,7 +19,11 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p = sub.add_parser(name, help=help_)
         p.add_argument("recipe", choices=sorted(recipes.RECIPES))
         p.add_argument("--scale", default="cpu", choices=sorted(recipes.SCALES))
-        p.add_argument("--seeds", type=int, default=3, help="seeds per condition, trained in one program")
+        seeds_help = {
+            "run": "seeds per condition, trained in one program",
+            "figure": "seeds per condition, each read from whichever of the condition's runs holds it",
+        }
+        p.add_argument("--seeds", type=int, default=3, help=seeds_help[name])
         p.add_argument("--seed", type=int, default=0, help="first seed")
         p.add_argument("--runs-dir", default="runs/experiments", help="root of the run directories")
         if name == "run":
