@@ -84,7 +84,7 @@ def test_devices_and_processes_match_one_device(tmp_path, single_runs):
     two_devices = subprocess.Popen(
         [*cli, "--run-name", "d2", "--devices", "2", "--seeds", "2", "--seed-batching", "map"]
         + ["--compile-cache", str(tmp_path / "cache")],
-        env=env_with(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+        env=env_with(XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
