@@ -1,5 +1,6 @@
 """Shared, compiled-once helpers for the test suite (jit compile time dominates on CPU)."""
 
+import dataclasses
 import os
 import tempfile
 from pathlib import Path
@@ -7,7 +8,7 @@ from pathlib import Path
 import jax
 import pytest
 
-from jaxsocial import compile_cache, logs
+from jaxsocial import compile_cache, logs, train
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.config import TrainConfig
@@ -16,7 +17,7 @@ from jaxsocial.env.observe import observe
 
 TINY = TrainConfig(
     env="goalcycle3",
-    env_args="max_steps=12,width=7,height=7",
+    env_args="max_steps=6,width=7,height=7",  # an episode ends in every 8-step rollout
     slots="learner,random,random",  # scripted experts cost compile time; the CLI test runs the default slots
     num_envs=4,
     rollout_steps=8,
@@ -64,6 +65,15 @@ def pytest_configure(config):
     if "xla_backend_optimization_level" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_optimization_level=0".strip()
     compile_cache.enable(Path(tempfile.gettempdir()) / "jaxsocial-tests-xla-cache", min_compile_seconds=1.0)
+
+
+@pytest.fixture(scope="session")
+def two_seed_run(tmp_path_factory):
+    """TINY with two seeds in one (vmapped) program, `run_name` 'tiny': the run directory, with one run
+    directory per seed (s0, s1). Read only."""
+    runs_dir = tmp_path_factory.mktemp("two-seeds")
+    cfg = dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="tiny", seeds=2, seed_batching="vmap")
+    return train.run(cfg)
 
 
 @pytest.fixture(scope="session")

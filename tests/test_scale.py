@@ -57,9 +57,9 @@ def single_runs(tmp_path_factory):
     return [run(dataclasses.replace(TINY, runs_dir=str(root), run_name=f"s{s}", seed=s)) for s in (0, 1)]
 
 
-def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs):
+def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs, two_seed_run):
+    run_dir = two_seed_run  # TINY's two seeds, vmapped
     cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), seeds=2, seed_batching="vmap")
-    run_dir = run(dataclasses.replace(cfg, run_name="k2"))
     assert json.loads((run_dir / "config.json").read_text())["seeds"] == 2
     for seed, single in enumerate(single_runs):
         seed_dir = run_dir / f"s{seed}"

@@ -181,7 +181,7 @@ def test_attention_loss_learns_where_the_others_are_under_expert_dropout():
     """The attention targets recorded in the rollout are learnable: the loss falls well below its start."""
     cfg = dataclasses.replace(
         TINY,
-        env_args=TINY.env_args + ",dropout_prob=0.5,dropin_prob=0.5",
+        env_args="max_steps=12,width=7,height=7,dropout_prob=0.5,dropin_prob=0.5",
         iterations=8,
         net=dataclasses.replace(TINY.net, aux="pred+attention"),
         ppo=dataclasses.replace(TINY.ppo, lr=0.03, kl_target=10.0, kl_hard_limit=10.0),
