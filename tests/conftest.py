@@ -67,6 +67,20 @@ def pytest_configure(config):
     compile_cache.enable(Path(tempfile.gettempdir()) / "jaxsocial-tests-xla-cache", min_compile_seconds=1.0)
 
 
+SHARED_RUNS = {"test_cli_errors", "test_plot", "test_regimes", "test_render", "test_scale", "test_train"}
+"""Test files that train TINY's programs (`two_seed_run` and single-seed runs of TINY)."""
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items):
+    """With `pytest -n N`, run each test file on one worker (`--dist loadgroup` in pyproject.toml), so
+    that module fixtures and the programs a file compiles are made once, and the files of SHARED_RUNS on
+    the same worker, so that TINY's programs compile once (in-process cache)."""
+    for item in items:
+        name = item.module.__name__
+        item.add_marker(pytest.mark.xdist_group("tiny-runs" if name in SHARED_RUNS else name))
+
+
 @pytest.fixture(scope="session")
 def two_seed_run(tmp_path_factory):
     """TINY with two seeds in one (vmapped) program, `run_name` 'tiny': the run directory, with one run
