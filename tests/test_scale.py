@@ -77,6 +77,7 @@ def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs, two_see
         assert metrics_without_speed(resumed / f"s{seed}") == metrics_without_speed(run_dir / f"s{seed}")
 
 
+@pytest.mark.slow  # three subprocesses compile programs of their own (multi-device equality)
 def test_devices_and_processes_match_one_device(tmp_path, single_runs):
     """Two host devices in one process (two seeds, seeds mapped) and two processes with one device each
     give the metrics of one device; the two-device run fills a compilation cache."""
