@@ -1,12 +1,14 @@
 """Shared, compiled-once helpers for the test suite (jit compile time dominates on CPU)."""
 
+import dataclasses
+import os
 import tempfile
 from pathlib import Path
 
 import jax
 import pytest
 
-from jaxsocial import compile_cache, logs
+from jaxsocial import compile_cache, logs, train
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.config import TrainConfig
@@ -15,7 +17,7 @@ from jaxsocial.env.observe import observe
 
 TINY = TrainConfig(
     env="goalcycle3",
-    env_args="max_steps=12,width=7,height=7",
+    env_args="max_steps=6,width=7,height=7",  # an episode ends in every 8-step rollout
     slots="learner,random,random",  # scripted experts cost compile time; the CLI test runs the default slots
     num_envs=4,
     rollout_steps=8,
@@ -52,10 +54,40 @@ def metrics_without_speed(run_dir):
 
 
 def pytest_configure(config):
-    """One persistent XLA cache for every test process: the pytest-xdist workers (and later runs) load the
+    """Compile for the tests, not for speed: XLA's backend (LLVM) optimisation level 0 halves the compile
+    time that dominates the suite on CPU (the programs' HLO is optimised as usual; set the level in
+    $XLA_FLAGS to test with another). It applies to this process and the subprocesses the tests start.
+
+    One persistent XLA cache for every test process: the pytest-xdist workers (and later runs) load the
     programs another one compiled (the same training programs recur across test files) instead of
-    compiling them again. Keyed by program, JAX version and devices, so it is safe to share."""
+    compiling them again. Keyed by program, JAX version, flags and devices, so it is safe to share."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_backend_optimization_level" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_optimization_level=0".strip()
     compile_cache.enable(Path(tempfile.gettempdir()) / "jaxsocial-tests-xla-cache", min_compile_seconds=1.0)
+
+
+SHARED_RUNS = {"test_cli_errors", "test_plot", "test_regimes", "test_render", "test_scale", "test_train"}
+"""Test files that train TINY's programs (`two_seed_run` and single-seed runs of TINY)."""
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items):
+    """With `pytest -n N`, run each test file on one worker (`--dist loadgroup` in pyproject.toml), so
+    that module fixtures and the programs a file compiles are made once, and the files of SHARED_RUNS on
+    the same worker, so that TINY's programs compile once (in-process cache)."""
+    for item in items:
+        name = item.module.__name__
+        item.add_marker(pytest.mark.xdist_group("tiny-runs" if name in SHARED_RUNS else name))
+
+
+@pytest.fixture(scope="session")
+def two_seed_run(tmp_path_factory):
+    """TINY with two seeds in one (vmapped) program, `run_name` 'tiny': the run directory, with one run
+    directory per seed (s0, s1). Read only."""
+    runs_dir = tmp_path_factory.mktemp("two-seeds")
+    cfg = dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="tiny", seeds=2, seed_batching="vmap")
+    return train.run(cfg)
 
 
 @pytest.fixture(scope="session")

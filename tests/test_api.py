@@ -11,6 +11,11 @@ from jaxsocial.env import reset, step, step_batch
 from jaxsocial.env.observe import observe
 
 ENVS = jaxsocial.registered_envs()
+SHORT = jaxsocial.make("goalcycle3", max_steps=4)[1]
+"""Episodes of 4 steps: `play(SHORT, key, 9)` resets twice (one compiled program for the tests below)."""
+# Jitted (eager op-by-op dispatch compiles every primitive separately and is slower).
+jit_reset = jax.jit(reset, static_argnums=1)
+jit_step = jax.jit(step, static_argnums=3)
 
 
 def play(params, key, n_steps, step_fn=step):
@@ -59,30 +64,27 @@ class JitEqualsNoJit(chex.TestCase):
     """Random play (reset, then steps with auto-reset) compiled, and run op by op, equals a reference with
     jit disabled altogether (`lax.scan` as a Python loop)."""
 
-    params = jaxsocial.make("goalcycle3", max_steps=6)[1]
-
     @classmethod
     def setUpClass(cls):
         super().setUpClass()
         with jax.disable_jit():
-            cls.reference = play(cls.params, jax.random.key(3), 8)
+            cls.reference = play(SHORT, jax.random.key(3), 9)
 
     @chex.variants(with_jit=True, without_jit=True)
     def test_play_equals_the_disabled_jit_reference(self):
-        out = self.variant(play, static_argnums=(0, 2))(self.params, jax.random.key(3), 8)
+        out = self.variant(play, static_argnums=(0, 2))(SHORT, jax.random.key(3), 9)
         chex.assert_trees_all_equal(out, self.reference)
 
 
 def test_same_key_same_episodes_other_key_others():
-    params = jaxsocial.make("goalcycle3", max_steps=6)[1]
     run = jax.jit(play, static_argnums=(0, 2))
-    first, again, other = (run(params, jax.random.key(k), 8) for k in (3, 3, 4))
+    first, again, other = (run(SHORT, jax.random.key(k), 9) for k in (3, 3, 4))
     chex.assert_trees_all_equal(first, again)
     assert not np.array_equal(first[0], other[0])
 
 
 def test_auto_reset_and_final_obs():
-    params = jaxsocial.make("goalcycle3", max_steps=4)[1]
+    params = SHORT
     obs, reward, terminated, truncated, final_obs, done, time = jax.jit(play, static_argnums=(0, 2))(
         params, jax.random.key(5), 9
     )
@@ -93,16 +95,16 @@ def test_auto_reset_and_final_obs():
     np.testing.assert_array_equal(same, ~np.asarray(done))  # final_obs differs from obs only at resets
     # final_obs at a reset is the observation step_env gives for the last step of the episode.
     k_reset, _ = jax.random.split(jax.random.key(5))
-    assert not np.array_equal(final_obs[3], reset(k_reset, params)[0])
+    assert not np.array_equal(final_obs[3], jit_reset(k_reset, params)[0])
 
 
-def test_episode_ends_when_every_agent_is_terminated(rollout):
+def test_episode_ends_when_every_agent_is_terminated():
     params = jaxsocial.make("goalcycle3", width=5, height=3, n_goals=1, clutter_density=0.0, n_agents=2)[1]
     state = jaxsocial.state_from_layout(params, ["#####", "#.G.#", "#####"], [(1, 1), (3, 1)], [0, 2])
     key = jax.random.key(0)
-    _, state1, _, terminated, truncated, info = step(key, state, jnp.array([2, 6]), params)
+    _, state1, _, terminated, truncated, info = jit_step(key, state, jnp.array([2, 6]), params)
     assert terminated.tolist() == [True, False] and not info["done"] and int(state1.time) == 1
-    _, state2, _, terminated, truncated, info = step(key, state1, jnp.array([0, 2]), params)
+    _, state2, _, terminated, truncated, info = jit_step(key, state1, jnp.array([0, 2]), params)
     assert terminated.all() and not truncated and info["done"]
     assert int(state2.time) == 0 and state2.active.all()  # auto-reset
 
@@ -129,9 +131,11 @@ def test_vmap_and_step_batch_equal_per_env_step():
     """Under vmap the auto-reset is a cond on "some episode ended" plus a select: with episodes ending at
     different steps in different environments, every environment of the batch is the same as running it
     alone, and `step_batch` is the same as the vmap."""
-    params = jaxsocial.make("goalcycle3", max_steps=4)[1]
+    params = SHORT
     n_envs, n_steps = 4, 9
-    _, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(jax.random.key(9), n_envs), params)
+    _, states = jax.jit(jax.vmap(reset, in_axes=(0, None)), static_argnums=1)(
+        jax.random.split(jax.random.key(9), n_envs), params
+    )
     states = states.replace(time=jnp.arange(n_envs, dtype=jnp.int32))  # truncated at steps 4, 3, 2, 1, ...
     keys = jax.random.split(jax.random.key(10), (n_steps, n_envs))
     actions = jax.random.randint(jax.random.key(11), (n_steps, n_envs, params.n_agents), 0, 7)
@@ -161,14 +165,14 @@ def test_no_retracing():
     def step_fn(key, state, actions):
         return step(key, state, actions, params)
 
-    _, state = reset(jax.random.key(0), params)
+    _, state = jit_reset(jax.random.key(0), params)
     for i in range(3):
         _, state, *_ = step_fn(jax.random.key(i), state, jnp.array([i % 3], jnp.int32))
 
 
 def test_symbolic_observation():
     env, params = jaxsocial.make("goalcycle3", observation="symbolic")
-    obs, _ = env.reset(jax.random.key(0), params)
+    obs, _ = jax.jit(env.reset, static_argnums=1)(jax.random.key(0), params)
     chex.assert_shape(obs, (3, 7, 7, 4))
     assert obs.dtype == jnp.int8 and (obs[:, 5, 3, 1] == jnp.arange(1, 4)).all()  # each agent sees itself
 
@@ -205,7 +209,7 @@ def test_int_given_for_a_float_field_is_stored_as_a_float():
 
 def test_bad_actions_are_rejected_before_compiling():
     env, params = jaxsocial.make("goalcycle3")
-    _, state = env.reset(jax.random.key(0), params)
+    _, state = jax.jit(env.reset, static_argnums=1)(jax.random.key(0), params)
     for actions in (jnp.zeros(2, jnp.int32), jnp.zeros((3, 1), jnp.int32), jnp.zeros(3, jnp.float32)):
         with pytest.raises(ValueError, match="actions must be an integer array of shape"):
             jax.jit(env.step)(jax.random.key(1), state, actions, params)

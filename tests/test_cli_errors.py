@@ -80,7 +80,7 @@ def test_help_shows_the_command_and_the_environments(capsys):
 
 def test_out_of_range_actions_raise_in_eager_calls():
     env, params = jaxsocial.make("goalcycle3")
-    _, state = env.reset(jax.random.key(0), params)
+    _, state = jax.jit(env.reset, static_argnums=1)(jax.random.key(0), params)
     for bad in ([99, 0, 0], [0, -1, 0], [0, 0, 7]):
         with pytest.raises(ValueError, match=r"actions must be in \[0, 7\)"):
             env.step_env(state, jnp.array(bad, jnp.int32), params)

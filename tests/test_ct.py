@@ -57,6 +57,8 @@ def test_scores_are_the_normalised_gains():
 CT_ENV = "goalcycle3"
 CT_ARGS = "width=7,height=7,n_goals=2,max_steps=20"
 CT_SLOTS = "learner,expert:oracle,expert:oracle"
+CT_EPISODES = 8
+"""Episodes per case in both tests below (one compiled program per case)."""
 
 
 @pytest.fixture(scope="module")
@@ -72,7 +74,7 @@ def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     play = jax.jit(evaluate.episode_returns, static_argnums=(1, 2, 3, 5))
     cases = evaluate.ct_cases(env_params)
     out = {
-        name: jax.device_get(play(jax.random.key(3), pop, net, case, params, 16))
+        name: jax.device_get(play(jax.random.key(3), pop, net, case, params, CT_EPISODES))
         for name, case in cases.items()
     }
     first_half = {name: r.returns - r.late_returns for name, r in out.items()}
@@ -83,7 +85,12 @@ def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
 
 def test_ct_protocol_end_to_end(saved_learner):
     cfg = EvalConfig(
-        ckpt=(saved_learner,), env=CT_ENV, env_args=CT_ARGS, slots=CT_SLOTS, episodes=8, protocol="ct"
+        ckpt=(saved_learner,),
+        env=CT_ENV,
+        env_args=CT_ARGS,
+        slots=CT_SLOTS,
+        episodes=CT_EPISODES,
+        protocol="ct",
     )
     result = evaluate.evaluate(cfg)
     assert result["protocol"] == "ct" and result["ci_over"] == "episodes"

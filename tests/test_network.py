@@ -63,7 +63,7 @@ def test_attention_head_adds_one_dense_layer(aux, frame_aux, decoder):
 
 def test_attention_loss_is_the_weighted_cross_entropy():
     cfg = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="attention", n_others=2)
-    params = net.init(jax.random.key(0), cfg)
+    params = init(jax.random.key(0), cfg)
     hidden = jax.random.normal(jax.random.key(1), (3, 4, 8))
     target = jax.random.randint(jax.random.key(2), (3, 4, 2), 0, 50)
     weight = jax.random.uniform(jax.random.key(3), (3, 4))

@@ -22,6 +22,7 @@ def run_notebook(path: Path) -> dict:
     return namespace
 
 
+@pytest.mark.slow  # notebook execution (compiles its own environment programs)
 @pytest.mark.parametrize(
     "path", [p for p in NOTEBOOKS if p.name != "social_learning.ipynb"], ids=lambda p: p.name
 )

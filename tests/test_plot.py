@@ -1,6 +1,5 @@
 """Learning curves (`python -m jaxsocial.plot`) of a real tiny two-seed run: panels, bands, groups, errors."""
 
-import dataclasses
 import json
 import shutil
 import subprocess
@@ -9,25 +8,16 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from conftest import TINY as TRAIN_TINY
+from conftest import TINY
 
-from jaxsocial import logs, plot, train
+from jaxsocial import logs, plot
 from jaxsocial.experiments import figures
 
-TINY = dataclasses.replace(
-    TRAIN_TINY,
-    env_args="max_steps=6,width=7,height=7",  # an episode ends in every 8-step rollout
-    chunk_iterations=4,
-    checkpoint_every=4,
-    seeds=2,
-)
 
-
-@pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    """A two-seed run: run_dir/s0 and run_dir/s1."""
-    runs_dir = tmp_path_factory.mktemp("runs")
-    return train.run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="tiny"))
+@pytest.fixture
+def run_dir(two_seed_run):
+    """TINY's two-seed run: run_dir/s0 and run_dir/s1."""
+    return two_seed_run
 
 
 def copy_seed(src, dst, **changes):
@@ -67,7 +57,7 @@ def test_two_seeds_panels_mean_and_band(run_dir):
 
 
 def test_seeds_group_by_config(run_dir, tmp_path):
-    other = copy_seed(run_dir / "s0", tmp_path / "other", env_args="max_steps=6,width=7,height=7,penalty=0.5")
+    other = copy_seed(run_dir / "s0", tmp_path / "other", env_args=f"{TINY.env_args},penalty=0.5")
     # The whole run, one of its seeds again (counted once) and a run of another config.
     groups = plot.load_groups([run_dir / "s1", run_dir, other])
     assert [(g.label, len(g.rows)) for g in groups] == [("tiny/s1 +1", 2), ("other", 1)]

@@ -13,6 +13,13 @@ NET = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8)
 T, E, L = 32, 6, 8
 CFG = ppo.PPOConfig(chunk_length=L, minibatch_chunks=8, num_minibatches=4, lr=1e-3)
 
+# Jitted once for the module (eager op-by-op dispatch compiles every primitive separately and is slower).
+init = jax.jit(network.init, static_argnums=1)
+unroll = jax.jit(network.unroll, static_argnums=1)
+decode = jax.jit(network.decode, static_argnums=1)
+recompute = jax.jit(ppo.recompute, static_argnums=(1, 2))
+loss = jax.jit(ppo.loss_fn, static_argnums=(1, 2))
+
 
 def gae_reference(rewards, values, next_values, terminated, done, gamma, lam):
     adv = np.zeros_like(rewards)
@@ -72,27 +79,27 @@ def synthetic_rollout(key, params):
 
 @pytest.fixture(scope="module")
 def setup():
-    params = network.init(jax.random.key(0), NET)
-    return params, synthetic_rollout(jax.random.key(1), params)
+    params = init(jax.random.key(0), NET)
+    return params, jax.jit(synthetic_rollout)(jax.random.key(1), params)
 
 
 def test_replay_from_stored_states_equals_step_by_step_and_ratio_is_one(setup):
     params, batch = setup
-    targets = jax.jit(ppo.recompute, static_argnums=(1, 2))(params, NET, CFG, batch)
+    targets = recompute(params, NET, CFG, batch)
     idx = jnp.arange(T // L * E)  # every chunk, across episode boundaries
     mb = ppo.minibatch(batch, targets, idx, L)
-    loss, metrics = jax.jit(ppo.loss_fn, static_argnums=(1, 2))(params, NET, CFG, mb)
+    _, metrics = loss(params, NET, CFG, mb)
     np.testing.assert_allclose(metrics["ratio_mean"], 1.0, atol=1e-5)
     assert float(metrics["kl"]) < 1e-9
     # The stored chunk-start states reproduce the step-by-step rollout's log-probabilities exactly.
-    _, out = network.unroll(params, NET, mb["carry"], mb["obs"], mb["resets"])
+    _, out = unroll(params, NET, mb["carry"], mb["obs"], mb["resets"])
     logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), mb["actions"][..., None], -1)[..., 0]
     np.testing.assert_allclose(logp, mb["logp"], atol=1e-5)
 
 
 def test_minibatch_next_obs_is_the_following_step(setup):
     params, batch = setup
-    targets = ppo.recompute(params, NET, CFG, batch)
+    targets = recompute(params, NET, CFG, batch)
     idx = jnp.array([0, E + 3, 3 * E - 1])  # chunk c * E + e
     mb = ppo.minibatch(batch, targets, idx, L)
     for j, (c, e) in enumerate([(0, 0), (1, 3), (2, E - 1)]):
@@ -105,11 +112,11 @@ def test_minibatch_next_obs_is_the_following_step(setup):
 def test_aux_loss_targets(setup, aux):
     params, batch = setup
     net = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8, aux=aux)
-    targets = ppo.recompute(params, net, CFG, batch)
+    targets = recompute(params, net, CFG, batch)
     mb = ppo.minibatch(batch, targets, jnp.arange(8), L)
-    _, metrics = ppo.loss_fn(params, net, CFG, mb)
-    _, out = network.unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
-    prediction = network.decode(params, net, out.hidden, mb["actions"])
+    _, metrics = loss(params, net, CFG, mb)
+    _, out = unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
+    prediction = decode(params, net, out.hidden, mb["actions"])
     target, mask = (mb["next_obs"], ~mb["done"]) if aux == "pred" else (mb["obs"], jnp.ones_like(mb["done"]))
     error = jnp.abs(prediction - target / 255.0).mean(axis=(-3, -2, -1))
     np.testing.assert_allclose(metrics["aux_loss"], (error * mask).sum() / mask.sum(), rtol=1e-5)
@@ -118,21 +125,25 @@ def test_aux_loss_targets(setup, aux):
 def test_attention_loss_term_uses_the_minibatch_targets_on_valid_steps(setup):
     _, batch = setup
     net = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8, aux="attention", n_others=2)
-    params = network.init(jax.random.key(0), net)
+    params = init(jax.random.key(0), net)
     cells = jax.random.randint(jax.random.key(5), (T, E, 2), 0, network.ATTENTION_CLASSES)
     batch = batch._replace(attention=cells, valid=jnp.arange(T)[:, None] < T - 5 + jnp.zeros((1, E), int))
-    targets = ppo.recompute(params, net, CFG, batch)
+    targets = recompute(params, net, CFG, batch)
     mb = ppo.minibatch(batch, targets, jnp.arange(8), L)
-    loss, metrics = ppo.loss_fn(params, net, CFG, mb)
-    _, out = network.unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
+    total, metrics = loss(params, net, CFG, mb)
+    _, out = unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
     weight = mb["valid"] / mb["valid"].sum()
-    expected = network.attention_loss(params, net, out.hidden, mb["attention"], weight)
+    expected = jax.jit(network.attention_loss, static_argnums=1)(
+        params, net, out.hidden, mb["attention"], weight
+    )
     np.testing.assert_allclose(metrics["attention_loss"], expected, rtol=1e-6)
     cfg0 = ppo.PPOConfig(**{**CFG.__dict__, "attention_coef": 0.0})
-    loss0, _ = ppo.loss_fn(params, net, cfg0, mb)
-    np.testing.assert_allclose(loss - loss0, CFG.attention_coef * expected, rtol=1e-4)
+    total0, _ = loss(params, net, cfg0, mb)
+    np.testing.assert_allclose(total - total0, CFG.attention_coef * expected, rtol=1e-4)
     # Its gradient reaches the LSTM, not only the head.
-    grads = jax.grad(lambda p: ppo.loss_fn(p, net, CFG, mb)[0] - ppo.loss_fn(p, net, cfg0, mb)[0])(params)
+    grads = jax.jit(jax.grad(lambda p: ppo.loss_fn(p, net, CFG, mb)[0] - ppo.loss_fn(p, net, cfg0, mb)[0]))(
+        params
+    )
     assert (
         float(jnp.abs(grads["lstm"]["wi"]).max()) > 0
         and float(jnp.abs(grads["policy"]["out"]["kernel"]).max()) == 0

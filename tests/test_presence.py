@@ -103,10 +103,10 @@ def test_fixed_dropout_step_and_solo_slots_never_join():
 @pytest.mark.parametrize("overrides", [{}, {"dropout_prob": 0.5, "dropin_prob": 0.5}])
 def test_auto_reset_redraws_windows(overrides):
     params = jaxsocial.make("goalcycle3", max_steps=4, **overrides)[1]
-    _, state = core.reset(jax.random.key(0), params)
-    step = jax.jit(core.step, static_argnums=3)
+    reset, step = jax.jit(core.reset, static_argnums=1), jax.jit(core.step, static_argnums=3)
+    _, state = reset(jax.random.key(0), params)
     for k in range(4):
         _, state, *_ = step(jax.random.key(k + 1), state, jnp.zeros(3, jnp.int32), params)
     assert int(state.time) == 0
-    fresh = core.reset(jax.random.key(4), params)[1]
+    fresh = reset(jax.random.key(4), params)[1]
     np.testing.assert_array_equal(state.window, fresh.window)

@@ -1,7 +1,6 @@
 """Rendering for people: map, frames, episodes, video files and the `python -m jaxsocial.render` CLI (random
 actions, or a trained learner beside its companions with its predicted view)."""
 
-import dataclasses
 import subprocess
 import sys
 
@@ -9,11 +8,10 @@ import imageio.v3 as iio
 import jax
 import numpy as np
 import pytest
-from test_plot import TINY  # the plot tests' run: one compiled training program for both files
+from conftest import TINY
 
 import jaxsocial
 from jaxsocial import render as cli
-from jaxsocial import train
 from jaxsocial.env import sprites
 from jaxsocial.env.pictures import (
     episode_frames,
@@ -201,11 +199,10 @@ def test_cli_refuses_to_overwrite_and_bad_extension(tmp_path, capsys):
     assert ".gif or .mp4" in capsys.readouterr().err
 
 
-@pytest.fixture(scope="module")
-def learner_run(tmp_path_factory):
-    """A tiny trained two-seed run (slots learner,random,random; aux 'pred'); its seeds are run/s0, run/s1."""
-    runs_dir = tmp_path_factory.mktemp("runs")
-    return train.run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="tiny"))
+@pytest.fixture
+def learner_run(two_seed_run):
+    """TINY's two-seed run (slots learner,random,random; aux 'pred'); its seeds are run/s0, run/s1."""
+    return two_seed_run
 
 
 def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, capsys):

@@ -57,9 +57,9 @@ def single_runs(tmp_path_factory):
     return [run(dataclasses.replace(TINY, runs_dir=str(root), run_name=f"s{s}", seed=s)) for s in (0, 1)]
 
 
-def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs):
+def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs, two_seed_run):
+    run_dir = two_seed_run  # TINY's two seeds, vmapped
     cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), seeds=2, seed_batching="vmap")
-    run_dir = run(dataclasses.replace(cfg, run_name="k2"))
     assert json.loads((run_dir / "config.json").read_text())["seeds"] == 2
     for seed, single in enumerate(single_runs):
         seed_dir = run_dir / f"s{seed}"
@@ -77,6 +77,7 @@ def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs):
         assert metrics_without_speed(resumed / f"s{seed}") == metrics_without_speed(run_dir / f"s{seed}")
 
 
+@pytest.mark.slow  # three subprocesses compile programs of their own (multi-device equality)
 def test_devices_and_processes_match_one_device(tmp_path, single_runs):
     """Two host devices in one process (two seeds, seeds mapped) and two processes with one device each
     give the metrics of one device; the two-device run fills a compilation cache."""
@@ -84,7 +85,7 @@ def test_devices_and_processes_match_one_device(tmp_path, single_runs):
     two_devices = subprocess.Popen(
         [*cli, "--run-name", "d2", "--devices", "2", "--seeds", "2", "--seed-batching", "map"]
         + ["--compile-cache", str(tmp_path / "cache")],
-        env=env_with(XLA_FLAGS="--xla_force_host_platform_device_count=2"),
+        env=env_with(XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

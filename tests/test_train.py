@@ -27,6 +27,7 @@ def two_learners():
     return cfg, init, train
 
 
+@pytest.mark.slow  # a program of its own; test_same_seed_same_run checks determinism on the fast path
 def test_determinism_and_independent_learners(two_learners):
     cfg, init, train = two_learners
     state_a, metrics_a = train(jax.random.key(0))
@@ -47,12 +48,21 @@ def test_determinism_and_independent_learners(two_learners):
 
 @pytest.fixture(scope="module")
 def tiny_runs(tmp_path_factory):
-    """TINY run in one go ('full'), and cut after 2 iterations then resumed ('cut'); one compiled program."""
+    """TINY run in one go ('full') and again ('again'), with seed 1 ('other'), and cut after 2 iterations
+    then resumed ('cut'); one compiled program."""
     runs_dir = tmp_path_factory.mktemp("runs")
     full = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="full"))
+    again = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="again"))
+    other = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="other", seed=1))
     run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="cut", iterations=2))
     resumed = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="cut", resume=True))
-    return {"runs_dir": runs_dir, "full": full, "resumed": resumed}
+    return {"runs_dir": runs_dir, "full": full, "again": again, "other": other, "resumed": resumed}
+
+
+def test_same_seed_same_run(tiny_runs):
+    full = metrics_without_speed(tiny_runs["full"])
+    assert metrics_without_speed(tiny_runs["again"]) == full
+    assert metrics_without_speed(tiny_runs["other"]) != full
 
 
 def test_resumed_run_equals_uninterrupted_run(tiny_runs):
@@ -117,6 +127,7 @@ def test_load_policy_ignores_how_the_network_is_computed(tiny_runs):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow  # a subprocess compiling the default slots' program (scripted experts)
 def test_cli_end_to_end(tmp_path):
     cmd = [
         sys.executable,
@@ -177,11 +188,12 @@ def test_bad_config_fails_before_compiling(tmp_path, changes, message):
     assert not any(tmp_path.iterdir())  # nothing written
 
 
+@pytest.mark.slow  # a learning test; test_ppo and test_network check the attention loss itself
 def test_attention_loss_learns_where_the_others_are_under_expert_dropout():
     """The attention targets recorded in the rollout are learnable: the loss falls well below its start."""
     cfg = dataclasses.replace(
         TINY,
-        env_args=TINY.env_args + ",dropout_prob=0.5,dropin_prob=0.5",
+        env_args="max_steps=12,width=7,height=7,dropout_prob=0.5,dropin_prob=0.5",
         iterations=8,
         net=dataclasses.replace(TINY.net, aux="pred+attention"),
         ppo=dataclasses.replace(TINY.ppo, lr=0.03, kl_target=10.0, kl_hard_limit=10.0),
