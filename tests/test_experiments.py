@@ -15,14 +15,36 @@ from jaxsocial.experiments import figures, recipes, runner
 @pytest.mark.parametrize("scale", sorted(recipes.SCALES))
 def test_every_condition_is_a_valid_run(scale):
     for name, cond in recipes.CONDITIONS.items():
-        cfg = recipes.condition_config(recipes.SCALES[scale], name, seed=3, seeds=2, runs_dir="r")
-        config.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
-        assert (cfg.seed, cfg.seeds, cfg.iterations) == (3, 2, recipes.SCALES[scale].iterations)
-        assert cfg.run_name == f"{scale}/{name}-s3-4"
-        assert cfg.env == cond.env
-        assert bool(cfg.eval_envs) == cond.eval_during_training
+        programs = recipes.condition_programs(recipes.SCALES[scale], name, seed=3, seeds=2, runs_dir="r")
+        per_seed = cond.mixed_at_return is not None
+        assert [(cfg.seed, cfg.seeds) for cfg in programs] == ([(3, 1), (4, 1)] if per_seed else [(3, 2)])
+        for cfg in programs:
+            config.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
+            assert cfg.iterations == recipes.SCALES[scale].iterations
+            assert cfg.run_name == f"{scale}/{name}-s{cfg.seed}-{cfg.seed + cfg.seeds - 1}"
+            assert cfg.env == cond.env
+            assert bool(cfg.eval_envs) == cond.eval_during_training
     for recipe in recipes.RECIPES.values():
         assert set(recipe.conditions) <= set(recipes.CONDITIONS)
+
+
+def test_learned_mixing_switches_each_seed_on_its_own_return(tmp_path, capsys):
+    """The faithful Fig. 6 protocol: each seed's program switches to 75% solo episodes once its own return
+    reaches MIXING_RETURN; the dry run lists one command per seed, and the seeds are read back together."""
+    first, second = recipes.condition_programs(recipes.GPU, "social_pred_mixed_learned", 0, 2, str(tmp_path))
+    assert first.stages == second.stages == f"return>={recipes.MIXING_RETURN:g}:solo_prob=0.75"
+    assert (
+        recipes.condition_config(recipes.GPU, "social_pred_mixed", 0, 2, "r").stages == "200:solo_prob=0.75"
+    )
+    cli.main(["run", "mixing", "--scale", "gpu", "--seeds", "2", "--runs-dir", str(tmp_path), "--dry-run"])
+    out = capsys.readouterr().out
+    for seed in (0, 1):
+        assert f"[mixing/gpu] social_pred_mixed_learned s{seed}: missing" in out
+        run_name = f"gpu/social_pred_mixed_learned-s{seed}-{seed}"
+        assert f"--seed {seed} --seeds 1 --runs-dir {tmp_path} --run-name {run_name}" in out
+    assert not any(tmp_path.iterdir())  # a dry run writes nothing
+    dirs = runner.condition_seed_dirs(recipes.GPU, "social_pred_mixed_learned", 0, 2, str(tmp_path))
+    assert dirs == [tmp_path / f"gpu/social_pred_mixed_learned-s{s}-{s}" for s in (0, 1)]
 
 
 def test_paper_scale_is_the_paper_preset():
@@ -138,7 +160,7 @@ def test_cli_rejects_bad_input(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def mixing_runs(tmp_path_factory):
     """The mixing recipe at the tiny scale, one seed: social PPO + pred with evaluation during training,
-    and the same with the switch to 75% solo episodes."""
+    and the same with the switch to 75% solo episodes at a fixed iteration and on the return."""
     root = tmp_path_factory.mktemp("experiments")
     cli.main(["run", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(root)])
     return root
@@ -163,7 +185,7 @@ def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
     before = (run_dir / logs.METRICS_FILE).stat().st_mtime_ns
     capsys.readouterr()
     cli.main(["run", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs)])
-    assert capsys.readouterr().out.count(": done") == 2
+    assert capsys.readouterr().out.count(": done") == 3
     assert (run_dir / logs.METRICS_FILE).stat().st_mtime_ns == before  # not retrained
 
 
@@ -174,7 +196,14 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
     summary = json.loads((tmp_path / "mixing-tiny.json").read_text())
     assert (tmp_path / "mixing-tiny.png").stat().st_size > 1000
     assert summary["command"] == "python -m jaxsocial.experiments run mixing --scale tiny --seeds 1"
-    assert set(summary["conditions"]) == {"social_pred", "social_pred_mixed"}
+    assert set(summary["conditions"]) == {"social_pred", "social_pred_mixed", "social_pred_mixed_learned"}
+    switches = {name: entry["switch_iterations"] for name, entry in summary["conditions"].items()}
+    # the fixed switch at a third of training; the learned one waits for a return of 10, never reached here
+    assert switches == {
+        "social_pred": [None],
+        "social_pred_mixed": [round(recipes.TINY.iterations / 3) + 1],
+        "social_pred_mixed_learned": [None],
+    }
     for name, entry in summary["conditions"].items():
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
         rows = logs.read_metrics(runner.seed_dirs(cfg)[0])

@@ -134,8 +134,8 @@ class RecipeRuns:
 
     def __init__(self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str):
         self.recipe, self.scale = recipe, scale
-        self.configs = {
-            c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions
+        self.configs = {  # the first program's (conditions trained one program per seed: the first seed's)
+            c: recipes.condition_programs(scale, c, seed, seeds, runs_dir)[0] for c in recipe.conditions
         }
         self.seed_dirs, self.rows, self.missing_seeds = {}, {}, {}
         for c in recipe.conditions:
@@ -179,7 +179,11 @@ class RecipeRuns:
             "scale_note": self.scale.note,
             "command": self.command,
             "config": {
-                c: {"flags": shlex.join(self.flags(c)), "label": recipes.CONDITIONS[c].label}
+                c: {
+                    "flags": shlex.join(self.flags(c)),
+                    "label": recipes.CONDITIONS[c].label,
+                    "program_per_seed": recipes.CONDITIONS[c].mixed_at_return is not None,
+                }
                 for c in self.configs
             },
             "seed_dirs": {c: [str(d) for d in dirs] for c, dirs in self.seed_dirs.items()},
@@ -201,6 +205,7 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
             conditions[c] = stats(finals)
             conditions[c]["seeds_above_one_tile"] = sum(v > LEARNED_RETURN for v in finals)
             if kind == "mixing":
+                conditions[c]["switch_iterations"] = [switch_iteration(rows) for rows in seed_rows]
                 for key in _eval_keys(seed_rows):
                     conditions[c][key] = stats([_final_eval(rows, key) for rows in seed_rows])
         # Scripted experts do not react to the learner, and all conditions of a seed share the environment's
@@ -243,6 +248,12 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
             conditions[spec] = per_cond
     out["conditions"] = conditions
     return out
+
+
+def switch_iteration(rows: list[dict[str, Any]]) -> int | None:
+    """The first iteration a run trained in a stage of its schedule (None: it never left the plain
+    environment), e.g. where a mixed condition switched to solo episodes."""
+    return next((row["iteration"] for row in rows if row.get("stage", -1) >= 0), None)
 
 
 def _slots(row: dict[str, Any]) -> list[int]:
@@ -325,12 +336,10 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
             for ax, key in zip(axes[1:], keys, strict=True):
                 xs, ys = zip(*(eval_curve(rows, key) for rows in seed_rows), strict=True)
                 band(ax, list(xs), list(ys), label, colors[i])
-        for i, c in enumerate(runs.rows):
-            if recipes.CONDITIONS[c].mixed_from is not None:
+        for i, seed_rows in enumerate(runs.rows.values()):  # where each seed switched to solo episodes
+            for switch in {switch_iteration(rows) for rows in seed_rows} - {None}:
                 for ax in axes:
-                    ax.axvline(
-                        recipes.mixing_switch(runs.scale, recipes.CONDITIONS[c]), color=colors[i], ls=":"
-                    )
+                    ax.axvline(switch, color=colors[i], ls=":")
         axes[0].set(title="training environment (with experts)", xlabel="iteration", ylabel="learner return")
         for ax, key in zip(axes[1:], keys, strict=True):
             ax.set(title=key.removeprefix("eval/"), xlabel="iteration")

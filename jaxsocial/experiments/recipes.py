@@ -126,12 +126,20 @@ class Condition:
     eval_during_training: bool = False
     """Evaluate in solo 3-goal and in 4-goal with experts during training (the mixing figure)."""
     mixed_from: float | None = None
-    """Switch to 75% solo episodes after this fraction of the iterations (the paper: about 1/3)."""
+    """Switch to 75% solo episodes after this fraction of the iterations, every seed at once."""
+    mixed_at_return: float | None = None
+    """Switch to 75% solo episodes once the seed's own learner has learned: the first logged chunk whose mean
+    episode return reaches this (a `return>=X` stage). A stage switches every seed of a program together, so
+    such a condition trains one program per seed (`condition_programs`)."""
     penalty_curriculum: bool = False
     """The experts' penalty curriculum 0.5 -> 1.0 -> 1.5, each for a third of the iterations (iteration
     stages, so seeds can share a program; the paper switched on the return)."""
 
 
+MIXING_RETURN = 10.0
+"""The return at which `social_pred_mixed_learned` switches to mixed episodes: far above the one-tile
+plateau (about 1; `figures.LEARNED_RETURN` is 2) and below the experts' 26-39, so the learner has learned
+from them, as the paper's social agent had when it was switched (its Fig. 6)."""
 IMPERFECT_EXPERT = "expert:explorer:epsilon=0.2,forget=0.01"
 EXPERT_DROPOUT = "dropout_prob=0.5,dropin_prob=0.25"
 """Cultural-transmission training (not in the paper): each expert leaves half the episodes and joins a quarter
@@ -147,6 +155,12 @@ CONDITIONS = {
         flags=("--net.aux", "pred"),
         eval_during_training=True,
         mixed_from=1 / 3,
+    ),
+    "social_pred_mixed_learned": Condition(
+        f"social PPO + aux pred, 75% solo once its return reaches {MIXING_RETURN:g}",
+        flags=("--net.aux", "pred"),
+        eval_during_training=True,
+        mixed_at_return=MIXING_RETURN,
     ),
     "social_pred_imperfect": Condition(
         "social PPO + aux pred, imperfect experts",
@@ -213,7 +227,8 @@ RECIPES = {
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves"),
         Recipe("transfer", "H2: zero-shot transfer with new experts (paper Fig. 5)",
                ("social_pred", "solo_pred", "bc"), "transfer", ("goalcycle4", "fourrooms", "maze")),
-        Recipe("mixing", "Solo/social mixing (paper Fig. 6)", ("social_pred", "social_pred_mixed"), "mixing"),
+        Recipe("mixing", "Solo/social mixing (paper Fig. 6)",
+               ("social_pred", "social_pred_mixed", "social_pred_mixed_learned"), "mixing"),
         Recipe("no_penalty", "Appendix: no exploration penalty",
                ("social_pred_nopenalty", "solo_pred_nopenalty"), "transfer", ("goalcycle4",)),
         Recipe("distractors", "Appendix: random distractors beside the experts",
@@ -265,9 +280,21 @@ def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_di
         flags += ["--stages", f"0:penalty=0.5;{third}:penalty=1.0;{2 * third}:penalty=1.5"]
     if cond.mixed_from is not None:
         flags += ["--stages", f"{mixing_switch(scale, cond)}:solo_prob=0.75"]
+    if cond.mixed_at_return is not None:
+        flags += ["--stages", f"return>={cond.mixed_at_return:g}:solo_prob=0.75"]
     flags += ["--seed", str(seed), "--seeds", str(seeds), "--runs-dir", runs_dir]
     flags += ["--run-name", run_name(scale, condition, seed, seeds)]
     return flags
+
+
+def condition_programs(
+    scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str
+) -> list[TrainConfig]:
+    """The training programs of a condition's seeds seed..seed+seeds-1: one for all of them, or one per seed
+    (run `<condition>-s<k>-<k>`) when the condition switches stage on each seed's own return."""
+    if CONDITIONS[condition].mixed_at_return is None:
+        return [condition_config(scale, condition, seed, seeds, runs_dir)]
+    return [condition_config(scale, condition, s, 1, runs_dir) for s in range(seed, seed + seeds)]
 
 
 def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> TrainConfig:

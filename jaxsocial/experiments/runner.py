@@ -26,10 +26,15 @@ def seed_dirs(cfg: TrainConfig) -> list[Path]:
 
 def condition_seed_dirs(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[Path]:
     """The run directory of each seed seed..seed+seeds-1 of a condition, from whichever of the condition's
-    runs at this scale holds it: the recipe's own run (`<condition>-s<seed>-<last>`) first, then any other
+    runs at this scale holds it: the recipe's own run (`<condition>-s<seed>-<last>`, or one run per seed for
+    `recipes.condition_programs`) first, then any other
     (e.g. seeds trained in two programs, `--seeds 3` then `--seed 3 --seeds 3`, read together as `--seeds
     6`). A seed that no run holds keeps the directory the recipe's own run would give it."""
-    own = seed_dirs(recipes.condition_config(scale, condition, seed, seeds, runs_dir))
+    own = [
+        d
+        for cfg in recipes.condition_programs(scale, condition, seed, seeds, runs_dir)
+        for d in seed_dirs(cfg)
+    ]
     held: dict[int, Path] = {}
     for run_dir in sorted((Path(runs_dir) / scale.name).glob(f"{condition}-s*")):
         match = re.fullmatch(rf"{re.escape(condition)}-s(\d+)-(\d+)", run_dir.name)
@@ -90,28 +95,32 @@ def run(
     commands and what is done instead. With `train_missing=False` nothing trains: the conditions already
     trained (e.g. on another machine) are evaluated and the others are skipped with a note.
     """
-    configs = {c: recipes.condition_config(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
-    for cfg in configs.values():
-        setup(cfg, load_frozen=False)
-    dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir) for c in configs}
+    programs = {c: recipes.condition_programs(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
+    for cfgs in programs.values():
+        for cfg in cfgs:
+            setup(cfg, load_frozen=False)
+    dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir) for c in programs}
     skipped = []
-    for name, cfg in configs.items():
-        state = status(cfg, dirs[name])
-        flags = recipes.condition_flags(scale, name, seed, seeds, runs_dir)
-        print(f"[{recipe.name}/{scale.name}] {name}: {state}")
-        if dry_run:
-            print("  python -m jaxsocial.train " + shlex.join(flags))
-        elif state != "done" and train_missing:
-            train.run(dataclasses.replace(cfg, resume=state == "partial"))
-            dirs[name] = seed_dirs(cfg)
-        elif state != "done":
-            skipped.append(name)
+    for name, cfgs in programs.items():
+        for cfg in cfgs:
+            own = slice(cfg.seed - seed, cfg.seed - seed + cfg.seeds)  # this program's seeds in dirs[name]
+            state = status(cfg, dirs[name][own])
+            label = name if len(cfgs) == 1 else f"{name} s{cfg.seed}"
+            print(f"[{recipe.name}/{scale.name}] {label}: {state}")
+            if dry_run:
+                flags = recipes.condition_flags(scale, name, cfg.seed, cfg.seeds, runs_dir)
+                print("  python -m jaxsocial.train " + shlex.join(flags))
+            elif state != "done" and train_missing:
+                train.run(dataclasses.replace(cfg, resume=state == "partial"))
+                dirs[name][own] = seed_dirs(cfg)
+            elif state != "done" and name not in skipped:
+                skipped.append(name)
     for name in skipped:
         print(f"  {name}: not trained, not evaluated (--no-train)")
-        del configs[name]
+    evaluated = [name for name in programs if name not in skipped]
     protocol = "ct" if recipe.kind == "ct" else "returns"
     specs = [ct_spec(scale)] if protocol == "ct" else transfer_specs(recipe, scale)
-    for name in configs if specs and not dry_run else ():
+    for name in evaluated if specs and not dry_run else ():
         for spec in specs:
             env, _, env_args = spec.partition(":")
             for seed_dir in dirs[name]:
