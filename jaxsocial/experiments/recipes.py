@@ -178,6 +178,15 @@ CONDITIONS = {
         flags=("--net.aux", "pred"),
         env_args="penalty=0",
     ),
+    "social_pred_halfpenalty": Condition(
+        "social PPO + aux pred, penalty 0.5", flags=("--net.aux", "pred"), env_args="penalty=0.5"
+    ),
+    "solo_pred_halfpenalty": Condition(
+        "solo PPO + aux pred, penalty 0.5",
+        env="goalcycle3-solo",
+        flags=("--net.aux", "pred"),
+        env_args="penalty=0.5",
+    ),
     "expert_curriculum": Condition(
         "solo PPO + aux pred, penalty curriculum",
         env="goalcycle3-solo",
@@ -231,6 +240,9 @@ RECIPES = {
                ("social_pred", "social_pred_mixed", "social_pred_mixed_learned"), "mixing"),
         Recipe("no_penalty", "Appendix: no exploration penalty",
                ("social_pred_nopenalty", "solo_pred_nopenalty"), "transfer", ("goalcycle4",)),
+        Recipe("penalty", "Beyond the paper: social and solo learners at penalties 0, 0.5 and 1.5",
+               ("social_pred_nopenalty", "solo_pred_nopenalty", "social_pred_halfpenalty",
+                "solo_pred_halfpenalty", "social_pred", "solo_pred"), "curves"),
         Recipe("distractors", "Appendix: random distractors beside the experts",
                ("social_pred", "social_pred_distractors"), "curves"),
         Recipe("bc", "Appendix: behaviour cloning training curve", ("bc",), "curves"),
