@@ -16,8 +16,8 @@ from jaxsocial.experiments import figures, recipes, runner
 def test_every_condition_is_a_valid_run(scale):
     for name, cond in recipes.CONDITIONS.items():
         programs = recipes.condition_programs(recipes.SCALES[scale], name, seed=3, seeds=2, runs_dir="r")
-        per_seed = cond.mixed_at_return is not None
-        assert [(cfg.seed, cfg.seeds) for cfg in programs] == ([(3, 1), (4, 1)] if per_seed else [(3, 2)])
+        per_seed = [(3, 1), (4, 1)] if cond.program_per_seed else [(3, 2)]
+        assert [(cfg.seed, cfg.seeds) for cfg in programs] == per_seed
         for cfg in programs:
             config.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
             assert cfg.iterations == recipes.SCALES[scale].iterations
@@ -31,6 +31,7 @@ def test_every_condition_is_a_valid_run(scale):
 def test_learned_mixing_switches_each_seed_on_its_own_return(tmp_path, capsys):
     """The faithful Fig. 6 protocol: each seed's program switches to 75% solo episodes once its own return
     reaches MIXING_RETURN; the dry run lists one command per seed, and the seeds are read back together."""
+    assert recipes.CONDITIONS["social_pred_mixed_learned"].program_per_seed
     first, second = recipes.condition_programs(recipes.GPU, "social_pred_mixed_learned", 0, 2, str(tmp_path))
     assert first.stages == second.stages == f"return>={recipes.MIXING_RETURN:g}:solo_prob=0.75"
     assert (

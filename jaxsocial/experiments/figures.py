@@ -182,7 +182,7 @@ class RecipeRuns:
                 c: {
                     "flags": shlex.join(self.flags(c)),
                     "label": recipes.CONDITIONS[c].label,
-                    "program_per_seed": recipes.CONDITIONS[c].mixed_at_return is not None,
+                    "program_per_seed": recipes.CONDITIONS[c].program_per_seed,
                 }
                 for c in self.configs
             },

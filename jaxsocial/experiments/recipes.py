@@ -135,6 +135,11 @@ class Condition:
     """The experts' penalty curriculum 0.5 -> 1.0 -> 1.5, each for a third of the iterations (iteration
     stages, so seeds can share a program; the paper switched on the return)."""
 
+    @property
+    def program_per_seed(self) -> bool:
+        """Its seeds train one program each: its stage switches on each seed's own return."""
+        return self.mixed_at_return is not None
+
 
 MIXING_RETURN = 10.0
 """The return at which `social_pred_mixed_learned` switches to mixed episodes: far above the one-tile
@@ -304,7 +309,7 @@ def condition_programs(
 ) -> list[TrainConfig]:
     """The training programs of a condition's seeds seed..seed+seeds-1: one for all of them, or one per seed
     (run `<condition>-s<k>-<k>`) when the condition switches stage on each seed's own return."""
-    if CONDITIONS[condition].mixed_at_return is None:
+    if not CONDITIONS[condition].program_per_seed:
         return [condition_config(scale, condition, seed, seeds, runs_dir)]
     return [condition_config(scale, condition, s, 1, runs_dir) for s in range(seed, seed + seeds)]
 
