@@ -101,6 +101,13 @@ class TrainConfig:
     """Iterations between evaluations (with eval_envs)."""
     eval_episodes: int = 64
     """Episodes per evaluation environment and evaluation."""
+    # Robustness and starting points.
+    on_nonfinite: str = "stop"
+    """What a non-finite loss, gradient norm or parameter does: 'stop' (exit with an error; the last finite
+    checkpoint and policy stay the latest) or 'warn' (report it and train on)."""
+    init_from: str | None = None
+    """Start a new run from another run's learners: RUN_DIR or RUN_DIR@ITERATION (default: its latest
+    checkpoint); the source's params and optimiser state, this run's flags and stages."""
 
     @property
     def env_overrides(self) -> dict[str, Any]:
@@ -136,6 +143,7 @@ the penalty curriculum; later runs load the result with `expert:ckpt=RUN_DIR`.""
 
 
 ALGOS = ("ppo", "bc")
+ON_NONFINITE = ("stop", "warn")
 SEED_BATCHING = ("auto", "vmap", "map")
 
 DRIVER_FIELDS = {
@@ -156,6 +164,8 @@ DRIVER_FIELDS = {
     "eval_envs",
     "eval_every",
     "eval_episodes",
+    "on_nonfinite",
+    "init_from",
 }
 """Fields that do not change the compiled program (or only its placement: `devices`), so a run can be resumed
 with other values."""
@@ -254,6 +264,8 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         raise ValueError("iterations, chunk_iterations and checkpoint_every must be >= 1")
     if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
         raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
+    if cfg.on_nonfinite not in ON_NONFINITE:
+        raise ValueError(f"unknown on_nonfinite {cfg.on_nonfinite!r}; choose from {ON_NONFINITE}")
     if cfg.seed_batching not in SEED_BATCHING:
         raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
     if cfg.eval_envs:
