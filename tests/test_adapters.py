@@ -9,8 +9,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import TINY
 
-from jaxsocial.agents import network, population
+from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 
 gymnax_env = pytest.importorskip("jaxsocial.adapters.gymnax_env")
@@ -119,6 +120,25 @@ def test_gymnax_step_is_the_native_world_step_with_the_experts_acting(gymnax_rol
         )
     )()
     np.testing.assert_array_equal(info["actions"][..., 1:], expert_actions[..., 1:])
+
+
+@pytest.mark.slow  # compiles the network inside the environment's step
+def test_gymnax_frozen_policy_acts_on_its_own_view(tmp_path):
+    stacked = jax.vmap(lambda k: network.init(k, TINY.net))(jax.random.split(jax.random.key(0), 1))
+    policy_io.export_policy(tmp_path, 1, stacked, TINY.net)
+    env, params = gymnax_env.make("goalcycle3", slots=f"learner,frozen:{tmp_path},random", **SMALL)
+    _, state = env.reset(jax.random.key(1), params)
+    _, after, *_ = env.step(jax.random.key(2), state, 2, params)
+    # Its LSTM state after the first step is the network's on slot 1's view, from a zero state (float32
+    # rounding of O(1) values: differences of a few 1e-7 from the batching).
+    frozen = jax.tree.map(lambda x: x[0], stacked)
+    expected, _ = jax.jit(network.step, static_argnums=1)(
+        frozen, TINY.net, network.initial_carry(TINY.net, (1,)), state.views[1][None], jnp.ones(1, bool)
+    )
+    np.testing.assert_allclose(after.companions.carry.h[0], expected.h, atol=1e-5)
+    assert float(jnp.abs(expected.h).max()) > 1e-3  # not trivially zero
+    with pytest.raises(ValueError, match="observations"):
+        gymnax_env.make("goalcycle3", slots=f"learner,frozen:{tmp_path},random", observation="symbolic")
 
 
 @pytest.mark.slow
