@@ -17,7 +17,8 @@ full results as JSON.
 same episodes (same layouts and spawns) are played three times, with the other slots present throughout,
 leaving at half time, and absent (solo). The CT score is the learner's gain from the experts, `(R_with -
 R_solo) / R_experts`; recall is the gain kept after they left, the same over the second half of the episode
-with the dropout case in place of `R_with` (see `cultural_transmission`).
+with the dropout case in place of `R_with`: 1 means the learner does as well as the experts, 0 that they make
+no difference.
 """
 
 from __future__ import annotations
@@ -46,7 +47,8 @@ class EvalConfig:
     ckpt: tuple[str, ...] = ()
     """Run directories of the agent under test (RUN_DIR or RUN_DIR@k), one per training seed."""
     env: str = "goalcycle3"
-    """Environment preset."""
+    """Environment preset: goalcycle3, goalcycle4, fourrooms, maze, each also as NAME-solo and
+    NAME-distractors."""
     env_args: str = ""
     """EnvParams overrides, e.g. 'penalty=0.5,solo_prob=1.0'."""
     slots: str = ""
