@@ -8,21 +8,22 @@
 
 The saved agent (`--ckpt`: run directories, one per training seed; `RUN_DIR@k` picks its k-th learner) plays
 the `learner` slot; the other slots are scripted experts, frozen policies or random distractors (default:
-the environment's scripted experts, as in training). Every episode runs to its end (no auto-reset). The
-result is JSON: each slot's mean episode return with a 95% confidence interval, over training seeds when
-there are several checkpoints (Student t on the per-seed means) and over episodes otherwise.
+the environment's scripted experts, as in training). Every episode runs to its end (no auto-reset). It prints
+a table: each slot's mean episode return with a 95% confidence interval, over training seeds when there are
+several checkpoints (Student t on the per-seed means) and over episodes otherwise; `--out FILE` writes the
+full results as JSON.
 
 `--protocol ct` is the cultural-transmission evaluation (after Bhoopchand et al. 2023; not in the paper): the
 same episodes (same layouts and spawns) are played three times, with the other slots present throughout,
 leaving at half time, and absent (solo). The CT score is the learner's gain from the experts, `(R_with -
 R_solo) / R_experts`; recall is the gain kept after they left, the same over the second half of the episode
-with the dropout case in place of `R_with` (see `cultural_transmission`).
+with the dropout case in place of `R_with`: 1 means the learner does as well as the experts, 0 that they make
+no difference.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import sys
 from pathlib import Path
@@ -46,7 +47,8 @@ class EvalConfig:
     ckpt: tuple[str, ...] = ()
     """Run directories of the agent under test (RUN_DIR or RUN_DIR@k), one per training seed."""
     env: str = "goalcycle3"
-    """Environment preset."""
+    """Environment preset: goalcycle3, goalcycle4, fourrooms, maze, each also as NAME-solo and
+    NAME-distractors."""
     env_args: str = ""
     """EnvParams overrides, e.g. 'penalty=0.5,solo_prob=1.0'."""
     slots: str = ""
@@ -57,7 +59,7 @@ class EvalConfig:
     seed: int = 0
     """PRNG seed of the evaluation episodes."""
     out: str | None = None
-    """Also write the JSON here (an existing file is not replaced without --overwrite)."""
+    """Write the full results as JSON to this file (an existing file is not replaced without --overwrite)."""
     overwrite: bool = False
     """Replace an existing --out file."""
     protocol: str = "returns"
@@ -311,6 +313,43 @@ def cultural_transmission(played: dict[str, list[Episodes]], experts: tuple[int,
     }
 
 
+def _ci(value: dict[str, Any] | float, low: float | None = None, high: float | None = None, fmt=".2f") -> str:
+    """'mean [low, high]' of a `_interval` dict, or of the three numbers."""
+    if isinstance(value, dict):
+        value, (low, high) = value["mean"], value["ci95"]
+    return f"{value:{fmt}} [{low:{fmt}}, {high:{fmt}}]"
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """A short human summary of an `evaluate` result: one line per slot (its mean episode return and 95%
+    interval), or for `--protocol ct` the CT score, recall and the learner's returns in the three cases."""
+    over = "training seeds" if len(result["checkpoints"]) > 1 else "episodes"
+    iterations = ", ".join(str(i) for i in result["policy_iterations"])
+    head = f"{result['env']}{':' + result['env_args'] if result['env_args'] else ''}: "
+    head += f"{result['episodes_per_checkpoint']} episodes per checkpoint"
+    if iterations:
+        head += f", policies of training iteration {iterations}"
+    if result.get("protocol") == "ct":
+        returns = result["learner_returns"]
+        lines = [
+            f"{head}; 95% intervals over {over}",
+            f"CT score  {_ci(result['ct'], fmt='.3f')}   (learner's gain from the experts / their return)",
+            f"recall    {_ci(result['recall'], fmt='.3f')}   (the gain kept in the 2nd half after they left)",
+            f"learner's return with the experts {_ci(returns['with']['episode'])}, alone "
+            f"{_ci(returns['solo']['episode'])}, "
+            f"in the 2nd half after they left {_ci(returns['dropout']['second_half'])}",
+            f"experts' return {result['expert_return']['episode']:.2f} per episode",
+        ]
+        return "\n".join(lines)
+    rows = [("slot", "agent", "mean return [95% interval]", "episodes")]
+    for slot, label in zip(result["results"], result["slots"], strict=True):
+        interval = _ci(slot["mean_return"], *slot["ci95"]) if slot["episodes"] else "absent"
+        rows.append((str(slot["slot"]), label, interval, str(slot["episodes"])))
+    widths = [max(len(row[i]) for row in rows) for i in range(4)]
+    body = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip() for row in rows]
+    return "\n".join([f"{head}; 95% intervals over {over}", *body])
+
+
 def main(argv: list[str] | None = None) -> None:
     import tyro
 
@@ -321,12 +360,11 @@ def main(argv: list[str] | None = None) -> None:
         result = evaluate(cfg)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
-    for ckpt, iteration in zip(cfg.ckpt, result["policy_iterations"], strict=True):
-        print(f"loaded {ckpt}: the policy of training iteration {iteration}", file=sys.stderr)
-    print(json.dumps(logs.to_json(result), indent=2))
+    print(format_table(result))
     if cfg.out:
         Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(cfg.out, result)
+        print(f"wrote {cfg.out}")
 
 
 if __name__ == "__main__":

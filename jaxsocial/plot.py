@@ -146,6 +146,23 @@ def panels(groups: list[Group]) -> list[list[str]]:
     ]
 
 
+def format_steps(value: float, _position=None) -> str:
+    """A step count as people read it: 0, 800, 64k, 1.2M, 3.75G (3 significant digits)."""
+    for scale, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if abs(value) >= scale:
+            return f"{value / scale:.3g}{suffix}"
+    return f"{value:.3g}"
+
+
+def steps_axis(ax) -> None:
+    """An env-steps x axis on a matplotlib Axes: at most 5 ticks, labelled by `format_steps`."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=5))
+    ax.xaxis.set_major_formatter(FuncFormatter(format_steps))
+    ax.set_xlabel("env steps", fontsize=8)
+
+
 def draw(groups: list[Group], points: int = figures.CURVE_POINTS):
     """The curves as a matplotlib Figure (not managed by pyplot): a row per slot, a column per panel (unused
     axes removed). Returns are episode-weighted means over `points` blocks of iterations; losses are per
@@ -174,7 +191,7 @@ def draw(groups: list[Group], points: int = figures.CURVE_POINTS):
                 figures.band(ax, xs, list(ys), label, colors[i % len(colors)])
             names = sorted({g.slots[slot] for g in groups if slot < len(g.slots)})
             ax.set_title(f"slot {slot} ({' / '.join(names)}): {PANELS[key]}", fontsize=9)
-            ax.set_xlabel("env steps", fontsize=8)
+            steps_axis(ax)
             ax.tick_params(labelsize=7)
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()

@@ -1,11 +1,11 @@
 """Render one episode to a GIF or MP4: random actions, or a trained learner beside its companions.
 
     python -m jaxsocial.render --env goalcycle3 --out goalcycle3.gif [--seed 0] [--steps 100] [--fps 8]
-    python -m jaxsocial.render --ckpt runs/goalcycle3-s0 [--env goalcycle3] --out learner.gif
+    python -m jaxsocial.render --ckpt runs/goalcycle3-s0 [--env goalcycle3] --out learner.gif --scale 2
 
-Each frame shows the whole map (agents as triangles in their current colour, fields of view outlined in each
-agent's identity colour, a strip of coloured segments on a cell several agents share) and every agent's
-egocentric view (border green on a reward, red on a penalty).
+Each frame shows, under their titles, the whole map (agents as triangles in their current colour, fields of
+view outlined in each agent's identity colour, a strip of coloured segments on a cell several agents share)
+and every agent's egocentric view (border green on a reward, red on a penalty).
 
 With `--ckpt RUN_DIR` (one seed's run directory) the run's learner plays with its saved policy and the
 other slots act as configured in the run (e.g. scripted experts; `--slots` overrides them), in the run's
@@ -78,6 +78,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--fps", type=float, default=8.0, help="frames per second (default 8)")
     parser.add_argument("--tile", type=int, default=12, help="map pixels per cell (default 12)")
     parser.add_argument(
+        "--scale", type=int, default=1, help="draw everything N times larger: N * --tile pixels per cell"
+    )
+    parser.add_argument(
         "--policy",
         choices=POLICIES,
         help="without --ckpt: random: all 7 actions; random-move (default): turn or forward",
@@ -100,6 +103,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error(f"--fps {args.fps} must be > 0")
     if args.tile < 3:
         parser.error(f"--tile {args.tile} must be >= 3")
+    if args.scale < 1:
+        parser.error(f"--scale {args.scale} must be an integer >= 1")
+    args.tile *= args.scale
     try:
         check_video_path(args.out)
         if args.ckpt is None:

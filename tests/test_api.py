@@ -187,6 +187,7 @@ def test_symbolic_observation():
         ("goalcycle3", {"penalty_size": 1}, "unknown EnvParams field"),
         ("goalcycle3", {"observation": "pixels"}, "observation="),
         ("maze", {"width": 18}, "odd width"),
+        ("goalcycle3", {"penalty": -1.0}, "penalty=-1.0 is a magnitude and must be >= 0"),
         ("goalcycle3", {"penalty": "abc"}, "penalty='abc' must be of type float"),
         ("goalcycle3", {"width": "13"}, "width='13' must be of type int"),
         ("goalcycle3", {"max_steps": 2.5}, "max_steps=2.5 must be of type int"),

@@ -62,7 +62,7 @@ def test_initial_reward_off_and_reset_on_mistake(rollout):
 
 
 def test_four_goals_order(rollout):
-    params = corridor_params(CORRIDOR4, 4, penalty=-2.0)  # the sign of the penalty is ignored
+    params = corridor_params(CORRIDOR4, 4, penalty=2.0)
     state = state_from_layout(params, CORRIDOR4, [(1, 1)], [0])
     actions = [F] * 7 + [L, L] + [F] * 6 + [R, R] + [F] * 2
     # 0 1 2 3 (+4), back over 2 (-2) and 1 (-2) to 0 (+1: 0 follows 3), then 1 (+1).

@@ -1,7 +1,9 @@
-"""Every notebook's code runs top to bottom; the social-learning notebook (at the tiny scale) is checked for
-what it computed."""
+"""Every notebook's code runs top to bottom, from notebooks/ as Jupyter starts it, writing nothing into the
+repository; the social-learning notebook finds the repository, the committed results and existing runs, and
+trains only when asked."""
 
 import json
+import subprocess
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -9,7 +11,9 @@ import matplotlib
 import numpy as np
 import pytest
 
-NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("*.ipynb"))
+REPO = Path(__file__).parent.parent
+NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
+SOCIAL = REPO / "notebooks" / "social_learning.ipynb"
 
 
 def run_notebook(path: Path) -> dict:
@@ -22,36 +26,82 @@ def run_notebook(path: Path) -> dict:
     return namespace
 
 
+def git_status() -> str:
+    return subprocess.run(["git", "status", "--porcelain"], cwd=REPO, capture_output=True, text=True).stdout
+
+
+@pytest.fixture
+def from_notebooks_dir(monkeypatch):
+    """Run as Jupyter does (in notebooks/); afterwards `git status` must be as before."""
+    before = git_status()
+    monkeypatch.chdir(REPO / "notebooks")
+    yield
+    assert git_status() == before
+
+
 @pytest.mark.slow  # notebook execution (compiles its own environment programs)
-@pytest.mark.parametrize(
-    "path", [p for p in NOTEBOOKS if p.name != "social_learning.ipynb"], ids=lambda p: p.name
-)
-def test_notebook_runs(path):
+@pytest.mark.parametrize("path", [p for p in NOTEBOOKS if p != SOCIAL], ids=lambda p: p.name)
+def test_notebook_runs(path, from_notebooks_dir):
     run_notebook(path)
 
 
-@pytest.mark.slow  # trains a tiny run (about a minute of compiling)
-def test_social_learning_notebook(tmp_path, monkeypatch):
+def test_social_learning_notebook_shows_committed_results_without_training(
+    tmp_path, monkeypatch, capsys, from_notebooks_dir
+):
+    monkeypatch.setenv("JAXSOCIAL_RUNS_DIR", str(tmp_path / "runs"))  # none there
+    monkeypatch.setenv("JAXSOCIAL_RECORD", str(tmp_path / "no-record"))
+    monkeypatch.delenv("JAXSOCIAL_TRAIN", raising=False)
+    ns = run_notebook(SOCIAL)
+    printed = capsys.readouterr().out
+    assert ns["REPO"] == REPO.resolve() and not ns["TRAIN"]
+    h1 = json.loads((REPO / "benchmarks/results/science/h1-gpu.json").read_text())
+    assert ns["committed"]["h1-gpu"] == h1
+    mean, (low, high) = h1["conditions"]["social_rec"]["mean"], h1["conditions"]["social_rec"]["ci95"]
+    assert f"{mean:6.2f} [{low:6.2f}, {high:6.2f}]" in printed
+    assert f"No committed learner at {tmp_path / 'no-record'}" in printed and ns["record_episode"] is None
+    assert "No cpu-scale runs under" in printed and ns["runs"] is None and not (tmp_path / "runs").exists()
+
+
+@pytest.mark.slow  # trains a tiny run (about a minute of compiling), then plays it as the record
+def test_social_learning_notebook_trains_when_asked_then_finds_the_runs(tmp_path, monkeypatch, capsys):
+    # A repository of its own (pyproject.toml, jaxsocial/, notebooks/), started in notebooks/ as Jupyter does.
+    repo = tmp_path / "repo"
+    (repo / "jaxsocial").mkdir(parents=True)
+    (repo / "notebooks").mkdir()
+    (repo / "pyproject.toml").write_text("")
+    monkeypatch.chdir(repo / "notebooks")
     monkeypatch.setenv("JAXSOCIAL_SCALE", "tiny")
     monkeypatch.setenv("JAXSOCIAL_SEEDS", "2")
-    monkeypatch.setenv("JAXSOCIAL_RUNS_DIR", str(tmp_path))
-    ns = run_notebook(Path(__file__).parent.parent / "notebooks" / "social_learning.ipynb")
-    # Curves: one per seed, over the tiny scale's iterations; the summary is of those runs.
-    tiny = ns["recipes"].TINY
-    assert len(ns["curves"]) == 2
-    for x, y in ns["curves"]:
+    monkeypatch.delenv("JAXSOCIAL_RUNS_DIR", raising=False)
+    monkeypatch.delenv("JAXSOCIAL_RECORD", raising=False)
+    monkeypatch.setenv("JAXSOCIAL_TRAIN", "1")
+    trained = run_notebook(SOCIAL)
+    assert trained["RUNS_DIR"] == repo / "runs" / "experiments"
+    assert "No committed summary" in capsys.readouterr().out  # this repository has no benchmarks/results
+    tiny = trained["recipes"].TINY
+    assert len(trained["curves"]) == 2
+    for x, y in trained["curves"]:
         assert x[-1] == tiny.iterations and np.isfinite(y).all()
+
+    # Again without training: it finds those runs, and plays one seed as the committed learner.
+    monkeypatch.delenv("JAXSOCIAL_TRAIN")
+    record = trained["runs"].seed_dirs["social_pred"][0]
+    monkeypatch.setenv("JAXSOCIAL_RECORD", str(record))
+    ns = run_notebook(SOCIAL)
+    printed = capsys.readouterr().out
+    assert "found tiny/" in printed and "compiling" not in printed  # nothing trained
     finals = ns["summary"]["conditions"]["social_pred"]["final_returns"]
     assert finals == [round(ns["figures"].final_return(rows), 4) for rows in ns["runs"].rows["social_pred"]]
-    # The GIF: one frame per step (60 asked for, at most the episode's length), each the map beside the views.
-    steps = min(60, ns["episode"]["env_params"].max_steps)
+    # The GIF: one frame per step (60 asked for, at most the episode's length), the learner's predicted view
+    # beside its own.
+    episode = ns["record_episode"]
+    steps = min(60, episode["env_params"].max_steps)
     frames = iio.imread(ns["gif_bytes"], extension=".gif", index=None)
-    assert frames.shape[0] == len(ns["frames"]) == steps
-    assert frames.shape[1:3] == ns["frames"][0].shape[:2]
-    assert ns["episode"]["obs"].shape == (steps, 3, 21, 21, 3)
+    assert frames.shape[0] == len(ns["frames"]) == steps and ns["predicted"].shape == (steps, 21, 21, 3)
+    assert episode["obs"].shape == (steps, 3, 21, 21, 3)
     # Predictions: one frame per movement action, in [0, 1], from the step with the most agent pixels.
     pred = ns["pred"]
     assert set(pred["predicted"]) == {"left", "right", "forward"}
     for frame in pred["predicted"].values():
         assert frame.shape == (21, 21, 3) and frame.min() >= 0.0 and frame.max() <= 1.0
-    np.testing.assert_array_equal(pred["observed"], ns["episode"]["obs"][pred["step"], 0])
+    np.testing.assert_array_equal(pred["observed"], episode["obs"][pred["step"], 0])

@@ -14,11 +14,13 @@ import jaxsocial
 from jaxsocial import render as cli
 from jaxsocial.env import sprites
 from jaxsocial.env.pictures import (
+    TITLE_COLOR,
     episode_frames,
     render_frame,
     render_map,
     rollout_episode,
     save_episode,
+    title_height,
     upscale,
 )
 from jaxsocial.env.types import BONUS, COLORS, EMPTY
@@ -143,6 +145,13 @@ def test_render_frame_and_rollout():
     np.testing.assert_array_equal(frame, render_frame(state, None, params, episode["rewards"][-1], tile=TILE))
     frames = episode_frames(episode, params, tile=TILE)
     assert len(frames) == 6 and all(f.shape == frame.shape for f in frames)
+    # Titles are light text in the band above the panels (4 pixels from the top), and only there.
+    untitled = render_frame(state, obs, params, episode["rewards"][-1], tile=TILE, titles=["", "", ""])
+    differs = np.any(frame != untitled, axis=-1)
+    assert differs.any() and not differs[4 + title_height(TILE) :].any()
+    assert np.all(frame[differs] >= np.minimum(untitled[differs], TITLE_COLOR))
+    with pytest.raises(ValueError, match="2 titles for 3 agents"):
+        render_frame(state, obs, params, tile=TILE, titles=["a", "b"])
 
 
 def test_save_episode_checks_extension(tmp_path):
@@ -178,6 +187,17 @@ def test_cli_writes_gif(tmp_path):
     assert frames.ndim == 4 and frames.shape[0] > 1 and frames.shape[-1] == 3
     assert "goalcycle3" in result.stdout and "steps: 4" in result.stdout and str(out) in result.stdout
     assert result.stdout.count("penalties") == 3
+
+
+def test_cli_scale_draws_every_panel_larger(tmp_path):
+    args = cli.parse_args(["--env", "goalcycle3", "--out", str(tmp_path / "x.gif"), "--scale", "2"])
+    assert args.tile == 2 * TILE
+    params = fixed_params()
+    small, large = (render_frame(scene(params), None, params, tile=t) for t in (TILE, args.tile))
+    assert large.shape[1] == 2 * small.shape[1]  # every width in the layout doubles (titles set heights only)
+    assert large.shape[0] > 2 * small.shape[0] - title_height(TILE)
+    with pytest.raises(SystemExit):
+        cli.parse_args(["--env", "goalcycle3", "--out", str(tmp_path / "x.gif"), "--scale", "0"])
 
 
 def test_cli_unknown_env(tmp_path):
@@ -230,12 +250,14 @@ def test_predicted_view_beside_the_learners_view(learner_run):
     plain = predictions.episode_video(episode, TILE)
     shown = predictions.episode_video(episode, TILE, predicted)
     assert len(shown) == len(plain) == 6
-    # Panels sit right of the 7x7 map, 4 pixels apart: an 84-pixel view under a 3-pixel strip, 2-pixel border.
+    # Panels sit right of the 7x7 map, 4 pixels apart: an 84-pixel view under its title and a 3-pixel strip,
+    # in a 2-pixel border.
     gap, border, side, strip = 4, 2, 84, 3
+    top = gap + title_height(TILE)
     panel = [2 * gap + 7 * TILE + k * (side + 2 * border + gap) + border for k in range(4)]
 
     def view(frame, k):
-        return frame[gap + border + strip : gap + border + strip + side, panel[k] : panel[k] + side]
+        return frame[top + border + strip : top + border + strip + side, panel[k] : panel[k] + side]
 
     for t in (0, 5):
         assert shown[t].shape == (plain[t].shape[0], plain[t].shape[1] + side + 2 * border + gap, 3)

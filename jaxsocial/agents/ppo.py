@@ -34,13 +34,13 @@ class PPOConfig:
     clip: float = 0.2
     """PPO clip ratio."""
     value_coef: float = 0.1
-    """c_V, value-loss coefficient."""
+    """Weight of the value loss (the paper's c_V)."""
     entropy_coef: float = 1e-5
-    """c_ent, entropy-bonus coefficient."""
+    """Weight of the entropy bonus (the paper's c_ent)."""
     aux_coef: float = 3.0
-    """c_aux, coefficient of the frame auxiliary loss (network aux 'rec' or 'pred')."""
+    """Weight of the auxiliary frame loss, with --net.aux rec or pred (the paper's c_aux)."""
     attention_coef: float = 1.0
-    """Coefficient of the attention auxiliary loss (network aux with 'attention'; not in the paper)."""
+    """Weight of the attention loss, with an --net.aux that includes attention (not in the paper)."""
     lr: float = 1e-4
     """Adam learning rate (the paper's experts used 1e-5)."""
     max_grad_norm: float = 0.5
@@ -54,9 +54,9 @@ class PPOConfig:
     recompute_every: int = 2
     """Recompute hidden states and advantages every this many minibatches."""
     kl_target: float = 0.01
-    """Stop the minibatch loop when the KL to the rollout policy exceeds this."""
+    """Skip the iteration's remaining minibatches once the KL to the rollout policy exceeds this."""
     kl_hard_limit: float = 0.03
-    """Revert params and optimiser state of the whole update when the KL exceeds this."""
+    """Undo the iteration's whole update (params and optimiser state) when the KL exceeds this."""
     normalize_advantages: bool = True
     """Normalise advantages per minibatch (zero mean, unit variance over valid steps)."""
 

@@ -51,7 +51,7 @@ def cycle_reward(
     correct = (last + 1) % n == tile_id
     if n == 1:  # docs/environment.md 9.14: a single tile rewards every visit (exp semantics)
         correct = jnp.ones_like(first)
-    reward = jnp.where(correct, params.goal_reward, -abs(params.penalty))
+    reward = jnp.where(correct, params.goal_reward, -params.penalty)
     if not params.initial_reward:
         reward = jnp.where(first, 0.0, reward)
     new_state = jnp.where(correct, tile_id, last)

@@ -5,12 +5,12 @@
 `render_frame` puts the map next to each agent's egocentric view (and, optionally, a learner's predicted
 view); `rollout_episode` plays one episode and `save_episode` writes a GIF or an MP4.
 
-Text-free cues: each agent's field of view is outlined on the map, and a strip above its view, in its
-identity colour (marlgrid's default agent colours: red, blue, purple, orange, olive, pink, by index). A
-view's border turns green on a step with a positive reward and red on a penalty. A predicted view has a
-striped strip. A cell holding several agents shows one of them (as the observations do) and a strip along
-its top with a segment per agent, in their current colours. A grey bar along the bottom of a frame shows
-the elapsed fraction of `max_steps`.
+Each panel has a title ("map", "agent i" or "learner's view", "predicted next view"). Each agent's field
+of view is outlined on the map, and a strip above its view, in its identity colour (marlgrid's default agent
+colours: red, blue, purple, orange, olive, pink, by index). A view's border turns green on a step with a
+positive reward and red on a penalty. A predicted view has a striped strip. A cell holding several agents
+shows one of them (as the observations do) and a strip along its top with a segment per agent, in their
+current colours. A grey bar along the bottom of a frame shows the elapsed fraction of `max_steps`.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ import imageio.v3 as iio
 import jax
 import jax.numpy as jnp
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
 from jaxsocial.env import sprites
 from jaxsocial.env.core import reset, step_env
@@ -40,6 +41,19 @@ FOV_ALPHA = 0.6
 """Opacity of the field-of-view outline."""
 VIDEO_EXTENSIONS = (".gif", ".mp4")
 POLICIES = ("random", "random-move")
+TITLE_COLOR = (220, 220, 220)
+PREDICTED_TITLE = "predicted next view"
+
+
+def title_font(tile: int) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
+    """Pillow's built-in font, sized so that "predicted next view" fits over a view at `tile` pixels per
+    cell."""
+    return ImageFont.load_default(size=max(8, round(tile * 0.75)))
+
+
+def title_height(tile: int) -> int:
+    """Pixel rows of a panel title at `tile` pixels per cell (the text and a gap below it)."""
+    return math.ceil(title_font(tile).getbbox("Agpv'")[3]) + max(2, tile // 6)
 
 
 def identity_colors(n: int) -> np.ndarray:
@@ -147,65 +161,84 @@ def render_frame(
     reward: np.ndarray | None = None,
     tile: int = 12,
     predicted: Mapping[int, np.ndarray] | None = None,
+    titles: Sequence[str] | None = None,
 ) -> np.ndarray:
-    """One video frame, uint8[h, w, 3]: the map on the left, every agent's view on the right.
+    """One video frame, uint8[h, w, 3]: the map on the left, every agent's view on the right, each panel
+    under its title.
 
     Args:
         obs: uint8[N, 21, 21, 3] RGB observations of `state`; None (or symbolic observations) re-renders them.
         reward: float[N] the reward each agent received on the step into `state`; it colours the view borders.
         tile: map pixels per cell; views are upscaled to the same size per cell (`max(1, tile // 3)`).
         predicted: {agent index: uint8[21, 21, 3]} a view an agent's network predicts, drawn as one more
-            panel right after that agent's view, with a striped strip in its identity colour.
+            panel ("predicted next view") right after that agent's view ("learner's view"), with a striped
+            strip in its identity colour.
+        titles: the N agents' view titles (default "learner's view" for agents in `predicted`, else
+            "agent i").
     """
     state = _as_numpy(state)
     if obs is None or np.ndim(obs) != 4 or np.shape(obs)[-1] != 3:
         obs = rgb(state, params)
     obs = np.asarray(obs, np.uint8)
     n = obs.shape[0]
+    predicted = predicted or {}
+    if titles is None:
+        titles = ["learner's view" if i in predicted else f"agent {i}" for i in range(n)]
+    if len(titles) != n:
+        raise ValueError(f"{len(titles)} titles for {n} agents")
     world = render_map(state, params, tile)
     map_h, map_w = world.shape[:2]
 
     gap, border, strip = max(2, tile // 3), max(1, tile // 6), max(2, tile // 4)
+    label = title_height(tile)
     ids = identity_colors(n)
     signs = np.zeros(n, int) if reward is None else np.sign(np.asarray(reward, np.float64)).astype(int)
     striped = np.arange(obs.shape[2] * max(1, tile // 3)) // strip % 2 == 0
-    panels = []  # (view, strip colours, border colour)
+    panels = []  # (view, strip colours, border colour, title)
     for i in range(n):
-        panels.append((obs[i], ids[i], REWARD_BORDER.get(signs[i], NO_REWARD_BORDER)))
-        if predicted is not None and i in predicted:
+        panels.append((obs[i], ids[i], REWARD_BORDER.get(signs[i], NO_REWARD_BORDER), titles[i]))
+        if i in predicted:
             view = np.asarray(predicted[i])
             if view.shape != obs.shape[1:] or view.dtype != np.uint8:
                 expected = f"uint8{list(obs.shape[1:])}"
                 raise ValueError(
                     f"agent {i}'s predicted view must be {expected}, not {view.dtype}{list(view.shape)}"
                 )
-            panels.append((view, np.where(striped[:, None], ids[i], BACKGROUND), NO_REWARD_BORDER))
-    views = np.stack([upscale(v, 1, max(1, tile // 3)) for v, _, _ in panels])
+            striped_strip = np.where(striped[:, None], ids[i], BACKGROUND)
+            panels.append((view, striped_strip, NO_REWARD_BORDER, PREDICTED_TITLE))
+    views = np.stack([upscale(v, 1, max(1, tile // 3)) for v, *_ in panels])
     side = views.shape[1]
-    panel_h, panel_w = strip + side + 2 * border, side + 2 * border
-    rows = max(1, min(len(panels), (map_h + gap) // (panel_h + gap)))
+    panel_h, panel_w = label + strip + side + 2 * border, side + 2 * border
+    rows = max(1, min(len(panels), (label + map_h + gap) // (panel_h + gap)))
     cols = math.ceil(len(panels) / rows)
     rows = math.ceil(len(panels) / cols)
-    content_h = max(map_h, rows * panel_h + (rows - 1) * gap)
+    content_h = max(label + map_h, rows * panel_h + (rows - 1) * gap)
     bar = max(2, gap // 2)
     height = gap + content_h + gap + bar + gap
     width = gap + map_w + gap + cols * panel_w + (cols - 1) * gap + gap
     frame = np.empty((height, width, 3), np.uint8)
     frame[:] = BACKGROUND
-    frame[gap : gap + map_h, gap : gap + map_w] = world
+    frame[gap + label : gap + label + map_h, gap : gap + map_w] = world
+    placed = [((gap, gap), "map")]
 
-    for k, ((_, strip_colors, border_color), view) in enumerate(zip(panels, views, strict=True)):
+    for k, ((_, strip_colors, border_color, title), view) in enumerate(zip(panels, views, strict=True)):
         r, c = divmod(k, cols)
         y0 = gap + r * (panel_h + gap)
         x0 = 2 * gap + map_w + c * (panel_w + gap)
-        frame[y0 : y0 + panel_h, x0 : x0 + panel_w] = border_color
+        placed.append(((x0, y0), title))
+        y0 += label
+        frame[y0 : y0 + panel_h - label, x0 : x0 + panel_w] = border_color
         frame[y0 + border : y0 + border + strip, x0 + border : x0 + border + side] = strip_colors
         frame[y0 + border + strip : y0 + border + strip + side, x0 + border : x0 + border + side] = view
 
     progress = min(1.0, float(np.asarray(state.time)) / params.max_steps)
     bar_y = gap + content_h + gap
     frame[bar_y : bar_y + bar, gap : gap + round(progress * (width - 2 * gap))] = PROGRESS
-    return frame
+    image = Image.fromarray(frame)
+    draw, font = ImageDraw.Draw(image), title_font(tile)
+    for xy, title in placed:
+        draw.text(xy, title, fill=TITLE_COLOR, font=font)
+    return np.asarray(image)
 
 
 _reset = jax.jit(reset)

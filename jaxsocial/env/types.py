@@ -74,7 +74,7 @@ class EnvParams:
     goal_reward: float = 1.0
     """Reward for a correct bonus tile or for reaching the goal."""
     penalty: float = 1.5
-    """Goal Cycle penalty magnitude; applied as -|penalty|."""
+    """Goal Cycle penalty magnitude (>= 0): a wrong bonus tile pays -penalty."""
     initial_reward: bool = True
     """The first bonus tile of an episode pays `goal_reward` (else 0)."""
     reset_on_mistake: bool = False
@@ -133,6 +133,8 @@ class EnvParams:
             fail(f"view_offset={self.view_offset} must be in [0, view_size)")
         if self.tile_size != 3:
             fail(f"tile_size={self.tile_size}: only 3 is supported (the paper's 21x21 observations)")
+        if self.penalty < 0.0:
+            fail(f"penalty={self.penalty} is a magnitude and must be >= 0 (a wrong tile pays -penalty)")
         if self.max_steps < 1:
             fail(f"max_steps={self.max_steps} must be >= 1")
         if self.agent_colors not in ("prestige", "fixed"):

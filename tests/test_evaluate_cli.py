@@ -1,0 +1,50 @@
+"""`python -m jaxsocial.evaluate` output: a table on stdout, the JSON only in --out."""
+
+import json
+
+import pytest
+
+from jaxsocial import evaluate
+
+ARGS = [
+    "--env",
+    "goalcycle3",
+    "--env-args",
+    "max_steps=10,width=7,height=7",
+    "--slots",
+    "random,random,random",
+]
+ARGS += ["--episodes", "4"]
+
+
+def test_table_on_stdout_and_json_in_out(tmp_path, capsys):
+    out = tmp_path / "eval.json"
+    evaluate.main([*ARGS, "--out", str(out)])
+    printed = capsys.readouterr().out
+    result = json.loads(out.read_text())
+    assert (
+        not printed.lstrip().startswith("{") and len(printed.splitlines()) == 2 + 3 + 1
+    )  # head, rows, wrote
+    for slot in result["results"]:  # every slot's mean and interval, as printed with two decimals
+        low, high = slot["ci95"]
+        assert f"{slot['mean_return']:.2f} [{low:.2f}, {high:.2f}]" in printed
+    assert "95% intervals over episodes" in printed and f"wrote {out}" in printed
+    with pytest.raises(SystemExit, match="--overwrite"):
+        evaluate.main([*ARGS, "--out", str(out)])
+
+
+def test_ct_table_names_the_scores():
+    def interval(mean):
+        return {"mean": mean, "ci95": [mean - 0.01, mean + 0.01]}
+
+    cases = {
+        name: {"episode": interval(1.0), "second_half": interval(0.5)} for name in ("with", "dropout", "solo")
+    }
+    result = {
+        "env": "goalcycle3", "env_args": "", "checkpoints": ["a", "b"], "policy_iterations": [200, 200],
+        "episodes_per_checkpoint": 64, "protocol": "ct", "ct": interval(0.125), "recall": interval(-0.25),
+        "learner_returns": cases, "expert_return": {"episode": 36.8, "second_half": 18.0}, "ci_over": "seeds",
+    }  # fmt: skip
+    table = evaluate.format_table(result)
+    assert "CT score  0.125 [0.115, 0.135]" in table and "recall    -0.250 [-0.260, -0.240]" in table
+    assert "over training seeds" in table and "training iteration 200, 200" in table and "36.80" in table
