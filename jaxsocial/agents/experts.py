@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxsocial.batching import any_in_batch
 from jaxsocial.env.types import (
     BONUS,
     DIR_VEC,
@@ -351,7 +352,7 @@ def act_batch(
         fresh = jax.vmap(lambda s: cost_fields(params, s))(states)
         return jnp.where(reset[:, None, None, None], fresh, memory.cost)
 
-    cost = jax.lax.cond(jnp.any(reset), recompute, lambda: memory.cost)
+    cost = jax.lax.cond(any_in_batch(reset), recompute, lambda: memory.cost)  # a cond under vmap too
 
     def one(key, state, mem, r, rs, c):
         return _decide(key, spec, params, state, agent, mem, r, rs, c)
