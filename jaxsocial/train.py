@@ -99,7 +99,9 @@ def run(cfg: TrainConfig) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory.
 
     The run goes through the stages of `cfg.stages` (one compiled program each, switched between chunks);
-    metrics rows record the stage, and checkpoints the stage to resume in. Several seeds train in one
+    metrics rows record the stage, and checkpoints the stage to resume in. The run directory is locked
+    (`runlock`) from before it is written until the run ends; a live run's directory raises RunLockedError.
+    A non-finite iteration raises `nonfinite.NonFiniteError` (see `train_chunks`). Several seeds train in one
     program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`). In a
     multi-process run every process calls this with the same config (and its own process_id); only process 0
     writes logs, metrics and progress.
@@ -219,15 +221,10 @@ def train_chunks(
             stop = failure is not None and cfg.on_nonfinite == "stop"
             kept = failure.offset + 1 if stop else n  # rows after a stop are not written
             nonfinite_iterations += [it + 1 + i for i in np.flatnonzero(failed[:kept])]
-            healthy_end = not failed[-1]  # the state after the chunk is finite: it may be saved, evaluated
+            healthy_end = not failed[-1]  # the chunk's last iteration passed every check: save, evaluate it
             for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
-                rows = metric_rows(seed_part(metrics, k, cfg.seeds), it, round(sps), pop)[:kept]
-                seed_finite = seed_part(finite, k, cfg.seeds)
-                for i, row in enumerate(rows):
-                    row["stage"] = stage
-                    bad = nonfinite.names(seed_finite, i, pop.learners)
-                    if bad:
-                        row[nonfinite.ROW_KEY] = bad
+                seed_metrics, seed_finite = seed_part((metrics, finite), k, cfg.seeds)
+                rows = chunk_rows(seed_metrics, seed_finite, it, round(sps), stage, pop)[:kept]
                 if compile_s is not None:
                     rows[0]["compile_s"] = round(compile_s, 2)
                 end = it + n
@@ -243,7 +240,7 @@ def train_chunks(
                     extra.log(row, row["iteration"])
             if stop:
                 raise nonfinite.NonFiniteError(stop_message(cfg, it, failure, last_saved))
-            if failure is not None and main:
+            if failure is not None and main and nonfinite_iterations[0] > it:  # the run's first one
                 print(f"warning: {failure_text(cfg, it, failure)}; training on (--on-nonfinite warn)",
                       file=sys.stderr)  # fmt: skip
             it += n
@@ -273,6 +270,25 @@ def train_chunks(
             count, first = len(nonfinite_iterations), nonfinite_iterations[0]
             print(f"warning: {count} iterations had non-finite values (the first: {first}), marked "
                   f"'{nonfinite.ROW_KEY}' in metrics.jsonl", file=sys.stderr)  # fmt: skip
+
+
+def chunk_rows(
+    metrics: dict[str, np.ndarray],
+    finite: dict[str, np.ndarray],
+    first_iteration: int,
+    sps: float,
+    stage: int,
+    pop: population.Population,
+) -> list[dict[str, Any]]:
+    """One seed's metrics rows of a chunk (`metric_rows`) with the stage and, in a non-finite iteration,
+    its non-finite quantities (`nonfinite.ROW_KEY`)."""
+    rows = metric_rows(metrics, first_iteration, sps, pop)
+    for i, row in enumerate(rows):
+        row["stage"] = stage
+        bad = nonfinite.names(finite, i, pop.learners)
+        if bad:
+            row[nonfinite.ROW_KEY] = bad
+    return rows
 
 
 def nothing_to_train(done: int, iterations: int) -> str:
