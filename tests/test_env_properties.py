@@ -10,6 +10,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+from conftest import U32
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -122,8 +123,8 @@ def test_every_step_keeps_the_invariants(episode):
 @given(episodes())
 def test_the_jitted_step_equals_the_eager_one(episode):
     """The rollout's first step (jitted) against the same step un-jitted: the same integers and booleans,
-    observations included; floats (prestige, rewards) within 2 float32 ulps (each is computed with at most
-    two roundings, which XLA may fuse or not)."""
+    observations included; floats within twice the error bound of the longest float computation, the
+    decayed reward (28u, see test_parity), since XLA may fuse or order its operations otherwise."""
     index, seed, actions = episode
     params = params_of(index)
     state0, states, obs, rewards, done = rollout_of(index)(jax.random.key(seed), actions)
@@ -139,7 +140,7 @@ def test_the_jitted_step_equals_the_eager_one(episode):
     ):
         a, b = np.asarray(a), np.asarray(b)
         if a.dtype.kind == "f":
-            np.testing.assert_allclose(a, b, rtol=2 * np.finfo(np.float32).eps, atol=0)
+            np.testing.assert_allclose(a, b, rtol=2 * 28 * U32, atol=0)
         else:
             np.testing.assert_array_equal(a, b)
 
