@@ -85,17 +85,23 @@ def test_diverging_run_stops_keeping_the_last_finite_checkpoint(healthy, tmp_pat
     assert checkpoint.all_steps(run_dir / "checkpoints") == [2, 4]
 
 
-def test_warn_trains_on_and_saves_nothing_non_finite(tmp_path, capsys):
-    cfg = dataclasses.replace(
-        TINY,
-        runs_dir=str(tmp_path),
-        run_name="warned",
-        on_nonfinite="warn",
-        ppo=dataclasses.replace(TINY.ppo, lr=HUGE_LR),
-    )
-    run_dir = train.run(cfg)
+def test_warn_trains_on_and_saves_nothing_non_finite(healthy, tmp_path, capsys):
+    """Params of ~1e30 in the checkpoint of iteration 2 (TINY's own program: no compile of its own) overflow
+    in iteration 3; with --on-nonfinite warn the run trains on to 4, marks both rows, warns once and saves
+    no checkpoint or policy at 4."""
+    run_dir = tmp_path / "warned"
+    shutil.copytree(healthy, run_dir)
+    ckpt = run_dir / "checkpoints"
+    state = checkpoint.restore(ckpt, jax.eval_shape(loop.compiled(TINY).init, np.int32(0)), 2)
+    metadata = checkpoint.read_metadata(ckpt, 2)
+    shutil.rmtree(ckpt / "2")
+    huge = state._replace(params=jax.tree.map(lambda x: x * np.float32(1e30), state.params))
+    checkpoint.save(ckpt, 2, huge, metadata=metadata)
+    train.main(["--resume", str(run_dir), "--iterations", "4", "--on-nonfinite", "warn"])
     rows = logs.read_metrics(run_dir)
-    assert [r["iteration"] for r in rows] == [1, 2, 3, 4] and all(r["nonfinite"] for r in rows)
-    assert checkpoint.all_steps(run_dir / "checkpoints") == []
+    assert [r["iteration"] for r in rows] == [1, 2, 3, 4]
+    assert [bool(r.get("nonfinite")) for r in rows] == [False, False, True, True]
+    assert checkpoint.all_steps(ckpt) == [2] and policy_io.policy_iteration(str(run_dir)) == 2
     err = capsys.readouterr().err
-    assert "non-finite values at iteration 1 in slot 0" in err and "4 iterations had non-finite values" in err
+    assert err.count("warning: non-finite values at iteration 3 in slot 0") == 1, err
+    assert "2 iterations had non-finite values (the first: 3)" in err
