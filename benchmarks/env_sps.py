@@ -24,15 +24,13 @@ Run from the repository root:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-from run_info import REPO, metadata
+from run_info import REPO, metadata, write_json
 
 import jaxsocial
 from jaxsocial.env import reset, step_batch
@@ -154,12 +152,7 @@ def main() -> None:
             print_table(group)
             rows.extend(group)
 
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(
-        json.dumps({"metadata": {**metadata(args), "reference": REFERENCE}, "rows": rows}, indent=2) + "\n"
-    )
-    print(f"\nwrote {out}")
+    write_json(args.out, {"metadata": {**metadata(args), "reference": REFERENCE}, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -9,11 +9,9 @@ a fresh random layout each); prints a Markdown table and writes JSON with versio
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
-from run_info import metadata
+from run_info import metadata, write_json
 
 from jaxsocial.evaluate import EvalConfig, evaluate
 
@@ -43,10 +41,7 @@ def main() -> None:
             low, high = row["ci95"]
             print(f"| {env} | `{kind}` | {row['mean_return']:.3f} | [{low:.3f}, {high:.3f}] |", flush=True)
             results.append({"env": env, "slot": kind, **row, "seconds": time.perf_counter() - t0})
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    payload = {"meta": metadata(args), "rows": results}
-    Path(args.out).write_text(json.dumps(payload, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    write_json(args.out, {"meta": metadata(args), "rows": results})
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""What every benchmark records beside its numbers: versions, machine, git revision, arguments."""
+"""What every benchmark records beside its numbers: versions, machine, git revision, arguments; and the one
+way results are written (`write_json`), with paths made independent of the machine (`portable`)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,9 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -71,10 +74,45 @@ def metadata(args: argparse.Namespace) -> dict:
     }
 
 
-def write_results(out: str | Path, meta: dict, sections: dict) -> None:
-    """Write `{"metadata": meta, "sections": sections}` to `out` as JSON (the end load average added)."""
-    meta["loadavg_end"] = os.getloadavg()
+def portable_path(path: str, repo: Path = REPO) -> str:
+    """An absolute `path` as it is recorded: relative to the repository `repo` when inside it; a Python
+    interpreter by its name (the versions say which); under the temporary directory as '$TMPDIR/...';
+    anything else as '<outside the repository>/NAME'."""
+    candidates = [Path(os.path.abspath(path))]
+    candidates.append(candidates[0].resolve())
+    for candidate in candidates:
+        if candidate.is_relative_to(repo):
+            return candidate.relative_to(repo).as_posix() or "."
+    name = candidates[0].name
+    if name.startswith("python"):
+        return name
+    tmp = Path(tempfile.gettempdir()).resolve()
+    for candidate in candidates:
+        if candidate.is_relative_to(tmp):
+            return "$TMPDIR/" + candidate.relative_to(tmp).as_posix()
+    return f"<outside the repository>/{name}"
+
+
+def portable(value: Any, repo: Path = REPO) -> Any:
+    """JSON `value` with every string that is an absolute path replaced by `portable_path(path, repo)`."""
+    if isinstance(value, dict):
+        return {k: portable(v, repo) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [portable(v, repo) for v in value]
+    if isinstance(value, str) and os.path.isabs(value):
+        return portable_path(value, repo)
+    return value
+
+
+def write_json(out: str | Path, payload: dict) -> None:
+    """Write `payload` to `out` as indented JSON, its paths made `portable`."""
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"metadata": meta, "sections": sections}, indent=2) + "\n")
+    out.write_text(json.dumps(portable(payload), indent=2) + "\n")
     print(f"\nwrote {out}")
+
+
+def write_results(out: str | Path, meta: dict, sections: dict) -> None:
+    """`{"metadata": meta, "sections": sections}` to `out` with `write_json`, adding the end load average."""
+    meta["loadavg_end"] = os.getloadavg()
+    write_json(out, {"metadata": meta, "sections": sections})

@@ -4,7 +4,8 @@ program.
 
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
 neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
-(`lax.map` over learners). A chunk of iterations is one `lax.scan` inside one `jit`; the driver
+(`lax.map` over learners), whose losses, parameters and optimiser state are checked for non-finite values
+(`jaxsocial.nonfinite`). A chunk of iterations is one `lax.scan` inside one `jit`; the driver
 (`jaxsocial.train.run`) loops over chunks to log, checkpoint and draw progress.
 """
 
@@ -18,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial import config, distributed
+from jaxsocial import config, distributed, nonfinite
 from jaxsocial.agents import bc, network, policy_io, population, ppo
 from jaxsocial.batching import any_in_batch
 from jaxsocial.config import DRIVER_FIELDS, TrainConfig
@@ -101,7 +102,8 @@ def make_train(
     Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
     (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
     None); `train(key) -> (state, metrics)` is the whole run (it loads frozen policies when traced).
-    Metrics are dicts of arrays with a leading iteration axis. One seed (`cfg.seeds` is handled by
+    Metrics are dicts of arrays with a leading iteration axis; `metrics[nonfinite.KEY]` holds the
+    iteration's finiteness checks ({quantity: bool[n, S_l]}). One seed (`cfg.seeds` is handled by
     `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
     minibatches over them too).
     """
@@ -238,6 +240,7 @@ def make_train(
             "episodes": episodes_per_slot,
             "return": jnp.sum(return_sum, 0) / jnp.maximum(episodes_per_slot, 1.0),
             **losses,
+            nonfinite.KEY: nonfinite.check(losses, state.params, state.opt_state),
         }
         return state._replace(key=key, iteration=state.iteration + 1), metrics
 

@@ -18,7 +18,18 @@ import jax
 import numpy as np
 
 import jaxsocial
-from jaxsocial import checkpoint, compile_cache, config, distributed, evaluate, logs, loop, schedule
+from jaxsocial import (
+    checkpoint,
+    compile_cache,
+    config,
+    distributed,
+    evaluate,
+    logs,
+    loop,
+    nonfinite,
+    runlock,
+    schedule,
+)
 from jaxsocial.agents import policy_io, population
 from jaxsocial.config import DRIVER_FIELDS, PRESETS, TrainConfig, config_dict, config_from_dict
 from jaxsocial.loop import Program, RunnerState
@@ -88,7 +99,9 @@ def run(cfg: TrainConfig) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory.
 
     The run goes through the stages of `cfg.stages` (one compiled program each, switched between chunks);
-    metrics rows record the stage, and checkpoints the stage to resume in. Several seeds train in one
+    metrics rows record the stage, and checkpoints the stage to resume in. The run directory is locked
+    (`runlock`) from before it is written until the run ends; a live run's directory raises RunLockedError.
+    A non-finite iteration raises `nonfinite.NonFiniteError` (see `train_chunks`). Several seeds train in one
     program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`). In a
     multi-process run every process calls this with the same config (and its own process_id); only process 0
     writes logs, metrics and progress.
@@ -97,7 +110,7 @@ def run(cfg: TrainConfig) -> Path:
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
     static = config.setup(cfg)  # validate before touching the disk or compiling; once per run
-    pop, stages, frozen = static.pop, static.stages, static.frozen_params
+    pop = static.pop
     mesh = loop.data_mesh(cfg)
 
     def program_of(stage: int) -> Program:
@@ -127,7 +140,31 @@ def run(cfg: TrainConfig) -> Path:
             if seed_cfg is not cfg:
                 logs.write_config(seed_dir, config_dict(seed_cfg))
 
-    distributed.on_main(prepare)
+    lock = runlock.RunLock(run_dir)
+    distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
+    try:
+        distributed.on_main(prepare)
+        train_chunks(cfg, static, mesh, run_dir, seeds, program_of)
+        if cfg.resume:
+            distributed.on_main(write_configs)
+    finally:
+        if distributed.is_main():
+            lock.release()
+    return run_dir
+
+
+def train_chunks(
+    cfg: TrainConfig,
+    static: config.Setup,
+    mesh: jax.sharding.Mesh,
+    run_dir: Path,
+    seeds: list[tuple[TrainConfig, Path]],
+    program_of: Any,
+) -> None:
+    """The training loop of `run` in its prepared (and locked) run directory: chunk after chunk, with
+    metrics rows, evaluations, stage switches, checkpoints and progress. Stops at the first non-finite
+    iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn'; nothing non-finite is ever saved."""
+    pop, stages, frozen = static.pop, static.stages, static.frozen_params
     main = distributed.is_main()
     stage = schedule.initial_index(stages)
     program = program_of(stage)
@@ -137,6 +174,10 @@ def run(cfg: TrainConfig) -> Path:
     if cfg.resume:
         state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
     start = int(np.asarray(state.iteration).reshape(-1)[0])
+    if start >= cfg.iterations:
+        if main:
+            print(nothing_to_train(start, cfg.iterations))
+        return
     metrics_logs = [logs.MetricsLog(d) for _, d in seeds] if main else []
     for metrics_log in metrics_logs:
         metrics_log.truncate_after(start)
@@ -144,65 +185,148 @@ def run(cfg: TrainConfig) -> Path:
     progress = None
     parts = [f"{cfg.seeds} seeds"] if cfg.seeds > 1 else []
     parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
+    name = run_name(cfg)
     desc = f"{name} ({', '.join(parts)})" if parts else name
     executables: dict[tuple[int, int], Any] = {}  # (stage, n) -> compiled chunk of n iterations
     steps_per_iteration = cfg.num_envs * cfg.rollout_steps
     learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
     last_saved = start
+    nonfinite_iterations: list[int] = []
     it = start
-    while it < cfg.iterations:
-        n = min(cfg.chunk_iterations, cfg.iterations - it)
-        switch = schedule.next_start(stages, stage)
-        if switch is not None and switch > it:
-            n = min(n, switch - it)  # land exactly on the next stage's first iteration
-        if cfg.eval_envs:
-            n = min(n, cfg.eval_every - it % cfg.eval_every)  # end chunks on evaluation iterations
-        compile_s = None
-        if (stage, n) not in executables:  # compiled ahead of time, so the speed below excludes it
-            if cfg.progress and main:
-                print(f"{desc}: compiling the {n}-iteration chunk (stage {stage}) ...", flush=True)
+    try:
+        while it < cfg.iterations:
+            n = min(cfg.chunk_iterations, cfg.iterations - it)
+            switch = schedule.next_start(stages, stage)
+            if switch is not None and switch > it:
+                n = min(n, switch - it)  # land exactly on the next stage's first iteration
+            if cfg.eval_envs:
+                n = min(n, cfg.eval_every - it % cfg.eval_every)  # end chunks on evaluation iterations
+            compile_s = None
+            if (stage, n) not in executables:  # compiled ahead of time, so the speed below excludes it
+                if cfg.progress and main:
+                    print(f"{desc}: compiling {chunk_description(n, stages, stage)} ...", flush=True)
+                t0 = time.perf_counter()
+                program = program_of(stage)
+                executables[stage, n] = program.run_chunk.lower(state, frozen, n).compile()
+                compile_s = time.perf_counter() - t0
+            if progress is None and cfg.progress and main:
+                progress = logs.Progress(cfg.iterations, desc=desc, initial=it)
             t0 = time.perf_counter()
-            program = program_of(stage)
-            executables[stage, n] = program.run_chunk.lower(state, frozen, n).compile()
-            compile_s = time.perf_counter() - t0
-        if progress is None and cfg.progress and main:
-            progress = logs.Progress(cfg.iterations, desc=desc, initial=it)
-        t0 = time.perf_counter()
-        state, metrics = executables[stage, n](state, frozen)
-        metrics = jax.device_get(metrics)
-        sps = n * steps_per_iteration / (time.perf_counter() - t0)  # per seed
-        for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
-            rows = metric_rows(seed_part(metrics, k, cfg.seeds), it, round(sps), pop)
-            for row in rows:
-                row["stage"] = stage
-            if compile_s is not None:
-                rows[0]["compile_s"] = round(compile_s, 2)
-            end = it + n
-            if cfg.eval_envs and (end % cfg.eval_every == 0 or end == cfg.iterations):
-                seed = seeds[k][0].seed
-                host_params = jax.device_get(seed_part(state.params, k, cfg.seeds))  # replicated: local
-                params = jax.tree.map(lambda x: x[0], host_params)  # the first learner
-                key = jax.random.fold_in(jax.random.key(seed), end)
-                rows[-1].update({f"eval/{s}": r for s, r in learner_eval(key, params).items()})
-            metrics_log.append(rows)
-            for row in rows:
-                extra.log(row, row["iteration"])
-        it += n
-        all_seeds = jax.tree.map(lambda m: m.reshape(-1, *m.shape[2:]), metrics) if cfg.seeds > 1 else metrics
-        stage = schedule.advance(stages, stage, it, learner_return(all_seeds, pop))
-        if it - last_saved >= cfg.checkpoint_every or it == cfg.iterations:
-            save_seeds(cfg, seeds, it, state, stage)
-            last_saved = it
+            state, metrics = executables[stage, n](state, frozen)
+            metrics = jax.device_get(metrics)
+            sps = n * steps_per_iteration / (time.perf_counter() - t0)  # per seed
+            finite = metrics.pop(nonfinite.KEY)
+            failed = nonfinite.failures(finite).reshape(cfg.seeds, n).any(axis=0)  # bool[n], over seeds
+            failure = nonfinite.first_failure(finite, pop.learners, cfg.seeds)
+            stop = failure is not None and cfg.on_nonfinite == "stop"
+            kept = failure.offset + 1 if stop else n  # rows after a stop are not written
+            nonfinite_iterations += [it + 1 + i for i in np.flatnonzero(failed[:kept])]
+            healthy_end = not failed[-1]  # the chunk's last iteration passed every check: save, evaluate it
+            for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
+                seed_metrics, seed_finite = seed_part((metrics, finite), k, cfg.seeds)
+                rows = chunk_rows(seed_metrics, seed_finite, it, round(sps), stage, pop)[:kept]
+                if compile_s is not None:
+                    rows[0]["compile_s"] = round(compile_s, 2)
+                end = it + n
+                evaluating = cfg.eval_envs and (end % cfg.eval_every == 0 or end == cfg.iterations)
+                if evaluating and healthy_end and not stop:
+                    seed = seeds[k][0].seed
+                    host_params = jax.device_get(seed_part(state.params, k, cfg.seeds))  # replicated: local
+                    params = jax.tree.map(lambda x: x[0], host_params)  # the first learner
+                    key = jax.random.fold_in(jax.random.key(seed), end)
+                    rows[-1].update({f"eval/{s}": r for s, r in learner_eval(key, params).items()})
+                metrics_log.append(rows)
+                for row in rows:
+                    extra.log(row, row["iteration"])
+            if stop:
+                raise nonfinite.NonFiniteError(stop_message(cfg, it, failure, last_saved))
+            if failure is not None and main and nonfinite_iterations[0] > it:  # the run's first one
+                print(f"warning: {failure_text(cfg, it, failure)}; training on (--on-nonfinite warn)",
+                      file=sys.stderr)  # fmt: skip
+            it += n
+            all_seeds = (
+                jax.tree.map(lambda m: m.reshape(-1, *m.shape[2:]), metrics) if cfg.seeds > 1 else metrics
+            )
+            stage = schedule.advance(stages, stage, it, learner_return(all_seeds, pop))
+            if it - last_saved >= cfg.checkpoint_every or it == cfg.iterations:
+                if healthy_end:
+                    save_seeds(cfg, seeds, it, state, stage)
+                    last_saved = it
+                elif main:
+                    print(f"warning: iteration {it} is not finite: not saved as a checkpoint or policy",
+                          file=sys.stderr)  # fmt: skip
+            if progress is not None:
+                shown = {"stage": f"{stage + 1}/{len(stages)}"} if stages else {}
+                progress.update(it, **shown, **progress_fields(all_seeds, sps * cfg.seeds, pop))
+    finally:
         if progress is not None:
-            shown = {"stage": stage} if stages else {}
-            progress.update(it, **shown, **progress_fields(all_seeds, sps * cfg.seeds, pop))
-    if progress is not None:
-        progress.close()
-    for extra in extras:
-        extra.close()
-    if cfg.resume:
-        distributed.on_main(write_configs)
-    return run_dir
+            progress.close()
+        for extra in extras:
+            extra.close()
+    if main:
+        where = f" ({len(seeds)} seeds: s{cfg.seed}/ ...)" if len(seeds) > 1 else ""
+        print(f"wrote {run_dir}{where} ({it} iterations)")
+        if nonfinite_iterations:
+            count, first = len(nonfinite_iterations), nonfinite_iterations[0]
+            print(f"warning: {count} iterations had non-finite values (the first: {first}), marked "
+                  f"'{nonfinite.ROW_KEY}' in metrics.jsonl", file=sys.stderr)  # fmt: skip
+
+
+def chunk_rows(
+    metrics: dict[str, np.ndarray],
+    finite: dict[str, np.ndarray],
+    first_iteration: int,
+    sps: float,
+    stage: int,
+    pop: population.Population,
+) -> list[dict[str, Any]]:
+    """One seed's metrics rows of a chunk (`metric_rows`) with the stage and, in a non-finite iteration,
+    its non-finite quantities (`nonfinite.ROW_KEY`)."""
+    rows = metric_rows(metrics, first_iteration, sps, pop)
+    for i, row in enumerate(rows):
+        row["stage"] = stage
+        bad = nonfinite.names(finite, i, pop.learners)
+        if bad:
+            row[nonfinite.ROW_KEY] = bad
+    return rows
+
+
+def nothing_to_train(done: int, iterations: int) -> str:
+    """What a resumed run that has already reached `iterations` says (it trains nothing)."""
+    where = f"{done} of {iterations}" if done == iterations else f"{done} (--iterations is {iterations})"
+    return (
+        f"Run already at {where} iterations; nothing to train. Pass a larger --iterations (the total) to "
+        "continue."
+    )
+
+
+def chunk_description(n: int, stages: tuple[schedule.Stage, ...], stage: int) -> str:
+    """The chunk being compiled, e.g. 'the 10-iteration chunk', 'the 10-iteration chunk of stage 2 of 3
+    (penalty=1.0)' or '... before stage 1 of 3' (stages counted from 1, as in --stages)."""
+    text = f"the {n}-iteration chunk"
+    if not stages:
+        return text
+    if stage < 0:
+        return f"{text} before stage 1 of {len(stages)}"
+    changes = schedule.format_assignments(dict(stages[stage].overrides))
+    return f"{text} of stage {stage + 1} of {len(stages)} ({changes})"
+
+
+def failure_text(cfg: TrainConfig, it: int, failure: nonfinite.Failure) -> str:
+    """`failure` of the chunk after iteration `it`, its seed named when the program trains several."""
+    return failure.describe(it + 1, cfg.seed + failure.seed if cfg.seeds > 1 else None)
+
+
+def stop_message(cfg: TrainConfig, it: int, failure: nonfinite.Failure, last_saved: int) -> str:
+    """The one line a run stopped by a non-finite value ends with (`it`: the iteration before the chunk)."""
+    if last_saved > 0:
+        kept = f"the latest checkpoint and policy stay iteration {last_saved}'s, where --resume continues"
+    else:
+        kept = "no checkpoint had been saved, so --resume starts again"
+    return (
+        f"{failure_text(cfg, it, failure)}; the run stopped without saving it: {kept} "
+        "(--on-nonfinite warn trains on regardless)"
+    )
 
 
 def seed_part(tree: Any, k: int, seeds: int) -> Any:
@@ -318,8 +442,8 @@ def parse_args(argv: list[str]) -> TrainConfig:
 def main(argv: list[str] | None = None) -> None:
     cfg = parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        run_dir = run(cfg)
-    except (ValueError, FileExistsError, FileNotFoundError) as err:
+        run(cfg)
+    except (ValueError, FileExistsError, FileNotFoundError, nonfinite.NonFiniteError) as err:
         raise SystemExit(f"error: {err}") from err
     except OSError as err:  # e.g. an unwritable runs_dir or a full disk while checkpointing
         where = f" ({err.filename})" if err.filename else ""
@@ -327,11 +451,6 @@ def main(argv: list[str] | None = None) -> None:
             f"error: cannot write the run{where}: {err.strerror or err}. Checkpoints and metrics written "
             "before this are kept; fix the cause and continue with --resume."
         ) from err
-    if distributed.is_main():
-        seed_dirs = [d for _, d in seed_runs(cfg, run_dir)]
-        rows = logs.read_metrics(seed_dirs[0])
-        where = f" ({len(seed_dirs)} seeds: s{cfg.seed}/ ...)" if len(seed_dirs) > 1 else ""
-        print(f"wrote {run_dir}{where} ({len(rows)} iterations)")
 
 
 if __name__ == "__main__":

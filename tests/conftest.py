@@ -47,6 +47,21 @@ TINY_RUN_FLAGS = [
 """TINY itself as command-line flags."""
 
 
+U32 = 2.0**-24
+"""float32's unit roundoff u: one operation's result is within a relative u of the exact one (round to
+nearest), on every machine; tolerances below are multiples of it derived from each computation."""
+
+
+def reordered_tolerance(terms: int, depth: int, scale: float = 1.0) -> float:
+    """A bound on the difference of two float32 evaluations of a network that differ only in the order of
+    their sums (another blocking of the matrix products, vector width or fusion, as on other CPUs): a dot
+    product of `terms` products is within terms * u * sum|products| of the exact value (Higham, Accuracy
+    and Stability of Numerical Algorithms, eq. 3.5, to first order), so two orders differ by at most twice
+    that per layer, `scale` bounding sum|products|; through `depth` layers with 1-Lipschitz activations
+    and weights of norm <= 1, as initialised, the differences add up."""
+    return 2 * depth * terms * U32 * scale
+
+
 def metrics_without_speed(run_dir):
     """A run's metrics rows without the timings (which differ between equal runs)."""
     timing = ("env_steps_per_s", "compile_s")

@@ -12,7 +12,7 @@ import pytest
 from conftest import TINY, TINY_FLAGS
 
 import jaxsocial
-from jaxsocial import checkpoint, logs, loop, train
+from jaxsocial import checkpoint, logs, loop, schedule, train
 from jaxsocial.agents import policy_io
 
 
@@ -166,3 +166,23 @@ def test_resume_with_every_checkpoint_unreadable_fails_and_keeps_the_config(fini
     config_before = (copy / logs.CONFIG_FILE).read_text()
     fail(["--resume", str(copy), "--no-progress"], "no readable checkpoint")
     assert (copy / logs.CONFIG_FILE).read_text() == config_before
+
+
+def test_resume_of_a_finished_run_trains_nothing_and_says_so(finished_run, tmp_path, capsys):
+    _, run_dir = finished_run
+    copy = copy_run(run_dir, tmp_path, "finished")
+    rows = logs.read_metrics(copy)
+    train.main(["--resume", str(copy)])  # returns: exit status 0
+    out = capsys.readouterr().out
+    assert out.splitlines() == [
+        "Run already at 6 of 6 iterations; nothing to train. "
+        "Pass a larger --iterations (the total) to continue."
+    ]
+    assert logs.read_metrics(copy) == rows and checkpoint.all_steps(copy / "checkpoints") == [4, 6]
+
+
+def test_compile_lines_name_stages_as_users_count_them():
+    stages = schedule.parse_stages("0:penalty=0.5;return>=5:penalty=1.0")
+    assert train.chunk_description(10, (), -1) == "the 10-iteration chunk"
+    assert train.chunk_description(10, stages, -1) == "the 10-iteration chunk before stage 1 of 2"
+    assert train.chunk_description(3, stages, 1) == "the 3-iteration chunk of stage 2 of 2 (penalty=1.0)"

@@ -33,8 +33,8 @@ def test_determinism_and_independent_learners(two_learners):
     state_a, metrics_a = train(jax.random.key(0))
     state_b, metrics_b = train(jax.random.key(0))
     _, metrics_c = train(jax.random.key(1))
-    for name in metrics_a:
-        np.testing.assert_array_equal(metrics_a[name], metrics_b[name])
+    for a, b in zip(jax.tree.leaves(metrics_a), jax.tree.leaves(metrics_b), strict=True):
+        np.testing.assert_array_equal(a, b)
     assert any(not np.array_equal(metrics_a[k], metrics_c[k]) for k in ("aux_loss", "value_loss"))
     start = jax.jit(init)(jax.random.key(0))
     before, after = jax.tree.leaves(start.params), jax.tree.leaves(state_a.params)

@@ -1,0 +1,114 @@
+"""The run-directory lock: one process at a time trains in, resumes or overwrites a run directory.
+
+The lock of `runs/NAME` is the file `runs/.NAME.lock` beside it (so `--overwrite` can delete the directory
+while holding it), locked with `fcntl.flock` and holding its holder's pid, host and start time. The kernel
+releases a flock when its process ends, however it ends (kill -9 included); a lock file whose flock is free
+but that still names a holder was left by a process that did not release it: it is stale and taken over,
+with a warning. A clean release deletes the file.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import socket
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+__all__ = ["RunLock", "RunLockedError", "lock_path"]
+
+
+class RunLockedError(FileExistsError):
+    """Another live process holds the run directory's lock."""
+
+
+def lock_path(run_dir: str | Path) -> Path:
+    """The lock file of `run_dir`: `.<name>.lock` in its parent."""
+    run_dir = Path(run_dir)
+    return run_dir.parent / f".{run_dir.name}.lock"
+
+
+def _holder(file: TextIO) -> dict[str, Any]:
+    """The holder record in an open lock file ({} if empty or unreadable)."""
+    file.seek(0)
+    try:
+        record = json.loads(file.read() or "{}")
+    except json.JSONDecodeError:
+        return {}
+    return record if isinstance(record, dict) else {}
+
+
+def _describe(holder: dict[str, Any]) -> str:
+    started = holder.get("started")
+    since = f" since {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(started))}" if started else ""
+    return f"process {holder.get('pid', '?')} on host {holder.get('host', '?')}{since}"
+
+
+class RunLock:
+    """The exclusive lock of one run directory: `acquire()` ... `release()` (or a `with` block)."""
+
+    def __init__(self, run_dir: str | Path):
+        self.run_dir = Path(run_dir)
+        self.path = lock_path(self.run_dir)
+        self._file: TextIO | None = None
+
+    def acquire(self) -> None:
+        """Take the lock. RunLockedError naming the holder (pid, host) if a live process holds it; a stale
+        lock is taken over with a warning; on a file system without locks, a warning and no lock."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            file = open(self.path, "a+")  # noqa: SIM115 - held open until release()
+            try:
+                fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = _holder(file)
+                file.close()
+                raise RunLockedError(
+                    f"run directory {self.run_dir} is in use by {_describe(holder)}; wait for that run to "
+                    f"end (or stop it), or choose another --run-name (lock file {self.path})"
+                ) from None
+            except OSError as err:
+                file.close()
+                print(f"warning: cannot lock {self.run_dir} ({err.strerror}); nothing stops another process "
+                      "from writing it at the same time", file=sys.stderr)  # fmt: skip
+                return
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(file.fileno()).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            file.close()  # its holder released it (and deleted the file) meanwhile: lock the new one
+        stale = _holder(file)
+        if stale:
+            print(f"warning: taking over the lock of {self.run_dir} left by {_describe(stale)}, which ended "
+                  "without releasing it (killed?)", file=sys.stderr)  # fmt: skip
+        file.seek(0)
+        file.truncate()
+        record = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(), "argv": sys.argv}
+        file.write(json.dumps(record) + "\n")
+        file.flush()
+        self._file = file
+
+    def release(self) -> None:
+        """Delete the lock file and unlock (nothing if not held)."""
+        if self._file is None:
+            return
+        try:
+            if os.stat(self.path).st_ino == os.fstat(self._file.fileno()).st_ino:
+                self.path.unlink()
+        except FileNotFoundError:
+            pass
+        finally:
+            self._file.close()
+            self._file = None
+
+    def __enter__(self) -> RunLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
