@@ -151,8 +151,8 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     assert takeoffs["takeoff_iterations"] == [None] * 3 + [first_block] * 3
     cfg = runs.configs["social_rec"]
     assert takeoffs["takeoff_env_steps"][3] == first_block * cfg.num_envs * cfg.rollout_steps
+    assert summary["command"] == "the command"
     assert summary["provenance"] == {  # fake runs: no records behind them
-        "command": "the command",
         "training_runs": {},
         "unrecorded": [str(d) for dirs in runs.seed_dirs.values() for d in dirs],
     }

@@ -159,10 +159,10 @@ class RecipeRuns:
         cfg = self.configs[condition]
         return recipes.condition_flags(self.scale, condition, cfg.seed, cfg.seeds, cfg.runs_dir)
 
-    def provenance(self, command: str) -> dict[str, Any]:
-        """How the summary was made: `command` (re-creates it) and, per condition, each seed's recorded
-        training command, commit, device and jax version (`records.read_provenance`); seeds without a
-        record are listed under 'unrecorded'."""
+    def provenance(self) -> dict[str, Any]:
+        """How the runs were made: per condition, the recorded training commands (`records.read_provenance`)
+        with the seeds each trained, its commit, device, jax version, start, end and exit status; seeds
+        without a record are listed under 'unrecorded'."""
         runs: dict[str, list[dict[str, Any]]] = {}
         unrecorded = []
         for c, dirs in self.seed_dirs.items():
@@ -178,7 +178,7 @@ class RecipeRuns:
                     same[0]["seeds"].append(seed)
                     continue
                 runs[c].append({"seeds": [seed], **{k: run.get(k) for k in records.RUN_FIELDS}})
-        return {"command": command, "training_runs": runs, "unrecorded": unrecorded}
+        return {"training_runs": runs, "unrecorded": unrecorded}
 
     def commits(self) -> dict[str, str | None]:
         """Each seed directory's recorded training commit (None: no record)."""
@@ -201,7 +201,7 @@ class RecipeRuns:
             "scale": self.scale.name,
             "scale_note": self.scale.note,
             "command": command,
-            "provenance": self.provenance(command),
+            "provenance": self.provenance(),
             "config": {
                 c: {
                     "flags": shlex.join(self.flags(c)),
