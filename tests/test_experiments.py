@@ -206,7 +206,15 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
               "--out-dir", str(tmp_path)])  # fmt: skip
     summary = json.loads((tmp_path / "mixing-tiny.json").read_text())
     assert (tmp_path / "mixing-tiny.png").stat().st_size > 1000
-    assert summary["command"] == "python -m jaxsocial.experiments run mixing --scale tiny --seeds 1"
+    assert summary["command"] == (
+        "python -m jaxsocial.experiments figure mixing --scale tiny --seed 0 --seeds 1 "
+        f"--runs-dir {mixing_runs} --out-dir {tmp_path}"
+    )
+    assert summary["provenance"]["unrecorded"] == [
+        str(d) for dirs in summary["seed_dirs"].values() for d in dirs
+    ]
+    taken = summary["time_to_learning"]["conditions"]
+    assert set(taken) == set(summary["conditions"]) and all(t["seeds"] == 1 for t in taken.values())
     assert set(summary["conditions"]) == {"social_pred", "social_pred_mixed", "social_pred_mixed_learned"}
     switches = {name: entry["switch_iterations"] for name, entry in summary["conditions"].items()}
     # the fixed switch at a third of training; the learned one waits for a return of 10, never reached here
