@@ -75,7 +75,8 @@ def source_iteration(cfg: TrainConfig) -> int:
 
 
 def _source_config(seed_dir: Path) -> TrainConfig:
-    return config.config_from_dict(logs.read_config(seed_dir))
+    """The source seed's config, without its own `init_from` (a branch of a branch needs only its source)."""
+    return dataclasses.replace(config.config_from_dict(logs.read_config(seed_dir)), init_from=None)
 
 
 def _learners(cfg: TrainConfig) -> tuple[int, ...]:
