@@ -106,7 +106,7 @@ def test_pack_checks_before_it_writes(tmp_path):
     assert not (tmp_path / "u").exists() and not (tmp_path / "n").exists()
 
 
-def test_record_command_refuses_failed_runs_and_existing_records(in_repo, tmp_path, capsys):
+def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, tmp_path, capsys):
     log = tmp_path / "commands.log"
     lines = []
     for cond in RECIPE.conditions:
@@ -117,9 +117,13 @@ def test_record_command_refuses_failed_runs_and_existing_records(in_repo, tmp_pa
             "--commands-log", str(log), "--device", "a CPU", "--jax", "0.1",
             "--out-dir", str(tmp_path / "r")]  # fmt: skip
     cli.main(argv)
-    assert len(list((tmp_path / "r").rglob(records.PROVENANCE_FILE))) == 4
-    with pytest.raises(SystemExit, match="exists"):
-        cli.main(argv)
+    packed = sorted((tmp_path / "r").rglob(records.PROVENANCE_FILE))
+    assert len(packed) == 4
+    before = [p.read_text() for p in packed]
+    capsys.readouterr()
+    cli.main(argv)
+    assert capsys.readouterr().out.count("already recorded, kept") == 4
+    assert [p.read_text() for p in packed] == before
     log.write_text(log.read_text().replace("rc=0", "rc=1"))
     with pytest.raises(SystemExit, match="exited with 1"):
         cli.main([*argv, "--overwrite"])

@@ -102,7 +102,8 @@ def figure_command(args: argparse.Namespace) -> str:
 
 
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
-    """Pack every seed of the recipe that has metrics; everything is checked before the first write."""
+    """Pack every seed of the recipe that has a run directory and no record yet (or every one, with
+    --overwrite); everything is checked before the first write."""
     commands = records.read_commands_log(args.commands_log)
     runs_dir = Path(args.runs_dir)
     plan = []
@@ -121,12 +122,12 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             if rows < planned:
                 raise ValueError(f"{seed_dir} is unfinished: {rows} of {planned} iterations logged")
             plan.append((seed_dir, relative, run))
-    for _, relative, _ in plan:
+    for seed_dir, relative, run in plan:
         record_dir = Path(args.out_dir) / relative
         if record_dir.exists() and any(record_dir.iterdir()) and not args.overwrite:
-            raise FileExistsError(f"record {record_dir} exists; pass --overwrite to replace it")
-    for seed_dir, relative, run in plan:
-        record_dir = records.pack(seed_dir, Path(args.out_dir) / relative, run, str(relative), args.overwrite)
+            print(f"  {record_dir}: already recorded, kept (--overwrite replaces it)")
+            continue
+        records.pack(seed_dir, record_dir, run, str(relative), args.overwrite)
         print(f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB)")
 
 
