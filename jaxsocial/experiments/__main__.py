@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import shlex
 import sys
 from pathlib import Path
 
@@ -85,22 +84,6 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
         parser.error(f"--seeds {args.seeds} must be >= 1")
 
 
-def figure_command(args: argparse.Namespace) -> str:
-    """The command that re-creates a figure's summary exactly."""
-    argv = [
-        "figure",
-        args.recipe,
-        "--scale",
-        args.scale,
-        "--seed",
-        str(args.seed),
-        "--seeds",
-        str(args.seeds),
-    ]
-    argv += ["--runs-dir", args.runs_dir, "--out-dir", args.out_dir]
-    return "python -m jaxsocial.experiments " + shlex.join(argv)
-
-
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
     """Pack every seed of the recipe that has a run directory and no record yet (or every one, with
     --overwrite); everything is checked before the first write."""
@@ -162,7 +145,7 @@ def main(argv: list[str] | None = None) -> None:
             record(args, recipe, scale)
         else:
             runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir)
-            for path in figures.write(runs, Path(args.out_dir), figure_command(args)):
+            for path in figures.write(runs, args.out_dir):
                 print(f"wrote {path}")
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err

@@ -159,6 +159,13 @@ class RecipeRuns:
         cfg = self.configs[condition]
         return recipes.condition_flags(self.scale, condition, cfg.seed, cfg.seeds, cfg.runs_dir)
 
+    def command(self, out_dir: str | None = None) -> str:
+        """The `figure` command that re-creates this summary (written into `out_dir`, default the CLI's)."""
+        argv = ["figure", self.recipe.name, "--scale", self.scale.name, "--seed", str(self.seed)]
+        argv += ["--seeds", str(self.seeds), "--runs-dir", self.runs_dir]
+        argv += ["--out-dir", out_dir] if out_dir is not None else []
+        return "python -m jaxsocial.experiments " + shlex.join(argv)
+
     def provenance(self) -> dict[str, Any]:
         """How the runs were made: per condition, the recorded training commands (`records.read_provenance`)
         with the seeds each trained, its commit, device, jax version, start, end and exit status; seeds
@@ -235,9 +242,10 @@ def takeoffs(runs: RecipeRuns) -> dict[str, dict[str, Any]]:
     return out
 
 
-def summarize(runs: RecipeRuns, command: str) -> dict[str, Any]:
-    """The JSON summary of a recipe (see the module docstring for the measures); `command` re-creates it."""
-    out = runs.header(command)
+def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
+    """The JSON summary of a recipe (see the module docstring for the measures); `command` re-creates it
+    (default: `runs.command()`)."""
+    out = runs.header(runs.command() if command is None else command)
     kind = runs.recipe.kind
     conditions: dict[str, Any] = {}
     if kind in ("curves", "mixing", "predictions"):
@@ -460,10 +468,11 @@ def _bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
     ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
 
 
-def write(runs: RecipeRuns, out_dir: Path, command: str) -> tuple[Path, Path]:
-    """Write `<recipe>-<scale>.json` and `.png` into `out_dir`; returns their paths. `command` is the one
-    that re-creates them (the summary records it)."""
-    summary = summarize(runs, command)
+def write(runs: RecipeRuns, out_dir: str) -> tuple[Path, Path]:
+    """Write `<recipe>-<scale>.json` and `.png` into `out_dir`; returns their paths. The summary records
+    the command that re-creates them (`RecipeRuns.command`)."""
+    summary = summarize(runs, runs.command(out_dir))
+    out_dir = Path(out_dir)
     stem = out_dir / f"{runs.recipe.name}-{runs.scale.name}"
     json_path, png_path = stem.with_suffix(".json"), stem.with_suffix(".png")
     out_dir.mkdir(parents=True, exist_ok=True)
