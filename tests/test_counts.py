@@ -111,6 +111,9 @@ def test_preregistered_block():
     after = prereg.precedes(block["commit"], head)  # True once the design is committed
     assert checks["runs_not_after_design"] == ["a/s1"] if after else ["a/s0", "a/s1"]  # a/s1 has no commit
     assert not checks["design_precedes_every_run"] and checks["seeds_as_designed"]
+    said = prereg.verdict(block)
+    assert f"treatment 4/8 learned, control 1/8, p = {round(p, 6):.4g}" in said
+    assert "design_precedes_every_run: NO" in said and "a/s1" in said
 
 
 def test_commit_order():
@@ -120,3 +123,24 @@ def test_commit_order():
     assert prereg.precedes(parent, head) and prereg.precedes(head, head)
     assert prereg.precedes(head, parent) is False
     assert prereg.precedes(None, head) is None and prereg.precedes("0" * 40, head) is None
+
+
+def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
+    """At another scale than the design's the block is still written, and says that the scale differs."""
+    from jaxsocial import logs
+
+    for condition in recipes.RECIPES["h1_prereg"].conditions:
+        seed_dir = tmp_path / "runs" / "tiny" / f"{condition}-s0-0"
+        seed_dir.mkdir(parents=True)
+        learned = 5.0 if condition == "social_pred" else 0.5
+        rows = [
+            {"iteration": i + 1, "return/0": learned, "episodes/0": 1} for i in range(recipes.TINY.iterations)
+        ]
+        logs.MetricsLog(seed_dir).append(rows)
+    cli.main(["figure", "h1_prereg", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path / "runs"),
+              "--out-dir", str(tmp_path / "out")])  # fmt: skip
+    block = logs.read_json(tmp_path / "out" / "h1_prereg-tiny.json")["preregistered"]
+    assert block["result"]["treatment_learned"] == 1 and block["result"]["control_learned"] == 0
+    assert block["result"]["treatment_seeds"] == block["result"]["control_seeds"] == 2
+    assert not block["checks"]["scale_as_designed"] and not block["checks"]["seeds_as_designed"]
+    assert capsys.readouterr().out.endswith(prereg.verdict(block) + "\n")

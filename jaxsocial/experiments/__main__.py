@@ -145,8 +145,10 @@ def main(argv: list[str] | None = None) -> None:
             record(args, recipe, scale)
         else:
             runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir)
-            for path in figures.write(runs, args.out_dir):
-                print(f"wrote {path}")
+            json_path, png_path = figures.write(runs, args.out_dir)
+            print(f"wrote {json_path}\nwrote {png_path}")
+            if recipe.design is not None:
+                print(prereg.verdict(logs.read_json(json_path)["preregistered"]))
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
 

@@ -144,6 +144,21 @@ def preregistered(
     }
 
 
+def verdict(block: dict[str, Any]) -> str:
+    """A `preregistered` block's result and checks, for people."""
+    r, checks = block["result"], block["checks"]
+    lines = [
+        f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}): treatment "
+        f"{r['treatment_learned']}/{r['treatment_seeds']} learned, control {r['control_learned']}/"
+        f"{r['control_seeds']}, p = {r['p']:.4g}",
+        f"  design commit {block['commit'] or 'none (the design is not committed)'}",
+    ]
+    lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
+    if checks["runs_not_after_design"]:
+        lines.append(f"  runs not shown to follow the design: {', '.join(checks['runs_not_after_design'])}")
+    return "\n".join(lines)
+
+
 def describe(design: Design, env_steps_per_run: int) -> str:
     """The design and its power, for people."""
     rates = success_rates(design, env_steps_per_run)
