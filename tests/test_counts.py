@@ -133,9 +133,8 @@ def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
         seed_dir = tmp_path / "runs" / "tiny" / f"{condition}-s0-0"
         seed_dir.mkdir(parents=True)
         learned = 5.0 if condition == "social_pred" else 0.5
-        rows = [
-            {"iteration": i + 1, "return/0": learned, "episodes/0": 1} for i in range(recipes.TINY.iterations)
-        ]
+        row = {"return/0": learned, "episodes/0": 1, "return/1": 30.0, "episodes/1": 1}  # slot 1: an expert
+        rows = [{"iteration": i + 1, **row} for i in range(recipes.TINY.iterations)]
         logs.MetricsLog(seed_dir).append(rows)
     cli.main(["figure", "h1_prereg", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path / "runs"),
               "--out-dir", str(tmp_path / "out")])  # fmt: skip
