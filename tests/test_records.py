@@ -34,6 +34,9 @@ def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_
     runs = figures.RecipeRuns(RECIPE, recipes.TINY, 0, 2, records.RECORDS_DIR)
     assert logs.to_json(figures.summarize(runs, committed["command"])) == committed
     assert committed["provenance"]["unrecorded"] == []
+    for condition, dirs in committed["seed_dirs"].items():
+        finals = [round(figures.final_return(logs.read_metrics(d)), 4) for d in dirs]
+        assert committed["training"][condition]["final_returns"] == finals
     argv = committed["command"].split()[3:]  # after 'python -m jaxsocial.experiments'
     argv[argv.index("--out-dir") + 1] = str(tmp_path)
     cli.main(argv)

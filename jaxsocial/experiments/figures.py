@@ -280,7 +280,8 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
             score: separations({c: ct_score(v, score) for c, v in conditions.items()})
             for score in ("final", *CT_SCORES)
         }
-    else:  # transfer: learner and expert returns in each evaluation environment
+    else:  # transfer: learner and expert returns in each evaluation environment, and the training returns
+        out["training"] = {c: stats([final_return(rows) for rows in r]) for c, r in runs.rows.items()}
         for spec in runner.transfer_specs(runs.recipe, runs.scale):
             per_cond = {
                 c: stats([_read_eval(d, spec)[0]["mean_return"] for d in dirs])
