@@ -6,6 +6,7 @@ and whatever else the caller puts there (e.g. checkpoints). Dependency-free exce
 
 from __future__ import annotations
 
+import gzip
 import json
 import math
 import os
@@ -25,6 +26,7 @@ __all__ = [
     "MetricsLog",
     "Progress",
     "config_diff",
+    "has_metrics",
     "make_logger",
     "prepare_run_dir",
     "read_config",
@@ -37,6 +39,8 @@ __all__ = [
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
+METRICS_GZ_FILE = METRICS_FILE + ".gz"
+"""A run record's compressed metrics (`jaxsocial.experiments.records`), read where no `METRICS_FILE` is."""
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -208,8 +212,23 @@ class MetricsLog:
 
 
 def read_metrics(run_dir: str | Path) -> list[dict[str, Any]]:
-    """Rows of `run_dir/metrics.jsonl` ([] if missing); non-finite values read back as None."""
-    return MetricsLog(run_dir).read()
+    """Rows of `run_dir/metrics.jsonl`, or of a record's gzipped `metrics.jsonl.gz` where there is no plain
+    one ([] if neither exists); non-finite values read back as None."""
+    log = MetricsLog(run_dir)
+    packed = Path(run_dir) / METRICS_GZ_FILE
+    if not log.path.is_file() and packed.is_file():
+        return [
+            json.loads(line) for line in gzip.decompress(packed.read_bytes()).decode().splitlines() if line
+        ]
+    return log.read()
+
+
+def has_metrics(run_dir: str | Path) -> bool:
+    """Whether `run_dir` holds a non-empty `metrics.jsonl` or `metrics.jsonl.gz`."""
+    return any(
+        (p := Path(run_dir) / name).is_file() and p.stat().st_size > 0
+        for name in (METRICS_FILE, METRICS_GZ_FILE)
+    )
 
 
 # ----------------------------------------------------------------------------------------------------------

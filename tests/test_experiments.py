@@ -9,7 +9,7 @@ import pytest
 
 from jaxsocial import config, logs
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, recipes, runner
+from jaxsocial.experiments import counts, figures, recipes, runner
 
 
 @pytest.mark.parametrize("scale", sorted(recipes.SCALES))
@@ -102,11 +102,11 @@ def test_stats_and_ci_separation():
 
 def test_fisher_exact_one_sided():
     # 2 of 6 against 0 of 6: the learned pair lands in a's 6 seeds in C(6,2) of the C(12,2) ways
-    assert figures.fisher_greater(2, 6, 0, 6) == pytest.approx(math.comb(6, 2) / math.comb(12, 2))
-    assert figures.fisher_greater(6, 6, 0, 6) == pytest.approx(1 / math.comb(12, 6))
-    assert figures.fisher_greater(0, 3, 0, 3) == 1.0  # nothing learned: no evidence
+    assert counts.fisher_greater(2, 6, 0, 6) == pytest.approx(math.comb(6, 2) / math.comb(12, 2))
+    assert counts.fisher_greater(6, 6, 0, 6) == pytest.approx(1 / math.comb(12, 6))
+    assert counts.fisher_greater(0, 3, 0, 3) == 1.0  # nothing learned: no evidence
     # one-sided tail: 2 of 3 against 1 of 3 sums P(2 in a) + P(3 in a) = (9 + 1) / 20
-    assert figures.fisher_greater(2, 3, 1, 3) == pytest.approx(0.5)
+    assert counts.fisher_greater(2, 3, 1, 3) == pytest.approx(0.5)
     conditions = {c: {"seeds_above_one_tile": k, "final_returns": [1.0] * n} for c, k, n in
                   (("a", 2, 6), ("b", 0, 6), ("c", 0, 3))}  # fmt: skip
     tests = figures.learned_seed_tests(conditions)
@@ -143,9 +143,19 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     assert runs.missing_seeds == {"social_none": [1, 2, 3, 4, 5]}
     assert [figures.final_return(rows) for rows in runs.rows["social_rec"]] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
     assert runs.seed_dirs["social_none"] == [base / "social_none-s0-0"]
-    summary = figures.summarize(runs)
+    summary = figures.summarize(runs, "the command")
     assert summary["conditions"]["social_rec"]["seeds_above_one_tile"] == 3  # seeds 3, 4, 5 return > 2
     assert summary["learned_seeds_fisher_p"] == {"social_rec > social_none": pytest.approx(4 / 7, abs=1e-4)}
+    takeoffs = summary["time_to_learning"]["conditions"]["social_rec"]
+    first_block = figures.curve(runs.rows["social_rec"][0])[0][0]  # every iteration of seeds 3-5 is above 2
+    assert takeoffs["takeoff_iterations"] == [None] * 3 + [first_block] * 3
+    cfg = runs.configs["social_rec"]
+    assert takeoffs["takeoff_env_steps"][3] == first_block * cfg.num_envs * cfg.rollout_steps
+    assert summary["command"] == "the command"
+    assert summary["provenance"] == {  # fake runs: no records behind them
+        "training_runs": {},
+        "unrecorded": [str(d) for dirs in runs.seed_dirs.values() for d in dirs],
+    }
 
 
 def test_cli_rejects_bad_input(tmp_path, capsys):
@@ -196,7 +206,15 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
               "--out-dir", str(tmp_path)])  # fmt: skip
     summary = json.loads((tmp_path / "mixing-tiny.json").read_text())
     assert (tmp_path / "mixing-tiny.png").stat().st_size > 1000
-    assert summary["command"] == "python -m jaxsocial.experiments run mixing --scale tiny --seeds 1"
+    assert summary["command"] == (
+        "python -m jaxsocial.experiments figure mixing --scale tiny --seed 0 --seeds 1 "
+        f"--runs-dir {mixing_runs} --out-dir {tmp_path}"
+    )
+    assert summary["provenance"]["unrecorded"] == [
+        str(d) for dirs in summary["seed_dirs"].values() for d in dirs
+    ]
+    taken = summary["time_to_learning"]["conditions"]
+    assert set(taken) == set(summary["conditions"]) and all(t["seeds"] == 1 for t in taken.values())
     assert set(summary["conditions"]) == {"social_pred", "social_pred_mixed", "social_pred_mixed_learned"}
     switches = {name: entry["switch_iterations"] for name, entry in summary["conditions"].items()}
     # the fixed switch at a third of training; the learned one waits for a return of 10, never reached here

@@ -70,6 +70,19 @@ def test_metrics_append_read_truncate(tmp_path):
         log.append([{"iteration": object()}])
 
 
+def test_gzipped_metrics_read_like_plain_ones(tmp_path):
+    """A record's metrics.jsonl.gz reads as the metrics.jsonl it was packed from; a plain file wins."""
+    import gzip
+
+    rows = [{"iteration": 1, "return/0": 0.5}, {"iteration": 2, "return/0": None}]
+    assert not logs.has_metrics(tmp_path)
+    text = "".join(json.dumps(r) + "\n" for r in rows)
+    (tmp_path / logs.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode()))
+    assert logs.read_metrics(tmp_path) == rows and logs.has_metrics(tmp_path)
+    logs.MetricsLog(tmp_path).append(rows[:1])
+    assert logs.read_metrics(tmp_path) == rows[:1]
+
+
 def test_progress_non_tty(capsys):
     progress = logs.Progress(200, "train", unit="env-steps", unit_scale=1000, interval=3600.0)
     progress.update(40, **{"return[0]": np.float32(1.23456), "frames": 1234567, "ok": True})

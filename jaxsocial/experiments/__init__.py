@@ -2,8 +2,12 @@
 
     python -m jaxsocial.experiments list
     python -m jaxsocial.experiments run h1 --scale cpu --seeds 3      # train what is missing, resume the rest
-    python -m jaxsocial.experiments figure h1 --scale cpu --seeds 3   # JSON summary + PNG from the run dirs
+    python -m jaxsocial.experiments figure h1 --scale cpu --seeds 3   # into runs/experiments/figures/
+    python -m jaxsocial.experiments record h1 --scale cpu --seeds 3 --commands-log LOG --device D --jax V
+    python -m jaxsocial.experiments power h1_prereg                   # a pre-registered design and its power
 
 `recipes` names the conditions and scales, `runner` trains and evaluates them, `figures` summarises and
-draws them, `predictions` draws a learner's predicted next frames.
+draws them (`takeoff`: time to learning; `counts`: exact tests of learned-seed counts), `records` packs run
+directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
+`predictions` draws a learner's predicted next frames.
 """

@@ -1,30 +1,45 @@
-"""`python -m jaxsocial.experiments {list,run,figure} ...` (see `jaxsocial.experiments`)."""
+"""`python -m jaxsocial.experiments {list,run,figure,record,power} ...` (see `jaxsocial.experiments`)."""
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
-from jaxsocial.experiments import figures, recipes, runner
+from jaxsocial import logs
+from jaxsocial.experiments import figures, prereg, recipes, records, runner
 
-DEFAULT_OUT = "benchmarks/results/science"
+FIGURES_DIR = "runs/experiments/figures"
+"""Where `figure` writes by default (the repository's summaries are written with an explicit --out-dir)."""
+RECORDS_OUT = "runs/records"
+"""Where `record` writes by default (the repository's records: --out-dir benchmarks/results/records)."""
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="the recipes, their conditions and the scales")
-    for name, help_ in (("run", "train and evaluate what a recipe needs"), ("figure", "summarise and draw")):
+    helps = {
+        "run": "train and evaluate what a recipe needs",
+        "figure": "summarise and draw",
+        "record": "pack a recipe's run directories into records (config, metrics, final policy, evaluations)",
+    }
+    for name, help_ in helps.items():
         p = sub.add_parser(name, help=help_)
         p.add_argument("recipe", choices=sorted(recipes.RECIPES))
         p.add_argument("--scale", default="cpu", choices=sorted(recipes.SCALES))
         seeds_help = {
             "run": "seeds per condition, trained in one program",
             "figure": "seeds per condition, each read from whichever of the condition's runs holds it",
+            "record": "seeds per condition to pack (those without metrics are skipped)",
         }
-        p.add_argument("--seeds", type=int, default=3, help=seeds_help[name])
-        p.add_argument("--seed", type=int, default=0, help="first seed")
+        p.add_argument(
+            "--seeds", type=int, default=None, help=seeds_help[name] + " (default 3, or the recipe's design)"
+        )
+        p.add_argument(
+            "--seed", type=int, default=None, help="first seed (default 0, or the recipe's design)"
+        )
         p.add_argument("--runs-dir", default="runs/experiments", help="root of the run directories")
         if name == "run":
             p.add_argument("--dry-run", action="store_true", help="print the training commands and states")
@@ -33,12 +48,70 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 action="store_true",
                 help="train nothing: evaluate the conditions already trained (e.g. on another machine)",
             )
+        elif name == "figure":
+            p.add_argument("--out-dir", default=FIGURES_DIR, help="where <recipe>-<scale>.json/.png go")
         else:
-            p.add_argument("--out-dir", default=DEFAULT_OUT, help="where <recipe>-<scale>.json/.png go")
+            p.add_argument("--out-dir", default=RECORDS_OUT, help="root of the records (mirrors --runs-dir)")
+            p.add_argument(
+                "--commands-log",
+                required=True,
+                help="log of the training commands: '<ISO date> <commit> <command with --run-name>' lines",
+            )
+            p.add_argument("--device", required=True, help="the device the runs trained on, in words")
+            p.add_argument("--jax", required=True, help="the jax version the runs trained with")
+            p.add_argument("--overwrite", action="store_true", help="replace existing records")
+    p = sub.add_parser("power", help="a pre-registered design and its power")
+    p.add_argument("recipe", choices=sorted(r.name for r in recipes.RECIPES.values() if r.design))
     args = parser.parse_args(argv)
-    if args.command != "list" and args.seeds < 1:
-        parser.error(f"--seeds {args.seeds} must be >= 1")
+    if args.command in helps:
+        _seed_range(parser, args)
     return args
+
+
+def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Fill --seed and --seeds: the defaults, or a design's own (which may not be changed at its scale)."""
+    recipe = recipes.RECIPES[args.recipe]
+    design = prereg.load(recipe.design) if recipe.design else None
+    if design is not None and design.scale == args.scale:
+        given = {"--seed": (args.seed, design.seed), "--seeds": (args.seeds, design.seeds)}
+        for flag, (value, designed) in given.items():
+            if value is not None and value != designed:
+                parser.error(f"{flag} {value}: the pre-registered design {design.name} fixes {designed}")
+        args.seed, args.seeds = design.seed, design.seeds
+    args.seed = 0 if args.seed is None else args.seed
+    args.seeds = 3 if args.seeds is None else args.seeds
+    if args.seeds < 1:
+        parser.error(f"--seeds {args.seeds} must be >= 1")
+
+
+def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
+    """Pack every seed of the recipe that has a run directory and no record yet (or every one, with
+    --overwrite); everything is checked before the first write."""
+    commands = records.read_commands_log(args.commands_log)
+    runs_dir = Path(args.runs_dir)
+    plan = []
+    for condition in recipe.conditions:
+        for seed_dir in runner.condition_seed_dirs(scale, condition, args.seed, args.seeds, args.runs_dir):
+            if not seed_dir.is_dir():
+                print(f"  {condition}: no run {seed_dir}, skipped")
+                continue
+            relative = seed_dir.relative_to(runs_dir)
+            one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
+            run_name = relative.parent if one_of_several else relative
+            run = records.run_provenance(str(run_name), commands, args.device, args.jax)
+            if run["rc"] not in (None, 0):
+                raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
+            rows, planned = len(logs.read_metrics(seed_dir)), logs.read_config(seed_dir)["iterations"]
+            if rows < planned:
+                raise ValueError(f"{seed_dir} is unfinished: {rows} of {planned} iterations logged")
+            plan.append((seed_dir, relative, run))
+    for seed_dir, relative, run in plan:
+        record_dir = Path(args.out_dir) / relative
+        if record_dir.exists() and any(record_dir.iterdir()) and not args.overwrite:
+            print(f"  {record_dir}: already recorded, kept (--overwrite replaces it)")
+            continue
+        records.pack(seed_dir, record_dir, run, str(relative), args.overwrite)
+        print(f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB)")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -49,7 +122,14 @@ def main(argv: list[str] | None = None) -> None:
         for s in recipes.SCALES.values():
             print(f"scale {s.name}: {s.iterations} iterations; {s.note}")
         return
-    recipe, scale = recipes.RECIPES[args.recipe], recipes.SCALES[args.scale]
+    recipe = recipes.RECIPES[args.recipe]
+    if args.command == "power":
+        design = prereg.load(recipe.design)
+        scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
+        cfg = recipes.condition_config(scale, recipe.conditions[0], design.seed, design.seeds, "runs")
+        print(prereg.describe(design, scale.iterations * cfg.num_envs * cfg.rollout_steps))
+        return
+    scale = recipes.recipe_scale(recipe, recipes.SCALES[args.scale])
     try:
         if args.command == "run":
             runner.run(
@@ -61,10 +141,14 @@ def main(argv: list[str] | None = None) -> None:
                 dry_run=args.dry_run,
                 train_missing=not args.no_train,
             )
+        elif args.command == "record":
+            record(args, recipe, scale)
         else:
             runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir)
-            for path in figures.write(runs, Path(args.out_dir)):
-                print(f"wrote {path}")
+            json_path, png_path = figures.write(runs, args.out_dir)
+            print(f"wrote {json_path}\nwrote {png_path}")
+            if recipe.design is not None:
+                print(prereg.verdict(logs.read_json(json_path)["preregistered"]))
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
 

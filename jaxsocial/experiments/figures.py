@@ -1,14 +1,18 @@
-"""Summaries (JSON) and figures (PNG) of a recipe, read from its run directories.
+"""Summaries (JSON) and figures (PNG) of a recipe, read from its run directories or their records.
 
-Every number comes from the runs' `metrics.jsonl` files and post-training evaluations; nothing is
-hard-coded. A condition's *final return* is, per seed, the learner's episode-weighted mean return over the
-last 10% of training iterations (the issue's measure); the 95% confidence interval is Student t over seeds.
+Every number comes from the runs' metrics and post-training evaluations; nothing is hard-coded. A
+condition's *final return* is, per seed, the learner's episode-weighted mean return over the last 10% of
+training iterations (the issue's measure); the 95% confidence interval is Student t over seeds. A seed has
+*learned* if its final return exceeds `LEARNED_RETURN`; learned counts are compared with one-sided exact
+tests (`counts`), and each seed's takeoff (`takeoff`) gives the time-to-learning curve. Every summary says
+how it was made (`provenance`: the command that re-creates it, and each seed's recorded training command,
+commit, device and jax version; seeds without a record are listed) and, for a recipe with a design, what was
+pre-registered (`prereg`).
 """
 
 from __future__ import annotations
 
 import itertools
-import math
 import shlex
 from pathlib import Path
 from typing import Any
@@ -17,7 +21,7 @@ import numpy as np
 
 from jaxsocial import logs
 from jaxsocial.evaluate import mean_ci95
-from jaxsocial.experiments import recipes, runner
+from jaxsocial.experiments import counts, prereg, recipes, records, runner, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
 
 FINAL_FRACTION = 0.1
@@ -104,22 +108,16 @@ def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
     return out
 
 
-def fisher_greater(learned_a: int, n_a: int, learned_b: int, n_b: int) -> float:
-    """One-sided Fisher exact test: the probability, if learning did not depend on the condition, that a's
-    seeds hold at least `learned_a` of the `learned_a + learned_b` learned seeds (n_a, n_b seeds in all)."""
-    learned, total = learned_a + learned_b, n_a + n_b
-    tail = range(learned_a, min(n_a, learned) + 1)
-    return sum(math.comb(n_a, k) * math.comb(n_b, learned - k) for k in tail) / math.comb(total, learned)
-
-
-def learned_seed_tests(conditions: dict[str, dict[str, Any]]) -> dict[str, float]:
+def learned_seed_tests(
+    conditions: dict[str, dict[str, Any]], test: str = "fisher-greater"
+) -> dict[str, float]:
     """For each ordered pair with more learned seeds (`seeds_above_one_tile`) in a than in b, 'a > b': the
-    one-sided Fisher exact p-value of that difference."""
+    one-sided p-value of that difference by `test` (`counts.TESTS`)."""
     out = {}
     for a, b in itertools.permutations(conditions, 2):
         (la, na), (lb, nb) = ((conditions[c]["seeds_above_one_tile"], _seeds(conditions[c])) for c in (a, b))
         if la > lb:
-            out[f"{a} > {b}"] = round(fisher_greater(la, na, lb, nb), 4)
+            out[f"{a} > {b}"] = round(counts.p_value(test, la, na, lb, nb), 4)
     return out
 
 
@@ -155,17 +153,49 @@ class RecipeRuns:
             )
         for c in self.missing:  # drawn without them; the summary lists them
             del self.configs[c], self.seed_dirs[c], self.rows[c]
-        self.command = (
-            f"python -m jaxsocial.experiments run {recipe.name} --scale {scale.name} --seeds {seeds}"
-        )
-        if seed:
-            self.command += f" --seed {seed}"
+        self.seed, self.seeds, self.runs_dir = seed, seeds, runs_dir
 
     def flags(self, condition: str) -> list[str]:
         cfg = self.configs[condition]
         return recipes.condition_flags(self.scale, condition, cfg.seed, cfg.seeds, cfg.runs_dir)
 
-    def header(self) -> dict[str, Any]:
+    def command(self, out_dir: str | None = None) -> str:
+        """The `figure` command that re-creates this summary (written into `out_dir`, default the CLI's)."""
+        argv = ["figure", self.recipe.name, "--scale", self.scale.name, "--seed", str(self.seed)]
+        argv += ["--seeds", str(self.seeds), "--runs-dir", self.runs_dir]
+        argv += ["--out-dir", out_dir] if out_dir is not None else []
+        return "python -m jaxsocial.experiments " + shlex.join(argv)
+
+    def provenance(self) -> dict[str, Any]:
+        """How the runs were made: per condition, the recorded training commands (`records.read_provenance`)
+        with the seeds each trained, its commit, device, jax version, start, end and exit status; seeds
+        without a record are listed under 'unrecorded'."""
+        runs: dict[str, list[dict[str, Any]]] = {}
+        unrecorded = []
+        for c, dirs in self.seed_dirs.items():
+            for d in dirs:
+                prov = records.read_provenance(d)
+                if prov is None:
+                    unrecorded.append(str(d))
+                    continue
+                run = prov.get("run", prov)
+                seed = logs.read_config(d).get("seed")
+                same = [r for r in runs.setdefault(c, []) if r["command"] == run.get("command")]
+                if same:
+                    same[0]["seeds"].append(seed)
+                    continue
+                runs[c].append({"seeds": [seed], **{k: run.get(k) for k in records.RUN_FIELDS}})
+        return {"training_runs": runs, "unrecorded": unrecorded}
+
+    def commits(self) -> dict[str, str | None]:
+        """Each seed directory's recorded training commit (None: no record)."""
+        return {
+            str(d): (records.read_provenance(d) or {}).get("run", {}).get("commit")
+            for dirs in self.seed_dirs.values()
+            for d in dirs
+        }
+
+    def header(self, command: str) -> dict[str, Any]:
         unfinished = {
             c: [len(r) for r in rows]
             for c, rows in self.rows.items()
@@ -177,7 +207,8 @@ class RecipeRuns:
             "title": self.recipe.title,
             "scale": self.scale.name,
             "scale_note": self.scale.note,
-            "command": self.command,
+            "command": command,
+            "provenance": self.provenance(),
             "config": {
                 c: {
                     "flags": shlex.join(self.flags(c)),
@@ -194,9 +225,27 @@ class RecipeRuns:
         }
 
 
-def summarize(runs: RecipeRuns) -> dict[str, Any]:
-    """The JSON summary of a recipe (see the module docstring for the measures)."""
-    out = runs.header()
+def takeoffs(runs: RecipeRuns) -> dict[str, dict[str, Any]]:
+    """Each condition's time to learning (`takeoff`): every seed's takeoff iteration and env-step, and how
+    many seeds took off by the end."""
+    out = {}
+    for c, seed_rows in runs.rows.items():
+        cfg = runs.configs[c]
+        iterations = [takeoff.takeoff(*curve(rows), LEARNED_RETURN) for rows in seed_rows]
+        steps = [None if i is None else i * cfg.num_envs * cfg.rollout_steps for i in iterations]
+        out[c] = {
+            "takeoff_iterations": iterations,
+            "takeoff_env_steps": steps,
+            "took_off": sum(i is not None for i in iterations),
+            "seeds": len(iterations),
+        }
+    return out
+
+
+def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
+    """The JSON summary of a recipe (see the module docstring for the measures); `command` re-creates it
+    (default: `runs.command()`)."""
+    out = runs.header(runs.command() if command is None else command)
     kind = runs.recipe.kind
     conditions: dict[str, Any] = {}
     if kind in ("curves", "mixing", "predictions"):
@@ -219,6 +268,7 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
             )
         out["separated_ci95"] = separations(conditions)
         out["learned_seeds_fisher_p"] = learned_seed_tests(conditions)
+        out["learned_seeds_boschloo_p"] = learned_seed_tests(conditions, "boschloo-greater")
     elif kind == "ct":  # the training return, and the CT protocol's scores after training
         for c, seed_rows in runs.rows.items():
             conditions[c] = stats([final_return(rows) for rows in seed_rows])
@@ -230,7 +280,8 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
             score: separations({c: ct_score(v, score) for c, v in conditions.items()})
             for score in ("final", *CT_SCORES)
         }
-    else:  # transfer: learner and expert returns in each evaluation environment
+    else:  # transfer: learner and expert returns in each evaluation environment, and the training returns
+        out["training"] = {c: stats([final_return(rows) for rows in r]) for c, r in runs.rows.items()}
         for spec in runner.transfer_specs(runs.recipe, runs.scale):
             per_cond = {
                 c: stats([_read_eval(d, spec)[0]["mean_return"] for d in dirs])
@@ -247,6 +298,18 @@ def summarize(runs: RecipeRuns) -> dict[str, Any]:
             }
             conditions[spec] = per_cond
     out["conditions"] = conditions
+    out["time_to_learning"] = {"learned_return": LEARNED_RETURN, "conditions": takeoffs(runs)}
+    if runs.recipe.design is not None:
+        design = prereg.load(runs.recipe.design)
+        learned = {
+            c: [final_return(rows) > design.learned_threshold for rows in r] for c, r in runs.rows.items()
+        }
+        out["preregistered"] = prereg.preregistered(design, learned, runs.commits())
+        out["preregistered"]["checks"]["scale_as_designed"] = runs.scale.name == design.scale
+        out["preregistered"]["checks"]["seeds_as_designed"] &= (runs.seed, runs.seeds) == (
+            design.seed,
+            design.seeds,
+        )
     return out
 
 
@@ -304,7 +367,7 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
     kind = runs.recipe.kind
     steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
     if kind in ("curves", "predictions"):
-        fig, (returns_ax, zoom_ax, loss_ax) = plt.subplots(1, 3, figsize=(17, 4.2))
+        fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax) = plt.subplots(1, 4, figsize=(22, 4.2))
         used = set()
         for i, (c, seed_rows) in enumerate(runs.rows.items()):
             xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
@@ -326,9 +389,12 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
         names = " / ".join(LOSS_PANEL[k] for k in LOSS_PANEL if k in used)
         loss_ax.set(xlabel="env-steps (millions)", ylabel=names, title="training loss")
         returns_ax.legend(fontsize=8)
+        draw_takeoffs(takeoff_ax, runs, summary, colors)
     elif kind == "mixing":
         keys = _eval_keys([r for rows in runs.rows.values() for r in rows])
-        fig, axes = plt.subplots(1, 1 + len(keys), figsize=(5 * (1 + len(keys)), 4))
+        fig, axes = plt.subplots(1, 2 + len(keys), figsize=(5 * (2 + len(keys)), 4))
+        draw_takeoffs(axes[-1], runs, summary, colors)
+        axes = axes[:-1]
         for i, (c, seed_rows) in enumerate(runs.rows.items()):
             label = recipes.CONDITIONS[c].label
             xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
@@ -358,14 +424,32 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
             ax.set(title=title)
     else:
         specs = list(summary["conditions"])
-        fig, axes = plt.subplots(1, len(specs), figsize=(4.5 * len(specs), 4), squeeze=False)
-        for ax, spec in zip(axes[0], specs, strict=True):
+        fig, axes = plt.subplots(1, len(specs) + 1, figsize=(4.5 * (len(specs) + 1), 4), squeeze=False)
+        draw_takeoffs(axes[0, -1], runs, summary, colors)
+        for ax, spec in zip(axes[0, :-1], specs, strict=True):
             _bars(ax, summary["conditions"][spec], colors)
             ax.set(title=spec, ylabel="mean episode return")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=70)
     plt.close(fig)
+
+
+def draw_takeoffs(ax, runs: RecipeRuns, summary: dict[str, Any], colors) -> None:
+    """The time-to-learning panel: per condition, the fraction of seeds past the one-tile plateau against
+    env-steps (`summary['time_to_learning']`)."""
+    for i, (c, entry) in enumerate(summary["time_to_learning"]["conditions"].items()):
+        cfg = runs.configs[c]
+        end = max(len(rows) for rows in runs.rows[c]) * cfg.num_envs * cfg.rollout_steps / 1e6
+        steps = [None if s is None else s / 1e6 for s in entry["takeoff_env_steps"]]
+        takeoff.draw(ax, steps, end, recipes.CONDITIONS[c].label, colors[i])
+    ax.set(
+        xlabel="env-steps (millions)",
+        ylabel="fraction of seeds",
+        ylim=(-0.03, 1.03),
+        title=f"seeds past the one-tile plateau (return > {LEARNED_RETURN:g})",
+    )
+    ax.legend(fontsize=7)
 
 
 def _bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
@@ -385,9 +469,11 @@ def _bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
     ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
 
 
-def write(runs: RecipeRuns, out_dir: Path) -> tuple[Path, Path]:
-    """Write `<recipe>-<scale>.json` and `.png` into `out_dir`; returns their paths."""
-    summary = summarize(runs)
+def write(runs: RecipeRuns, out_dir: str) -> tuple[Path, Path]:
+    """Write `<recipe>-<scale>.json` and `.png` into `out_dir`; returns their paths. The summary records
+    the command that re-creates them (`RecipeRuns.command`)."""
+    summary = summarize(runs, runs.command(out_dir))
+    out_dir = Path(out_dir)
     stem = out_dir / f"{runs.recipe.name}-{runs.scale.name}"
     json_path, png_path = stem.with_suffix(".json"), stem.with_suffix(".png")
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -230,6 +230,9 @@ class Recipe:
     (the cultural-transmission evaluation, `jaxsocial.evaluate --protocol ct`, after training)."""
     transfer_envs: tuple[str, ...] = ()
     """Evaluation environments after training ('transfer'); Goal Cycle ones take the scale's env_args."""
+    design: str | None = None
+    """The pre-registered design it carries (`prereg.load(design)`): its seeds and, at its scale, its
+    budget (`recipe_scale`)."""
 
 
 RECIPES = {
@@ -237,6 +240,8 @@ RECIPES = {
     for r in (
         Recipe("h1", "H1: social learning with an auxiliary loss (paper Fig. 3)",
                ("solo_pred", "social_none", "social_rec", "social_pred"), "curves"),
+        Recipe("h1_prereg", "H1, pre-registered: auxiliary-loss learners against the baselines",
+               ("solo_pred", "social_none", "social_rec", "social_pred"), "curves", design="h1_prereg"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves"),
         Recipe("transfer", "H2: zero-shot transfer with new experts (paper Fig. 5)",
@@ -259,6 +264,17 @@ RECIPES = {
                ("social_pred", "social_pred_dropout", "social_pred_attention", "social_medal"), "ct"),
     )
 }  # fmt: skip
+
+
+def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
+    """The scale `recipe` runs at: `scale`, with the design's iterations where the recipe carries a design
+    for this scale."""
+    if recipe.design is None:
+        return scale
+    from jaxsocial.experiments import prereg  # here: prereg imports the runner, which imports this module
+
+    design = prereg.load(recipe.design)
+    return dataclasses.replace(scale, iterations=design.iterations) if design.scale == scale.name else scale
 
 
 def goalcycle_spec(name: str, scale: Scale, extra: str = "") -> str:

@@ -43,14 +43,9 @@ def condition_seed_dirs(scale: Scale, condition: str, seed: int, seeds: int, run
         first, last = int(match[1]), int(match[2])
         for s in range(first, last + 1):
             d = run_dir if first == last else run_dir / f"s{s}"
-            if _has_metrics(d):
+            if logs.has_metrics(d):
                 held.setdefault(s, d)
-    return [d if _has_metrics(d) else held.get(s, d) for s, d in enumerate(own, start=seed)]
-
-
-def _has_metrics(seed_dir: Path) -> bool:
-    path = seed_dir / logs.METRICS_FILE
-    return path.is_file() and path.stat().st_size > 0
+    return [d if logs.has_metrics(d) else held.get(s, d) for s, d in enumerate(own, start=seed)]
 
 
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:

@@ -1,0 +1,185 @@
+"""Pre-registered designs: what a recipe will compare, fixed in a committed file before any of its runs.
+
+A design is `designs/<name>.json` beside this module: the arms (conditions pooled per arm), the seeds and
+the budget, the "learned" threshold on a seed's final return, the test, alpha, and the power under a stated
+success rate. The design's commit is the last commit that touched that file; `figure` checks that it is an
+ancestor of every run's recorded commit (`git merge-base --is-ancestor`) and writes
+
+    "preregistered": {"commit": ..., "primary": {"treatment": [...], "control": [...], "learned_threshold": x,
+                      "test": ..., "alpha": a}, "result": {"treatment_learned": k, "treatment_seeds": n,
+                      "control_learned": k, "control_seeds": n, "p": p}, "checks": {...}}
+
+    python -m jaxsocial.experiments power h1_prereg      # the design's power, and how it was computed
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from jaxsocial import logs
+from jaxsocial.experiments import counts, records
+
+DESIGNS_DIR = Path(__file__).parent / "designs"
+
+
+@dataclasses.dataclass(frozen=True)
+class Design:
+    """A pre-registered comparison of learned-seed counts (see the module docstring)."""
+
+    name: str
+    scale: str
+    """The scale the design runs at (`recipes.SCALES`)."""
+    iterations: int
+    """Training iterations of every run (replaces the scale's)."""
+    seed: int
+    """First seed of every condition."""
+    seeds: int
+    """Seeds per condition."""
+    treatment: tuple[str, ...]
+    """Conditions pooled into the treatment arm."""
+    control: tuple[str, ...]
+    """Conditions pooled into the control arm."""
+    learned_threshold: float
+    """A seed has learned if its final return exceeds this."""
+    test: str
+    alpha: float
+    hazard_per_million: dict[str, float]
+    """Assumed constant hazard of learning per million env-steps, per arm ('treatment', 'control')."""
+    power: float
+    """The power under `hazard_per_million`, as `power_of` computes it (stored to 3 decimals)."""
+    rationale: str = ""
+
+    @property
+    def arm_seeds(self) -> dict[str, int]:
+        return {"treatment": self.seeds * len(self.treatment), "control": self.seeds * len(self.control)}
+
+
+def path_of(name: str) -> Path:
+    return DESIGNS_DIR / f"{name}.json"
+
+
+def load(name: str) -> Design:
+    """The design `designs/<name>.json` (FileNotFoundError if there is none; ValueError if it is invalid)."""
+    path = path_of(name)
+    if not path.is_file():
+        raise FileNotFoundError(f"no pre-registered design {path}")
+    raw = logs.read_json(path)
+    for arm in ("treatment", "control"):
+        raw[arm] = tuple(raw[arm])
+    design = Design(**raw)
+    if design.test not in counts.TESTS:
+        raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {counts.TESTS}")
+    if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
+        raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
+    return design
+
+
+def success_rates(design: Design, env_steps_per_run: int) -> dict[str, float]:
+    """Each arm's assumed probability that a seed has learned by the end of its run."""
+    return {arm: counts.learned_by(h, env_steps_per_run) for arm, h in design.hazard_per_million.items()}
+
+
+def power_of(design: Design, env_steps_per_run: int) -> float:
+    """The design's power: the probability that its test rejects at its alpha under its assumed rates."""
+    rates = success_rates(design, env_steps_per_run)
+    n = design.arm_seeds
+    return counts.power(design.test, n["treatment"], rates["treatment"], n["control"], rates["control"],
+                        design.alpha)  # fmt: skip
+
+
+def design_commit(name: str) -> str | None:
+    """The last commit that touched the design's file (None if it is not committed)."""
+    out = records.git("log", "-1", "--format=%H", "--", path_of(name).name, cwd=DESIGNS_DIR)
+    return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+def precedes(design: str | None, commit: str | None) -> bool | None:
+    """Whether commit `design` is an ancestor of (or is) `commit`; None if either is unknown to git."""
+    if not design or not commit:
+        return None
+    out = records.git("merge-base", "--is-ancestor", design, commit, cwd=DESIGNS_DIR)
+    return {0: True, 1: False}.get(out.returncode)
+
+
+def preregistered(
+    design: Design, learned: dict[str, list[bool]], run_commits: dict[str, str | None]
+) -> dict[str, Any]:
+    """The summary's `preregistered` block.
+
+    learned: each condition's per-seed learned flags (final return above the design's threshold);
+    run_commits: each seed directory's recorded commit (None: no record of it).
+    """
+    commit = design_commit(design.name)
+    arms = {
+        arm: [x for c in getattr(design, arm) for x in learned.get(c, [])] for arm in ("treatment", "control")
+    }
+    k = {arm: sum(v) for arm, v in arms.items()}
+    n = {arm: len(v) for arm, v in arms.items()}
+    p = counts.p_value(design.test, k["treatment"], n["treatment"], k["control"], n["control"])
+    order = {d: precedes(commit, c) for d, c in run_commits.items()}
+    return {
+        "commit": commit,
+        "primary": {
+            "treatment": list(design.treatment),
+            "control": list(design.control),
+            "learned_threshold": design.learned_threshold,
+            "test": design.test,
+            "alpha": design.alpha,
+        },
+        "result": {
+            "treatment_learned": k["treatment"],
+            "treatment_seeds": n["treatment"],
+            "control_learned": k["control"],
+            "control_seeds": n["control"],
+            "p": round(p, 6),
+        },
+        "checks": {
+            "design_committed": commit is not None,
+            "design_precedes_every_run": bool(order) and all(order.values()),
+            "runs_not_after_design": sorted(d for d, ok in order.items() if not ok),
+            "seeds_as_designed": n == design.arm_seeds,
+        },
+    }
+
+
+def verdict(block: dict[str, Any]) -> str:
+    """A `preregistered` block's result and checks, for people."""
+    r, checks = block["result"], block["checks"]
+    lines = [
+        f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}): treatment "
+        f"{r['treatment_learned']}/{r['treatment_seeds']} learned, control {r['control_learned']}/"
+        f"{r['control_seeds']}, p = {r['p']:.4g}",
+        f"  design commit {block['commit'] or 'none (the design is not committed)'}",
+    ]
+    lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
+    if checks["runs_not_after_design"]:
+        lines.append(f"  runs not shown to follow the design: {', '.join(checks['runs_not_after_design'])}")
+    return "\n".join(lines)
+
+
+def describe(design: Design, env_steps_per_run: int) -> str:
+    """The design and its power, for people."""
+    rates = success_rates(design, env_steps_per_run)
+    n = design.arm_seeds
+    last = design.seed + design.seeds - 1
+    lines = [
+        f"{design.name}: {design.scale} scale, {design.iterations} iterations "
+        f"({env_steps_per_run / 1e6:.1f}M env-steps per seed), seeds {design.seed}..{last} per condition",
+        f"  treatment ({n['treatment']} seeds): {', '.join(design.treatment)}",
+        f"  control ({n['control']} seeds): {', '.join(design.control)}",
+        f"  learned: final return > {design.learned_threshold:g}; {design.test} at alpha {design.alpha:g}",
+        "  assumed P(learned by the end): "
+        + ", ".join(
+            f"{arm} {rates[arm]:.3f} (hazard {h:g} per 1M env-steps)"
+            for arm, h in design.hazard_per_million.items()
+        ),  # fmt: skip
+        f"  power: {power_of(design, env_steps_per_run):.3f} (the design file says {design.power:.3f})",
+    ]
+    for test in counts.TESTS:
+        power = counts.power(
+            test, n["treatment"], rates["treatment"], n["control"], rates["control"], design.alpha
+        )
+        lines.append(f"    with {test}: {power:.3f}")
+    return "\n".join(lines)

@@ -1,0 +1,155 @@
+"""Run records: a seed's run directory slimmed to what a result rests on, small enough for the repository.
+
+A record is itself a run directory, so every tool that reads a run reads a record (`experiments figure
+--runs-dir benchmarks/results/records`, `evaluate --ckpt`, `render --ckpt`). It holds:
+
+* `config.json`, as the run wrote it;
+* `metrics.jsonl.gz`, the metrics gzipped (`logs.read_metrics` reads it);
+* `policy/<iteration>/`, the final policy exactly as `policy_io` exported it (params only: no checkpoints, no
+  optimiser state);
+* `eval/*.json`, the evaluations after training (`runner.EVAL_DIR`);
+* `provenance.json`: how the run was made (`run`: the exact command, git commit, device, jax version, start
+  date, exit status, as given to `pack`) and how the record was made (`record`: source, date, packing commit).
+
+Records mirror the run directories: `<runs_dir>/<scale>/<run>/s<seed>/` packs to
+`<records_dir>/<scale>/<run>/s<seed>/`.
+"""
+
+from __future__ import annotations
+
+import datetime
+import gzip
+import re
+import shutil
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import jax
+
+from jaxsocial import checkpoint, logs
+from jaxsocial.agents import policy_io
+from jaxsocial.experiments import runner
+
+RECORDS_DIR = "benchmarks/results/records"
+"""Where the repository keeps its records."""
+PROVENANCE_FILE = "provenance.json"
+RUN_FIELDS = ("command", "commit", "device", "jax", "started", "ended", "rc")
+"""What `provenance.json` says about the run (None where unknown)."""
+
+
+def git(*args: str, cwd: str | Path = ".") -> subprocess.CompletedProcess:
+    """`git args...` in `cwd`, its output captured as text."""
+    return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=30)
+
+
+def head_commit() -> str | None:
+    """The commit checked out in the working directory (None outside a git repository)."""
+    out = git("rev-parse", "HEAD")
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def read_provenance(seed_dir: str | Path) -> dict[str, Any] | None:
+    """The `provenance.json` of a seed's directory, or of the run directory holding it (None if neither)."""
+    for where in (Path(seed_dir), Path(seed_dir).parent):
+        if (where / PROVENANCE_FILE).is_file():
+            return logs.read_json(where / PROVENANCE_FILE)
+    return None
+
+
+def read_commands_log(path: str | Path) -> dict[str, dict[str, Any]]:
+    """The training commands of a commands log, by the run name their `--run-name` gives.
+
+    A line `<ISO date> <40-hex commit> <command>` starts a run; a later line
+    `<ISO date> done <condition> rc=<k> [<seconds>s]` ends the last started run of that condition (whose run
+    name is `<scale>/<condition>-s<first>-<last>`). Returns {run name: {'command', 'commit', 'started',
+    'ended', 'rc'}}; a run started twice keeps its last start (a resumed run continues its directory)."""
+    runs: dict[str, dict[str, Any]] = {}
+    for line in Path(path).read_text().splitlines():
+        parts = line.split()
+        if len(parts) < 3:
+            continue
+        date, second, rest = parts[0], parts[1], line.split(maxsplit=2)[2]
+        if re.fullmatch(r"[0-9a-f]{40}", second):
+            name = re.search(r"--run-name[ =](\S+)", rest)
+            if name:
+                runs.pop(name[1], None)  # re-inserted last: the latest start
+                runs[name[1]] = {
+                    "command": rest,
+                    "commit": second,
+                    "started": date,
+                    "ended": None,
+                    "rc": None,
+                }
+        elif second == "done" and len(parts) >= 4 and parts[3].startswith("rc="):
+            started = [
+                n for n in runs if Path(n).name.startswith(f"{parts[2]}-s") and runs[n]["ended"] is None
+            ]
+            if started:
+                runs[started[-1]].update(ended=date, rc=int(parts[3].removeprefix("rc=")))
+    return runs
+
+
+def run_provenance(
+    run_name: str, commands: dict[str, dict[str, Any]], device: str | None, jax_version: str | None
+) -> dict[str, Any]:
+    """The `run` part of a record's provenance: the commands log's entry for `run_name` (its `--run-name`)
+    with the device and jax version it ran on. ValueError if the log has no such run."""
+    if run_name not in commands:
+        raise ValueError(f"the commands log has no command with --run-name {run_name}")
+    entry = {**dict.fromkeys(RUN_FIELDS), **commands[run_name], "device": device, "jax": jax_version}
+    return {k: entry[k] for k in RUN_FIELDS}
+
+
+def pack(
+    seed_dir: str | Path, record_dir: str | Path, run: dict[str, Any], source: str, overwrite: bool = False
+) -> Path:
+    """Pack one seed's run directory into the record `record_dir` (see the module docstring); `run` is the
+    run's provenance (`RUN_FIELDS`), `source` the seed's name under its runs root (e.g. 'cpu/RUN/s0').
+    Checks everything before writing: FileNotFoundError if the run has no config, metrics or policy,
+    ValueError if it is unfinished, FileExistsError if the record exists (unless `overwrite`). Returns it."""
+    seed_dir, record_dir = Path(seed_dir), Path(record_dir)
+    if not (seed_dir / logs.CONFIG_FILE).is_file() or not logs.has_metrics(seed_dir):
+        raise FileNotFoundError(f"{seed_dir} is not a finished seed run directory (no config or metrics)")
+    policy_dir = seed_dir / policy_io.POLICY_DIR
+    iteration = checkpoint.latest_step(policy_dir)
+    if iteration is None:
+        raise FileNotFoundError(f"{seed_dir} has no exported policy under {policy_dir}")
+    rows = logs.read_metrics(seed_dir)
+    planned = logs.read_config(seed_dir)["iterations"]
+    if len(rows) < planned:
+        raise ValueError(f"{seed_dir} is unfinished: {len(rows)} of {planned} iterations logged")
+    if record_dir.exists() and any(record_dir.iterdir()):
+        if not overwrite:
+            raise FileExistsError(f"record {record_dir} exists; pass --overwrite to replace it")
+        shutil.rmtree(record_dir)
+    record_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(seed_dir / logs.CONFIG_FILE, record_dir / logs.CONFIG_FILE)
+    if (seed_dir / logs.METRICS_FILE).is_file():
+        text = "".join(
+            line + "\n" for line in (seed_dir / logs.METRICS_FILE).read_text().splitlines() if line
+        )
+        (record_dir / logs.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode(), mtime=0))
+    else:  # a record packed again
+        shutil.copy2(seed_dir / logs.METRICS_GZ_FILE, record_dir / logs.METRICS_GZ_FILE)
+    shutil.copytree(policy_dir / str(iteration), record_dir / policy_io.POLICY_DIR / str(iteration))
+    if (seed_dir / runner.EVAL_DIR).is_dir():
+        shutil.copytree(seed_dir / runner.EVAL_DIR, record_dir / runner.EVAL_DIR)
+    provenance = {
+        "run": run,
+        "record": {
+            "source": source,
+            "iterations": len(rows),
+            "policy_iteration": iteration,
+            "packed": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            "packed_at_commit": head_commit(),
+            "packed_with_jax": jax.__version__,
+        },
+    }
+    logs.write_json(record_dir / PROVENANCE_FILE, provenance)
+    return record_dir
+
+
+def size_bytes(directory: str | Path) -> int:
+    """Total size of the files under `directory`."""
+    return sum(p.stat().st_size for p in Path(directory).rglob("*") if p.is_file())

@@ -1,0 +1,149 @@
+"""`--init-from RUN_DIR[@ITERATION]`: start a new run from another run's learners.
+
+The new run gets the source's learner params and optimiser state (Adam moments and step count) from its
+checkpoint of ITERATION (default: the latest every source seed has); everything else is the new run's own:
+fresh environments, LSTM states and random keys from its seed, its flags, stages and `--iterations`. Its
+iteration counter starts at 0, so `--iterations N` trains N more iterations and stages are counted from the
+branch point; the source and the iteration are in its `config.json` (`init_from`: `RUN_DIR@ITERATION`), so the
+total training a learner has had is the source's ITERATION plus the new run's.
+
+RUN_DIR is one seed's run directory (every seed of the new run starts from it) or a several-seed run
+directory holding `s<seed>/` for each of the new run's seeds (each starts from its own). The network
+architecture and the learner slots must be the source's (`check`, called by `config.setup` before anything
+compiles). A resumed run continues from its own checkpoints; `init_from` then does nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import jax
+
+import jaxsocial
+from jaxsocial import checkpoint, config, distributed, logs, loop
+from jaxsocial.agents import policy_io, population
+from jaxsocial.config import TrainConfig
+from jaxsocial.loop import Program, RunnerState
+
+CHECKPOINTS = "checkpoints"
+
+
+def parse(spec: str) -> tuple[Path, int | None]:
+    """`RUN_DIR[@ITERATION]` -> (RUN_DIR, ITERATION or None); ValueError if ITERATION is not a number."""
+    run_dir, at, iteration = spec.rpartition("@") if "@" in spec else (spec, "", "")
+    if at and not iteration.isdigit():
+        raise ValueError(f"--init-from {spec}: ITERATION after '@' must be a whole number")
+    return Path(run_dir), int(iteration) if at else None
+
+
+def source_dirs(cfg: TrainConfig) -> list[Path]:
+    """The source seed directory of each of the new run's seeds. FileNotFoundError if there is none."""
+    run_dir, _ = parse(cfg.init_from)
+    if not run_dir.is_dir():
+        raise FileNotFoundError(f"--init-from {cfg.init_from}: no directory {run_dir}")
+    if (run_dir / CHECKPOINTS).is_dir():
+        return [run_dir] * cfg.seeds
+    dirs = [run_dir / f"s{seed}" for seed in range(cfg.seed, cfg.seed + cfg.seeds)]
+    missing = [str(d) for d in dirs if not (d / CHECKPOINTS).is_dir()]
+    if missing:
+        raise FileNotFoundError(
+            f"--init-from {cfg.init_from}: neither {run_dir} nor {missing} hold checkpoints; pass one seed's "
+            "run directory (e.g. RUN_DIR/s0) or a run holding every seed of this one"
+        )
+    return dirs
+
+
+def source_iteration(cfg: TrainConfig) -> int:
+    """The checkpoint iteration the run starts from: the one asked for, or the latest every source has.
+    FileNotFoundError if a source lacks it."""
+    dirs = source_dirs(cfg)
+    _, iteration = parse(cfg.init_from)
+    steps = [set(checkpoint.all_steps(d / CHECKPOINTS)) for d in dirs]
+    common = set.intersection(*steps)
+    if iteration is None:
+        if not common:
+            raise FileNotFoundError(f"--init-from {cfg.init_from}: no checkpoint that every source seed has")
+        return max(common)
+    if iteration not in common:
+        raise FileNotFoundError(
+            f"--init-from {cfg.init_from}: no checkpoint of iteration {iteration} (checkpoints: "
+            f"{sorted(common)})"
+        )
+    return iteration
+
+
+def _source_config(seed_dir: Path) -> TrainConfig:
+    """The source seed's config, without its own `init_from` (a branch of a branch needs only its source)."""
+    return dataclasses.replace(config.config_from_dict(logs.read_config(seed_dir)), init_from=None)
+
+
+def _learners(cfg: TrainConfig) -> tuple[int, ...]:
+    """The learner slots of a run's config."""
+    _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+    slots = cfg.slots or population.default_slots(env_params)
+    return population.Population(population.parse_slots(slots, env_params.n_agents)).learners
+
+
+def check(cfg: TrainConfig, learners: tuple[int, ...]) -> None:
+    """Validate `cfg.init_from` for a run whose learners are in slots `learners`: the source exists, has the
+    checkpoint, and has this run's network architecture and learner slots. ValueError or FileNotFoundError
+    naming the difference; nothing is compiled."""
+    source_iteration(cfg)
+    for seed_dir in sorted(set(source_dirs(cfg))):
+        source = _source_config(seed_dir)
+        theirs, ours = policy_io.architecture(source.net), policy_io.architecture(cfg.net)
+        diff = sorted(k for k in ours if theirs.get(k) != ours[k])
+        if diff:
+            raise ValueError(
+                f"--init-from {seed_dir}: its network differs in {diff} "
+                f"({ {k: theirs.get(k) for k in diff} } there, { {k: ours[k] for k in diff} } here)"
+            )
+        if _learners(source) != learners:
+            raise ValueError(
+                f"--init-from {seed_dir}: its learners are in slots {_learners(source)}, this run's in "
+                f"{learners}; the population layouts must match"
+            )
+
+
+def pin(cfg: TrainConfig, run_dir: str | Path) -> TrainConfig:
+    """`cfg` with `init_from` as `RUN_DIR@ITERATION` (the iteration it will load), for its config.json.
+    ValueError if the new run directory `run_dir` is the source or holds it (--overwrite would delete it)."""
+    if not cfg.init_from or cfg.resume:
+        return cfg
+    source, _ = parse(cfg.init_from)
+    new = Path(run_dir).resolve()
+    if new == source.resolve() or new in source.resolve().parents:
+        raise ValueError(f"--init-from {cfg.init_from}: the new run directory {run_dir} holds the source")
+    return dataclasses.replace(cfg, init_from=f"{source}@{source_iteration(cfg)}")
+
+
+def _source_state(seed_dir: Path, iteration: int) -> RunnerState:
+    """The RunnerState of the source's checkpoint `iteration` (host arrays)."""
+    source = _source_config(seed_dir)
+    static = config.setup(source, load_frozen=False)
+    stage_cfg, env_params = static.stage(-1)
+    init, _, _ = loop.make_train(stage_cfg, env_params=env_params, pop=static.pop)
+    template = jax.eval_shape(init, jax.random.key(0))
+    return checkpoint.restore(seed_dir / CHECKPOINTS, template, iteration)
+
+
+def apply(cfg: TrainConfig, state: RunnerState, program: Program) -> RunnerState:
+    """The freshly initialised `state` ([K, ...] for K seeds) with the learners' params and optimiser state
+    of `cfg.init_from`, placed as `program` places its state; `state` itself without `init_from` or when
+    resuming."""
+    if not cfg.init_from or cfg.resume:
+        return state
+    iteration = source_iteration(cfg)
+    loaded = [_source_state(d, iteration) for d in source_dirs(cfg)]
+    learned: Any = [(s.params, s.opt_state) for s in loaded]
+    params, opt_state = learned[0] if cfg.seeds == 1 else population.stack(learned)
+    ours = jax.tree.map(lambda x: (x.shape, x.dtype), (state.params, state.opt_state))
+    theirs = jax.tree.map(lambda x: (x.shape, x.dtype), (params, opt_state))
+    if ours != theirs:
+        raise ValueError(
+            f"--init-from {cfg.init_from}: the learners' params or optimiser state differ in shape"
+        )
+    placed = distributed.put((params, opt_state), (program.shardings.params, program.shardings.opt_state))
+    return state._replace(params=placed[0], opt_state=placed[1])

@@ -1,0 +1,145 @@
+"""Learned-seed statistics: the exact count tests and their power, time to learning, and pre-registered
+designs (their power, their seeds, their commit before the runs')."""
+
+import math
+
+import numpy as np
+import pytest
+
+from jaxsocial.experiments import __main__ as cli
+from jaxsocial.experiments import counts, prereg, recipes, records, takeoff
+
+GRID_ERROR = 2 * 40 * (2 / (counts.NUISANCE_GRID - 1)) / (counts.REFINE - 1)
+"""Bound on `boschloo_greater`'s error for at most 40 seeds: the tail's derivative in the common rate is at
+most 2 (n_a + n_b), and the refined grid lands within one refined step of the maximising rate."""
+
+
+def test_boschloo_most_extreme_table_has_a_closed_form():
+    """When the observed table is the only most extreme one (every seed of a learned, none of b), the tail is
+    p^n_a (1 - p)^n_b, largest at p = n_a / (n_a + n_b)."""
+    for n_a, n_b in ((6, 6), (8, 8), (4, 7)):
+        p = n_a / (n_a + n_b)
+        exact = p**n_a * (1 - p) ** n_b
+        assert counts.boschloo_greater(n_a, n_a, 0, n_b) == pytest.approx(exact, abs=GRID_ERROR)
+
+
+def test_boschloo_is_never_above_fisher():
+    for table in ((3, 12, 0, 9), (2, 6, 0, 6), (5, 20, 1, 20), (0, 4, 0, 4), (2, 3, 1, 3)):
+        assert counts.boschloo_greater(*table) <= counts.fisher_greater(*table) + GRID_ERROR
+    assert counts.boschloo_greater(0, 5, 0, 5) == pytest.approx(1.0, abs=GRID_ERROR)  # no evidence
+
+
+def test_boschloo_matches_scipy():
+    stats = pytest.importorskip("scipy.stats")
+    for k_a, n_a, k_b, n_b in ((3, 12, 0, 9), (4, 8, 0, 8), (5, 20, 1, 20)):
+        table = [[k_a, k_b], [n_a - k_a, n_b - k_b]]
+        want = stats.boschloo_exact(table, alternative="greater").pvalue
+        assert counts.boschloo_greater(k_a, n_a, k_b, n_b) == pytest.approx(want, abs=GRID_ERROR)
+
+
+def test_power():
+    for test in counts.TESTS:  # exact tests hold their level whatever the common rate
+        for rate in (0.1, 0.5, 0.9):
+            assert counts.power(test, 6, rate, 6, rate, 0.05) <= 0.05
+    # every a seed learns, no b seed does: power 1 exactly when that table is significant
+    assert counts.power("fisher-greater", 4, 1.0, 4, 0.0, 0.05) == float(1 / math.comb(8, 4) <= 0.05)
+    # with b never learning, Fisher rejects 8 vs 8 from 4 learned seeds (70/1820 < 0.05, 56/560 > 0.05)
+    rate = 0.6
+    at_least_4 = sum(math.comb(8, k) * rate**k * (1 - rate) ** (8 - k) for k in range(4, 9))
+    assert counts.power("fisher-greater", 8, rate, 8, 0.0, 0.05) == pytest.approx(at_least_4)
+    assert counts.learned_by(0.0074, 39e6) == pytest.approx(1 - math.exp(-0.0074 * 39))
+
+
+def test_takeoff_and_the_fraction_learned():
+    iterations = np.array([10, 20, 30, 40], np.float64)
+    assert takeoff.takeoff(iterations, np.array([0.5, 1.9, 2.5, 1.0]), 2.0) == 30
+    assert takeoff.takeoff(iterations, np.array([0.5, 1.9, 2.0, 1.0]), 2.0) is None  # not above
+    fraction = takeoff.fraction_learned([30, None, 10, None], np.array([0, 10, 29, 30, 1000]))
+    np.testing.assert_array_equal(fraction, [0, 0.25, 0.25, 0.5, 0.5])
+
+
+def test_the_committed_design_has_the_power_it_states(capsys):
+    recipe = recipes.RECIPES["h1_prereg"]
+    design = prereg.load(recipe.design)
+    scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
+    assert scale.iterations == design.iterations != recipes.SCALES[design.scale].iterations
+    assert recipes.recipe_scale(recipe, recipes.TINY) == recipes.TINY  # the budget is the design scale's
+    assert set(design.treatment + design.control) == set(recipe.conditions)
+    cfg = recipes.condition_config(scale, "social_pred", design.seed, design.seeds, "r")
+    assert prereg.power_of(design, scale.iterations * cfg.num_envs * cfg.rollout_steps) == pytest.approx(
+        design.power, abs=5e-4
+    )  # stored to 3 decimals
+    assert design.power >= 0.8
+    cli.main(["power", "h1_prereg"])
+    assert f"power: {design.power:.3f}" in capsys.readouterr().out
+
+
+def test_a_design_fixes_its_seeds(tmp_path, capsys):
+    design = prereg.load("h1_prereg")
+    with pytest.raises(SystemExit):
+        cli.main(["run", "h1_prereg", "--scale", design.scale, "--seeds", "3", "--dry-run"])
+    assert f"fixes {design.seeds}" in capsys.readouterr().err
+    cli.main(["run", "h1_prereg", "--scale", design.scale, "--runs-dir", str(tmp_path), "--dry-run"])
+    out = capsys.readouterr().out
+    last = design.seed + design.seeds - 1
+    assert f"--iterations {design.iterations} " in out and f"social_pred-s{design.seed}-{last}" in out
+
+
+def test_preregistered_block():
+    design = prereg.load("h1_prereg")
+    learned = {"social_pred": [True, True, False, True], "social_rec": [True, False, False, False]}
+    learned |= {"solo_pred": [False] * 4, "social_none": [False, True, False, False]}
+    head = records.head_commit()
+    block = prereg.preregistered(design, learned, {"a/s0": head, "a/s1": None})
+    assert block["primary"] == {
+        "treatment": list(design.treatment),
+        "control": list(design.control),
+        "learned_threshold": design.learned_threshold,
+        "test": design.test,
+        "alpha": design.alpha,
+    }
+    p = counts.p_value(design.test, 4, 8, 1, 8)
+    assert block["result"] == {
+        "treatment_learned": 4,
+        "treatment_seeds": 8,
+        "control_learned": 1,
+        "control_seeds": 8,
+        "p": round(p, 6),
+    }
+    assert block["commit"] == prereg.design_commit("h1_prereg")
+    checks = block["checks"]
+    after = prereg.precedes(block["commit"], head)  # True once the design is committed
+    assert checks["runs_not_after_design"] == ["a/s1"] if after else ["a/s0", "a/s1"]  # a/s1 has no commit
+    assert not checks["design_precedes_every_run"] and checks["seeds_as_designed"]
+    said = prereg.verdict(block)
+    assert f"treatment 4/8 learned, control 1/8, p = {round(p, 6):.4g}" in said
+    assert "design_precedes_every_run: NO" in said and "a/s1" in said
+
+
+def test_commit_order():
+    head, parent = records.head_commit(), records.git("rev-parse", "HEAD~1").stdout.strip()
+    if head is None or not parent:
+        pytest.skip("needs a git checkout with history")
+    assert prereg.precedes(parent, head) and prereg.precedes(head, head)
+    assert prereg.precedes(head, parent) is False
+    assert prereg.precedes(None, head) is None and prereg.precedes("0" * 40, head) is None
+
+
+def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
+    """At another scale than the design's the block is still written, and says that the scale differs."""
+    from jaxsocial import logs
+
+    for condition in recipes.RECIPES["h1_prereg"].conditions:
+        seed_dir = tmp_path / "runs" / "tiny" / f"{condition}-s0-0"
+        seed_dir.mkdir(parents=True)
+        learned = 5.0 if condition == "social_pred" else 0.5
+        row = {"return/0": learned, "episodes/0": 1, "return/1": 30.0, "episodes/1": 1}  # slot 1: an expert
+        rows = [{"iteration": i + 1, **row} for i in range(recipes.TINY.iterations)]
+        logs.MetricsLog(seed_dir).append(rows)
+    cli.main(["figure", "h1_prereg", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path / "runs"),
+              "--out-dir", str(tmp_path / "out")])  # fmt: skip
+    block = logs.read_json(tmp_path / "out" / "h1_prereg-tiny.json")["preregistered"]
+    assert block["result"]["treatment_learned"] == 1 and block["result"]["control_learned"] == 0
+    assert block["result"]["treatment_seeds"] == block["result"]["control_seeds"] == 2
+    assert not block["checks"]["scale_as_designed"] and not block["checks"]["seeds_as_designed"]
+    assert capsys.readouterr().out.endswith(prereg.verdict(block) + "\n")

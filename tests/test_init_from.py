@@ -1,0 +1,91 @@
+"""`--init-from RUN_DIR[@ITERATION]`: validation before anything compiles, loading the source's learners into
+a fresh state, and (with the driver calling `init_from.pin` and `init_from.apply`) a branched run."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+from conftest import TINY
+
+from jaxsocial import checkpoint, config, init_from, logs, loop, train
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory):
+    """TINY trained for 4 iterations, checkpoints at 2 and 4: its run directory."""
+    runs_dir = tmp_path_factory.mktemp("init-from")
+    return train.run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="source"))
+
+
+def _branch(tmp_path, spec, **changes):
+    changes = {"runs_dir": str(tmp_path), "run_name": "branch", "init_from": spec, **changes}
+    return dataclasses.replace(TINY, **changes)
+
+
+def test_bad_sources_are_refused_before_anything_compiles(source, tmp_path):
+    with pytest.raises(FileNotFoundError, match="no directory"):
+        config.setup(_branch(tmp_path, str(tmp_path / "nowhere")))
+    with pytest.raises(FileNotFoundError, match="no checkpoint of iteration 3"):
+        config.setup(_branch(tmp_path, f"{source}@3"))
+    with pytest.raises(ValueError, match="whole number"):
+        config.setup(_branch(tmp_path, f"{source}@last"))
+    with pytest.raises(FileNotFoundError, match="hold checkpoints"):
+        config.setup(_branch(tmp_path, str(tmp_path)))
+    wider = dataclasses.replace(TINY.net, hidden=TINY.net.hidden * 2)
+    with pytest.raises(ValueError, match=r"network differs in \['hidden'\]"):
+        config.setup(_branch(tmp_path, str(source), net=wider))
+    with pytest.raises(ValueError, match="learners are in slots"):
+        config.setup(_branch(tmp_path, str(source), slots="random,learner,random"))
+    with pytest.raises(ValueError, match="holds the source"):
+        init_from.pin(_branch(tmp_path, str(source)), source.parent)
+    assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_pin_names_the_iteration_it_loads(source, tmp_path):
+    latest = init_from.pin(_branch(tmp_path, str(source)), tmp_path / "branch")
+    assert latest.init_from == f"{source}@{TINY.iterations}"
+    assert init_from.pin(_branch(tmp_path, f"{source}@2"), tmp_path / "b").init_from == f"{source}@2"
+    resumed = _branch(tmp_path, str(tmp_path / "gone"), resume=True)
+    assert init_from.pin(resumed, tmp_path / "branch") is resumed  # a resumed run loads its own state
+    config.setup(resumed)  # and does not need the source any more
+
+
+def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
+    cfg = _branch(tmp_path, f"{source}@2", seed=7)
+    static = config.setup(cfg)
+    stage_cfg, env_params = static.stage(-1)
+    program = loop.compiled(stage_cfg, env_params=env_params, pop=static.pop)
+    fresh = program.init(np.int32(cfg.seed))
+    state = init_from.apply(cfg, fresh, program)
+    template = jax.eval_shape(lambda: fresh)
+    saved = checkpoint.restore(source / "checkpoints", template, 2)
+    for got, want in ((state.params, saved.params), (state.opt_state, saved.opt_state)):
+        jax.tree.map(np.testing.assert_array_equal, got, want)
+    jax.tree.map(np.testing.assert_array_equal, state.env_states, fresh.env_states)  # the new seed's own
+    assert int(state.iteration) == 0
+    assert init_from.apply(dataclasses.replace(cfg, init_from=None), fresh, program) is fresh
+    assert init_from.apply(dataclasses.replace(cfg, resume=True), fresh, program) is fresh
+
+
+def _adam_count(opt_state) -> int:
+    leaves = jax.tree_util.tree_flatten_with_path(opt_state)[0]
+    return int(next(np.asarray(x).reshape(-1)[0] for p, x in leaves if "count" in jax.tree_util.keystr(p)))
+
+
+def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
+    """The driver's part (`train.run` calls `init_from.pin` and `init_from.apply`): a new run directory, the
+    source and iteration in its config, and the optimiser's step count going on from the source's. The
+    branch has the source's config and seed, so without the source's state it would repeat the source's
+    first 2 iterations and end with their count (the KL stop makes the step count per iteration vary)."""
+    run_dir = train.run(_branch(tmp_path, str(source), iterations=2))
+    assert logs.read_config(run_dir)["init_from"] == f"{source}@{TINY.iterations}"
+    assert [r["iteration"] for r in logs.read_metrics(run_dir)] == [1, 2]
+    twig = _branch(tmp_path, str(run_dir), run_name="twig")
+    assert init_from.pin(twig, tmp_path / "twig").init_from == f"{run_dir}@2"  # a branch of the branch
+    config.setup(twig)
+    target = jax.eval_shape(lambda: loop.compiled(TINY).init(np.int32(0)))
+    first_two = _adam_count(checkpoint.restore(source / "checkpoints", target, 2).opt_state)
+    loaded = _adam_count(checkpoint.restore(source / "checkpoints", target, TINY.iterations).opt_state)
+    after = _adam_count(checkpoint.restore(run_dir / "checkpoints", target, 2).opt_state)
+    assert after >= loaded > first_two  # without the source's state: after == first_two

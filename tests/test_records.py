@@ -1,0 +1,139 @@
+"""Run records: the committed tiny record set re-derives its committed summary with no training, records
+read like run directories, and packing checks everything before it writes."""
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from jaxsocial import logs
+from jaxsocial.agents import policy_io
+from jaxsocial.experiments import __main__ as cli
+from jaxsocial.experiments import figures, predictions, recipes, records
+
+REPO = Path(__file__).resolve().parents[1]
+SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"
+"""The committed summary of the committed tiny records (`python -m jaxsocial.experiments figure no_penalty
+--scale tiny --seeds 2 --runs-dir benchmarks/results/records --out-dir benchmarks/results/science`)."""
+RECIPE = recipes.RECIPES["no_penalty"]
+
+
+@pytest.fixture
+def in_repo(monkeypatch):
+    """Run from the repository root, where the summary's relative record paths point."""
+    monkeypatch.chdir(REPO)
+
+
+def _record_dirs() -> list[Path]:
+    return sorted(p.parent for p in (REPO / records.RECORDS_DIR / "tiny").rglob(records.PROVENANCE_FILE))
+
+
+def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_path):
+    committed = json.loads(Path(SUMMARY).read_text())
+    runs = figures.RecipeRuns(RECIPE, recipes.TINY, 0, 2, records.RECORDS_DIR)
+    assert logs.to_json(figures.summarize(runs, committed["command"])) == committed
+    assert committed["provenance"]["unrecorded"] == []
+    for condition, dirs in committed["seed_dirs"].items():
+        finals = [round(figures.final_return(logs.read_metrics(d)), 4) for d in dirs]
+        assert committed["training"][condition]["final_returns"] == finals
+    argv = committed["command"].split()[3:]  # after 'python -m jaxsocial.experiments'
+    argv[argv.index("--out-dir") + 1] = str(tmp_path)
+    cli.main(argv)
+    again = json.loads((tmp_path / "no_penalty-tiny.json").read_text())
+    assert {k: v for k, v in again.items() if k != "command"} == {
+        k: v for k, v in committed.items() if k != "command"
+    }
+    assert (tmp_path / "no_penalty-tiny.png").stat().st_size > 1000
+
+
+def test_a_record_reads_like_a_run_directory():
+    record_dirs = _record_dirs()
+    assert len(record_dirs) == 4  # 2 conditions x 2 seeds
+    for record in record_dirs:
+        config = logs.read_config(record)
+        assert len(logs.read_metrics(record)) == config["iterations"]
+        assert not (record / "checkpoints").exists() and not (record / logs.METRICS_FILE).exists()
+        assert policy_io.policy_iteration(str(record)) == config["iterations"]
+        provenance = records.read_provenance(record)
+        assert set(provenance["run"]) == set(records.RUN_FIELDS) and provenance["run"]["rc"] == 0
+        assert (
+            f"--run-name {provenance['record']['source'].rsplit('/', 1)[0]}" in provenance["run"]["command"]
+        )
+    # what `render --ckpt` and `evaluate --ckpt` load: the policy with the network it was trained with
+    setup = predictions.episode_setup(str(record_dirs[0]), recipes.goalcycle_spec("goalcycle3", recipes.TINY))
+    assert setup.net == policy_io.saved_net(str(record_dirs[0]))
+
+
+def test_commands_log(tmp_path):
+    log = tmp_path / "commands.log"
+    commit = "a" * 40
+    log.write_text(
+        f"2026-01-01T00:00:00 {commit} python -m jaxsocial.train --seed 0 --run-name cpu/x-s0-2\n"
+        "2026-01-01T00:10:00 done x rc=0 600s\n"
+        f"2026-01-01T00:11:00 {commit} python -m jaxsocial.train --run-name cpu/y-s0-0\n"
+        "2026-01-01T00:12:00 done y rc=1 60s\n"
+        "a line that is neither\n"
+    )
+    runs = records.read_commands_log(log)
+    assert runs["cpu/x-s0-2"] == {
+        "command": "python -m jaxsocial.train --seed 0 --run-name cpu/x-s0-2",
+        "commit": commit,
+        "started": "2026-01-01T00:00:00",
+        "ended": "2026-01-01T00:10:00",
+        "rc": 0,
+    }
+    assert runs["cpu/y-s0-0"]["rc"] == 1
+    run = records.run_provenance("cpu/x-s0-2", runs, "a CPU", "0.1")
+    assert (run["device"], run["jax"], run["commit"]) == ("a CPU", "0.1", commit)
+    with pytest.raises(ValueError, match="no command with --run-name cpu/z"):
+        records.run_provenance("cpu/z", runs, None, None)
+
+
+def test_pack_checks_before_it_writes(tmp_path):
+    source = _record_dirs()[0]
+    run = records.read_provenance(source)["run"]
+    out = records.pack(source, tmp_path / "r", run, "tiny/x/s0")
+    assert logs.read_metrics(out) == logs.read_metrics(source)
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in source.iterdir())
+    assert records.read_provenance(out)["run"] == run
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        records.pack(source, out, run, "tiny/x/s0")
+    unfinished = tmp_path / "unfinished"
+    shutil.copytree(source, unfinished)
+    logs.write_config(unfinished, {**logs.read_config(source), "iterations": 1000})
+    with pytest.raises(ValueError, match="unfinished"):
+        records.pack(unfinished, tmp_path / "u", run, "tiny/u/s0")
+    with pytest.raises(FileNotFoundError, match="not a finished seed run"):
+        records.pack(tmp_path / "nowhere", tmp_path / "n", run, "n")
+    assert not (tmp_path / "u").exists() and not (tmp_path / "n").exists()
+
+
+def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, tmp_path, capsys):
+    log = tmp_path / "commands.log"
+    lines = []
+    for cond in RECIPE.conditions:
+        run = records.read_provenance(next(d for d in _record_dirs() if cond + "-" in str(d)))["run"]
+        lines += [f"{run['started']} {run['commit']} {run['command']}", f"{run['ended']} done {cond} rc=0 1s"]
+    log.write_text("\n".join(lines) + "\n")
+    argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", records.RECORDS_DIR,
+            "--commands-log", str(log), "--device", "a CPU", "--jax", "0.1",
+            "--out-dir", str(tmp_path / "r")]  # fmt: skip
+    cli.main(argv)
+    packed = sorted((tmp_path / "r").rglob(records.PROVENANCE_FILE))
+    assert len(packed) == 4
+    before = [p.read_text() for p in packed]
+    capsys.readouterr()
+    cli.main(argv)
+    assert capsys.readouterr().out.count("already recorded, kept") == 4
+    assert [p.read_text() for p in packed] == before
+    log.write_text(log.read_text().replace("rc=0", "rc=1"))
+    with pytest.raises(SystemExit, match="exited with 1"):
+        cli.main([*argv, "--overwrite"])
+
+
+def test_figures_go_under_runs_unless_asked():
+    assert cli.parse_args(["figure", "h1"]).out_dir.startswith("runs/")
+    assert cli.parse_args(
+        ["record", "h1", "--commands-log", "l", "--device", "d", "--jax", "j"]
+    ).out_dir.startswith("runs/")
