@@ -131,9 +131,9 @@ def _source_state(seed_dir: Path, iteration: int) -> RunnerState:
 
 def apply(cfg: TrainConfig, state: RunnerState, program: Program) -> RunnerState:
     """The freshly initialised `state` ([K, ...] for K seeds) with the learners' params and optimiser state
-    of `cfg.init_from`, placed as `program` places its state; `state` itself without `init_from` or when
-    resuming."""
-    if not cfg.init_from or cfg.resume:
+    of `cfg.init_from`, placed as `program` places its state; `state` itself without `init_from`. The
+    driver calls it only for a state at iteration 0 (a resumed run with a checkpoint keeps its own)."""
+    if not cfg.init_from:
         return state
     iteration = source_iteration(cfg)
     loaded = [_source_state(d, iteration) for d in source_dirs(cfg)]

@@ -24,6 +24,7 @@ from jaxsocial import (
     config,
     distributed,
     evaluate,
+    init_from,
     logs,
     loop,
     nonfinite,
@@ -119,6 +120,7 @@ def run(cfg: TrainConfig) -> Path:
 
     name = run_name(cfg)
     run_dir = Path(cfg.runs_dir).expanduser() / name
+    cfg = init_from.pin(cfg, run_dir)  # RUN_DIR@ITERATION in config.json
     seeds = seed_runs(cfg, run_dir)
     saved = config_dict(cfg)
 
@@ -174,6 +176,8 @@ def train_chunks(
     if cfg.resume:
         state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
     start = int(np.asarray(state.iteration).reshape(-1)[0])
+    if start == 0:  # a new run, or a resumed one that saved nothing yet: from the source's learners
+        state = init_from.apply(cfg, state, program)
     if start >= cfg.iterations:
         if main:
             print(nothing_to_train(start, cfg.iterations))

@@ -65,7 +65,6 @@ def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
     jax.tree.map(np.testing.assert_array_equal, state.env_states, fresh.env_states)  # the new seed's own
     assert int(state.iteration) == 0
     assert init_from.apply(dataclasses.replace(cfg, init_from=None), fresh, program) is fresh
-    assert init_from.apply(dataclasses.replace(cfg, resume=True), fresh, program) is fresh
 
 
 def _adam_count(opt_state) -> int:
