@@ -118,7 +118,7 @@ def test_load_policy_ignores_how_the_network_is_computed(tiny_runs):
     """Only the architecture must match: `chunk` and `conv_impl` (policy_io.SPEED_FIELDS) may differ."""
     full = str(tiny_runs["full"])
     other_speed = dataclasses.replace(TINY.net, chunk=64, conv_impl="xla")
-    assert set(policy_io.SPEED_FIELDS) == {"chunk", "conv_impl"}
+    assert set(policy_io.SPEED_FIELDS) == {"chunk", "conv_impl", "dtype"}
     for a, b in zip(
         jax.tree.leaves(policy_io.load_policy(full, TINY.net)),
         jax.tree.leaves(policy_io.load_policy(full, other_speed)),
