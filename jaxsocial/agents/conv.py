@@ -106,6 +106,7 @@ def winograd_transforms(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     system = np.einsum("ij,jk,lq->ikljq", out_1d, filter_1d, np.eye(a)).reshape(-1, a * a)
     target = np.arange(a)[None, None, :] == np.arange(m)[:, None, None] + np.arange(KERNEL)[None, :, None]
     data_1d = np.linalg.lstsq(system, target.ravel().astype(np.float64), rcond=None)[0].reshape(a, a)
+    data_1d[np.abs(data_1d) < 1e-12] = 0.0  # the solver's noise: exact zeros (so the transforms stay sparse)
     assert np.abs(system @ data_1d.ravel() - target.ravel()).max() < 1e-9, "inconsistent Winograd system"
     return tuple(np.kron(t, t).astype(np.float32) for t in (data_1d, filter_1d, out_1d))
 
