@@ -32,6 +32,9 @@ the page faults on first touch cost ~10% of a gradient step. ``--hugepages`` re-
 the section `network_hugepages` runs the network section that way in a subprocess. No XLA flag is set:
 none helped (see the docstring of jaxsocial.agents.network).
 
+Section `products`: GFLOP/s of the paper network's matrix-product shapes in each of ``--dtypes`` (what
+bfloat16 can gain on this machine, layer by layer).
+
 Section `train`: end-to-end training throughput of the `small` (CLI default) and `paper` presets of
 `python -m jaxsocial.train` (rollout of every slot + PPO update) and the README's symbolic-views command
 (`TRAIN_RUNS`, chosen with ``--presets``), in joint env-steps/s, for each of ``--dtypes``.
@@ -51,6 +54,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import json
 import os
@@ -440,11 +444,49 @@ def section_kl_stop(args: argparse.Namespace) -> dict:
     return {"rows": rows}
 
 
+PRODUCTS = {
+    "2048^3": (1, 2048, 2048, 2048),
+    "FC 8192x576 . 576x192": (1, 8192, 576, 192),
+    "LSTM 8192x192 . 192x768": (1, 8192, 192, 768),
+    "decoder FC 8192x199 . 199x576": (1, 8192, 199, 576),
+    "im2col conv2 50176x288 . 288x64": (1, 50176, 288, 64),
+    "Winograd conv2 36x(8192x32 . 32x64)": (36, 8192, 32, 64),
+}
+"""The paper network's matrix-product shapes at a minibatch of 8,192 samples: (batch, m, k, n)."""
+
+
+def section_products(args: argparse.Namespace) -> dict:
+    """GFLOP/s of the network's product shapes (`PRODUCTS`), jitted, best of ``--repeats``, in each of
+    ``--dtypes`` (`precision.matmul`: bfloat16 inputs cast inside the call, float32 accumulation)."""
+    from jaxsocial.agents.precision import matmul
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for name, (batch, m, k, n) in PRODUCTS.items():
+        lead = (batch,) if batch > 1 else ()
+        x = jnp.asarray(rng.normal(size=(*lead, m, k)), jnp.float32)
+        w = jnp.asarray(rng.normal(size=(*lead, k, n)), jnp.float32)
+        row = {"product": name, "shape": [batch, m, k, n]}
+        for dtype in args.dtypes:
+            if batch > 1:  # batched: cast and contract like precision.matmul, per batch member
+                fn = jax.vmap(lambda a, b, d=dtype: matmul(a, b, d))
+            else:
+                fn = functools.partial(matmul, dtype=dtype)
+            times = time_calls(jax.jit(fn), (x, w), args.repeats)
+            row[dtype] = 2 * batch * m * k * n / min(times) / 1e9
+        row["loadavg_after"] = os.getloadavg()
+        rows.append(row)
+        print(f"  {name:38s} " + " ".join(f"{d} {row[d]:6.0f}" for d in args.dtypes) + " GFLOP/s, "
+              f"load {row['loadavg_after'][0]:.1f}", flush=True)  # fmt: skip
+    return {"rows": rows}
+
+
 SECTIONS: dict[str, Callable[[argparse.Namespace], dict]] = {
     "network": section_network,
     "train": section_train,
     "kl_stop": section_kl_stop,
     "network_hugepages": section_network_hugepages,
+    "products": section_products,
 }
 
 
