@@ -33,10 +33,12 @@ def within(value: float, interval: list[float] | None) -> bool | None:
     return None if interval is None or value is None else interval[0] <= value <= interval[1]
 
 
-def compare(runs_dir: Path, prefixes: dict[str, str], seeds: str) -> tuple[dict, list[plot.Group]]:
+def compare(
+    runs_dir: Path, conditions: list[str], prefixes: dict[str, str], seeds: str
+) -> tuple[dict, list[plot.Group]]:
     """Per condition: each dtype's final-return stats and the mutual-interval check; the plot groups."""
     result, groups = {}, []
-    for condition in CONDITIONS:
+    for condition in conditions:
         entry = {}
         for dtype, prefix in prefixes.items():
             run_dir = runs_dir / prefix / f"{condition}-{seeds}"
@@ -62,11 +64,13 @@ def main() -> None:
     parser.add_argument("--float32-prefix", default="cpu", help="sub-directory of the float32 runs")
     parser.add_argument("--bfloat16-prefix", default="cpu-bf16", help="sub-directory of the bfloat16 runs")
     parser.add_argument("--seeds", default="s0-2", help="the runs' seed suffix")
+    parser.add_argument("--conditions", default=",".join(CONDITIONS), help="comma-separated conditions")
     parser.add_argument("--out", required=True, help="output path without extension (.json and .png)")
     args = parser.parse_args()
+    args.conditions = [c for c in args.conditions.split(",") if c]
     runs_dir = Path(args.runs_dir)
     prefixes = {"float32": args.float32_prefix, "bfloat16": args.bfloat16_prefix}
-    result, groups = compare(runs_dir, prefixes, args.seeds)
+    result, groups = compare(runs_dir, args.conditions, prefixes, args.seeds)
     print(json.dumps(result, indent=2))
     figure = plot.draw(groups)
     figure.savefig(f"{args.out}.png", dpi=80)
