@@ -172,3 +172,27 @@ def test_matmul_rejects_other_strides():
     x = jnp.zeros((9, 9, 1, 2))
     with pytest.raises(NotImplementedError, match="stride"):
         conv.conv(x, jnp.zeros((3, 3, 2, 2)), jnp.zeros(2), 2, "matmul")
+
+
+@pytest.mark.parametrize(
+    "transpose, stride, size", [(False, 1, 7), (False, 3, 21), (True, 1, 5), (True, 3, 7)]
+)
+def test_bfloat16_impls_within_rounding_bound(transpose, stride, size):
+    """In bfloat16 every implementation computes the direct sums (never Winograd, whose transforms would
+    amplify the rounding): each term's inputs rounded to 8 significant bits (unit roundoff u = 2^-8:
+    2u + u^2 per product), float32 accumulation (gamma_n), so within (2u + u^2 + gamma_n) of the direct
+    magnitude."""
+    rng = np.random.default_rng(size + stride)
+    x = jnp.asarray(rng.normal(size=(size, size, 4, 3)), jnp.float32)  # HWNC
+    kernel = jnp.asarray(rng.normal(size=(3, 3, 3, 5)), jnp.float32)
+    bias = jnp.asarray(rng.normal(size=(5,)), jnp.float32)
+    layer = conv.deconv if transpose else conv.conv
+    expected = layer(x, kernel, bias, stride, "xla")  # float32: its own error bound is added
+    magnitude = np.asarray(conv_magnitude(x, kernel, bias, stride, transpose, False), np.float64)
+    rounding = (2 * 2.0**-8 + 2.0**-16 + gamma(conv.KERNEL**2 * x.shape[-1] + 1)) * magnitude
+    bound = rounding + _error_bound("xla", stride, transpose, x, kernel, bias)
+    for impl in conv.IMPLS:
+        actual = jax.jit(layer, static_argnums=(3, 4, 5))(x, kernel, bias, stride, impl, "bfloat16")
+        assert actual.dtype == jnp.float32
+        _assert_within(actual, expected, bound, impl)
+        assert not np.allclose(actual, expected, rtol=1e-6, atol=0), impl  # the inputs were rounded

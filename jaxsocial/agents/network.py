@@ -113,8 +113,9 @@ class NetworkConfig:
     n_actions: int = 7
     """Actions of the policy output."""
     conv_impl: str = "matmul"
-    """How convolutions are computed (same result, different speed): "matmul" (matrix products, fastest on
-    CPU and GPU), "im2col" (one product of 3x3 patches per layer) or "xla" (XLA's convolutions)."""
+    """How convolutions are computed (same result, different speed): "matmul" (matrix products: Winograd in
+    float32, im2col in bfloat16; fastest measured on CPU and GPU), "im2col" (one product of the 3x3 patches
+    per layer) or "xla" (XLA's convolutions)."""
     chunk: int = 512
     """Frames processed at a time by the conv encoder and decoder (speed and memory only)."""
     n_others: int = 2
@@ -123,8 +124,8 @@ class NetworkConfig:
     """Observations the network takes: "rgb" frames or "symbolic" views (set from the environment)."""
     dtype: str = "float32"
     """Input dtype of matrix products and convolutions: "float32", or "bfloat16" (float32 accumulation;
-    params, optimiser state, LSTM state and losses stay float32). Faster on CPUs with AVX512-BF16 or AMX and
-    on GPUs."""
+    params, optimiser state, LSTM state and losses stay float32). Whether it is faster depends on the
+    hardware (docs/performance.md)."""
 
     def __post_init__(self):
         channels = tuple(self.conv_channels)

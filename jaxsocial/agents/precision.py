@@ -1,9 +1,10 @@
 """Mixed-precision matrix products: inputs rounded to a compute dtype, products accumulated in float32.
 
 `NetworkConfig.dtype` names the compute dtype (`DTYPES`). With "bfloat16" every matrix product and
-convolution of the network takes bfloat16 inputs (an 8-bit significand: each input is rounded with a relative
-error of at most 2^-9) and accumulates in float32 (``preferred_element_type``); everything else, params,
-optimiser state, LSTM cell state, nonlinearities, losses and advantages, stays float32.
+convolution of the network takes bfloat16 inputs (an 8-bit significand: each input is rounded with a
+relative error of at most 2^-8, its unit roundoff) and accumulates in float32 (``preferred_element_type``);
+everything else, params, optimiser state, LSTM cell state, nonlinearities, losses and advantages, stays
+float32.
 """
 
 from __future__ import annotations
