@@ -12,6 +12,8 @@ bfloat16 ones with `--net.dtype bfloat16` added) and writes:
 * `OUT.png`: the learning curves (`jaxsocial.plot.draw`), one group per condition and dtype.
 
     python benchmarks/bf16_learning.py --runs-dir runs/experiments --out benchmarks/results/bf16_learning
+
+(run from the directory that holds `runs/`; the output path is recorded relative to the repository).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import argparse
 import json
 from pathlib import Path
 
-from run_info import metadata, write_results
+from run_info import REPO, metadata, write_results
 
 from jaxsocial import logs, plot
 from jaxsocial.experiments import figures
@@ -69,12 +71,15 @@ def main() -> None:
     args = parser.parse_args()
     args.conditions = [c for c in args.conditions.split(",") if c]
     runs_dir = Path(args.runs_dir)
+    out = Path(args.out).resolve()
+    if out.is_relative_to(REPO):  # provenance without this machine's paths
+        args.out = str(out.relative_to(REPO))
     prefixes = {"float32": args.float32_prefix, "bfloat16": args.bfloat16_prefix}
     result, groups = compare(runs_dir, args.conditions, prefixes, args.seeds)
     print(json.dumps(result, indent=2))
     figure = plot.draw(groups)
-    figure.savefig(f"{args.out}.png", dpi=80)
-    write_results(f"{args.out}.json", metadata(args), {"final_returns": result})
+    figure.savefig(f"{out}.png", dpi=80)
+    write_results(f"{out}.json", metadata(args), {"final_returns": result})
 
 
 if __name__ == "__main__":
