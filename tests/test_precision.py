@@ -83,7 +83,7 @@ def _relative(a, b) -> float:
     return float(jnp.linalg.norm(a - b) / jnp.linalg.norm(b))
 
 
-@pytest.mark.parametrize("impl", net.CONV_IMPLS)
+@pytest.mark.parametrize("impl", ["matmul", "xla"])  # ("im2col" in bfloat16 is what "matmul" runs)
 def test_bfloat16_matches_float32(float32_reference, impl):
     """Forward outputs and the loss within D (2u + u^2) in relative norm, and every parameter's gradient with
     a cosine similarity above 0.99 (the issue's criterion; a relative error e gives a cosine >= 1 - e^2 / 2).
