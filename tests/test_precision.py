@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxsocial import train
 from jaxsocial.agents import network as net
 from jaxsocial.agents import policy_io, precision
 from jaxsocial.agents.network import NetworkConfig
@@ -137,9 +138,14 @@ def test_matmul_rounds_inputs_and_accumulates_in_float32():
     np.testing.assert_array_equal(precision.matmul(x, w, "float32"), x @ w)
 
 
-def test_unknown_dtype_is_refused():
-    with pytest.raises(ValueError, match="dtype"):
+def test_dtype_flag(capsys):
+    """`--net.dtype` reaches the network; an unknown dtype is refused with its name before anything runs."""
+    assert train.parse_args(["--net.dtype", "bfloat16"]).net.dtype == "bfloat16"
+    with pytest.raises(ValueError, match="unknown dtype 'float16'"):
         net.NetworkConfig(dtype="float16")
+    with pytest.raises(SystemExit):
+        train.parse_args(["--net.dtype", "float16"])
+    assert "float16" in capsys.readouterr().err
 
 
 def test_saved_policy_records_its_dtype(tmp_path):
