@@ -75,11 +75,12 @@ def main() -> None:
     if out.is_relative_to(REPO):  # provenance without this machine's paths
         args.out = str(out.relative_to(REPO))
     prefixes = {"float32": args.float32_prefix, "bfloat16": args.bfloat16_prefix}
+    meta = metadata(args)  # before the outputs change the checkout (its `dirty` flag)
     result, groups = compare(runs_dir, args.conditions, prefixes, args.seeds)
     print(json.dumps(result, indent=2))
     figure = plot.draw(groups)
     figure.savefig(f"{out}.png", dpi=80)
-    write_results(f"{out}.json", metadata(args), {"final_returns": result})
+    write_results(f"{out}.json", meta, {"final_returns": result})
 
 
 if __name__ == "__main__":
