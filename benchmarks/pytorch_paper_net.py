@@ -19,8 +19,11 @@ Measured: samples/s of a full gradient step (value, policy and auxiliary heads; 
 `mean(value^2) - mean(log_softmax(logits)) + mean(|decoded - obs|)`, the same as train_sps.py's JAX loss) and
 of a forward pass without gradients, on one minibatch of `--batch` sequences x `--seq` steps of random
 observations in [0, 1) (the scale of uint8 frames / 255). Each is called once untimed, then `--reps` times;
-the rate is all timed samples over the total timed seconds. The last line printed is one JSON object with
-`framework`, `threads`, `samples`, `params`, `grad_samples_per_s` and `forward_samples_per_s`.
+the rate is all timed samples over the total timed seconds. `--dtype bfloat16` runs the forward pass and the
+loss under ``torch.autocast("cpu", torch.bfloat16)`` (bfloat16 convolutions, linear layers and LSTM,
+float32 parameters and gradients; jaxsocial's ``--net.dtype bfloat16`` likewise). The last line printed is
+one JSON object with `framework`, `threads`, `dtype`, `samples`, `params`, `grad_samples_per_s` and
+`forward_samples_per_s`.
 
 PyTorch is not a dependency of jaxsocial; this file is the only place that imports it. Give it its own
 virtual environment, for example:
@@ -140,7 +143,9 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=512, help="sequences per minibatch (paper: 512)")
     parser.add_argument("--seq", type=int, default=16, help="steps per sequence (paper: 16)")
     parser.add_argument("--reps", type=int, default=3, help="timed calls of each kind")
+    parser.add_argument("--dtype", choices=("float32", "bfloat16"), default="float32", help="compute dtype")
     args = parser.parse_args()
+    compute = torch.autocast("cpu", dtype=torch.bfloat16, enabled=args.dtype == "bfloat16")
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
@@ -149,19 +154,24 @@ def main() -> None:
     actions = torch.randint(0, N_ACTIONS, (args.seq, args.batch))
 
     def gradient_step():
-        value, logits, decoded = net(obs, actions)
-        loss = value.pow(2).mean() - torch.log_softmax(logits, dim=-1).mean() + (decoded - obs).abs().mean()
+        with compute:
+            value, logits, decoded = net(obs, actions)
+            loss = (
+                value.pow(2).mean() - torch.log_softmax(logits, dim=-1).mean() + (decoded - obs).abs().mean()
+            )
         net.zero_grad(set_to_none=True)
         loss.backward()
 
     @torch.no_grad()
     def forward_step():
-        net(obs, actions)
+        with compute:
+            net(obs, actions)
 
     samples = args.seq * args.batch
     result = {
         "framework": f"torch {torch.__version__}",
         "threads": args.threads,
+        "dtype": args.dtype,
         "samples": samples,
         "params": sum(p.numel() for p in net.parameters()),
         "grad_samples_per_s": round(samples_per_second(gradient_step, samples, args.reps)),

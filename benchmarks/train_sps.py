@@ -18,9 +18,13 @@ the unneeded ones, `grad_flops`; recomputation in the backward pass is not count
 float32 ``jnp.dot`` measured in the same run. XLA's ``cost_analysis`` counts a loop body once rather than
 once per iteration, so it only cross-checks the forward count on a loop-free call (T=1, B=64).
 
-With ``--torch PYTHON`` (a python with torch installed; torch is not a dependency of jaxsocial) the PyTorch
-reference benchmarks/pytorch_paper_net.py (the same network in stock PyTorch layers) runs in a subprocess
-with ``--threads <cpu count>`` and its JSON line is reported side by side.
+``--dtypes float32,bfloat16`` measures each `NetworkConfig.dtype` (bfloat16: product inputs in bfloat16,
+float32 accumulation; the "matmul" implementation's stride-1 layers then run as im2col products, whose FLOPs
+are counted as direct convolutions). With ``--torch PYTHON`` (a python with torch installed; torch is not a
+dependency of jaxsocial) the PyTorch reference benchmarks/pytorch_paper_net.py (the same network in stock
+PyTorch layers) runs in a subprocess with ``--threads <cpu count>``, once per dtype (bfloat16 under
+``torch.autocast``), and its JSON line is reported beside ours in the same dtype. The results record the
+CPU's model and vector flags (`cpu_flags`: AVX512, AVX512-BF16, AMX), which decide what bfloat16 gains.
 
 Memory: XLA:CPU allocates its large temporary buffers afresh on every call; glibc's malloc mmaps them, and
 the page faults on first touch cost ~10% of a gradient step. ``--hugepages`` re-runs this script with
@@ -28,8 +32,12 @@ the page faults on first touch cost ~10% of a gradient step. ``--hugepages`` re-
 the section `network_hugepages` runs the network section that way in a subprocess. No XLA flag is set:
 none helped (see the docstring of jaxsocial.agents.network).
 
+Section `products`: GFLOP/s of the paper network's matrix-product shapes in each of ``--dtypes`` (what
+bfloat16 can gain on this machine, layer by layer).
+
 Section `train`: end-to-end training throughput of the `small` (CLI default) and `paper` presets of
-`python -m jaxsocial.train` (rollout of every slot + PPO update), in joint env-steps/s.
+`python -m jaxsocial.train` (rollout of every slot + PPO update) and the README's symbolic-views command
+(`TRAIN_RUNS`, chosen with ``--presets``), in joint env-steps/s, for each of ``--dtypes``.
 
 `SECTIONS` maps a section name to ``fn(args) -> dict``. Run from the repository root (~6 minutes, most
 of it the "xla" implementation's gradient and one paper-preset iteration; ``~/torchref`` is a virtual
@@ -38,12 +46,15 @@ environment with torch, see benchmarks/pytorch_paper_net.py):
     python benchmarks/train_sps.py --torch ~/torchref/bin/python
     python benchmarks/train_sps.py --sections network,network_hugepages --torch ~/torchref/bin/python
     python benchmarks/train_sps.py --configs paper --impls matmul --repeats 10 --hugepages
+    python benchmarks/train_sps.py --sections network,train --configs paper --impls matmul \
+        --dtypes float32,bfloat16 --presets paper,symbolic --torch /work/torchref/bin/python
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import json
 import os
@@ -69,6 +80,20 @@ CONFIGS = {
     "paper": network.NetworkConfig(),
     "small": network.NetworkConfig(conv_channels=(16, 32, 32), hidden=64, mlp=32),
 }
+CPU_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
+"""The /proc/cpuinfo flags that decide bfloat16's speed: XLA:CPU widens bfloat16 to float32 without
+AVX512-BF16 (or AMX, whose tiles multiply bfloat16 matrices)."""
+
+
+def cpu_flags() -> dict[str, bool]:
+    """Which of `CPU_FLAGS` this machine's CPU has (all False where /proc/cpuinfo is missing)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        text = ""
+    lines = [line for line in text.splitlines() if line.startswith("flags")]
+    flags = lines[0].split(":", 1)[1].split() if lines else []
+    return {flag: flag in flags for flag in CPU_FLAGS}
 
 
 # ---------------------------------------------------------------------------------------------- FLOPs
@@ -94,8 +119,9 @@ def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
     if cfg.frame_aux != "none":
         layers |= {"aux_fc": (hid + cfg.n_actions) * s3 * c3, "deconv3": s1 * c1 * k2 * 3}
         stride1 |= {"deconv1": (s3, s2, c3, c2), "deconv2": (s2, s1, c2, c1)}
+    winograd = cfg.conv_impl == "matmul" and cfg.dtype == "float32"  # (bfloat16: im2col, direct FLOPs)
     for name, (p_in, p_out, c_in, c_out) in stride1.items():
-        if cfg.conv_impl == "matmul":
+        if winograd:
             tile = max(p_in, p_out)  # transformed pixels: (m + 2)^2
             layers[name] = tile * c_in * c_out
             layers[f"{name}.transforms"] = tile * (p_in * c_in + p_out * c_out)
@@ -179,6 +205,7 @@ def bench_network(name: str, cfg: network.NetworkConfig, seq: int, batch: int, r
         "seq": seq,
         "batch": batch,
         "chunk": cfg.chunk,
+        "dtype": cfg.dtype,
     }
     flops = {"grad": grad_flops(cfg), "forward": sum(forward_flops(cfg).values())}
     for kind, fn in [("grad", jax.value_and_grad(loss_fn(cfg))), ("forward", forward_fn(cfg))]:
@@ -207,14 +234,14 @@ def matmul_peak(n: int = 2048, repeats: int = 5) -> dict:
     return {"n": n, "times_s": times, "best_gflops_per_s": 2 * n**3 / min(times) / 1e9}
 
 
-def run_torch(python: str, seq: int, batch: int, repeats: int) -> dict:
-    cmd = [python, str(TORCH_SCRIPT), "--threads", str(os.cpu_count())]
+def run_torch(python: str, seq: int, batch: int, repeats: int, dtype: str) -> dict:
+    cmd = [python, str(TORCH_SCRIPT), "--threads", str(os.cpu_count()), "--dtype", dtype]
     cmd += ["--seq", str(seq), "--batch", str(batch), "--reps", str(repeats)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1800)
     if proc.returncode != 0:
         return {"command": cmd, "error": proc.stderr[-2000:]}
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    result["command"] = cmd
+    result["command"] = [python, str(TORCH_SCRIPT.relative_to(REPO)), *cmd[2:]]
     direct = dataclasses.replace(CONFIGS["paper"], conv_impl="xla")  # torch: direct convolutions
     flops = grad_flops(direct), sum(forward_flops(direct).values())
     result["grad_gflops_per_s"] = result["grad_samples_per_s"] * flops[0] / 1e9
@@ -233,25 +260,31 @@ def section_network(args: argparse.Namespace) -> dict:
             f"{xla_forward_flops(cfg) / 1e6:.2f} by XLA cost_analysis (incl. elementwise)",
             flush=True,
         )
-        for impl, chunk in itertools.product(args.impls, args.chunks or [cfg.chunk]):
-            cfg_impl = dataclasses.replace(cfg, conv_impl=impl, chunk=chunk)
-            repeats = args.repeats if impl == "matmul" else max(2, args.repeats // 3)  # xla: ~13 s per call
+        for dtype, impl, chunk in itertools.product(args.dtypes, args.impls, args.chunks or [cfg.chunk]):
+            cfg_impl = dataclasses.replace(cfg, conv_impl=impl, chunk=chunk, dtype=dtype)
+            repeats = args.repeats if impl != "xla" else max(2, args.repeats // 3)  # xla: ~13 s per call
             row = bench_network(name, cfg_impl, args.seq, args.batch, repeats)
             row["conv_impl"] = impl
+            row["loadavg_after"] = os.getloadavg()
             rows.append(row)
             g, f = row["grad"], row["forward"]
             print(
-                f"  {impl:6s} chunk {chunk:5d} grad {g['best_samples_per_s']:8,.0f} samples/s "
+                f"  {dtype:8s} {impl:6s} chunk {chunk:5d} grad {g['best_samples_per_s']:8,.0f} samples/s "
                 f"({g['best_gflops_per_s']:.0f} GFLOP/s, compile {g['compile_s']:.1f}s) | "
                 f"forward {f['best_samples_per_s']:8,.0f} samples/s "
-                f"({f['best_gflops_per_s']:.0f} GFLOP/s, compile {f['compile_s']:.1f}s)",
+                f"({f['best_gflops_per_s']:.0f} GFLOP/s, compile {f['compile_s']:.1f}s), "
+                f"load {row['loadavg_after'][0]:.1f}",
                 flush=True,
             )
     result = {"matmul_peak": peak, "rows": rows}
     if args.torch:
-        print("running the PyTorch reference ...", flush=True)
-        result["torch"] = run_torch(args.torch, args.seq, args.batch, max(3, args.repeats // 2))
-        print(f"  {json.dumps(result['torch'])}", flush=True)
+        result["torch"] = []
+        for dtype in args.dtypes:
+            print(f"running the PyTorch reference in {dtype} ...", flush=True)
+            torch_row = run_torch(args.torch, args.seq, args.batch, max(3, args.repeats // 2), dtype)
+            torch_row["loadavg_after"] = os.getloadavg()
+            result["torch"].append(torch_row)
+            print(f"  {json.dumps(torch_row)}", flush=True)
     return result
 
 
@@ -261,25 +294,47 @@ def section_network_hugepages(args: argparse.Namespace) -> dict:
         out = Path(tmp) / "out.json"
         cmd = [sys.executable, __file__, "--sections", "network", "--hugepages", "--out", str(out)]
         cmd += ["--configs", ",".join(args.configs), "--impls", ",".join(args.impls)]
+        cmd += ["--dtypes", ",".join(args.dtypes)]
         cmd += ["--chunks", ",".join(map(str, args.chunks))] if args.chunks else []
         cmd += ["--seq", str(args.seq), "--batch", str(args.batch), "--repeats", str(args.repeats)]
         subprocess.run(cmd, check=True, timeout=3600)
         return json.loads(out.read_text())["sections"]["network"]
 
 
+SYMBOLIC_FLAGS = [
+    "--env", "goalcycle3", "--env-args", "observation=symbolic", "--num-envs", "1024",
+    "--rollout-steps", "64", "--ppo.num-minibatches", "4", "--ppo.minibatch-chunks", "1024",
+    "--net.hidden", "64", "--net.mlp", "64",
+]  # fmt: skip
+"""The README's symbolic-views training command (`python -m jaxsocial.train` flags but its iterations)."""
+TRAIN_RUNS = ("small", "small-random", "paper", "symbolic")
+"""Section `train`'s runs (``--presets``): the CLI default, it with random slots, the paper preset, and
+`SYMBOLIC_FLAGS`."""
+
+
+def train_run(name: str):
+    """(TrainConfig, iterations per timed call) of one of `TRAIN_RUNS`."""
+    from jaxsocial import train
+    from jaxsocial.config import PRESETS
+
+    return {
+        "small": lambda: (PRESETS["small"], 10),
+        "small-random": lambda: (dataclasses.replace(PRESETS["small"], slots="learner,random,random"), 10),
+        "paper": lambda: (PRESETS["paper"], 1),
+        "symbolic": lambda: (train.parse_args(SYMBOLIC_FLAGS), 1),
+    }[name]()
+
+
 def section_train(args: argparse.Namespace) -> dict:
-    """End-to-end training throughput of `python -m jaxsocial.train` presets: one compiled chunk of
-    iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
-    from jaxsocial.config import PRESETS, setup
+    """End-to-end training throughput of `TRAIN_RUNS` (``--presets``) in each of ``--dtypes``: one compiled
+    chunk of iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
+    from jaxsocial.config import setup
     from jaxsocial.loop import make_train
 
     rows = []
-    runs = [
-        ("small", PRESETS["small"], 10),
-        ("small, random slots", dataclasses.replace(PRESETS["small"], slots="learner,random,random"), 10),
-        ("paper", PRESETS["paper"], 1),
-    ]
-    for preset, cfg, n_iter in runs:
+    for preset, dtype in itertools.product(args.presets, args.dtypes):
+        cfg, n_iter = train_run(preset)
+        cfg = dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, dtype=dtype))
         init, run_chunk, _ = make_train(cfg)
         state = jax.jit(init)(jax.random.key(0))
         fn = jax.jit(run_chunk, static_argnums=2)
@@ -299,6 +354,7 @@ def section_train(args: argparse.Namespace) -> dict:
         best = steps / min(times)
         row = {
             "preset": preset,
+            "dtype": dtype,
             "env": cfg.env,
             "slots": ",".join(slot.label for slot in setup(cfg).pop.slots),
             "iterations_per_call": n_iter,
@@ -311,11 +367,13 @@ def section_train(args: argparse.Namespace) -> dict:
             "compile_s": compile_s,
             "best_env_steps_per_s": best,
             "best_agent_steps_per_s": best * n_agents,
+            "loadavg_after": os.getloadavg(),
         }
         rows.append(row)
         print(
-            f"  {preset:20s} {best:9,.0f} joint env-steps/s ({best * n_agents:,.0f} agent-steps/s), "
-            f"{min(times) / n_iter:.2f} s/iteration, compile {compile_s:.1f}s",
+            f"  {preset:12s} {dtype:8s} {best:9,.0f} joint env-steps/s "
+            f"({best * n_agents:,.0f} agent-steps/s), {min(times) / n_iter:.2f} s/iteration, "
+            f"compile {compile_s:.1f}s, load {row['loadavg_after'][0]:.1f}",
             flush=True,
         )
     return {"rows": rows}
@@ -386,11 +444,49 @@ def section_kl_stop(args: argparse.Namespace) -> dict:
     return {"rows": rows}
 
 
+PRODUCTS = {
+    "2048^3": (1, 2048, 2048, 2048),
+    "FC 8192x576 . 576x192": (1, 8192, 576, 192),
+    "LSTM 8192x192 . 192x768": (1, 8192, 192, 768),
+    "decoder FC 8192x199 . 199x576": (1, 8192, 199, 576),
+    "im2col conv2 50176x288 . 288x64": (1, 50176, 288, 64),
+    "Winograd conv2 36x(8192x32 . 32x64)": (36, 8192, 32, 64),
+}
+"""The paper network's matrix-product shapes at a minibatch of 8,192 samples: (batch, m, k, n)."""
+
+
+def section_products(args: argparse.Namespace) -> dict:
+    """GFLOP/s of the network's product shapes (`PRODUCTS`), jitted, best of ``--repeats``, in each of
+    ``--dtypes`` (`precision.matmul`: bfloat16 inputs cast inside the call, float32 accumulation)."""
+    from jaxsocial.agents.precision import matmul
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for name, (batch, m, k, n) in PRODUCTS.items():
+        lead = (batch,) if batch > 1 else ()
+        x = jnp.asarray(rng.normal(size=(*lead, m, k)), jnp.float32)
+        w = jnp.asarray(rng.normal(size=(*lead, k, n)), jnp.float32)
+        row = {"product": name, "shape": [batch, m, k, n]}
+        for dtype in args.dtypes:
+            if batch > 1:  # batched: cast and contract like precision.matmul, per batch member
+                fn = jax.vmap(lambda a, b, d=dtype: matmul(a, b, d))
+            else:
+                fn = functools.partial(matmul, dtype=dtype)
+            times = time_calls(jax.jit(fn), (x, w), args.repeats)
+            row[dtype] = 2 * batch * m * k * n / min(times) / 1e9
+        row["loadavg_after"] = os.getloadavg()
+        rows.append(row)
+        print(f"  {name:38s} " + " ".join(f"{d} {row[d]:6.0f}" for d in args.dtypes) + " GFLOP/s, "
+              f"load {row['loadavg_after'][0]:.1f}", flush=True)  # fmt: skip
+    return {"rows": rows}
+
+
 SECTIONS: dict[str, Callable[[argparse.Namespace], dict]] = {
     "network": section_network,
     "train": section_train,
     "kl_stop": section_kl_stop,
     "network_hugepages": section_network_hugepages,
+    "products": section_products,
 }
 
 
@@ -401,26 +497,26 @@ def print_table(net: dict) -> None:
     peak = net["matmul_peak"]["best_gflops_per_s"]
     print(f"\nsamples/s (best of repeats); GFLOP/s vs matmul peak {peak:.0f}")
     header = (
-        f"{'config':>6} {'impl':>6} {'chunk':>5} | {'grad/s':>8} {'GFLOP/s':>7} {'compile':>7} | "
-        f"{'fwd/s':>8} {'GFLOP/s':>7} {'compile':>7}"
+        f"{'config':>6} {'dtype':>8} {'impl':>6} {'chunk':>5} | {'grad/s':>8} {'GFLOP/s':>7} "
+        f"{'compile':>7} | {'fwd/s':>8} {'GFLOP/s':>7} {'compile':>7}"
     )
     print(header)
     print("-" * len(header))
     for r in net["rows"]:
         g, f = r["grad"], r["forward"]
         print(
-            f"{r['config']:>6} {r['conv_impl']:>6} {r['chunk']:>5} | {g['best_samples_per_s']:>8,.0f} "
-            f"{g['best_gflops_per_s']:>7.0f} {g['compile_s']:>6.1f}s | {f['best_samples_per_s']:>8,.0f} "
-            f"{f['best_gflops_per_s']:>7.0f} {f['compile_s']:>6.1f}s"
+            f"{r['config']:>6} {r.get('dtype', 'float32'):>8} {r['conv_impl']:>6} {r['chunk']:>5} | "
+            f"{g['best_samples_per_s']:>8,.0f} {g['best_gflops_per_s']:>7.0f} {g['compile_s']:>6.1f}s | "
+            f"{f['best_samples_per_s']:>8,.0f} {f['best_gflops_per_s']:>7.0f} {f['compile_s']:>6.1f}s"
         )
-    if "torch" in net and "error" not in net["torch"]:
-        t = net["torch"]
-        print(
-            f"{'paper':>6} {'torch':>6} {'':>5} | {t['grad_samples_per_s']:>8,.0f} "
-            f"{t['grad_gflops_per_s']:>7.0f} {'':>7} | {t['forward_samples_per_s']:>8,.0f} "
-            f"{t['forward_gflops_per_s']:>7.0f}"
-            f"   ({t['framework']}, {t['threads']} threads)"
-        )
+    for t in net.get("torch", []):
+        if "error" not in t:
+            print(
+                f"{'paper':>6} {t['dtype']:>8} {'torch':>6} {'':>5} | {t['grad_samples_per_s']:>8,.0f} "
+                f"{t['grad_gflops_per_s']:>7.0f} {'':>7} | {t['forward_samples_per_s']:>8,.0f} "
+                f"{t['forward_gflops_per_s']:>7.0f}"
+                f"   ({t['framework']}, {t['threads']} threads)"
+            )
 
 
 def main() -> None:
@@ -428,6 +524,10 @@ def main() -> None:
     parser.add_argument("--sections", default="network,train", help=f"comma-separated: {', '.join(SECTIONS)}")
     parser.add_argument("--configs", default="paper,small", help=f"comma-separated: {', '.join(CONFIGS)}")
     parser.add_argument("--impls", default="matmul,xla", help="comma-separated conv_impl values")
+    parser.add_argument("--dtypes", default="float32", help="comma-separated NetworkConfig.dtype values")
+    parser.add_argument(
+        "--presets", default="small,small-random,paper", help=f"section train: {', '.join(TRAIN_RUNS)}"
+    )
     parser.add_argument(
         "--chunks", default="", help="comma-separated NetworkConfig.chunk values (default: the config's)"
     )
@@ -443,11 +543,15 @@ def main() -> None:
     args.sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     args.configs = [c.strip() for c in args.configs.split(",") if c.strip()]
     args.impls = [i.strip() for i in args.impls.split(",") if i.strip()]
+    args.dtypes = [d.strip() for d in args.dtypes.split(",") if d.strip()]
+    args.presets = [p.strip() for p in args.presets.split(",") if p.strip()]
     args.chunks = [int(c) for c in args.chunks.split(",") if c.strip()]
     for kind, values, known in [
         ("section", args.sections, SECTIONS),
         ("config", args.configs, CONFIGS),
         ("impl", args.impls, network.CONV_IMPLS),
+        ("dtype", args.dtypes, network.DTYPES),
+        ("preset", args.presets, TRAIN_RUNS),
     ]:
         if unknown := sorted(set(values) - set(known)):
             parser.error(f"unknown {kind}(s) {unknown}; choose from {', '.join(known)}")
@@ -458,7 +562,7 @@ def main() -> None:
         os.execve(sys.executable, [sys.executable, *sys.argv], env)  # glibc reads its tunables at start-up
 
     print(f"devices: {jax.devices()}  cpu_count: {os.cpu_count()}  GLIBC_TUNABLES={tunables!r}", flush=True)
-    meta = metadata(args)
+    meta = metadata(args) | {"cpu_flags": cpu_flags()}
     sections = {}
     for name in args.sections:
         print(f"\n== section {name}", flush=True)

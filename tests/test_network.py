@@ -2,12 +2,14 @@
 
 import dataclasses
 import functools
+import math
 
 import chex
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from float_bounds import assert_trees_within, assert_within, decoder_error, gamma, network_error
 
 from jaxsocial import checkpoint
 from jaxsocial.agents import network as net
@@ -71,7 +73,11 @@ def test_attention_loss_is_the_weighted_cross_entropy():
     log_probs = np.asarray(jax.nn.log_softmax(logits))
     nll = -np.take_along_axis(log_probs, np.asarray(target)[..., None], -1)[..., 0]
     expected = (np.asarray(weight) * nll.mean(-1)).sum()
-    np.testing.assert_allclose(net.attention_loss(params, cfg, hidden, target, weight), expected, rtol=1e-5)
+    # float32 error (`float_bounds`): a logit's sum, the log-softmax's sum over the classes, the weighted sum;
+    # every term of the loss is positive, so relative to the loss itself, once per computation.
+    terms = cfg.hidden + 1 + net.ATTENTION_CLASSES + weight.size * cfg.n_others
+    actual = net.attention_loss(params, cfg, hidden, target, weight)
+    np.testing.assert_allclose(actual, expected, rtol=2 * gamma(terms))
     with pytest.raises(ValueError, match="no attention head"):
         net.attention_loss(params, dataclasses.replace(cfg, aux="pred"), hidden, target, weight)
 
@@ -124,7 +130,9 @@ def test_matmul_equals_xla_conv(small_params):
     """Both conv implementations compute the same function of the same params, and the same gradients.
 
     The matmul side also runs the encoder and decoder in chunks of 4 of the T * B = 15 frames (padded to 16,
-    with the checkpointing of `_map_chunks`); the xla side in one piece.
+    with the checkpointing of `_map_chunks`); the xla side in one piece. Tolerances: the two computations'
+    float32 error bounds (`float_bounds.network_error`, dominated by Winograd's), plus the loss's sum over
+    every pixel and, for gradients, the path back and a weight gradient's sum over frames and pixels.
     """
     cfg_mm = dataclasses.replace(SMALL, chunk=4)
     cfg_xla = dataclasses.replace(SMALL, conv_impl="xla")
@@ -150,24 +158,21 @@ def test_matmul_equals_xla_conv(small_params):
     (l_xla, aux_xla), g_xla = jax.jit(jax.value_and_grad(loss, has_aux=True), static_argnums=1)(
         params, cfg_xla
     )
-    np.testing.assert_allclose(l_mm, l_xla, rtol=1e-5)
-    for a, b in zip(jax.tree_util.tree_leaves(aux_mm), jax.tree_util.tree_leaves(aux_xla), strict=True):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()))
+    outputs = network_error(cfg_mm, T) + network_error(cfg_xla, T)
+    pixels = T * B * math.prod(net.OBS_SHAPE)
+    np.testing.assert_allclose(l_mm, l_xla, rtol=outputs + 2 * gamma(pixels))
+    assert_trees_within(aux_mm, aux_xla, outputs)
     assert float(jnp.abs(aux_mm[1]).max()) > 0.1  # the decoder output is not trivially zero
+    assert_trees_within(g_mm, g_xla, 2 * outputs + 2 * gamma(pixels))
     for path, a in jax.tree_util.tree_leaves_with_path(g_mm):
-        b = _get(g_xla, path)
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5 * float(jnp.abs(b).max()), err_msg=str(path))
         assert float(jnp.abs(a).max()) > 0, path
 
 
-def _get(tree, path):
-    for key in path:
-        tree = tree[key.key if hasattr(key, "key") else key.idx]  # dict key or sequence index
-    return tree
-
-
 def test_unroll_equals_steps_with_resets(small_params):
+    """Tolerance: two float32 computations of the network without the decoder (`float_bounds`); the batch
+    shapes differ, so XLA may sum in other orders."""
     cfg = SMALL
+    bound = 2 * network_error(cfg, T, decoder=False)
     obs = _obs(6, (T, B, *net.OBS_SHAPE))
     resets = np.zeros((T, B), bool)
     resets[2, 0] = resets[3, 1] = resets[0, 2] = True
@@ -180,14 +185,14 @@ def test_unroll_equals_steps_with_resets(small_params):
         carry, o = step(small_params, cfg, carry, obs[t], resets[t])
         outs.append(o)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *outs)
-    chex.assert_trees_all_close((final, out), (carry, stacked), rtol=1e-5, atol=1e-6)
+    assert_trees_within((final, out), (carry, stacked), bound)
 
     # After sequence 0's reset at t=2, its outputs equal a fresh unroll of obs[2:] from a zero carry.
     _, fresh = unroll(
         small_params, cfg, net.initial_carry(cfg, (1,)), obs[2:, :1], jnp.zeros((T - 2, 1), bool)
     )
-    np.testing.assert_allclose(out.hidden[2:, :1], fresh.hidden, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(out.logits[2:, :1], fresh.logits, rtol=1e-5, atol=1e-6)
+    assert_within(out.hidden[2:, :1], fresh.hidden, bound)
+    assert_within(out.logits[2:, :1], fresh.logits, bound)
     # ... and before it, the (nonzero) initial carry mattered.
     _, no_reset = unroll(small_params, cfg, carry0, obs, jnp.zeros((T, B), bool))
     assert not np.allclose(no_reset.hidden[2:, 0], out.hidden[2:, 0])
@@ -208,13 +213,15 @@ def test_vmap_over_agents():
     assert out.logits.shape == (n_agents, T, B, cfg.n_actions)
     params1 = jax.tree_util.tree_map(lambda x: x[1], params)
     _, out1 = unroll(params1, cfg, net.initial_carry(cfg, (B,)), obs[1], resets[1])
-    np.testing.assert_allclose(out.logits[1], out1.logits, rtol=1e-5, atol=1e-6)
+    assert_within(out.logits[1], out1.logits, 2 * network_error(cfg, T, decoder=False))
 
 
 def test_aux_loss_equals_decode_error(small_params):
     """`aux_loss` (decoder backward in its forward pass, by chunks) has the value and the gradients (params,
     hidden, weight) of the weighted error written with `decode`, with and without differentiation; 15 frames
-    in chunks of 4 (padded) and weights with zeros."""
+    in chunks of 4 (padded) and weights with zeros. Tolerances: two float32 computations of the decoder
+    (`float_bounds.decoder_error`) and of the sums over a frame's pixels and the frames; gradients also the
+    path back and the sum over frames and pixels."""
     cfg = dataclasses.replace(SMALL, chunk=4)
     rng = np.random.default_rng(7)
     params = _normal(8, small_params, 0.3)
@@ -233,11 +240,11 @@ def test_aux_loss_equals_decode_error(small_params):
     grad = functools.partial(jax.value_and_grad, argnums=(0, 1, 2))
     value, grads = jax.jit(grad(fused))(params, hidden, weight)
     expected_value, expected_grads = jax.jit(grad(with_decode))(params, hidden, weight)
-    np.testing.assert_allclose(value, expected_value, rtol=1e-5)
-    np.testing.assert_allclose(jax.jit(fused)(params, hidden, weight), expected_value, rtol=1e-5)
-    for path, expected in jax.tree_util.tree_leaves_with_path(expected_grads):
-        actual = _get(grads, path)
-        np.testing.assert_allclose(actual, expected, rtol=1e-5, atol=1e-6 * float(jnp.abs(expected).max()))
+    sums = gamma(math.prod(net.OBS_SHAPE)) + gamma(T * B)
+    bound = 2 * (decoder_error(cfg) + sums)
+    np.testing.assert_allclose(value, expected_value, rtol=bound)
+    np.testing.assert_allclose(jax.jit(fused)(params, hidden, weight), expected_value, rtol=bound)
+    assert_trees_within(grads, expected_grads, 2 * bound + 2 * gamma(T * B * math.prod(net.OBS_SHAPE)))
     assert float(jnp.abs(grads[0]["deconv1"]["kernel"]).max()) > 0 and float(jnp.abs(grads[1]).max()) > 0
     assert not np.any(grads[0]["conv1"]["kernel"])  # the encoder is not part of the decoder's loss
 
@@ -287,14 +294,16 @@ def test_bad_config_raises(kwargs, match):
 
 def test_flax_modules_are_the_functional_network(small_params):
     """``ActorCritic(cfg).init`` builds the tree `init` builds (also with more frames than a chunk: chunked
-    layers under ``nn.scan``), and ``.apply`` is `unroll`."""
+    layers under ``nn.scan``), and ``.apply`` is `unroll` (within two float32 computations' error bound: the
+    chunks differ)."""
     cfg = dataclasses.replace(SMALL, chunk=4)
     args = (net.initial_carry(cfg, (B,)), _obs(10, (T, B, *net.OBS_SHAPE)), jnp.zeros((T, B), bool))
     variables = jax.eval_shape(lambda k: net.ActorCritic(cfg).init(k, *args), jax.random.key(0))
     assert set(variables) == {"params"}
     chex.assert_trees_all_equal_shapes_and_dtypes(variables["params"], small_params)
     applied = jax.jit(net.ActorCritic(cfg).apply)({"params": small_params}, *args)
-    chex.assert_trees_all_close(applied, unroll(small_params, SMALL, *args), rtol=1e-5, atol=1e-6)
+    expected = unroll(small_params, SMALL, *args)
+    assert_trees_within(applied, expected, 2 * network_error(cfg, T, decoder=False))
 
 
 # The params tree of the pre-Flax network (commit 3f6e052) for SMALL, written out so that a change of layout

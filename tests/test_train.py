@@ -115,10 +115,11 @@ def test_frozen_checkpoint_of_another_architecture_is_refused(tiny_runs):
 
 
 def test_load_policy_ignores_how_the_network_is_computed(tiny_runs):
-    """Only the architecture must match: `chunk` and `conv_impl` (policy_io.SPEED_FIELDS) may differ."""
+    """Only the architecture must match: `chunk`, `conv_impl` and `dtype` (policy_io.SPEED_FIELDS) may
+    differ."""
     full = str(tiny_runs["full"])
-    other_speed = dataclasses.replace(TINY.net, chunk=64, conv_impl="xla")
-    assert set(policy_io.SPEED_FIELDS) == {"chunk", "conv_impl"}
+    other_speed = dataclasses.replace(TINY.net, chunk=64, conv_impl="xla", dtype="bfloat16")
+    assert set(policy_io.SPEED_FIELDS) == {"chunk", "conv_impl", "dtype"}
     for a, b in zip(
         jax.tree.leaves(policy_io.load_policy(full, TINY.net)),
         jax.tree.leaves(policy_io.load_policy(full, other_speed)),

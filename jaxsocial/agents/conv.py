@@ -12,12 +12,16 @@ batched product over the h * w pixels); kernels are HWIO ``f32[3, 3, c_in, c_out
 Implementations (`IMPLS`; the same function of the same arguments):
 
 * "matmul": matrix products only (XLA:CPU's convolutions and their gradients are slow for these small
-  images). Stride 1: Winograd's minimal filtering with one tile per frame, F(m x m, 3 x 3) for an m x m
-  output (`winograd_transforms`; m <= 5); the transposed convolution is its adjoint. Stride 3 (= kernel size,
-  non-overlapping 3x3 blocks): a reshape/transpose into blocks and one matrix product. float32 error: ~5e-6
-  of a layer's largest output for m = 5, ~1e-7 for a direct product.
+  images). Stride 1 in float32: Winograd's minimal filtering with one tile per frame, F(m x m, 3 x 3) for an
+  m x m output (`winograd_transforms`; m <= 5); the transposed convolution is its adjoint. Stride 1 in
+  bfloat16: "im2col" (Winograd's transforms amplify the rounding of their inputs: bfloat16 F(5 x 5, 3 x 3)
+  measured 5% of a layer's largest output off, a direct product 0.2%). Stride 3 (= kernel size,
+  non-overlapping 3x3 blocks): a reshape/transpose into blocks and one matrix product.
+* "im2col": stride 1 as one matrix product of the 3x3 patches (K = 9 c_in); the transposed convolution as one
+  product followed by the sum of its 9 shifted outputs. Stride 3 as "matmul".
 * "xla": ``lax.conv_general_dilated`` / ``lax.conv_transpose`` in NHWC (exact reference).
 
+`dtype` (`precision.DTYPES`): the products' input dtype; they accumulate in float32 (`precision.matmul`).
 Measurements behind these choices: docs/performance.md.
 """
 
@@ -31,18 +35,26 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxsocial.agents.precision import matmul
+
 KERNEL = 3
-IMPLS = ("matmul", "xla")
+IMPLS = ("matmul", "im2col", "xla")
 
 
-def conv(x: jax.Array, kernel: jax.Array, bias: jax.Array, stride: int, impl: str) -> jax.Array:
+def conv(
+    x: jax.Array, kernel: jax.Array, bias: jax.Array, stride: int, impl: str, dtype: str = "float32"
+) -> jax.Array:
     """VALID cross-correlation: x f32[h, w, n, c_in] -> f32[(h - 3) // s + 1, (w - 3) // s + 1, n, c_out]."""
-    return {"matmul": _conv_matmul, "xla": _conv_xla}[impl](x, kernel, bias, stride)
+    fn = {"matmul": _conv_matmul, "im2col": _conv_im2col, "xla": _conv_xla}[impl]
+    return fn(x, kernel, bias, stride, dtype)
 
 
-def deconv(x: jax.Array, kernel: jax.Array, bias: jax.Array, stride: int, impl: str) -> jax.Array:
+def deconv(
+    x: jax.Array, kernel: jax.Array, bias: jax.Array, stride: int, impl: str, dtype: str = "float32"
+) -> jax.Array:
     """VALID transposed convolution: x f32[h, w, n, c_in] -> f32[s (h - 1) + 3, s (w - 1) + 3, n, c_out]."""
-    return {"matmul": _deconv_matmul, "xla": _deconv_xla}[impl](x, kernel, bias, stride)
+    fn = {"matmul": _deconv_matmul, "im2col": _deconv_im2col, "xla": _deconv_xla}[impl]
+    return fn(x, kernel, bias, stride, dtype)
 
 
 def to_hwnc(images: jax.Array) -> jax.Array:
@@ -94,6 +106,7 @@ def winograd_transforms(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     system = np.einsum("ij,jk,lq->ikljq", out_1d, filter_1d, np.eye(a)).reshape(-1, a * a)
     target = np.arange(a)[None, None, :] == np.arange(m)[:, None, None] + np.arange(KERNEL)[None, :, None]
     data_1d = np.linalg.lstsq(system, target.ravel().astype(np.float64), rcond=None)[0].reshape(a, a)
+    data_1d[np.abs(data_1d) < 1e-12] = 0.0  # the solver's noise: exact zeros (so the transforms stay sparse)
     assert np.abs(system @ data_1d.ravel() - target.ravel()).max() < 1e-9, "inconsistent Winograd system"
     return tuple(np.kron(t, t).astype(np.float32) for t in (data_1d, filter_1d, out_1d))
 
@@ -133,24 +146,69 @@ def _check_stride(stride: int) -> None:
         )
 
 
-def _conv_matmul(x, kernel, bias, stride: int):
+def _conv_matmul(x, kernel, bias, stride: int, dtype: str):
     _check_stride(stride)
     if stride == 1:
-        return _winograd_conv(x, kernel, bias)
+        return _winograd_conv(x, kernel, bias) if dtype == "float32" else _im2col_conv(x, kernel, bias, dtype)
     h, w, _, c = x.shape
     k = KERNEL
-    return blocks(x[: h // k * k, : w // k * k]) @ kernel.reshape(k * k * c, -1) + bias
+    return matmul(blocks(x[: h // k * k, : w // k * k]), kernel.reshape(k * k * c, -1), dtype) + bias
 
 
-def _deconv_matmul(x, kernel, bias, stride: int):
+def _deconv_matmul(x, kernel, bias, stride: int, dtype: str):
     _check_stride(stride)
     if stride == 1:
-        return _winograd_deconv(x, kernel, bias)
+        if dtype == "float32":
+            return _winograd_deconv(x, kernel, bias)
+        return _im2col_deconv(x, kernel, bias, dtype)
     h, w, n, c = x.shape
     k, c_out = KERNEL, kernel.shape[-1]
     # (the bias is added before the transpose: its gradient then reduces [*, k*k*c_out], not a 3-wide axis)
-    cols = x @ kernel.transpose(2, 0, 1, 3).reshape(c, k * k * c_out) + jnp.tile(bias, k * k)
+    cols = _kernel_columns(x, kernel, dtype) + jnp.tile(bias, k * k)
     return cols.reshape(h, w, n, k, k, c_out).transpose(0, 3, 1, 4, 2, 5).reshape(h * k, w * k, n, c_out)
+
+
+def _kernel_columns(x, kernel, dtype: str):
+    """x f32[..., c_in] times every kernel tap: f32[..., 9 c_out] in (di, dj, c_out) order."""
+    return matmul(x, kernel.transpose(2, 0, 1, 3).reshape(kernel.shape[2], -1), dtype)
+
+
+# ---------------------------------------------------------------------------------------------- im2col
+
+
+def _im2col_conv(x, kernel, bias, dtype: str):
+    """Stride-1 cross-correlation: one product of the 3x3 patches f32[m, m, n, 9 c_in] ((di, dj, c) order)."""
+    h, w, _, c = x.shape
+    oh, ow = h - KERNEL + 1, w - KERNEL + 1
+    taps = [x[di : di + oh, dj : dj + ow] for di in range(KERNEL) for dj in range(KERNEL)]
+    return matmul(jnp.concatenate(taps, axis=-1), kernel.reshape(KERNEL * KERNEL * c, -1), dtype) + bias
+
+
+def _im2col_deconv(x, kernel, bias, dtype: str):
+    """Stride-1 transposed convolution: every tap's product at once, then their 9 shifted sums (col2im)."""
+    h, w, n, _ = x.shape
+    cols = _kernel_columns(x, kernel, dtype).reshape(h, w, n, KERNEL, KERNEL, -1)
+    pad = KERNEL - 1
+    out = sum(
+        jnp.pad(cols[:, :, :, di, dj], [(di, pad - di), (dj, pad - dj), (0, 0), (0, 0)])
+        for di in range(KERNEL)
+        for dj in range(KERNEL)
+    )
+    return out + bias
+
+
+def _conv_im2col(x, kernel, bias, stride: int, dtype: str):
+    _check_stride(stride)
+    if stride == 1:
+        return _im2col_conv(x, kernel, bias, dtype)
+    return _conv_matmul(x, kernel, bias, stride, dtype)
+
+
+def _deconv_im2col(x, kernel, bias, stride: int, dtype: str):
+    _check_stride(stride)
+    if stride == 1:
+        return _im2col_deconv(x, kernel, bias, dtype)
+    return _deconv_matmul(x, kernel, bias, stride, dtype)
 
 
 # ------------------------------------------------------------------------------------------------- xla
@@ -159,15 +217,27 @@ def _deconv_matmul(x, kernel, bias, stride: int):
 _NHWC = ("NHWC", "HWIO", "NHWC")
 
 
-def _conv_xla(x, kernel, bias, stride: int):
-    out = lax.conv_general_dilated(to_nhwc(x), kernel, (stride, stride), "VALID", dimension_numbers=_NHWC)
+def _conv_xla(x, kernel, bias, stride: int, dtype: str):
+    out = lax.conv_general_dilated(
+        to_nhwc(x).astype(dtype),
+        kernel.astype(dtype),
+        (stride, stride),
+        "VALID",
+        dimension_numbers=_NHWC,
+        preferred_element_type=jnp.float32,
+    )
     return to_hwnc(out + bias)
 
 
-def _deconv_xla(x, kernel, bias, stride: int):
+def _deconv_xla(x, kernel, bias, stride: int, dtype: str):
     # lax.conv_transpose (transpose_kernel=False) correlates the dilated, padded input with the kernel;
     # flipping the kernel spatially gives the scatter semantics.
     out = lax.conv_transpose(
-        to_nhwc(x), kernel[::-1, ::-1], (stride, stride), "VALID", dimension_numbers=_NHWC
+        to_nhwc(x).astype(dtype),
+        kernel[::-1, ::-1].astype(dtype),
+        (stride, stride),
+        "VALID",
+        dimension_numbers=_NHWC,
+        preferred_element_type=jnp.float32,
     )
     return to_hwnc(out + bias)

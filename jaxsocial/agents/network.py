@@ -49,7 +49,9 @@ outputs) and zero bias, LSTM N(0, 1/hidden) input weights, orthogonal recurrent 
 
 `NetworkConfig.conv_impl` and `NetworkConfig.chunk` change how, not what, the network computes: the conv
 kernels (`conv.IMPLS`), and the frames per chunk in which the conv encoder and the decoder run (`_map_chunks`,
-saving only each layer's activation for the backward pass). Why and how fast: docs/performance.md.
+saving only each layer's activation for the backward pass). `NetworkConfig.dtype` "bfloat16" rounds the inputs
+of every matrix product and convolution to bfloat16 and accumulates in float32 (`precision.matmul`); the
+params tree, the LSTM state and every output stay float32. Why and how fast: docs/performance.md.
 """
 
 from __future__ import annotations
@@ -69,8 +71,9 @@ from flax import traverse_util
 from jax import lax
 from jax.ad_checkpoint import checkpoint_name
 
-from jaxsocial.agents import conv
+from jaxsocial.agents import conv, precision
 from jaxsocial.agents.conv import KERNEL
+from jaxsocial.agents.precision import matmul
 from jaxsocial.env.types import MAX_AGENTS, NUM_TILE_TYPES
 
 Params = dict[str, Any]
@@ -88,6 +91,7 @@ LEAKY_SLOPE = 0.01  # torch.nn.functional.leaky_relu default
 AUX_KINDS = ("none", "rec", "pred", "attention", "rec+attention", "pred+attention")
 ATTENTION_CLASSES = (OBS_SHAPE[0] // KERNEL) ** 2 + 1  # the 7x7 view cells, then "not in view"
 CONV_IMPLS = conv.IMPLS
+DTYPES = precision.DTYPES
 DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")  # the `Decoder`'s entries of the params tree
 _SAVED = "activation"  # checkpoint name of the layer outputs saved for the backward pass (`_map_chunks`)
 _INITS = "intermediates"  # collection where `_param` records each initialiser (see `init`)
@@ -98,14 +102,30 @@ class NetworkConfig:
     """Widths of the network; the defaults are the paper's."""
 
     conv_channels: tuple[int, int, int] = (32, 64, 64)
-    hidden: int = 192  # FC and LSTM width
-    mlp: int = 64  # hidden width of the value and policy MLPs
-    aux: str = "pred"  # one of AUX_KINDS: a frame loss ("rec", "pred") and/or "attention"
+    """Output channels of the three convolutions."""
+    hidden: int = 192
+    """Width of the FC layer and the LSTM."""
+    mlp: int = 64
+    """Hidden width of the value and policy MLPs."""
+    aux: str = "pred"
+    """Auxiliary loss: "none", "rec" (reconstruct the current frame), "pred" (predict the next frame),
+    "attention" (locate the other agents in the view), "rec+attention" or "pred+attention"."""
     n_actions: int = 7
-    conv_impl: str = "matmul"  # one of conv.IMPLS: "matmul" (fast on CPU) | "xla" (lax.conv)
-    chunk: int = 512  # frames per chunk of the conv encoder and decoder (speed only, see `_map_chunks`)
-    n_others: int = 2  # other agent slots the attention head locates (n_agents - 1; aux with "attention")
-    obs: str = "rgb"  # one of OBS_KINDS: the observations taken (the trainer sets it from the environment)
+    """Actions of the policy output."""
+    conv_impl: str = "matmul"
+    """How convolutions are computed (same result, different speed): "matmul" (matrix products: Winograd in
+    float32, im2col in bfloat16; fastest measured on CPU and GPU), "im2col" (one product of the 3x3 patches
+    per layer) or "xla" (XLA's convolutions)."""
+    chunk: int = 512
+    """Frames processed at a time by the conv encoder and decoder (speed and memory only)."""
+    n_others: int = 2
+    """Other agents the attention auxiliary head locates (the environment's agents - 1)."""
+    obs: str = "rgb"
+    """Observations the network takes: "rgb" frames or "symbolic" views (set from the environment)."""
+    dtype: str = "float32"
+    """Input dtype of matrix products and convolutions: "float32", or "bfloat16" (float32 accumulation;
+    params, optimiser state, LSTM state and losses stay float32). Whether it is faster depends on the
+    hardware (docs/performance.md)."""
 
     def __post_init__(self):
         channels = tuple(self.conv_channels)
@@ -127,6 +147,8 @@ class NetworkConfig:
             raise ValueError(f"unknown conv_impl {self.conv_impl!r}; choose from {CONV_IMPLS}")
         if self.obs not in OBS_KINDS:
             raise ValueError(f"unknown obs {self.obs!r}; choose from {OBS_KINDS}")
+        if self.dtype not in DTYPES:
+            raise ValueError(f"unknown dtype {self.dtype!r}; choose from {DTYPES}")
 
     @property
     def symbolic(self) -> bool:
@@ -313,15 +335,17 @@ def _split_chunks(args: tuple[jax.Array, ...], chunk: int) -> tuple[jax.Array, .
 
 
 class Dense(nn.Module):
-    """``x @ kernel + bias``: f32[..., n_in] -> f32[..., features]; orthogonal kernel (gain), zero bias."""
+    """``x @ kernel + bias``: f32[..., n_in] -> f32[..., features]; orthogonal kernel (gain), zero bias; the
+    product's inputs in `dtype` (`precision.matmul`)."""
 
     features: int
     gain: float
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         kernel = _param(self, "kernel", Init("orthogonal", self.gain), (x.shape[-1], self.features))
-        return x @ kernel + _param(self, "bias", Init("zeros"), (self.features,))
+        return matmul(x, kernel, self.dtype) + _param(self, "bias", Init("zeros"), (self.features,))
 
 
 class MLP(nn.Module):
@@ -330,12 +354,13 @@ class MLP(nn.Module):
     width: int
     n_out: int
     out_gain: float
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), name="dense0")(x))
-        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), name="dense1")(x))
-        return Dense(self.n_out, self.out_gain, name="out")(x)
+        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), self.dtype, name="dense0")(x))
+        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), self.dtype, name="dense1")(x))
+        return Dense(self.n_out, self.out_gain, self.dtype, name="out")(x)
 
 
 class Conv(nn.Module):
@@ -346,6 +371,7 @@ class Conv(nn.Module):
     stride: int
     impl: str
     transpose: bool = False
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
@@ -353,7 +379,8 @@ class Conv(nn.Module):
         bound = 1.0 / math.sqrt(c_in * KERNEL * KERNEL / (self.stride**2 if self.transpose else 1))
         kernel = _param(self, "kernel", Init("uniform", bound), (KERNEL, KERNEL, c_in, self.features))
         bias = _param(self, "bias", Init("uniform", bound), (self.features,))
-        return (conv.deconv if self.transpose else conv.conv)(x, kernel, bias, self.stride, self.impl)
+        layer = conv.deconv if self.transpose else conv.conv
+        return layer(x, kernel, bias, self.stride, self.impl, self.dtype)
 
 
 class Embed(nn.Module):
@@ -394,14 +421,14 @@ class Encoder(nn.Module):
     cfg: NetworkConfig
 
     def setup(self):
-        (c1, c2, c3), impl = self.cfg.conv_channels, self.cfg.conv_impl
+        (c1, c2, c3), impl, dtype = self.cfg.conv_channels, self.cfg.conv_impl, self.cfg.dtype
         if self.cfg.symbolic:
             self.embed = Embed(c1)
         else:
-            self.conv1 = Conv(c1, STRIDES[0], impl)
-        self.conv2 = Conv(c2, STRIDES[1], impl)
-        self.conv3 = Conv(c3, STRIDES[2], impl)
-        self.fc = Dense(self.cfg.hidden, math.sqrt(2.0))
+            self.conv1 = Conv(c1, STRIDES[0], impl, dtype=dtype)
+        self.conv2 = Conv(c2, STRIDES[1], impl, dtype=dtype)
+        self.conv3 = Conv(c3, STRIDES[2], impl, dtype=dtype)
+        self.fc = Dense(self.cfg.hidden, math.sqrt(2.0), dtype)
 
     def __call__(self, obs: jax.Array) -> jax.Array:
         chex.assert_shape(obs, (None, *self.cfg.obs_shape))
@@ -430,20 +457,21 @@ class LSTM(nn.Module):
     ``h @ wh`` and the gates inside the `lax.scan` over T."""
 
     features: int
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, carry: Carry, x: jax.Array, resets: jax.Array) -> tuple[Carry, jax.Array]:
         n_in, gates = x.shape[-1], 4 * self.features
         wi = _param(self, "wi", Init("normal", 1.0 / math.sqrt(n_in)), (n_in, gates))
         wh = _param(self, "wh", Init("orthogonal", 1.0, blocks=4), (self.features, gates))
-        xproj = x @ wi + _param(self, "b", Init("zeros"), (gates,))
+        xproj = matmul(x, wi, self.dtype) + _param(self, "b", Init("zeros"), (gates,))
 
         def cell(carry, inputs):
             xp, reset = inputs
             keep = ~reset[:, None]
             c = jnp.where(keep, carry.c, 0.0)
             h = jnp.where(keep, carry.h, 0.0)
-            i, f, g, o = jnp.split(xp + h @ wh, 4, axis=-1)
+            i, f, g, o = jnp.split(xp + matmul(h, wh, self.dtype), 4, axis=-1)
             c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
             h = jax.nn.sigmoid(o) * jnp.tanh(c)
             return Carry(c=c, h=h), h
@@ -462,14 +490,14 @@ class Decoder(nn.Module):
     cfg: NetworkConfig
 
     def setup(self):
-        (c1, c2, _), impl = self.cfg.conv_channels, self.cfg.conv_impl
-        self.aux_fc = Dense(self.cfg.feature_size, math.sqrt(2.0))
-        self.deconv1 = Conv(c2, STRIDES[2], impl, transpose=True)
-        self.deconv2 = Conv(c1, STRIDES[1], impl, transpose=True)
+        (c1, c2, _), impl, dtype = self.cfg.conv_channels, self.cfg.conv_impl, self.cfg.dtype
+        self.aux_fc = Dense(self.cfg.feature_size, math.sqrt(2.0), dtype)
+        self.deconv1 = Conv(c2, STRIDES[2], impl, transpose=True, dtype=dtype)
+        self.deconv2 = Conv(c1, STRIDES[1], impl, transpose=True, dtype=dtype)
         if self.cfg.symbolic:
-            self.cell_logits = Dense(PREDICTED_VOCAB, 1.0)
+            self.cell_logits = Dense(PREDICTED_VOCAB, 1.0, dtype)
         else:
-            self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True)
+            self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True, dtype=dtype)
 
     def __call__(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
         batch = hidden.shape[:-1]
@@ -545,11 +573,11 @@ class ActorCritic(nn.Module):
         cfg = self.cfg
         self.encoder = Encoder(cfg)
         nn.share_scope(self, self.encoder)  # its layers are top-level entries of the params tree
-        self.lstm = LSTM(cfg.hidden)
-        self.policy = MLP(cfg.mlp, cfg.n_actions, 0.01)
-        self.value = MLP(cfg.mlp, 1, 1.0)
+        self.lstm = LSTM(cfg.hidden, cfg.dtype)
+        self.policy = MLP(cfg.mlp, cfg.n_actions, 0.01, cfg.dtype)
+        self.value = MLP(cfg.mlp, 1, 1.0, cfg.dtype)
         if cfg.attention:
-            self.attention = Dense(cfg.n_others * ATTENTION_CLASSES, 0.01)
+            self.attention = Dense(cfg.n_others * ATTENTION_CLASSES, 0.01, cfg.dtype)
         if cfg.frame_aux != "none":
             self.decoder = Decoder(cfg)
             nn.share_scope(self, self.decoder)

@@ -17,8 +17,9 @@ from jaxsocial.agents import network, population
 POLICY_DIR = "policy"
 """Sub-directory of a run directory holding the learners' params (stacked [S_l, ...]) for frozen slots."""
 
-SPEED_FIELDS = ("conv_impl", "chunk")
-"""NetworkConfig fields that change how the network is computed, not what it computes."""
+SPEED_FIELDS = ("conv_impl", "chunk", "dtype")
+"""NetworkConfig fields that change how the network is computed, not what it computes (params are float32
+whatever `dtype` computes them: a bfloat16 run's policy plays in a float32 run, and the other way round)."""
 
 
 def json_net(net: network.NetworkConfig) -> dict:
