@@ -23,6 +23,7 @@ from typing import Any
 import jaxsocial
 from jaxsocial import logs, schedule, train
 from jaxsocial.agents import population
+from jaxsocial.axes import steps_axis
 from jaxsocial.config import DRIVER_FIELDS, TrainConfig
 from jaxsocial.experiments import figures
 
@@ -144,23 +145,6 @@ def panels(groups: list[Group]) -> list[list[str]]:
         [k for k in PANELS if k == "return" or any(f"{k}/{slot}" in g.rows[0][0] for g in groups)]
         for slot in range(n_slots)
     ]
-
-
-def format_steps(value: float, _position=None) -> str:
-    """A step count as people read it: 0, 800, 64k, 1.2M, 3.75G (3 significant digits)."""
-    for scale, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
-        if abs(value) >= scale:
-            return f"{value / scale:.3g}{suffix}"
-    return f"{value:.3g}"
-
-
-def steps_axis(ax) -> None:
-    """An env-steps x axis on a matplotlib Axes: at most 5 ticks, labelled by `format_steps`."""
-    from matplotlib.ticker import FuncFormatter, MaxNLocator
-
-    ax.xaxis.set_major_locator(MaxNLocator(nbins=5))
-    ax.xaxis.set_major_formatter(FuncFormatter(format_steps))
-    ax.set_xlabel("env steps", fontsize=8)
 
 
 def draw(groups: list[Group], points: int = figures.CURVE_POINTS):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial import logs, plot
+from jaxsocial import axes, logs, plot
 from jaxsocial.experiments import figures
 
 
@@ -55,7 +55,7 @@ def test_two_seeds_panels_mean_and_band(run_dir):
     np.testing.assert_allclose(fig.axes[2].lines[1].get_ydata(), kl)  # seed 1's KL, per iteration
     assert [t.get_text() for t in returns.get_legend().get_texts()] == ["tiny (2 seeds)"]
     # env steps on every x axis, as "64k", "1.2M", at most nbins + 1 = 6 ticks so their labels do not overlap
-    assert all(ax.xaxis.get_major_formatter().func is plot.format_steps for ax in fig.axes)
+    assert all(ax.xaxis.get_major_formatter().func is axes.format_steps for ax in fig.axes)
     assert all(len(ax.get_xticks()) <= 6 for ax in fig.axes)
 
 
@@ -64,7 +64,7 @@ def test_two_seeds_panels_mean_and_band(run_dir):
     [(0, "0"), (800, "800"), (64_000, "64k"), (1_200_000, "1.2M"), (375_000_000, "375M"), (3.75e9, "3.75G")],
 )
 def test_env_steps_read_as_people_write_them(value, text):
-    assert plot.format_steps(value) == text
+    assert axes.format_steps(value) == text
 
 
 def test_seeds_group_by_config(run_dir, tmp_path):

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import logs
+from jaxsocial.axes import steps_axis
 from jaxsocial.evaluate import mean_ci95
 from jaxsocial.experiments import counts, prereg, recipes, records, runner, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
@@ -371,23 +372,23 @@ def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
         used = set()
         for i, (c, seed_rows) in enumerate(runs.rows.items()):
             xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
-            xs = [x * steps_per_iteration[c] / 1e6 for x in xs]
+            xs = [x * steps_per_iteration[c] for x in xs]
             for ax in (returns_ax, zoom_ax):
                 band(ax, xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
             key = next((k for k in LOSS_PANEL if k in seed_rows[0][-1]), None)
             if key is not None:
                 used.add(key)
                 its, losses = zip(*(metric_curve(rows, key) for rows in seed_rows), strict=True)
-                its = [x * steps_per_iteration[c] / 1e6 for x in its]
+                its = [x * steps_per_iteration[c] for x in its]
                 band(loss_ax, its, list(losses), recipes.CONDITIONS[c].label, colors[i])
         if "experts" in summary and summary["experts"]["mean"] is not None:
             returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
-        returns_ax.set(
-            xlabel="env-steps (millions)", ylabel="learner episode return", title=runs.recipe.title
-        )
-        zoom_ax.set(xlabel="env-steps (millions)", title="the learners' returns, zoomed")
+        returns_ax.set(ylabel="learner episode return", title=runs.recipe.title)
+        zoom_ax.set(title="the learners' returns, zoomed")
         names = " / ".join(LOSS_PANEL[k] for k in LOSS_PANEL if k in used)
-        loss_ax.set(xlabel="env-steps (millions)", ylabel=names, title="training loss")
+        loss_ax.set(ylabel=names, title="training loss")
+        for ax in (returns_ax, zoom_ax, loss_ax):
+            steps_axis(ax)
         returns_ax.legend(fontsize=8)
         draw_takeoffs(takeoff_ax, runs, summary, colors)
     elif kind == "mixing":
@@ -440,11 +441,11 @@ def draw_takeoffs(ax, runs: RecipeRuns, summary: dict[str, Any], colors) -> None
     env-steps (`summary['time_to_learning']`)."""
     for i, (c, entry) in enumerate(summary["time_to_learning"]["conditions"].items()):
         cfg = runs.configs[c]
-        end = max(len(rows) for rows in runs.rows[c]) * cfg.num_envs * cfg.rollout_steps / 1e6
-        steps = [None if s is None else s / 1e6 for s in entry["takeoff_env_steps"]]
+        end = max(len(rows) for rows in runs.rows[c]) * cfg.num_envs * cfg.rollout_steps
+        steps = entry["takeoff_env_steps"]
         takeoff.draw(ax, steps, end, recipes.CONDITIONS[c].label, colors[i])
+    steps_axis(ax)
     ax.set(
-        xlabel="env-steps (millions)",
         ylabel="fraction of seeds",
         ylim=(-0.03, 1.03),
         title=f"seeds past the one-tile plateau (return > {LEARNED_RETURN:g})",
