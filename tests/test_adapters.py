@@ -1,5 +1,6 @@
 """The gymnax and JaxMARL adapters against the real libraries: spaces, their own wrappers under jit and vmap,
-auto-reset, and rollouts that match the native step exactly."""
+auto-reset, and rollouts that match the native step exactly. The dev extra installs both libraries, so a
+missing one fails the suite rather than skipping it."""
 
 import importlib.util
 import sys
@@ -10,14 +11,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import TINY
+from jaxmarl.wrappers import baselines as jaxmarl_wrappers
 
+from jaxsocial.adapters import gymnax_env, jaxmarl_env
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
-
-gymnax_env = pytest.importorskip("jaxsocial.adapters.gymnax_env")
-jaxmarl_env = pytest.importorskip("jaxsocial.adapters.jaxmarl_env")
-purerl = pytest.importorskip("gymnax.wrappers.purerl")
-jaxmarl_wrappers = pytest.importorskip("jaxmarl.wrappers.baselines")
 
 SMALL = {"width": 7, "height": 7, "max_steps": 12}  # 30 steps cross two episode ends
 STEPS, ENVS = 30, 2

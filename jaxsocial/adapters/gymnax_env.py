@@ -23,7 +23,9 @@ from flax import struct
 
 try:
     from gymnax.environments import environment, spaces
-except ImportError as err:  # pragma: no cover - depends on the installed extras
+except ModuleNotFoundError as err:  # pragma: no cover - depends on the installed extras
+    if err.name != "gymnax":
+        raise  # gymnax is installed but one of its own imports is missing: show that one
     raise ImportError('jaxsocial.adapters.gymnax_env needs gymnax: pip install -e ".[gymnax]"') from err
 
 import jaxsocial

@@ -21,7 +21,9 @@ import jax.numpy as jnp
 try:
     from jaxmarl.environments import spaces
     from jaxmarl.environments.multi_agent_env import MultiAgentEnv
-except ImportError as err:  # pragma: no cover - depends on the installed extras
+except ModuleNotFoundError as err:  # pragma: no cover - depends on the installed extras
+    if err.name != "jaxmarl":
+        raise  # jaxmarl is installed but one of its own imports is missing: show that one
     raise ImportError('jaxsocial.adapters.jaxmarl_env needs jaxmarl: pip install -e ".[jaxmarl]"') from err
 
 import jaxsocial
