@@ -1,6 +1,6 @@
-"""Training runs: the chunked driver (`run`: stages, seeds, resume, checkpoints, metrics rows, progress) and
-the CLI. The configuration and its validation are in `jaxsocial.config`, the compiled loop in
-`jaxsocial.loop`.
+"""Training runs: `run` (start-up, then `train_chunks`, the loop over the steps of `jaxsocial.driver` and of
+`Outputs`, what process 0 writes: metrics rows, evaluations, progress) and the CLI. The configuration and its
+validation are in `jaxsocial.config`, the compiled loop in `jaxsocial.loop`.
 
     python -m jaxsocial.train --env goalcycle3            # small default, a few minutes on 2 CPU cores
     python -m jaxsocial.train --preset paper --env goalcycle3
@@ -9,8 +9,8 @@ the CLI. The configuration and its validation are in `jaxsocial.config`, the com
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,6 @@ import numpy as np
 
 import jaxsocial
 from jaxsocial import (
-    checkpoint,
     compile_cache,
     config,
     distributed,
@@ -33,7 +32,17 @@ from jaxsocial import (
 )
 from jaxsocial.agents import policy_io, population
 from jaxsocial.config import DRIVER_FIELDS, PRESETS, TrainConfig, config_dict, config_from_dict
-from jaxsocial.loop import Program, RunnerState
+from jaxsocial.driver import (
+    Check,
+    Chunk,
+    Driver,
+    check_chunk,
+    checkpoint_due,
+    evaluates,
+    plan_chunk,
+    pool_seeds,
+    seed_part,
+)
 
 
 def metric_rows(
@@ -111,48 +120,45 @@ def run(cfg: TrainConfig) -> Path:
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
     static = config.setup(cfg)  # validate before touching the disk or compiling; once per run
-    pop = static.pop
     mesh = loop.data_mesh(cfg)
-
-    def program_of(stage: int) -> Program:
-        stage_cfg, env_params = static.stage(stage)
-        return loop.compiled(stage_cfg, mesh, env_params=env_params, pop=pop)
-
-    name = run_name(cfg)
-    run_dir = Path(cfg.runs_dir).expanduser() / name
+    run_dir = Path(cfg.runs_dir).expanduser() / run_name(cfg)
     cfg = init_from.pin(cfg, run_dir)  # RUN_DIR@ITERATION in config.json
     seeds = seed_runs(cfg, run_dir)
-    saved = config_dict(cfg)
-
-    def prepare() -> None:
-        logs.prepare_run_dir(cfg.runs_dir, name, resume=cfg.resume, overwrite=cfg.overwrite)
-        if cfg.resume and (run_dir / "config.json").exists():
-            diff = [k for k in logs.config_diff(logs.read_config(run_dir), saved) if k not in DRIVER_FIELDS]
-            if diff:
-                raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
-        for _, seed_dir in seeds:
-            for sub in ("checkpoints", policy_io.POLICY_DIR):  # made here, before any process looks
-                (seed_dir / sub).mkdir(parents=True, exist_ok=True)
-        if not cfg.resume:  # a resumed run's config is rewritten once it has succeeded
-            write_configs()
-
-    def write_configs() -> None:
-        logs.write_config(run_dir, saved)
-        for seed_cfg, seed_dir in seeds:
-            if seed_cfg is not cfg:
-                logs.write_config(seed_dir, config_dict(seed_cfg))
-
     lock = runlock.RunLock(run_dir)
     distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
     try:
-        distributed.on_main(prepare)
-        train_chunks(cfg, static, mesh, run_dir, seeds, program_of)
-        if cfg.resume:
-            distributed.on_main(write_configs)
+        distributed.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
+        train_chunks(cfg, static, mesh, run_dir, seeds)
+        if cfg.resume:  # a resumed run's config is rewritten once it has succeeded
+            distributed.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
     finally:
         if distributed.is_main():
             lock.release()
     return run_dir
+
+
+def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConfig, Path]]) -> None:
+    """Start-up on process 0: `logs.prepare_run_dir` (a resumed run's config must not differ but in
+    `DRIVER_FIELDS`), each seed's checkpoint and policy directories, and a new run's configs."""
+    logs.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite)
+    if cfg.resume and (run_dir / "config.json").exists():
+        saved = config_dict(cfg)
+        diff = [k for k in logs.config_diff(logs.read_config(run_dir), saved) if k not in DRIVER_FIELDS]
+        if diff:
+            raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
+    for _, seed_dir in seeds:
+        for sub in ("checkpoints", policy_io.POLICY_DIR):  # made here, before any process looks
+            (seed_dir / sub).mkdir(parents=True, exist_ok=True)
+    if not cfg.resume:
+        write_configs(cfg, run_dir, seeds)
+
+
+def write_configs(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConfig, Path]]) -> None:
+    """The run's config.json and, with several seeds, each seed's (that of its one-seed run)."""
+    logs.write_config(run_dir, config_dict(cfg))
+    for seed_cfg, seed_dir in seeds:
+        if seed_cfg is not cfg:
+            logs.write_config(seed_dir, config_dict(seed_cfg))
 
 
 def train_chunks(
@@ -161,117 +167,147 @@ def train_chunks(
     mesh: jax.sharding.Mesh,
     run_dir: Path,
     seeds: list[tuple[TrainConfig, Path]],
-    program_of: Any,
 ) -> None:
-    """The training loop of `run` in its prepared (and locked) run directory: chunk after chunk, with
-    metrics rows, evaluations, stage switches, checkpoints and progress. Stops at the first non-finite
-    iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn'; nothing non-finite is ever saved."""
-    pop, stages, frozen = static.pop, static.stages, static.frozen_params
-    main = distributed.is_main()
-    stage = schedule.initial_index(stages)
-    program = program_of(stage)
-    state = program.init(np.asarray([c.seed for c, _ in seeds] if cfg.seeds > 1 else cfg.seed, np.int32))
-    if frozen is not None:
-        frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
-    if cfg.resume:
-        state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
-    start = int(np.asarray(state.iteration).reshape(-1)[0])
-    if start == 0:  # a new run, or a resumed one that saved nothing yet: from the source's learners
-        state = init_from.apply(cfg, state, program)
-    if start >= cfg.iterations:
-        if main:
-            print(nothing_to_train(start, cfg.iterations))
+    """The training loop of `run` in its prepared (and locked) run directory, over the steps of `Driver`
+    and `Outputs`: chunk after chunk, plan, compile, run, record, switch stage, save and show progress.
+    Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
+    nothing non-finite is ever saved."""
+    driver = Driver.start(cfg, static, mesh, seeds)
+    if driver.it >= cfg.iterations:
+        if distributed.is_main():
+            print(nothing_to_train(driver.it, cfg.iterations))
         return
-    metrics_logs = [logs.MetricsLog(d) for _, d in seeds] if main else []
-    for metrics_log in metrics_logs:
-        metrics_log.truncate_after(start)
-    extras = [logs.make_logger(cfg.logger, d, config_dict(c)) for c, d in seeds] if main else []
-    progress = None
-    parts = [f"{cfg.seeds} seeds"] if cfg.seeds > 1 else []
-    parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
-    name = run_name(cfg)
-    desc = f"{name} ({', '.join(parts)})" if parts else name
-    executables: dict[tuple[int, int], Any] = {}  # (stage, n) -> compiled chunk of n iterations
-    steps_per_iteration = cfg.num_envs * cfg.rollout_steps
-    learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
-    last_saved = start
-    nonfinite_iterations: list[int] = []
-    it = start
+    out = Outputs.open(cfg, static, mesh, seeds, driver.it)
     try:
-        while it < cfg.iterations:
-            n = min(cfg.chunk_iterations, cfg.iterations - it)
-            switch = schedule.next_start(stages, stage)
-            if switch is not None and switch > it:
-                n = min(n, switch - it)  # land exactly on the next stage's first iteration
-            if cfg.eval_envs:
-                n = min(n, cfg.eval_every - it % cfg.eval_every)  # end chunks on evaluation iterations
-            compile_s = None
-            if (stage, n) not in executables:  # compiled ahead of time, so the speed below excludes it
-                if cfg.progress and main:
-                    print(f"{desc}: compiling {chunk_description(n, stages, stage)} ...", flush=True)
-                t0 = time.perf_counter()
-                program = program_of(stage)
-                executables[stage, n] = program.run_chunk.lower(state, frozen, n).compile()
-                compile_s = time.perf_counter() - t0
-            if progress is None and cfg.progress and main:
-                progress = logs.Progress(cfg.iterations, desc=desc, initial=it)
-            t0 = time.perf_counter()
-            state, metrics = executables[stage, n](state, frozen)
-            metrics = jax.device_get(metrics)
-            sps = n * steps_per_iteration / (time.perf_counter() - t0)  # per seed
-            finite = metrics.pop(nonfinite.KEY)
-            failed = nonfinite.failures(finite).reshape(cfg.seeds, n).any(axis=0)  # bool[n], over seeds
-            failure = nonfinite.first_failure(finite, pop.learners, cfg.seeds)
-            stop = failure is not None and cfg.on_nonfinite == "stop"
-            kept = failure.offset + 1 if stop else n  # rows after a stop are not written
-            nonfinite_iterations += [it + 1 + i for i in np.flatnonzero(failed[:kept])]
-            healthy_end = not failed[-1]  # the chunk's last iteration passed every check: save, evaluate it
-            for k, (metrics_log, extra) in enumerate(zip(metrics_logs, extras, strict=True)):
-                seed_metrics, seed_finite = seed_part((metrics, finite), k, cfg.seeds)
-                rows = chunk_rows(seed_metrics, seed_finite, it, round(sps), stage, pop)[:kept]
-                if compile_s is not None:
-                    rows[0]["compile_s"] = round(compile_s, 2)
-                end = it + n
-                evaluating = cfg.eval_envs and (end % cfg.eval_every == 0 or end == cfg.iterations)
-                if evaluating and healthy_end and not stop:
-                    seed = seeds[k][0].seed
-                    host_params = jax.device_get(seed_part(state.params, k, cfg.seeds))  # replicated: local
-                    params = jax.tree.map(lambda x: x[0], host_params)  # the first learner
-                    key = jax.random.fold_in(jax.random.key(seed), end)
-                    rows[-1].update({f"eval/{s}": r for s, r in learner_eval(key, params).items()})
-                metrics_log.append(rows)
-                for row in rows:
-                    extra.log(row, row["iteration"])
-            if stop:
-                raise nonfinite.NonFiniteError(stop_message(cfg, it, failure, last_saved))
-            if failure is not None and main and nonfinite_iterations[0] > it:  # the run's first one
-                print(f"warning: {failure_text(cfg, it, failure)}; training on (--on-nonfinite warn)",
-                      file=sys.stderr)  # fmt: skip
-            it += n
-            all_seeds = (
-                jax.tree.map(lambda m: m.reshape(-1, *m.shape[2:]), metrics) if cfg.seeds > 1 else metrics
-            )
-            stage = schedule.advance(stages, stage, it, learner_return(all_seeds, pop))
-            if it - last_saved >= cfg.checkpoint_every or it == cfg.iterations:
-                if healthy_end:
-                    save_seeds(cfg, seeds, it, state, stage)
-                    last_saved = it
-                elif main:
-                    print(f"warning: iteration {it} is not finite: not saved as a checkpoint or policy",
-                          file=sys.stderr)  # fmt: skip
-            if progress is not None:
-                shown = {"stage": f"{stage + 1}/{len(stages)}"} if stages else {}
-                progress.update(it, **shown, **progress_fields(all_seeds, sps * cfg.seeds, pop))
+        while driver.it < cfg.iterations:
+            n = plan_chunk(cfg, static.stages, driver.stage, driver.it)
+            compile_s = driver.compile(n, announce=out.compiling)
+            out.start_progress(driver.it)
+            chunk = driver.run_chunk(n)
+            check = check_chunk(chunk.finite, static.pop.learners, cfg.seeds, cfg.on_nonfinite)
+            out.record(chunk, check, compile_s, driver.state.params)
+            if check.stop:
+                raise nonfinite.NonFiniteError(stop_message(cfg, driver.it, check.failure, driver.last_saved))
+            driver.it += n
+            pooled = pool_seeds(chunk.metrics, cfg.seeds)
+            driver.switch_stage(learner_return(pooled, static.pop))
+            if checkpoint_due(cfg, driver.it, driver.last_saved):
+                driver.save(check.healthy_end)
+            out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
     finally:
-        if progress is not None:
-            progress.close()
-        for extra in extras:
+        out.close()
+    out.report(run_dir, driver.it)
+
+
+@dataclasses.dataclass
+class Outputs:
+    """What process 0 writes while training: each seed's metrics rows (`metrics.jsonl` and its logger's)
+    with evaluations, the progress line and messages. Empty on the other processes, where it does nothing."""
+
+    cfg: TrainConfig
+    static: config.Setup
+    seeds: list[tuple[TrainConfig, Path]]
+    desc: str  # the run, as progress lines name it
+    metrics_logs: list[logs.MetricsLog]  # each seed's
+    extras: list[logs.Logger]  # each seed's `cfg.logger`
+    learner_eval: Any  # `evaluate.make_learner_eval`'s, or None
+    progress: logs.Progress | None = None  # from the first chunk on, with `cfg.progress`
+    nonfinite_iterations: list[int] = dataclasses.field(default_factory=list)
+
+    @classmethod
+    def open(
+        cls,
+        cfg: TrainConfig,
+        static: config.Setup,
+        mesh: jax.sharding.Mesh,
+        seeds: list[tuple[TrainConfig, Path]],
+        start: int,
+    ) -> Outputs:
+        """The outputs of a run that continues after iteration `start` (later metrics rows are dropped)."""
+        parts = [f"{cfg.seeds} seeds"] if cfg.seeds > 1 else []
+        parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
+        name = run_name(cfg)
+        desc = f"{name} ({', '.join(parts)})" if parts else name
+        if not distributed.is_main():
+            return cls(cfg, static, seeds, desc, [], [], None)
+        metrics_logs = [logs.MetricsLog(d) for _, d in seeds]
+        for metrics_log in metrics_logs:
+            metrics_log.truncate_after(start)
+        extras = [logs.make_logger(cfg.logger, d, config_dict(c)) for c, d in seeds]
+        learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes)
+        return cls(cfg, static, seeds, desc, metrics_logs, extras, learner_eval)
+
+    @property
+    def shows_progress(self) -> bool:
+        return self.cfg.progress and distributed.is_main()
+
+    def compiling(self, n: int, stage: int) -> None:
+        """The line before compiling the chunk of `n` iterations in `stage`."""
+        if self.shows_progress:
+            print(f"{self.desc}: compiling {chunk_description(n, self.static.stages, stage)} ...", flush=True)
+
+    def start_progress(self, it: int) -> None:
+        """Starts the progress line at iteration `it` unless started (after the first compile line)."""
+        if self.progress is None and self.shows_progress:
+            self.progress = logs.Progress(self.cfg.iterations, desc=self.desc, initial=it)
+
+    def record(self, chunk: Chunk, check: Check, compile_s: float | None, params: Any) -> None:
+        """Record step: each seed's metrics rows of `chunk` (`chunk_rows`, those `check` keeps) with the
+        compile time on the first and, after an evaluation iteration that is finite, the evaluation of the
+        seed's first learner (`params`: the state's after the chunk) on the last; then a warning at the
+        run's first non-finite iteration unless the run stops there."""
+        first_nonfinite = not self.nonfinite_iterations
+        self.nonfinite_iterations += [chunk.first + 1 + i for i in check.failed]
+        end = chunk.first + chunk.n
+        evaluating = evaluates(self.cfg, end) and check.healthy_end and not check.stop
+        for k, (metrics_log, extra) in enumerate(zip(self.metrics_logs, self.extras, strict=True)):
+            seed_metrics, seed_finite = seed_part((chunk.metrics, chunk.finite), k, self.cfg.seeds)
+            rows = chunk_rows(
+                seed_metrics, seed_finite, chunk.first, round(chunk.sps), chunk.stage, self.static.pop
+            )
+            rows = rows[: check.kept]  # rows after a stop are not written
+            if compile_s is not None:
+                rows[0]["compile_s"] = round(compile_s, 2)
+            if evaluating:
+                rows[-1].update(self.evaluation(k, end, params))
+            metrics_log.append(rows)
+            for row in rows:
+                extra.log(row, row["iteration"])
+        if check.failure is not None and not check.stop and first_nonfinite and distributed.is_main():
+            print(f"warning: {failure_text(self.cfg, chunk.first, check.failure)}; training on "
+                  "(--on-nonfinite warn)", file=sys.stderr)  # fmt: skip
+
+    def evaluation(self, k: int, end: int, params: Any) -> dict[str, float]:
+        """{'eval/<spec>': mean return} of seed k's first learner in `params` after iteration `end`."""
+        host_params = jax.device_get(seed_part(params, k, self.cfg.seeds))  # replicated: local
+        first = jax.tree.map(lambda x: x[0], host_params)
+        key = jax.random.fold_in(jax.random.key(self.seeds[k][0].seed), end)
+        return {f"eval/{s}": r for s, r in self.learner_eval(key, first).items()}
+
+    def show_progress(self, it: int, stage: int, pooled: dict[str, np.ndarray], sps: float) -> None:
+        """The progress line after iteration `it`, now in `stage`, with the chunk's metrics over all seeds
+        (`pooled`) and speed `sps` per seed."""
+        if self.progress is not None:
+            stages = self.static.stages
+            shown = {"stage": f"{stage + 1}/{len(stages)}"} if stages else {}
+            self.progress.update(
+                it, **shown, **progress_fields(pooled, sps * self.cfg.seeds, self.static.pop)
+            )
+
+    def close(self) -> None:
+        if self.progress is not None:
+            self.progress.close()
+        for extra in self.extras:
             extra.close()
-    if main:
-        where = f" ({len(seeds)} seeds: s{cfg.seed}/ ...)" if len(seeds) > 1 else ""
+
+    def report(self, run_dir: Path, it: int) -> None:
+        """The lines a run that trained up to iteration `it` ends with."""
+        if not distributed.is_main():
+            return
+        where = f" ({len(self.seeds)} seeds: s{self.cfg.seed}/ ...)" if len(self.seeds) > 1 else ""
         print(f"wrote {run_dir}{where} ({it} iterations)")
-        if nonfinite_iterations:
-            count, first = len(nonfinite_iterations), nonfinite_iterations[0]
+        if self.nonfinite_iterations:
+            count, first = len(self.nonfinite_iterations), self.nonfinite_iterations[0]
             print(f"warning: {count} iterations had non-finite values (the first: {first}), marked "
                   f"'{nonfinite.ROW_KEY}' in metrics.jsonl", file=sys.stderr)  # fmt: skip
 
@@ -331,65 +367,6 @@ def stop_message(cfg: TrainConfig, it: int, failure: nonfinite.Failure, last_sav
         f"{failure_text(cfg, it, failure)}; the run stopped without saving it: {kept} "
         "(--on-nonfinite warn trains on regardless)"
     )
-
-
-def seed_part(tree: Any, k: int, seeds: int) -> Any:
-    """Seed k's part of `tree`, whose leaves have a leading seed axis when there are several `seeds`."""
-    return tree if seeds == 1 else jax.tree.map(lambda x: x[k], tree)
-
-
-def save_seeds(
-    cfg: TrainConfig, seeds: list[tuple[TrainConfig, Path]], it: int, state: RunnerState, stage: int
-) -> None:
-    """Policy, then checkpoint (with the stage to resume in), of every seed at iteration `it` (every process
-    takes part). The policy goes first, so a checkpoint always has its policy: an interruption between the
-    two leaves a policy ahead of the checkpoints, which the resumed run reaches again (and skips)."""
-    host = distributed.to_host(state)
-    for k, (seed_cfg, seed_dir) in enumerate(seeds):
-        seed_state = seed_part(host, k, cfg.seeds)
-        export_policy(cfg, seed_dir, it, seed_state.params)
-        ckpt_dir = seed_dir / "checkpoints"
-        if it not in checkpoint.all_steps(ckpt_dir):  # else saved before an interruption: the same state
-            metadata = {**config_dict(seed_cfg), "stage": stage}
-            checkpoint.save(ckpt_dir, it, seed_state, metadata=metadata, keep=cfg.keep_checkpoints)
-
-
-def export_policy(cfg: TrainConfig, seed_dir: Path, it: int, params: Any) -> None:
-    """Write the learners' params (stacked [S_l, ...]) to `seed_dir/policy/<it>` unless that step exists."""
-    policy_io.export_policy(seed_dir, it, params, cfg.net, slots=cfg.slots, keep=cfg.keep_checkpoints)
-
-
-def restore_seeds(
-    cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, program: Program, stage: int
-) -> tuple[RunnerState, int]:
-    """The state and stage from the latest checkpoint that every seed has and can read (unchanged if none
-    has one). An unreadable checkpoint (a truncated or emptied file) is skipped with a warning naming it, for
-    the one before; a checkpoint of another config raises. A seed whose policy export is missing at that
-    step (an interruption between the two writes of an older version) gets it re-exported."""
-    steps = [checkpoint.all_steps(d) for d in ckpt_dirs]
-    if not any(steps):
-        return state, stage
-    if not all(steps):
-        missing = [str(d.parent) for d, s in zip(ckpt_dirs, steps, strict=True) if not s]
-        raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
-    lead = int(cfg.seeds > 1)
-    template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), state)
-    for step in sorted(set.intersection(*map(set, steps)), reverse=True):
-        try:
-            restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
-            stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", stage))
-        except checkpoint.CheckpointMismatchError:
-            raise
-        except Exception as err:  # noqa: BLE001 - orbax, json and OS errors of a damaged checkpoint
-            where = [str(d / str(step)) for d in ckpt_dirs]
-            print(f"warning: {where} unreadable ({type(err).__name__}: {err}); trying the checkpoint before",
-                  file=sys.stderr)  # fmt: skip
-            continue
-        for restored_state, ckpt_dir in zip(restored, ckpt_dirs, strict=True):
-            export_policy(cfg, ckpt_dir.parent, step, restored_state.params)
-        host = restored[0] if cfg.seeds == 1 else population.stack(restored)
-        return distributed.put(host, program.shardings), stage
-    raise ValueError(f"cannot resume: no readable checkpoint in {[str(d) for d in ckpt_dirs]}")
 
 
 USAGE = """Train independent conv-LSTM PPO learners (or behaviour cloning) beside experts in a jaxsocial
