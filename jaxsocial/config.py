@@ -9,7 +9,7 @@ import dataclasses
 from typing import Any, NamedTuple
 
 import jaxsocial
-from jaxsocial import evaluate, logs, schedule
+from jaxsocial import envspec, logs, schedule
 from jaxsocial.agents import policy_io, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
@@ -271,7 +271,7 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     if cfg.eval_envs:
         if cfg.eval_every < 1:
             raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
-        evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # validates, compiles nothing
+        envspec.check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
     if cfg.seeds > 1 and any(stage.threshold is not None for stage in stages):
         raise ValueError(
             "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "

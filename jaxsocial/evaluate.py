@@ -24,7 +24,6 @@ no difference.
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -38,6 +37,9 @@ from jaxsocial import logs, schedule
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
+from jaxsocial.envspec import check_eval_envs
+from jaxsocial.envspec import parse_env_spec as parse_env_spec  # evaluate.parse_env_spec, as before
+from jaxsocial.metrics import mean_ci95
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,23 +69,6 @@ class EvalConfig:
 
 
 PROTOCOLS = ("returns", "ct")
-
-
-T_975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145)
-"""Student t 0.975 quantiles for 1-14 degrees of freedom (larger: 1.96 + 2.4 / df is within 0.3%)."""
-
-
-def mean_ci95(values: np.ndarray) -> tuple[float, float, float]:
-    """Mean and a 95% t-interval of the mean of independent samples (half-width 0 for one sample)."""
-    values = np.asarray(values, np.float64)
-    mean = float(values.mean())
-    n = len(values)
-    if n < 2:
-        return mean, mean, mean
-    df = n - 1
-    t = T_975[df - 1] if df <= len(T_975) else 1.96 + 2.4 / df
-    half = t * float(values.std(ddof=1)) / math.sqrt(n)
-    return mean, mean - half, mean + half
 
 
 class Episodes(NamedTuple):
@@ -135,24 +120,14 @@ def episode_returns(
     return Episodes(returns, late, present)
 
 
-def parse_env_spec(spec: str) -> EnvParams:
-    """The parameters of an evaluation environment 'NAME' or 'NAME:field=value,...' (ValueError if bad)."""
-    name, _, args = spec.partition(":")
-    return jaxsocial.make(name.strip(), **schedule.parse_assignments(args))[1]
-
-
 def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episodes: int):
     """Evaluation during training: `fn(key, params) -> {spec: mean return}` plays `episodes` episodes of
     each environment spec (`parse_env_spec`) with one learner's `params` (unstacked) in slot 0 beside the
     environment's default companions (scripted experts, distractors), and returns the learner's mean episode
     return over the episodes it took part in. Validates everything (ValueError) before compiling."""
-    if episodes < 1:
-        raise ValueError(f"eval_episodes={episodes} must be >= 1")
-    setups = []
-    for spec in specs:
-        env_params = parse_env_spec(spec)
-        population.require_obs(net, env_params, f"eval env {spec!r}")
-        setups.append((spec, population.default_population(env_params), env_params))
+    setups = [
+        (spec, population.default_population(p), p) for spec, p in check_eval_envs(specs, net, episodes)
+    ]
     play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
 
     def run(key: jax.Array, params) -> dict[str, float]:

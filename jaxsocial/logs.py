@@ -1,7 +1,8 @@
 """Run directories, config files, JSONL metrics, a terminal progress line and optional external loggers.
 
-A run directory ``root/name`` holds ``config.json`` (``write_config``), ``metrics.jsonl`` (``MetricsLog``)
-and whatever else the caller puts there (e.g. checkpoints). Dependency-free except the optional loggers.
+A run directory ``root/name`` holds ``config.json`` (``write_config``), ``metrics.jsonl`` (``MetricsLog``;
+what its rows hold is ``jaxsocial.metrics``) and whatever else the caller puts there (e.g. checkpoints,
+``eval/``). Dependency-free except the optional loggers.
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
 METRICS_GZ_FILE = METRICS_FILE + ".gz"
 """A run record's compressed metrics (`jaxsocial.experiments.records`), read where no `METRICS_FILE` is."""
+EVAL_DIR = "eval"
+"""A seed's evaluations after training, one JSON per environment (`jaxsocial.experiments.kinds.eval_path`)."""
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -21,11 +21,10 @@ from pathlib import Path
 from typing import Any
 
 import jaxsocial
-from jaxsocial import logs, schedule, train
+from jaxsocial import logs, metrics, schedule
 from jaxsocial.agents import population
 from jaxsocial.axes import steps_axis
-from jaxsocial.config import DRIVER_FIELDS, TrainConfig
-from jaxsocial.experiments import figures
+from jaxsocial.curves import band
 
 PANELS = {
     "return": "episode return",
@@ -37,11 +36,18 @@ PANELS = {
 }
 """Metric name prefixes (metrics.jsonl keys are 'NAME/SLOT') and their panel titles, in column order."""
 
-REQUIRED = {"env", "seed", "seeds", "num_envs", "rollout_steps"}
-"""Keys a training run's config.json must have to be plotted."""
-
-NOT_GROUPED = DRIVER_FIELDS | {"seed", "seeds", "seed_batching"}
-"""Config fields that may differ between the seeds of one group."""
+NOT_GROUPED = frozenset(
+    {
+        # the driver's (`config.DRIVER_FIELDS`): they do not change what is trained
+        "iterations", "resume", "overwrite", "progress", "logger", "checkpoint_every", "keep_checkpoints",
+        "run_name", "runs_dir", "devices", "coordinator", "num_processes", "process_id", "compile_cache",
+        "eval_envs", "eval_every", "eval_episodes", "on_nonfinite", "init_from",
+        # the seeds' and how they are batched
+        "seed", "seeds", "seed_batching",
+    }
+)  # fmt: skip
+"""Config fields that may differ between the seeds of one group (kept equal to `config.DRIVER_FIELDS` and
+the seed fields by a test, so this module needs no training code)."""
 
 
 @dataclasses.dataclass
@@ -53,30 +59,6 @@ class Group:
     rows: list[list[dict[str, Any]]]
     slots: list[str]
     steps_per_iteration: int
-
-
-def seed_dirs(run_dir: Path) -> list[Path]:
-    """The directory of every seed of a training run (the run itself for one seed). ValueError if
-    `run_dir` is not a run written by `python -m jaxsocial.train`."""
-    if not run_dir.is_dir():
-        raise ValueError(f"run directory {run_dir} does not exist")
-    try:
-        config = logs.read_config(run_dir)
-    except FileNotFoundError:
-        raise ValueError(
-            f"{run_dir} is not a run directory (no {logs.CONFIG_FILE}): expected a directory written by "
-            "python -m jaxsocial.train"
-        ) from None
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not valid JSON: {err}") from None
-    if not isinstance(config, dict) or not set(config) >= REQUIRED:
-        raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not the config of a training run")
-    layout = dataclasses.replace(TrainConfig(), seed=config["seed"], seeds=config["seeds"])
-    dirs = [d for _, d in train.seed_runs(layout, run_dir)]
-    for d in dirs:
-        if not (d / logs.CONFIG_FILE).is_file():
-            raise ValueError(f"{d} is missing ({run_dir} was trained with --seeds {config['seeds']})")
-    return dirs
 
 
 def slot_labels(config: dict[str, Any]) -> list[str]:
@@ -92,10 +74,9 @@ def _group_key(config: dict[str, Any]) -> str:
 
 def _label(run_dir: Path) -> str:
     """A run's name in legends: its directory name, 'RUN/sK' for one seed of a multi-seed run."""
-    config = logs.read_config(run_dir)
-    one_seed_of_many = (config.get("run_name") or "").endswith(f"/s{config['seed']}")  # see `train.seed_runs`
+    one_seed = metrics.one_seed_of_many(logs.read_config(run_dir))
     run_dir = run_dir.resolve()
-    return f"{run_dir.parent.name}/{run_dir.name}" if one_seed_of_many else run_dir.name
+    return f"{run_dir.parent.name}/{run_dir.name}" if one_seed else run_dir.name
 
 
 def load_groups(run_dirs: list[str | Path]) -> list[Group]:
@@ -105,7 +86,7 @@ def load_groups(run_dirs: list[str | Path]) -> list[Group]:
     found: dict[str, list[tuple[str, Path, dict[str, Any]]]] = {}  # group key -> (label, seed dir, config)
     seen = set()
     for run_dir in map(Path, run_dirs):
-        for d in seed_dirs(run_dir):
+        for d in metrics.seed_dirs(run_dir):
             if d.resolve() in seen:
                 continue
             seen.add(d.resolve())
@@ -122,7 +103,7 @@ def load_groups(run_dirs: list[str | Path]) -> list[Group]:
         labels = list(dict.fromkeys(label for label, _, _ in members))
         rows = []
         for _, d, _ in members:
-            rows.append(logs.read_metrics(d))
+            rows.append(metrics.read_rows(d))
             if not rows[-1]:
                 raise ValueError(f"no metrics yet in {d} ({logs.METRICS_FILE} is missing or empty)")
         config = members[0][2]
@@ -132,22 +113,27 @@ def load_groups(run_dirs: list[str | Path]) -> list[Group]:
                 seed_dirs=[d for _, d, _ in members],
                 rows=rows,
                 slots=slot_labels(config),
-                steps_per_iteration=config["num_envs"] * config["rollout_steps"],
+                steps_per_iteration=metrics.steps_per_iteration(config),
             )
         )
     return groups
+
+
+def _logged(group: Group, name: str, slot: int) -> bool:
+    """Whether the group's first seed logged metric `name` of `slot`."""
+    return metrics.logged(group.rows[0][0], name, slot)
 
 
 def panels(groups: list[Group]) -> list[list[str]]:
     """Per slot, the PANELS keys some group logged for it (the return always)."""
     n_slots = max(len(g.slots) for g in groups)
     return [
-        [k for k in PANELS if k == "return" or any(f"{k}/{slot}" in g.rows[0][0] for g in groups)]
+        [k for k in PANELS if k == metrics.RETURN or any(_logged(g, k, slot) for g in groups)]
         for slot in range(n_slots)
     ]
 
 
-def draw(groups: list[Group], points: int = figures.CURVE_POINTS):
+def draw(groups: list[Group], points: int = metrics.CURVE_POINTS):
     """The curves as a matplotlib Figure (not managed by pyplot): a row per slot, a column per panel (unused
     axes removed). Returns are episode-weighted means over `points` blocks of iterations; losses are per
     iteration."""
@@ -164,15 +150,16 @@ def draw(groups: list[Group], points: int = figures.CURVE_POINTS):
             fig.delaxes(ax)
         for key, ax in zip(keys, row_axes, strict=False):
             for i, g in enumerate(groups):
-                if slot >= len(g.slots) or (key != "return" and f"{key}/{slot}" not in g.rows[0][0]):
+                if slot >= len(g.slots) or (key != metrics.RETURN and not _logged(g, key, slot)):
                     continue
-                if key == "return":
-                    xs, ys = zip(*(figures.curve(r, slot, points) for r in g.rows), strict=True)
+                if key == metrics.RETURN:
+                    xs, ys = zip(*(metrics.curve(r, slot, points) for r in g.rows), strict=True)
                 else:
-                    xs, ys = zip(*(figures.metric_curve(r, f"{key}/{slot}") for r in g.rows), strict=True)
+                    k = metrics.key(key, slot)
+                    xs, ys = zip(*(metrics.metric_curve(r, k) for r in g.rows), strict=True)
                 label = f"{g.label} ({len(g.rows)} seed{'s' if len(g.rows) > 1 else ''})"
                 xs = [x * g.steps_per_iteration for x in xs]
-                figures.band(ax, xs, list(ys), label, colors[i % len(colors)])
+                band(ax, xs, list(ys), label, colors[i % len(colors)])
             names = sorted({g.slots[slot] for g in groups if slot < len(g.slots)})
             ax.set_title(f"slot {slot} ({' / '.join(names)}): {PANELS[key]}", fontsize=9)
             steps_axis(ax)
@@ -183,14 +170,14 @@ def draw(groups: list[Group], points: int = figures.CURVE_POINTS):
 
 
 def summary(groups: list[Group]) -> list[str]:
-    """Lines with each group's final return per slot: mean and 95% CI over seeds (`figures.final_return`)."""
+    """Lines with each group's final return per slot: mean and 95% CI over seeds (`metrics.final_return`)."""
     lines = []
     for g in groups:
         shortest, longest = min(map(len, g.rows)), max(map(len, g.rows))
         iterations = f"{shortest}" if shortest == longest else f"{shortest} to {longest}"
         lines.append(f"{g.label}: {len(g.rows)} seed(s), {iterations} iterations")
         for slot, name in enumerate(g.slots):
-            s = figures.stats([figures.final_return(r, slot) for r in g.rows])
+            s = metrics.stats([metrics.final_return(r, slot) for r in g.rows])
             if s["mean"] is None:
                 final = "no episode ended"
             else:
@@ -208,7 +195,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--points",
         type=int,
-        default=figures.CURVE_POINTS,
+        default=metrics.CURVE_POINTS,
         help="blocks the returns are averaged in (default 50)",
     )
     args = parser.parse_args(argv)

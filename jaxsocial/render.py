@@ -26,22 +26,18 @@ import jax
 import numpy as np
 
 import jaxsocial
-from jaxsocial import logs
+from jaxsocial import logs, metrics, playback
 from jaxsocial.agents import network, population
 from jaxsocial.env.pictures import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
-from jaxsocial.evaluate import parse_env_spec
-from jaxsocial.experiments import predictions
-from jaxsocial.plot import seed_dirs
+from jaxsocial.envspec import parse_env_spec
 
 
-def learner_setup(
-    ckpt: str, env: str | None, slots: str | None
-) -> tuple[predictions.EpisodeSetup, str, bool]:
+def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playback.EpisodeSetup, str, bool]:
     """The episode set-up of `--ckpt RUN_DIR[@k]`, its env spec and whether to draw its decoder's output.
     ValueError, before anything compiles, for a directory that is not one seed's run or an env the policy
     cannot act in."""
     run_dir = Path(ckpt.partition("@")[0])
-    dirs = seed_dirs(run_dir)
+    dirs = metrics.seed_dirs(run_dir)
     if len(dirs) > 1:
         raise ValueError(f"{run_dir} holds {len(dirs)} seeds: pass one of them, e.g. --ckpt {dirs[0]}")
     config = logs.read_config(run_dir)
@@ -52,7 +48,7 @@ def learner_setup(
         except ValueError as err:
             raise ValueError(f"the run's slots do not fit {spec}: {err}; choose them with --slots") from None
         slots = config["slots"]
-    setup = predictions.episode_setup(ckpt, spec, slots)
+    setup = playback.episode_setup(ckpt, spec, slots)
     decoder = network.DECODER_PARAMS[0] in setup.params and config.get("algo", "ppo") == "ppo"
     return setup, spec, decoder
 
@@ -130,9 +126,9 @@ def main(argv: list[str] | None = None) -> int:
         terminated, truncated = episode["terminated"], episode["truncated"]
         print(f"env: {args.env} (seed {args.seed}, {args.policy or 'random-move'} policy)")
     else:
-        episode = predictions.play_episode(args.setup, steps, args.seed)
-        predicted = predictions.predicted_views(episode) if args.decoder else None
-        frames = predictions.episode_video(episode, args.tile, predicted)
+        episode = playback.play_episode(args.setup, steps, args.seed)
+        predicted = playback.predicted_views(episode) if args.decoder else None
+        frames = playback.episode_video(episode, args.tile, predicted)
         rewards = episode["rewards"]
         labels = [s.label for s in args.setup.pop.slots]
         terminated, truncated = episode["terminated"][-1], episode["truncated"][-1]

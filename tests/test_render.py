@@ -11,6 +11,7 @@ import pytest
 from conftest import TINY
 
 import jaxsocial
+from jaxsocial import playback
 from jaxsocial import render as cli
 from jaxsocial.env import sprites
 from jaxsocial.env.pictures import (
@@ -24,7 +25,6 @@ from jaxsocial.env.pictures import (
     upscale,
 )
 from jaxsocial.env.types import BONUS, COLORS, EMPTY
-from jaxsocial.experiments import predictions
 
 LAYOUT = [
     "#############",
@@ -243,12 +243,14 @@ def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, ca
 
 def test_predicted_view_beside_the_learners_view(learner_run):
     spec = f"{TINY.env}:{TINY.env_args}"
-    episode = predictions.learner_episode(str(learner_run / "s0"), spec, steps=6, slots=TINY.slots)
+    episode = playback.play_episode(
+        playback.episode_setup(str(learner_run / "s0"), spec, TINY.slots), steps=6
+    )
     assert episode["learner"] == 0 and episode["actions"].shape == (6, 3) and episode["truncated"][-1]
-    predicted = predictions.predicted_views(episode)
+    predicted = playback.predicted_views(episode)
     assert predicted.shape == (6, 21, 21, 3) and predicted.dtype == np.uint8
-    plain = predictions.episode_video(episode, TILE)
-    shown = predictions.episode_video(episode, TILE, predicted)
+    plain = playback.episode_video(episode, TILE)
+    shown = playback.episode_video(episode, TILE, predicted)
     assert len(shown) == len(plain) == 6
     # Panels sit right of the 7x7 map, 4 pixels apart: an 84-pixel view under its title and a 3-pixel strip,
     # in a 2-pixel border.
@@ -293,7 +295,7 @@ def test_cli_ckpt_errors_before_compiling(learner_run, tmp_path, capsys, monkeyp
     def must_not_run(*_):
         raise AssertionError("played an episode")
 
-    monkeypatch.setattr(predictions, "_play", must_not_run)
+    monkeypatch.setattr(playback, "_play", must_not_run)
     monkeypatch.setattr(cli, "rollout_episode", must_not_run)
     out = tmp_path / "x.gif"
     with pytest.raises(SystemExit) as e:

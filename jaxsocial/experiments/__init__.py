@@ -9,5 +9,6 @@
 `recipes` names the conditions and scales, `runner` trains and evaluates them, `figures` summarises and
 draws them (`takeoff`: time to learning; `counts`: exact tests of learned-seed counts), `records` packs run
 directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
-`predictions` draws a learner's predicted next frames.
+`predictions` draws a learner's predicted next frames; `kinds` says, per kind of recipe, how it is
+evaluated after training, summarised and drawn.
 """

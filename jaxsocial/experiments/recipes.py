@@ -150,6 +150,29 @@ EXPERT_DROPOUT = "dropout_prob=0.5,dropin_prob=0.25"
 """Cultural-transmission training (not in the paper): each expert leaves half the episodes and joins a quarter
 of them, at a uniform random step (`EnvParams.dropout_prob`, `dropin_prob`)."""
 
+PENALTIES = {"nopenalty": ("no penalty", "0"), "halfpenalty": ("penalty 0.5", "0.5")}
+"""Exploration penalties other than the environment's 1.5: condition-name suffix -> (label, `penalty=`)."""
+LEARNERS = {"social": "goalcycle3", "solo": "goalcycle3-solo"}
+"""Learners beside the experts and alone: condition-name prefix -> environment."""
+
+
+def penalty_conditions() -> dict[str, Condition]:
+    """The PPO + aux pred learner, social and solo, at each of the other `PENALTIES`:
+    '<social|solo>_pred_<suffix>', e.g. 'solo_pred_halfpenalty'."""
+    return {
+        f"{who}_pred_{suffix}": Condition(
+            f"{who} PPO + aux pred, {label}",
+            env=env,
+            flags=("--net.aux", "pred"),
+            env_args=f"penalty={value}",
+        )
+        for suffix, (label, value) in PENALTIES.items()
+        for who, env in LEARNERS.items()
+    }
+
+
+PENALTY_CONDITIONS = penalty_conditions()
+
 CONDITIONS = {
     "solo_pred": Condition("solo PPO + aux pred", env="goalcycle3-solo", flags=("--net.aux", "pred")),
     "social_none": Condition("social PPO (vanilla)", flags=("--net.aux", "none")),
@@ -174,24 +197,7 @@ CONDITIONS = {
     "bc": Condition(  # the experts' 7 actions (they idle with 'done')
         "behaviour cloning", flags=("--algo", "bc", "--net.aux", "none", "--net.n-actions", "7")
     ),
-    "social_pred_nopenalty": Condition(
-        "social PPO + aux pred, no penalty", flags=("--net.aux", "pred"), env_args="penalty=0"
-    ),  # fmt: skip
-    "solo_pred_nopenalty": Condition(
-        "solo PPO + aux pred, no penalty",
-        env="goalcycle3-solo",
-        flags=("--net.aux", "pred"),
-        env_args="penalty=0",
-    ),
-    "social_pred_halfpenalty": Condition(
-        "social PPO + aux pred, penalty 0.5", flags=("--net.aux", "pred"), env_args="penalty=0.5"
-    ),
-    "solo_pred_halfpenalty": Condition(
-        "solo PPO + aux pred, penalty 0.5",
-        env="goalcycle3-solo",
-        flags=("--net.aux", "pred"),
-        env_args="penalty=0.5",
-    ),
+    **PENALTY_CONDITIONS,
     "expert_curriculum": Condition(
         "solo PPO + aux pred, penalty curriculum",
         env="goalcycle3-solo",
@@ -251,8 +257,7 @@ RECIPES = {
         Recipe("no_penalty", "Appendix: no exploration penalty",
                ("social_pred_nopenalty", "solo_pred_nopenalty"), "transfer", ("goalcycle4",)),
         Recipe("penalty", "Beyond the paper: social and solo learners at penalties 0, 0.5 and 1.5",
-               ("social_pred_nopenalty", "solo_pred_nopenalty", "social_pred_halfpenalty",
-                "solo_pred_halfpenalty", "social_pred", "solo_pred"), "curves"),
+               (*PENALTY_CONDITIONS, "social_pred", "solo_pred"), "curves"),
         Recipe("distractors", "Appendix: random distractors beside the experts",
                ("social_pred", "social_pred_distractors"), "curves"),
         Recipe("bc", "Appendix: behaviour cloning training curve", ("bc",), "curves"),

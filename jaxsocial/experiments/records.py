@@ -7,7 +7,7 @@ A record is itself a run directory, so every tool that reads a run reads a recor
 * `metrics.jsonl.gz`, the metrics gzipped (`logs.read_metrics` reads it);
 * `policy/<iteration>/`, the final policy exactly as `policy_io` exported it (params only: no checkpoints, no
   optimiser state);
-* `eval/*.json`, the evaluations after training (`runner.EVAL_DIR`);
+* `eval/*.json`, the evaluations after training (`logs.EVAL_DIR`);
 * `provenance.json`: how the run was made (`run`: the exact command, git commit, device, jax version, start
   date, exit status, as given to `pack`) and how the record was made (`record`: source, date, packing commit).
 
@@ -29,7 +29,6 @@ import jax
 
 from jaxsocial import checkpoint, logs
 from jaxsocial.agents import policy_io
-from jaxsocial.experiments import runner
 
 RECORDS_DIR = "benchmarks/results/records"
 """Where the repository keeps its records."""
@@ -133,8 +132,8 @@ def pack(
     else:  # a record packed again
         shutil.copy2(seed_dir / logs.METRICS_GZ_FILE, record_dir / logs.METRICS_GZ_FILE)
     shutil.copytree(policy_dir / str(iteration), record_dir / policy_io.POLICY_DIR / str(iteration))
-    if (seed_dir / runner.EVAL_DIR).is_dir():
-        shutil.copytree(seed_dir / runner.EVAL_DIR, record_dir / runner.EVAL_DIR)
+    if (seed_dir / logs.EVAL_DIR).is_dir():
+        shutil.copytree(seed_dir / logs.EVAL_DIR, record_dir / logs.EVAL_DIR)
     provenance = {
         "run": run,
         "record": {

@@ -11,11 +11,15 @@ from pathlib import Path
 
 from jaxsocial import evaluate, logs, train
 from jaxsocial.config import TrainConfig, setup
-from jaxsocial.experiments import recipes
+from jaxsocial.experiments import kinds, recipes
+from jaxsocial.experiments.kinds import (  # noqa: F401 - where evaluations go, also runner.NAME as before
+    EVAL_DIR,
+    ct_path,
+    ct_spec,
+    eval_path,
+    transfer_specs,
+)
 from jaxsocial.experiments.recipes import Recipe, Scale
-
-EVAL_DIR = "eval"
-"""Sub-directory of a seed's run directory holding its post-training evaluations, one JSON per env spec."""
 
 
 def seed_dirs(cfg: TrainConfig) -> list[Path]:
@@ -57,24 +61,6 @@ def status(cfg: TrainConfig, dirs: list[Path]) -> str:
     return "partial" if (run_dir / logs.CONFIG_FILE).exists() else "missing"
 
 
-def eval_path(seed_dir: Path, spec: str) -> Path:
-    return seed_dir / EVAL_DIR / f"{spec.replace(':', '_').replace(',', '_')}.json"
-
-
-def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
-    return [recipes.goalcycle_spec(name, scale) for name in recipe.transfer_envs]
-
-
-def ct_spec(scale: Scale) -> str:
-    """The environment of the cultural-transmission evaluation: the scale's 3-goal Goal Cycle."""
-    return recipes.goalcycle_spec("goalcycle3", scale)
-
-
-def ct_path(seed_dir: Path, scale: Scale) -> Path:
-    """Where a seed's cultural-transmission evaluation is written."""
-    return eval_path(seed_dir, "ct-" + ct_spec(scale))
-
-
 def run(
     recipe: Recipe,
     scale: Scale,
@@ -113,13 +99,14 @@ def run(
     for name in skipped:
         print(f"  {name}: not trained, not evaluated (--no-train)")
     evaluated = [name for name in programs if name not in skipped]
-    protocol = "ct" if recipe.kind == "ct" else "returns"
-    specs = [ct_spec(scale)] if protocol == "ct" else transfer_specs(recipe, scale)
+    evaluation = kinds.kind_of(recipe).evaluation  # after training: what the recipe's kind asks
+    protocol = evaluation.protocol
+    specs = evaluation.specs(recipe, scale)
     for name in evaluated if specs and not dry_run else ():
         for spec in specs:
             env, _, env_args = spec.partition(":")
             for seed_dir in dirs[name]:
-                out = ct_path(seed_dir, scale) if protocol == "ct" else eval_path(seed_dir, spec)
+                out = evaluation.path(seed_dir, spec, scale)
                 if out.exists():
                     continue
                 result = evaluate.evaluate(
@@ -133,5 +120,5 @@ def run(
                 )
                 out.parent.mkdir(parents=True, exist_ok=True)
                 logs.write_json(out, result)
-                score = result["ct"]["mean"] if protocol == "ct" else result["results"][0]["mean_return"]
+                score = evaluation.score(result)
                 print(f"  {name} {seed_dir.name} in {spec} ({protocol}): {score:.3f}")

@@ -1,0 +1,414 @@
+"""The kinds of recipe (`Recipe.kind`) and, for each, how it is summarised, drawn and evaluated after
+training: one registry, `KINDS`, read by `runner` (the evaluation) and `figures` (the summary and figure).
+
+    curves       return through training, final-return CIs, learned-seed tests
+    mixing       the same, with the evaluations during training and where each seed switched stage
+    predictions  the curves' summary; the figure is a trained learner's predicted next frames
+    transfer     zero-shot returns in other environments after training (`Recipe.transfer_envs`)
+    ct           the cultural-transmission protocol after training (`jaxsocial.evaluate --protocol ct`)
+
+Also here: the measures the kinds share (learned seeds, CI separations, time to learning) and where the
+evaluations after training are written (`eval_path`, `ct_path`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxsocial import logs, metrics
+from jaxsocial.axes import steps_axis
+from jaxsocial.curves import band
+from jaxsocial.experiments import counts, predictions, recipes, takeoff
+from jaxsocial.experiments.recipes import Recipe, Scale
+from jaxsocial.metrics import curve, eval_curve, final_return, metric_curve, stats
+
+LEARNED_RETURN = 2.0
+"""A seed whose final return exceeds this has learned more than the cautious individual policy, which collects
+the free first tile (+1) and then avoids tiles; the summary counts such seeds per condition."""
+
+LOSS_PANEL = {"aux_loss": "auxiliary loss (MAE)", "bc_loss": "behaviour-cloning loss (cross-entropy)"}
+"""The learner's (slot 0) loss drawn beside the returns: each condition's first of these metrics."""
+
+CT_SCORES = ("ct", "recall")
+"""The cultural-transmission protocol's scores (`jaxsocial.evaluate.cultural_transmission`)."""
+
+# ----------------------------------------------------------------------------------------------------------
+# Evaluations after training: what is played and where the results go
+# ----------------------------------------------------------------------------------------------------------
+
+EVAL_DIR = logs.EVAL_DIR
+"""Sub-directory of a seed's run directory holding its post-training evaluations, one JSON per env spec."""
+
+
+def eval_path(seed_dir: Path, spec: str) -> Path:
+    return seed_dir / EVAL_DIR / f"{spec.replace(':', '_').replace(',', '_')}.json"
+
+
+def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
+    return [recipes.goalcycle_spec(name, scale) for name in recipe.transfer_envs]
+
+
+def ct_spec(scale: Scale) -> str:
+    """The environment of the cultural-transmission evaluation: the scale's 3-goal Goal Cycle."""
+    return recipes.goalcycle_spec("goalcycle3", scale)
+
+
+def ct_path(seed_dir: Path, scale: Scale) -> Path:
+    """Where a seed's cultural-transmission evaluation is written."""
+    return eval_path(seed_dir, "ct-" + ct_spec(scale))
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """An evaluation of every trained seed after training (`runner.run`)."""
+
+    protocol: str
+    """`python -m jaxsocial.evaluate --protocol`."""
+    specs: Callable[[Recipe, Scale], list[str]]
+    """The environment specs it plays (none: nothing to evaluate)."""
+    path: Callable[[Path, str, Scale], Path]
+    """Where a seed's result in a spec is written."""
+    score: Callable[[dict[str, Any]], float]
+    """The number `runner.run` prints for a result."""
+
+
+RETURNS = Evaluation(
+    "returns",
+    transfer_specs,
+    lambda seed_dir, spec, scale: eval_path(seed_dir, spec),
+    lambda result: result["results"][0]["mean_return"],
+)
+"""Each slot's return in the recipe's `transfer_envs` (none for most recipes)."""
+CT = Evaluation(
+    "ct",
+    lambda recipe, scale: [ct_spec(scale)],
+    lambda seed_dir, spec, scale: ct_path(seed_dir, scale),
+    lambda result: result["ct"]["mean"],
+)
+"""The cultural-transmission protocol in the scale's 3-goal Goal Cycle."""
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    if not path.exists():
+        raise FileNotFoundError(f"no evaluation {path}: run the recipe first")
+    return logs.read_json(path)
+
+
+def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
+    return _read_json(eval_path(seed_dir, spec))["results"]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Shared measures
+# ----------------------------------------------------------------------------------------------------------
+
+
+def ct_score(condition: dict[str, Any], score: str) -> dict[str, Any]:
+    """A ct recipe condition's stats of `score`: 'final' (the training return), 'ct' or 'recall'."""
+    return condition if score == "final" else condition[score]
+
+
+def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
+    """For each ordered pair of conditions by mean, 'a > b': whether a's 95% CI lies entirely above b's."""
+    out = {}
+    for a, b in itertools.permutations(conditions, 2):
+        sa, sb = conditions[a], conditions[b]
+        if sa.get("ci95") and sb.get("ci95") and sa["mean"] > sb["mean"]:
+            out[f"{a} > {b}"] = sa["ci95"][0] > sb["ci95"][1]
+    return out
+
+
+def learned_seed_tests(
+    conditions: dict[str, dict[str, Any]], test: str = "fisher-greater"
+) -> dict[str, float]:
+    """For each ordered pair with more learned seeds (`seeds_above_one_tile`) in a than in b, 'a > b': the
+    one-sided p-value of that difference by `test` (`counts.TESTS`)."""
+    out = {}
+    for a, b in itertools.permutations(conditions, 2):
+        (la, na), (lb, nb) = ((conditions[c]["seeds_above_one_tile"], _seeds(conditions[c])) for c in (a, b))
+        if la > lb:
+            out[f"{a} > {b}"] = round(counts.p_value(test, la, na, lb, nb), 4)
+    return out
+
+
+def _seeds(condition: dict[str, Any]) -> int:
+    return sum(np.isfinite(v) for v in condition["final_returns"] if v is not None)
+
+
+def takeoffs(runs) -> dict[str, dict[str, Any]]:
+    """Each condition's time to learning (`takeoff`): every seed's takeoff iteration and env-step, and how
+    many seeds took off by the end."""
+    out = {}
+    for c, seed_rows in runs.rows.items():
+        cfg = runs.configs[c]
+        iterations = [takeoff.takeoff(*curve(rows), LEARNED_RETURN) for rows in seed_rows]
+        steps = [None if i is None else i * cfg.num_envs * cfg.rollout_steps for i in iterations]
+        out[c] = {
+            "takeoff_iterations": iterations,
+            "takeoff_env_steps": steps,
+            "took_off": sum(i is not None for i in iterations),
+            "seeds": len(iterations),
+        }
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Summaries: each returns the kind's part of the summary, its 'conditions' last
+# ----------------------------------------------------------------------------------------------------------
+
+
+def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
+    """Per condition the final return's stats and learned seeds (`mixing`: also each seed's stage switch
+    and the final evaluations during training); the experts' final return; CI separations and learned-seed
+    tests."""
+    out: dict[str, Any] = {}
+    conditions: dict[str, Any] = {}
+    for c, seed_rows in runs.rows.items():
+        finals = [final_return(rows) for rows in seed_rows]
+        conditions[c] = stats(finals)
+        conditions[c]["seeds_above_one_tile"] = sum(v > LEARNED_RETURN for v in finals)
+        if mixing:
+            conditions[c]["switch_iterations"] = [metrics.switch_iteration(rows) for rows in seed_rows]
+            for key in metrics.eval_keys(seed_rows):
+                conditions[c][key] = stats([metrics.final_eval(rows, key) for rows in seed_rows])
+    # Scripted experts do not react to the learner, and all conditions of a seed share the environment's
+    # random numbers, so the experts' returns are the same in every social condition: take the first's.
+    social = [c for c in runs.rows if recipes.CONDITIONS[c].env == "goalcycle3"]
+    if social:
+        seed_rows = runs.rows[social[0]]
+        slots = metrics.slots(seed_rows[0][0])[1:]  # the learner is in slot 0
+        out["experts"] = stats([float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows])
+    out["separated_ci95"] = separations(conditions)
+    out["learned_seeds_fisher_p"] = learned_seed_tests(conditions)
+    out["learned_seeds_boschloo_p"] = learned_seed_tests(conditions, "boschloo-greater")
+    out["conditions"] = conditions
+    return out
+
+
+def summarise_mixing(runs) -> dict[str, Any]:
+    return summarise_curves(runs, mixing=True)
+
+
+def summarise_ct(runs) -> dict[str, Any]:
+    """The training return, and the CT protocol's scores after training, per condition."""
+    conditions: dict[str, Any] = {}
+    for c, seed_rows in runs.rows.items():
+        conditions[c] = stats([final_return(rows) for rows in seed_rows])
+        results = [_read_json(ct_path(d, runs.scale)) for d in runs.seed_dirs[c]]
+        for score in CT_SCORES:
+            conditions[c][score] = stats([r[score]["mean"] for r in results])
+        conditions[c]["expert_return"] = stats([r["expert_return"]["episode"] for r in results])
+    separated = {
+        score: separations({c: ct_score(v, score) for c, v in conditions.items()})
+        for score in ("final", *CT_SCORES)
+    }
+    return {"separated_ci95": separated, "conditions": conditions}
+
+
+def summarise_transfer(runs) -> dict[str, Any]:
+    """Learner and expert returns in each evaluation environment, and the training returns."""
+    training = {c: stats([final_return(rows) for rows in r]) for c, r in runs.rows.items()}
+    conditions: dict[str, Any] = {}
+    for spec in transfer_specs(runs.recipe, runs.scale):
+        per_cond: dict[str, Any] = {
+            c: stats([_read_eval(d, spec)[0]["mean_return"] for d in dirs])
+            for c, dirs in runs.seed_dirs.items()
+        }
+        # The environment's own experts, from one evaluation (every evaluation plays the same episodes).
+        first = _read_eval(next(iter(runs.seed_dirs.values()))[0], spec)
+        experts = [s for s in first if s["kind"] == "expert"]
+        per_cond["experts"] = {
+            "per_slot": [round(s["mean_return"], 4) for s in experts],
+            "mean": round(float(np.mean([s["mean_return"] for s in experts])), 4),
+            "ci95": [round(float(np.mean([s["ci95"][i] for s in experts])), 4) for i in (0, 1)],
+            "ci_over": "episodes",
+        }
+        conditions[spec] = per_cond
+    return {"training": training, "conditions": conditions}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Figures: each draws a recipe's PNG at `path`
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(plt, fig, path: Path) -> None:
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=70)
+    plt.close(fig)
+
+
+def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
+    """Returns through training (and zoomed), the learner's loss, and the time to learning."""
+    plt = _pyplot()
+    colors = plt.get_cmap("tab10").colors
+    steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
+    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax) = plt.subplots(1, 4, figsize=(22, 4.2))
+    used = set()
+    for i, (c, seed_rows) in enumerate(runs.rows.items()):
+        xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
+        xs = [x * steps_per_iteration[c] for x in xs]
+        for ax in (returns_ax, zoom_ax):
+            band(ax, xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
+        name = next((n for n in LOSS_PANEL if metrics.logged(seed_rows[0][-1], n, 0)), None)
+        if name is not None:
+            used.add(name)
+            its, losses = zip(*(metric_curve(rows, metrics.key(name, 0)) for rows in seed_rows), strict=True)
+            its = [x * steps_per_iteration[c] for x in its]
+            band(loss_ax, its, list(losses), recipes.CONDITIONS[c].label, colors[i])
+    if "experts" in summary and summary["experts"]["mean"] is not None:
+        returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
+    returns_ax.set(ylabel="learner episode return", title=runs.recipe.title)
+    zoom_ax.set(title="the learners' returns, zoomed")
+    names = " / ".join(LOSS_PANEL[n] for n in LOSS_PANEL if n in used)
+    loss_ax.set(ylabel=names, title="training loss")
+    for ax in (returns_ax, zoom_ax, loss_ax):
+        steps_axis(ax)
+    returns_ax.legend(fontsize=8)
+    draw_takeoffs(takeoff_ax, runs, summary, colors)
+    _save(plt, fig, path)
+
+
+def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
+    """Returns through training and in each evaluation environment, with each seed's switch."""
+    plt = _pyplot()
+    colors = plt.get_cmap("tab10").colors
+    keys = metrics.eval_keys(r for rows in runs.rows.values() for r in rows)
+    fig, axes = plt.subplots(1, 2 + len(keys), figsize=(5 * (2 + len(keys)), 4))
+    draw_takeoffs(axes[-1], runs, summary, colors)
+    axes = axes[:-1]
+    for i, (c, seed_rows) in enumerate(runs.rows.items()):
+        label = recipes.CONDITIONS[c].label
+        xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
+        band(axes[0], list(xs), list(ys), label, colors[i])
+        for ax, key in zip(axes[1:], keys, strict=True):
+            xs, ys = zip(*(eval_curve(rows, key) for rows in seed_rows), strict=True)
+            band(ax, list(xs), list(ys), label, colors[i])
+    for i, seed_rows in enumerate(runs.rows.values()):  # where each seed switched to solo episodes
+        for switch in {metrics.switch_iteration(rows) for rows in seed_rows} - {None}:
+            for ax in axes:
+                ax.axvline(switch, color=colors[i], ls=":")
+    axes[0].set(title="training environment (with experts)", xlabel="iteration", ylabel="learner return")
+    for ax, key in zip(axes[1:], keys, strict=True):
+        ax.set(title=metrics.eval_spec(key), xlabel="iteration")
+    axes[0].legend(fontsize=8)
+    _save(plt, fig, path)
+
+
+def draw_ct(runs, summary: dict[str, Any], path: Path) -> None:
+    """Bars of the final training return, the CT score and recall per condition."""
+    plt = _pyplot()
+    colors = plt.get_cmap("tab10").colors
+    panels = {
+        "final": "final training return",
+        "ct": "CT score: (R_with - R_solo) / R_experts",
+        "recall": "recall: 2nd half after the experts left",
+    }
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 4.2))
+    for ax, (score, title) in zip(axes, panels.items(), strict=True):
+        per_cond = {c: ct_score(v, score) for c, v in summary["conditions"].items()}
+        bars(ax, per_cond, colors)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set(title=title)
+    _save(plt, fig, path)
+
+
+def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
+    """Bars of the returns in each evaluation environment, and the time to learning."""
+    plt = _pyplot()
+    colors = plt.get_cmap("tab10").colors
+    specs = list(summary["conditions"])
+    fig, axes = plt.subplots(1, len(specs) + 1, figsize=(4.5 * (len(specs) + 1), 4), squeeze=False)
+    draw_takeoffs(axes[0, -1], runs, summary, colors)
+    for ax, spec in zip(axes[0, :-1], specs, strict=True):
+        bars(ax, summary["conditions"][spec], colors)
+        ax.set(title=spec, ylabel="mean episode return")
+    _save(plt, fig, path)
+
+
+def draw_predictions(runs, summary: dict[str, Any], path: Path) -> None:
+    """A trained learner's predicted next frames in the scale's 3-goal Goal Cycle (`predictions.draw`)."""
+    predictions.draw(runs, path, recipes.goalcycle_spec("goalcycle3", runs.scale))
+
+
+def draw_takeoffs(ax, runs, summary: dict[str, Any], colors) -> None:
+    """The time-to-learning panel: per condition, the fraction of seeds past the one-tile plateau against
+    env-steps (`summary['time_to_learning']`)."""
+    for i, (c, entry) in enumerate(summary["time_to_learning"]["conditions"].items()):
+        cfg = runs.configs[c]
+        end = max(len(rows) for rows in runs.rows[c]) * cfg.num_envs * cfg.rollout_steps
+        steps = entry["takeoff_env_steps"]
+        takeoff.draw(ax, steps, end, recipes.CONDITIONS[c].label, colors[i])
+    steps_axis(ax)
+    ax.set(
+        ylabel="fraction of seeds",
+        ylim=(-0.03, 1.03),
+        title=f"seeds past the one-tile plateau (return > {LEARNED_RETURN:g})",
+    )
+    ax.legend(fontsize=7)
+
+
+def bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
+    """One bar per condition (mean, 95% CI whiskers, a cross per seed), labelled below."""
+    names = list(per_cond)
+    for j, name in enumerate(names):
+        s = per_cond[name]
+        if s["mean"] is None:
+            continue
+        lo, hi = s["ci95"]
+        ax.bar(j, s["mean"], color=colors[j], yerr=[[s["mean"] - lo], [hi - s["mean"]]], capsize=4)
+        marks = s.get("final_returns", [])
+        ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
+    labels = [
+        recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts" for n in names
+    ]
+    ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The registry
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Kind:
+    """How a kind of recipe is summarised, drawn and evaluated after training."""
+
+    summarise: Callable[[Any], dict[str, Any]]
+    """`summarise(runs)`: the kind's part of the summary (`figures.summarize`), 'conditions' last."""
+    draw: Callable[[Any, dict[str, Any], Path], None]
+    """`draw(runs, summary, path)`: the recipe's figure as a PNG."""
+    evaluation: Evaluation
+    """What `runner.run` evaluates after training."""
+
+
+KINDS: dict[str, Kind] = {
+    "curves": Kind(summarise_curves, draw_curves, RETURNS),
+    "mixing": Kind(summarise_mixing, draw_mixing, RETURNS),
+    "predictions": Kind(summarise_curves, draw_predictions, RETURNS),
+    "transfer": Kind(summarise_transfer, draw_transfer, RETURNS),
+    "ct": Kind(summarise_ct, draw_ct, CT),
+}
+
+
+def kind_of(recipe: Recipe) -> Kind:
+    """The `Kind` of a recipe (ValueError for an unknown kind)."""
+    if recipe.kind not in KINDS:
+        raise ValueError(f"recipe {recipe.name}: unknown kind {recipe.kind!r}; choose one of {sorted(KINDS)}")
+    return KINDS[recipe.kind]
