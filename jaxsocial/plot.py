@@ -24,7 +24,7 @@ import jaxsocial
 from jaxsocial import logs, schedule, train
 from jaxsocial.agents import population
 from jaxsocial.axes import steps_axis
-from jaxsocial.config import DRIVER_FIELDS, TrainConfig
+from jaxsocial.config import DriverConfig, TrainConfig
 from jaxsocial.experiments import figures
 
 PANELS = {
@@ -40,7 +40,7 @@ PANELS = {
 REQUIRED = {"env", "seed", "seeds", "num_envs", "rollout_steps"}
 """Keys a training run's config.json must have to be plotted."""
 
-NOT_GROUPED = DRIVER_FIELDS | {"seed", "seeds", "seed_batching"}
+NOT_GROUPED = {f.name for f in dataclasses.fields(DriverConfig)} | {"seed", "seeds", "seed_batching"}
 """Config fields that may differ between the seeds of one group."""
 
 

@@ -32,7 +32,7 @@ from jaxsocial import (
     schedule,
 )
 from jaxsocial.agents import policy_io, population
-from jaxsocial.config import DRIVER_FIELDS, PRESETS, TrainConfig, config_dict, config_from_dict
+from jaxsocial.config import PRESETS, TrainConfig, config_dict, config_from_dict
 from jaxsocial.loop import Program, RunnerState
 
 
@@ -115,8 +115,7 @@ def run(cfg: TrainConfig) -> Path:
     mesh = loop.data_mesh(cfg)
 
     def program_of(stage: int) -> Program:
-        stage_cfg, env_params = static.stage(stage)
-        return loop.compiled(stage_cfg, mesh, env_params=env_params, pop=pop)
+        return loop.compiled(cfg, mesh, env_params=static.stage(stage), pop=pop)
 
     name = run_name(cfg)
     run_dir = Path(cfg.runs_dir).expanduser() / name
@@ -127,7 +126,7 @@ def run(cfg: TrainConfig) -> Path:
     def prepare() -> None:
         logs.prepare_run_dir(cfg.runs_dir, name, resume=cfg.resume, overwrite=cfg.overwrite)
         if cfg.resume and (run_dir / "config.json").exists():
-            diff = [k for k in logs.config_diff(logs.read_config(run_dir), saved) if k not in DRIVER_FIELDS]
+            diff = config.resume_conflicts(logs.read_config(run_dir), saved)
             if diff:
                 raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
         for _, seed_dir in seeds:
