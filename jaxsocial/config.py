@@ -1,6 +1,11 @@
 """A training run's configuration: `TrainConfig` (every field a command-line flag), the presets, and
 `setup(cfg) -> Setup`, the validated static part of a run (environment of every stage, slots, frozen
 policies), computed once per run before anything is written or compiled.
+
+`TrainConfig` is three configs in one: `RunConfig` (what the run is), `ProgramConfig` (what the compiled
+program is built from: with the environment and the slots, the key of the compiled-program cache) and
+`DriverConfig` (how the driver runs it; the only fields `--resume` may change). A field belongs to exactly
+one of them, so a new field is placed by where it is declared.
 """
 
 from __future__ import annotations
@@ -14,18 +19,17 @@ from jaxsocial.agents import policy_io, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.env import registry
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainConfig:
-    """A training run. Every field is a command-line flag."""
+class RunConfig:
+    """What a run is (its environment, slots, stages, seed and chunk length): fixed for the life of a run, so
+    `--resume` refuses to change it; not part of the compiled program, which gets the environment and slots
+    validated (`Setup`)."""
 
     env: str = "goalcycle3"
     """Environment preset (see `jaxsocial.registered_envs()`)."""
-    algo: str = "ppo"
-    """'ppo' (reinforcement learning) or 'bc' (behaviour cloning of the expert and frozen slots)."""
     env_args: str = ""
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
     slots: str = ""
@@ -39,14 +43,46 @@ class TrainConfig:
     training '5000:solo_prob=0.75' (see jaxsocial.schedule)."""
     seed: int = 0
     """PRNG seed."""
-    iterations: int = 500
-    """PPO iterations (one rollout + one update each)."""
+    chunk_iterations: int = 10
+    """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
+    preset: str = "small"
+    """Hyperparameter preset the other defaults came from: 'small', 'paper' or 'expert'."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ProgramConfig:
+    """What the compiled training program is built from, beside the environment and slots: the cache key of
+    `loop.compiled`, and fixed for the life of a run."""
+
+    algo: str = "ppo"
+    """'ppo' (reinforcement learning) or 'bc' (behaviour cloning of the expert and frozen slots)."""
     num_envs: int = 32
     """Parallel environments per rollout."""
     rollout_steps: int = 32
     """Steps per rollout (a multiple of ppo.chunk_length)."""
-    chunk_iterations: int = 10
-    """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
+    net: NetworkConfig = NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32)
+    """Network (the paper's is conv (32, 64, 64), hidden 192, mlp 64)."""
+    ppo: PPOConfig = PPOConfig(
+        lr=5e-4, num_minibatches=8, minibatch_chunks=64, kl_target=0.02, kl_hard_limit=0.05
+    )
+    """PPO hyperparameters."""
+    bc: BCConfig = BCConfig()
+    """Behaviour-cloning hyperparameters (with --algo bc)."""
+    seeds: int = 1
+    """Independent seeds seed, seed + 1, ... trained together in one compiled program; each seed's metrics,
+    checkpoints and policy go to run_dir/s<seed>/."""
+    seed_batching: str = "auto"
+    """How the seeds share the program: 'vmap' (batched), 'map' (one after another, `lax.map`) or 'auto'
+    (map on CPUs, where it measured as fast and compiles faster; vmap on GPUs and TPUs)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class DriverConfig:
+    """How the driver runs the program (length, logging, checkpoints, devices, evaluation): free to change
+    when a run is resumed, and never part of the compiled program."""
+
+    iterations: int = 500
+    """PPO iterations (one rollout + one update each)."""
     checkpoint_every: int = 100
     """Save a checkpoint every this many iterations (rounded up to whole chunks) and at the end."""
     keep_checkpoints: int = 3
@@ -63,23 +99,6 @@ class TrainConfig:
     """Extra metrics sink: 'tensorboard' or 'wandb' (off by default)."""
     progress: bool = True
     """Show a progress line."""
-    preset: str = "small"
-    """Hyperparameter preset the other defaults came from: 'small', 'paper' or 'expert'."""
-    net: NetworkConfig = NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32)
-    """Network (the paper's is conv (32, 64, 64), hidden 192, mlp 64)."""
-    ppo: PPOConfig = PPOConfig(
-        lr=5e-4, num_minibatches=8, minibatch_chunks=64, kl_target=0.02, kl_hard_limit=0.05
-    )
-    """PPO hyperparameters."""
-    bc: BCConfig = BCConfig()
-    """Behaviour-cloning hyperparameters (with --algo bc)."""
-    # Scale-out (see jaxsocial/distributed.py and the README section "Seeds, devices and hosts").
-    seeds: int = 1
-    """Independent seeds seed, seed + 1, ... trained together in one compiled program; each seed's metrics,
-    checkpoints and policy go to run_dir/s<seed>/."""
-    seed_batching: str = "auto"
-    """How the seeds share the program: 'vmap' (batched), 'map' (one after another, `lax.map`) or 'auto'
-    (map on CPUs, where it measured as fast and compiles faster; vmap on GPUs and TPUs)."""
     devices: int = 0
     """Devices the environments are split over (data parallel; 0: all devices of all processes)."""
     coordinator: str | None = None
@@ -92,7 +111,6 @@ class TrainConfig:
     compile_cache: str | None = None
     """Persistent compilation cache directory: a later run of the same program skips compiling (off by
     default; see `python -m jaxsocial.compile_cache`)."""
-    # Evaluation during training (see `jaxsocial.evaluate.make_learner_eval`).
     eval_envs: tuple[str, ...] = ()
     """Environments the first learner is evaluated in during training, each NAME or NAME:field=value,...
     (e.g. goalcycle3-solo goalcycle4), beside that environment's default companions; logged in
@@ -101,13 +119,23 @@ class TrainConfig:
     """Iterations between evaluations (with eval_envs)."""
     eval_episodes: int = 64
     """Episodes per evaluation environment and evaluation."""
-    # Robustness and starting points.
     on_nonfinite: str = "stop"
     """What a non-finite loss, gradient norm or parameter does: 'stop' (exit with an error; the last finite
     checkpoint and policy stay the latest) or 'warn' (report it and train on)."""
     init_from: str | None = None
     """Start a new run from another run's learners: RUN_DIR or RUN_DIR@ITERATION (default: its latest
     checkpoint); the source's params and optimiser state, this run's flags and stages."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig(DriverConfig, ProgramConfig, RunConfig):
+    """A training run. Every field is a command-line flag (`RunConfig`'s first, then `ProgramConfig`'s and
+    `DriverConfig`'s)."""
+
+    @property
+    def program(self) -> ProgramConfig:
+        """The fields the compiled program is built from."""
+        return ProgramConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(ProgramConfig)})
 
     @property
     def env_overrides(self) -> dict[str, Any]:
@@ -146,29 +174,14 @@ ALGOS = ("ppo", "bc")
 ON_NONFINITE = ("stop", "warn")
 SEED_BATCHING = ("auto", "vmap", "map")
 
-DRIVER_FIELDS = {
-    "iterations",
-    "resume",
-    "overwrite",
-    "progress",
-    "logger",
-    "checkpoint_every",
-    "keep_checkpoints",
-    "run_name",
-    "runs_dir",
-    "devices",
-    "coordinator",
-    "num_processes",
-    "process_id",
-    "compile_cache",
-    "eval_envs",
-    "eval_every",
-    "eval_episodes",
-    "on_nonfinite",
-    "init_from",
-}
-"""Fields that do not change the compiled program (or only its placement: `devices`), so a run can be resumed
-with other values."""
+FIXED_FIELDS = frozenset(f.name for f in dataclasses.fields(RunConfig) + dataclasses.fields(ProgramConfig))
+"""The fields `--resume` may not change (the others are `DriverConfig`'s)."""
+
+
+def resume_conflicts(saved: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """The dotted keys (e.g. 'net.hidden') of `FIXED_FIELDS` in which config `new` differs from a run's
+    `saved` config (both as `config_dict` gives them)."""
+    return [k for k in logs.config_diff(saved, new) if k.split(".")[0] in FIXED_FIELDS]
 
 
 class Setup(NamedTuple):
@@ -178,24 +191,11 @@ class Setup(NamedTuple):
     pop: population.Population
     stages: tuple[schedule.Stage, ...]
     frozen_params: Any  # stacked params of frozen slots, or None (also None when not loaded)
-    programs: tuple[tuple[TrainConfig, EnvParams], ...]  # (single-stage config, env) of stages -1, 0, 1, ...
+    stage_envs: tuple[EnvParams, ...]  # the environment of stages -1, 0, 1, ...
 
-    def stage(self, index: int) -> tuple[TrainConfig, EnvParams]:
-        """The single-stage config (see `stage_config`) and environment of stage `index` (-1: before the
-        first stage)."""
-        return self.programs[index + 1]
-
-
-def stage_config(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], index: int) -> TrainConfig:
-    """The single-stage config whose program runs stage `index` of `cfg` (-1: before the first stage).
-
-    Its `env_args` are canonical (sorted, without values equal to the preset's), so stages with the same
-    environment share one compiled program. `cfg.env` must be a registered environment.
-    """
-    base = registry.PRESETS[cfg.env]
-    env_args = {**cfg.env_overrides, **schedule.overrides_at(stages, index)}
-    env_args = {k: v for k, v in sorted(env_args.items()) if not hasattr(base, k) or getattr(base, k) != v}
-    return dataclasses.replace(cfg, env_args=schedule.format_assignments(env_args), stages="")
+    def stage(self, index: int) -> EnvParams:
+        """The environment of stage `index` (-1: before the first stage)."""
+        return self.stage_envs[index + 1]
 
 
 def with_env_observation(cfg: TrainConfig) -> TrainConfig:
@@ -232,12 +232,12 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         population.parse_slots(cfg.slots or population.default_slots(env_params), env_params.n_agents)
     )
     _check_stage(cfg, env_params, env_params, pop, "--env-args")
-    programs = [(stage_config(cfg, stages, -1), env_params)]
+    stage_envs = [env_params]
     for index in range(len(stages)):
-        stage_cfg = stage_config(cfg, stages, index)
-        stage_params = jaxsocial.make(cfg.env, **stage_cfg.env_overrides)[1]
+        overrides = {**cfg.env_overrides, **schedule.overrides_at(stages, index)}
+        stage_params = jaxsocial.make(cfg.env, **overrides)[1]
         _check_stage(cfg, stage_params, env_params, pop, f"stage {index}")
-        programs.append((stage_cfg, stage_params))
+        stage_envs.append(stage_params)
     if cfg.algo not in ALGOS:
         raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
     for name in ("num_envs", "rollout_steps", "keep_checkpoints"):
@@ -282,7 +282,7 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
 
         init_from.check(cfg, pop.learners)
     frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
-    return Setup(env_params, pop, stages, frozen, tuple(programs))
+    return Setup(env_params, pop, stages, frozen, tuple(stage_envs))
 
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:

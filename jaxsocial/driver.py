@@ -90,10 +90,10 @@ def seed_part(tree: Any, k: int, seeds: int) -> Any:
     return tree if seeds == 1 else jax.tree.map(lambda x: x[k], tree)
 
 
-def stage_program(static: config.Setup, mesh: jax.sharding.Mesh, stage: int) -> Program:
-    """The compiled program of `stage` (-1: before the first), cached by `loop.compiled`."""
-    stage_cfg, env_params = static.stage(stage)
-    return loop.compiled(stage_cfg, mesh, env_params=env_params, pop=static.pop)
+def stage_program(cfg: TrainConfig, static: config.Setup, mesh: jax.sharding.Mesh, stage: int) -> Program:
+    """The compiled program of `cfg` in `stage` (-1: before the first), cached by `loop.compiled` (stages
+    with the same environment share one)."""
+    return loop.compiled(cfg, mesh, env_params=static.stage(stage), pop=static.pop)
 
 
 @dataclasses.dataclass
@@ -124,7 +124,7 @@ class Driver:
         the state and stage of the latest checkpoint (`restore_seeds`); at iteration 0, `--init-from`'s
         learners."""
         stage = schedule.initial_index(static.stages)
-        program = stage_program(static, mesh, stage)
+        program = stage_program(cfg, static, mesh, stage)
         state = program.init(np.asarray([c.seed for c, _ in seeds] if cfg.seeds > 1 else cfg.seed, np.int32))
         frozen = static.frozen_params
         if frozen is not None:
@@ -143,7 +143,7 @@ class Driver:
             return None
         announce(n, self.stage)
         t0 = time.perf_counter()
-        program = stage_program(self.static, self.mesh, self.stage)
+        program = stage_program(self.cfg, self.static, self.mesh, self.stage)
         self.executables[self.stage, n] = program.run_chunk.lower(self.state, self.frozen, n).compile()
         return time.perf_counter() - t0
 

@@ -123,8 +123,7 @@ def _source_state(seed_dir: Path, iteration: int) -> RunnerState:
     """The RunnerState of the source's checkpoint `iteration` (host arrays)."""
     source = _source_config(seed_dir)
     static = config.setup(source, load_frozen=False)
-    stage_cfg, env_params = static.stage(-1)
-    init, _, _ = loop.make_train(stage_cfg, env_params=env_params, pop=static.pop)
+    init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
     template = jax.eval_shape(init, jax.random.key(0))
     return checkpoint.restore(seed_dir / CHECKPOINTS, template, iteration)
 

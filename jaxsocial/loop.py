@@ -1,6 +1,6 @@
-"""The compiled training loop: `make_train(cfg) -> (init, run_chunk, train)`, the `RunnerState` it carries,
-and `compiled(cfg)`, its jitted `Program` placed on a device mesh (several seeds in one program), cached per
-program.
+"""The compiled training loop: `make_program(cfg.program, env, slots) -> (init, run_chunk)` (and
+`make_train(cfg)`, which adds the whole run), the `RunnerState` it carries, and `compiled(cfg)`, its jitted
+`Program` placed on a device mesh (several seeds in one program), cached per program.
 
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
 neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
@@ -11,7 +11,6 @@ neural slots through a `vmap` over their stacked params) followed by one PPO upd
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from typing import Any, NamedTuple
 
@@ -22,7 +21,7 @@ import numpy as np
 from jaxsocial import config, distributed, nonfinite
 from jaxsocial.agents import bc, network, policy_io, population, ppo
 from jaxsocial.batching import any_in_batch
-from jaxsocial.config import DRIVER_FIELDS, TrainConfig
+from jaxsocial.config import ProgramConfig, TrainConfig
 from jaxsocial.env import core, observe
 from jaxsocial.env.types import EnvParams, EnvState
 
@@ -96,22 +95,42 @@ def make_train(
     env_params: EnvParams | None = None,
     pop: population.Population | None = None,
 ):
-    """Build the pure training functions for `cfg`, a single-stage config (see `config.stage_config`);
+    """Build the pure training functions for `cfg`, a config without stages (a run's driver switches them);
     validated first (`config.setup`) unless its validated environment and population are given.
 
-    Returns `(init, run_chunk, train)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
-    (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
-    None); `train(key) -> (state, metrics)` is the whole run (it loads frozen policies when traced).
-    Metrics are dicts of arrays with a leading iteration axis; `metrics[nonfinite.KEY]` holds the
-    iteration's finiteness checks ({quantity: bool[n, S_l]}). One seed (`cfg.seeds` is handled by
-    `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
-    minibatches over them too).
+    Returns `(init, run_chunk, train)`: `init` and `run_chunk` as `make_program` builds them for
+    `cfg.program`; `train(key) -> (state, metrics)` is the whole run of `cfg.iterations` (it loads frozen
+    policies when traced).
     """
     if cfg.stages:
         raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
     if env_params is None or pop is None:
         static = config.setup(cfg, load_frozen=False)
         env_params, pop = static.env_params, static.pop
+    init, run_chunk = make_program(cfg.program, env_params, pop, mesh)
+
+    def train(key: jax.Array):
+        return run_chunk(init(key), policy_io.load_frozen(pop, cfg.net), cfg.iterations)
+
+    return init, run_chunk, train
+
+
+def make_program(
+    cfg: ProgramConfig,
+    env_params: EnvParams,
+    pop: population.Population,
+    mesh: jax.sharding.Mesh | None = None,
+):
+    """The pure training functions of one program: `cfg` in the validated environment `env_params` with the
+    slots `pop` (see `config.setup`).
+
+    Returns `(init, run_chunk)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
+    (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
+    None). Metrics are dicts of arrays with a leading iteration axis; `metrics[nonfinite.KEY]` holds the
+    iteration's finiteness checks ({quantity: bool[n, S_l]}). One seed (`cfg.seeds` is handled by
+    `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
+    minibatches over them too).
+    """
     dp = distributed.data_parallel(mesh)
     net, ppo_cfg = cfg.net, cfg.ppo
     learners = jnp.asarray(pop.learners)
@@ -247,10 +266,7 @@ def make_train(
     def run_chunk(state: RunnerState, frozen_params, n: int):
         return jax.lax.scan(lambda s, _: iteration(s, frozen_params), state, None, length=n)
 
-    def train(key: jax.Array):
-        return run_chunk(init(key), policy_io.load_frozen(pop, net), cfg.iterations)
-
-    return init, run_chunk, train
+    return init, run_chunk
 
 
 def over_seeds(run_chunk, batching: str = "vmap"):
@@ -282,12 +298,12 @@ class Program(NamedTuple):
 
 @functools.lru_cache(maxsize=8)
 def _compiled(
-    program_cfg: TrainConfig,
+    program_cfg: ProgramConfig,
     mesh: jax.sharding.Mesh,
-    env_params: EnvParams | None,
-    pop: population.Population | None,
+    env_params: EnvParams,
+    pop: population.Population,
 ) -> Program:
-    init, run_chunk, _ = make_train(program_cfg, mesh, env_params=env_params, pop=pop)
+    init, run_chunk = make_program(program_cfg, env_params, pop, mesh)
     replicated = distributed.replicated(mesh)
 
     def init_from_seed(seed):
@@ -338,12 +354,13 @@ def compiled(
     env_params: EnvParams | None = None,
     pop: population.Population | None = None,
 ) -> Program:
-    """The `Program` of `cfg` (a single-stage config) on `mesh` (default: `data_mesh(cfg)`), shared between
-    runs whose programs are the same (tests, notebooks and sweeps in one process compile once).
-    `env_params`, `pop`: cfg's, validated (`config.Setup.stage`); default: validated here."""
+    """The `Program` of `cfg` on `mesh` (default: `data_mesh(cfg)`), shared between runs whose programs are
+    the same (`cfg.program`, environment and slots: tests, notebooks and sweeps in one process compile
+    once). `env_params`, `pop`: the validated environment of the stage to run and the slots
+    (`config.Setup`); default: validated here, the environment before the first stage."""
     if mesh is None:
         mesh = data_mesh(cfg)
-    defaults = TrainConfig()
-    unused = DRIVER_FIELDS | {"seed"}  # the seeds are an argument of `init`
-    program_cfg = dataclasses.replace(cfg, **{f: getattr(defaults, f) for f in unused})
-    return _compiled(program_cfg, mesh, env_params, pop)
+    if env_params is None or pop is None:
+        static = config.setup(cfg, load_frozen=False)
+        env_params, pop = static.env_params, static.pop
+    return _compiled(cfg.program, mesh, env_params, pop)

@@ -38,7 +38,7 @@ PANELS = {
 
 NOT_GROUPED = frozenset(
     {
-        # the driver's (`config.DRIVER_FIELDS`): they do not change what is trained
+        # `config.DriverConfig`'s: they do not change what is trained
         "iterations", "resume", "overwrite", "progress", "logger", "checkpoint_every", "keep_checkpoints",
         "run_name", "runs_dir", "devices", "coordinator", "num_processes", "process_id", "compile_cache",
         "eval_envs", "eval_every", "eval_episodes", "on_nonfinite", "init_from",
@@ -46,8 +46,8 @@ NOT_GROUPED = frozenset(
         "seed", "seeds", "seed_batching",
     }
 )  # fmt: skip
-"""Config fields that may differ between the seeds of one group (kept equal to `config.DRIVER_FIELDS` and
-the seed fields by a test, so this module needs no training code)."""
+"""Config fields that may differ between the seeds of one group (kept equal to `config.DriverConfig`'s fields
+and the seed fields by a test, so this module needs no training code)."""
 
 
 @dataclasses.dataclass

@@ -31,7 +31,7 @@ from jaxsocial import (
     schedule,
 )
 from jaxsocial.agents import policy_io, population
-from jaxsocial.config import DRIVER_FIELDS, PRESETS, TrainConfig, config_dict, config_from_dict
+from jaxsocial.config import PRESETS, TrainConfig, config_dict, config_from_dict
 from jaxsocial.driver import (
     Check,
     Chunk,
@@ -138,12 +138,11 @@ def run(cfg: TrainConfig) -> Path:
 
 
 def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConfig, Path]]) -> None:
-    """Start-up on process 0: `logs.prepare_run_dir` (a resumed run's config must not differ but in
-    `DRIVER_FIELDS`), each seed's checkpoint and policy directories, and a new run's configs."""
+    """Start-up on process 0: `logs.prepare_run_dir` (a resumed run's config may differ only in
+    `DriverConfig`'s fields), each seed's checkpoint and policy directories, and a new run's configs."""
     logs.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite)
     if cfg.resume and (run_dir / "config.json").exists():
-        saved = config_dict(cfg)
-        diff = [k for k in logs.config_diff(logs.read_config(run_dir), saved) if k not in DRIVER_FIELDS]
+        diff = config.resume_conflicts(logs.read_config(run_dir), config_dict(cfg))
         if diff:
             raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
     for _, seed_dir in seeds:

@@ -54,8 +54,7 @@ def test_pin_names_the_iteration_it_loads(source, tmp_path):
 def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
     cfg = _branch(tmp_path, f"{source}@2", seed=7)
     static = config.setup(cfg)
-    stage_cfg, env_params = static.stage(-1)
-    program = loop.compiled(stage_cfg, env_params=env_params, pop=static.pop)
+    program = loop.compiled(cfg, env_params=static.stage(-1), pop=static.pop)
     fresh = program.init(np.int32(cfg.seed))
     state = init_from.apply(cfg, fresh, program)
     template = jax.eval_shape(lambda: fresh)

@@ -131,9 +131,10 @@ def test_seed_dirs_as_training_writes_them(tmp_path):
 
 def test_plot_groups_seeds_over_the_driver_fields():
     from jaxsocial import plot
-    from jaxsocial.config import DRIVER_FIELDS
+    from jaxsocial.config import DriverConfig
 
-    assert DRIVER_FIELDS | {"seed", "seeds", "seed_batching"} == plot.NOT_GROUPED
+    driver = {f.name for f in dataclasses.fields(DriverConfig)}
+    assert driver | {"seed", "seeds", "seed_batching"} == plot.NOT_GROUPED
 
 
 def test_every_recipe_kind_is_registered():

@@ -12,9 +12,9 @@ import pytest
 from conftest import TINY
 
 import jaxsocial
-from jaxsocial import logs, schedule
+from jaxsocial import logs, loop, schedule
 from jaxsocial.agents import network, policy_io, population
-from jaxsocial.config import setup, stage_config
+from jaxsocial.config import setup
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
 from jaxsocial.train import run
@@ -30,10 +30,10 @@ def test_parse_stages_and_accumulated_overrides():
     assert schedule.overrides_at(stages, 3) == {"penalty": 1.5, "solo_prob": 0.75}
     assert schedule.overrides_at(stages, -1) == {}
     assert schedule.initial_index(stages) == 0 and schedule.initial_index(stages[1:]) == -1
-    cfg = dataclasses.replace(TINY, stages=CURRICULUM)
-    assert stage_config(cfg, stages, 1).env_overrides == {**TINY.env_overrides, "penalty": 1.0}
-    # a stage whose environment is the preset's runs the program of the plain config
-    assert stage_config(cfg, stages, 2).env_overrides == stage_config(cfg, stages, -1).env_overrides
+    static = setup(dataclasses.replace(TINY, stages=CURRICULUM))
+    assert static.stage(0) == dataclasses.replace(static.stage(-1), penalty=1.0)
+    # a stage whose environment is the preset's runs the program of the plain config (same cache key)
+    assert static.stage(1) == static.stage(-1)
     # iteration stages switch on the iteration, threshold stages on the chunk's learner return
     assert schedule.advance(stages, 0, 1, 50.0) == 0 and schedule.advance(stages, 0, 2, None) == 1
     assert schedule.advance(stages, 2, 9, None) == 2 and schedule.advance(stages, 2, 9, 3.0) == 3
@@ -77,10 +77,9 @@ def test_penalty_curriculum_switches_at_the_configured_points(tmp_path):
         (7, 1),
     ]
     static = setup(cfg)
-    assert [static.stage(i)[1].penalty for i in (-1, 0, 1)] == [1.5, 1.0, 1.5]
-    assert [static.stage(i)[0] for i in (-1, 0, 1)] == [
-        stage_config(cfg, static.stages, i) for i in (-1, 0, 1)
-    ]
+    assert [static.stage(i).penalty for i in (-1, 0, 1)] == [1.5, 1.0, 1.5]
+    program = [loop.compiled(cfg, env_params=static.stage(i), pop=static.pop) for i in (-1, 0, 1)]
+    assert program[2] is program[0] and program[1] is not program[0]  # stage 1 reuses the first program
 
 
 def test_solo_mixture_proportion_and_absent_agents(step_env, observe_fn):

@@ -10,13 +10,25 @@ import numpy as np
 import pytest
 from conftest import TINY, TINY_FLAGS, metrics_without_speed
 
-from jaxsocial import checkpoint, logs
+from jaxsocial import checkpoint, config, logs
 from jaxsocial.agents import policy_io
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.config import PRESETS
 from jaxsocial.loop import make_train
 from jaxsocial.train import parse_args, run
+
+
+def test_every_field_is_a_run_program_or_driver_field():
+    kinds = (config.RunConfig, config.ProgramConfig, config.DriverConfig)
+    parts = [{f.name for f in dataclasses.fields(kind)} for kind in kinds]
+    assert sum(map(len, parts)) == len(set().union(*parts)) == len(dataclasses.fields(config.TrainConfig))
+    driven = dataclasses.replace(TINY, iterations=99, run_name="x", eval_every=3, seed=4)
+    assert driven.program == TINY.program  # the run's seed and the driver's fields are not compiled
+    assert dataclasses.replace(TINY, num_envs=8).program != TINY.program
+    changed = dataclasses.replace(TINY, iterations=9, seed=5, net=dataclasses.replace(TINY.net, hidden=4))
+    conflicts = config.resume_conflicts(config.config_dict(TINY), config.config_dict(changed))
+    assert conflicts == ["net.hidden", "seed"]  # iterations is the driver's: a resume may extend a run
 
 
 @pytest.fixture(scope="module")
