@@ -26,6 +26,7 @@ from jaxsocial import (
     init_from,
     logs,
     loop,
+    metrics,
     nonfinite,
     runlock,
     schedule,
@@ -43,46 +44,6 @@ from jaxsocial.driver import (
     pool_seeds,
     seed_part,
 )
-
-
-def metric_rows(
-    metrics: dict[str, np.ndarray], first_iteration: int, sps: float, pop
-) -> list[dict[str, Any]]:
-    """One JSON row per iteration: per-slot returns and episode counts, per-learner losses."""
-    rows = []
-    n = len(next(iter(metrics.values())))
-    for i in range(n):
-        row: dict[str, Any] = {"iteration": first_iteration + i + 1, "env_steps_per_s": sps}
-        for slot in range(len(pop.slots)):
-            row[f"return/{slot}"] = float(metrics["return"][i][slot])
-            row[f"episodes/{slot}"] = int(metrics["episodes"][i][slot])
-        for name, value in metrics.items():
-            if name in ("return", "episodes"):
-                continue
-            for j, slot in enumerate(pop.learners):
-                row[f"{name}/{slot}"] = float(value[i][j])
-        rows.append(row)
-    return rows
-
-
-def progress_fields(metrics: dict[str, np.ndarray], sps: float, pop: population.Population) -> dict[str, Any]:
-    """What the progress line shows for a chunk: speed and each slot's mean return over the episodes that
-    finished in the chunk ('-' where none did), named `return[<slot> <kind>]`, e.g. 'return[1 explorer]'."""
-    episodes = metrics["episodes"].sum(0)
-    returns = (metrics["return"] * metrics["episodes"]).sum(0) / np.maximum(episodes, 1)
-    shown: dict[str, Any] = {"env-steps/s": int(sps)}
-    for s, (r, n) in enumerate(zip(returns, episodes, strict=True)):
-        shown[f"return[{s} {pop.slots[s].label.split(':')[-1]}]"] = float(r) if n else "-"
-    return shown
-
-
-def learner_return(metrics: dict[str, np.ndarray], pop: population.Population) -> float | None:
-    """The learners' mean episode return over a chunk's finished episodes (None if none finished)."""
-    learners = list(pop.learners)
-    episodes = metrics["episodes"][:, learners]
-    if episodes.sum() == 0:
-        return None
-    return float((metrics["return"][:, learners] * episodes).sum() / episodes.sum())
 
 
 def run_name(cfg: TrainConfig) -> str:
@@ -189,7 +150,7 @@ def train_chunks(
                 raise nonfinite.NonFiniteError(stop_message(cfg, driver.it, check.failure, driver.last_saved))
             driver.it += n
             pooled = pool_seeds(chunk.metrics, cfg.seeds)
-            driver.switch_stage(learner_return(pooled, static.pop))
+            driver.switch_stage(metrics.learner_return(pooled, static.pop))
             if checkpoint_due(cfg, driver.it, driver.last_saved):
                 driver.save(check.healthy_end)
             out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
@@ -266,7 +227,7 @@ class Outputs:
             )
             rows = rows[: check.kept]  # rows after a stop are not written
             if compile_s is not None:
-                rows[0]["compile_s"] = round(compile_s, 2)
+                rows[0][metrics.COMPILE_S] = round(compile_s, 2)
             if evaluating:
                 rows[-1].update(self.evaluation(k, end, params))
             metrics_log.append(rows)
@@ -281,7 +242,7 @@ class Outputs:
         host_params = jax.device_get(seed_part(params, k, self.cfg.seeds))  # replicated: local
         first = jax.tree.map(lambda x: x[0], host_params)
         key = jax.random.fold_in(jax.random.key(self.seeds[k][0].seed), end)
-        return {f"eval/{s}": r for s, r in self.learner_eval(key, first).items()}
+        return metrics.eval_fields(self.learner_eval(key, first))
 
     def show_progress(self, it: int, stage: int, pooled: dict[str, np.ndarray], sps: float) -> None:
         """The progress line after iteration `it`, now in `stage`, with the chunk's metrics over all seeds
@@ -290,7 +251,7 @@ class Outputs:
             stages = self.static.stages
             shown = {"stage": f"{stage + 1}/{len(stages)}"} if stages else {}
             self.progress.update(
-                it, **shown, **progress_fields(pooled, sps * self.cfg.seeds, self.static.pop)
+                it, **shown, **metrics.progress_fields(pooled, sps * self.cfg.seeds, self.static.pop)
             )
 
     def close(self) -> None:
@@ -312,18 +273,18 @@ class Outputs:
 
 
 def chunk_rows(
-    metrics: dict[str, np.ndarray],
+    chunk_metrics: dict[str, np.ndarray],
     finite: dict[str, np.ndarray],
     first_iteration: int,
     sps: float,
     stage: int,
     pop: population.Population,
 ) -> list[dict[str, Any]]:
-    """One seed's metrics rows of a chunk (`metric_rows`) with the stage and, in a non-finite iteration,
-    its non-finite quantities (`nonfinite.ROW_KEY`)."""
-    rows = metric_rows(metrics, first_iteration, sps, pop)
+    """One seed's metrics rows of a chunk (`metrics.metric_rows`) with the stage and, in a non-finite
+    iteration, its non-finite quantities (`nonfinite.ROW_KEY`)."""
+    rows = metrics.metric_rows(chunk_metrics, first_iteration, sps, pop)
     for i, row in enumerate(rows):
-        row["stage"] = stage
+        row[metrics.STAGE] = stage
         bad = nonfinite.names(finite, i, pop.learners)
         if bad:
             row[nonfinite.ROW_KEY] = bad

@@ -99,23 +99,6 @@ def test_progress_fields_and_learner_return():
     assert metrics.progress_fields(nothing, 1.0, pop)["return[0 learner]"] == "-"
 
 
-def test_writer_is_a_drop_in_for_the_trainers():
-    """The same rows, progress fields and learner return as `jaxsocial.train`'s own (while it has them)."""
-    from jaxsocial import train
-
-    m, pop = chunk(), fake_pop(learners=(0, 2))
-    m = {**m, "aux_loss": np.tile(m["aux_loss"], 2), "kl": np.tile(m["kl"], 2)}
-    for name in ("metric_rows", "progress_fields", "learner_return"):
-        if not hasattr(train, name) or getattr(train, name) is getattr(metrics, name):
-            continue
-        args = {
-            "metric_rows": (m, 5, 10.0, pop),
-            "progress_fields": (m, 10.0, pop),
-            "learner_return": (m, pop),
-        }
-        assert getattr(metrics, name)(*args[name]) == getattr(train, name)(*args[name])
-
-
 def test_seed_dirs_as_training_writes_them(tmp_path):
     from jaxsocial import train
     from jaxsocial.config import TrainConfig

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial import config, logs, nonfinite, schedule, train
+from jaxsocial import config, logs, metrics, nonfinite, schedule, train
 from jaxsocial.driver import (
     Check,
     Chunk,
@@ -125,10 +125,10 @@ def test_a_stage_starts_at_its_iteration_or_once_the_learners_return_reaches_it(
     driver.switch_stage(None)  # iteration 2, whatever the return
     assert driver.stage == 0
     low = chunk_metrics([4.0, 9.0], [1, 0])  # the second episode did not finish
-    driver.switch_stage(train.learner_return(low, static.pop))
+    driver.switch_stage(metrics.learner_return(low, static.pop))
     assert driver.stage == 0
     met = chunk_metrics([4.0, 7.0], [1, 2])  # (4 + 2 * 7) / 3 episodes = 6
-    driver.switch_stage(train.learner_return(met, static.pop))
+    driver.switch_stage(metrics.learner_return(met, static.pop))
     assert driver.stage == 1
     driver.switch_stage(99.0)  # no later stage
     assert driver.stage == 1
