@@ -56,20 +56,12 @@ ENV_AXES = RunnerState(
 """The environment axis of the RunnerState's arrays, split over devices (pytree prefix; None: replicated)."""
 
 
-class Transition(NamedTuple):
-    """One rollout step. obs, actions and valid are of the recorded slots (learners for PPO, demonstrators
-    for BC), the rest of the learners. The fields are those of `ppo.Batch` but `carry0` (see `ppo_batch`)."""
-
-    obs: jax.Array  # uint8 or int8 [E, S_r, ...] (the environment's observations)
-    resets: jax.Array
-    actions: jax.Array  # int32[S_l, E]
-    logp: jax.Array
-    rewards: jax.Array
-    terminated: jax.Array
-    done: jax.Array
-    final_values: jax.Array
-    valid: jax.Array
-    attention: jax.Array | None  # int32[S_l, E, N-1] with an attention head (`observe.attention_targets`)
+Transition = ppo.Batch
+"""One rollout step, in `ppo.Batch`'s fields without their time axis and with carry0 None (`ppo_batch` adds
+both). obs, actions and valid are of the recorded slots (learners for PPO, demonstrators for BC), the rest of
+the learners: obs uint8 or int8 [E, S_r, ...] (the environment's observations), resets bool[E], actions
+int32[S_r, E], valid bool[S_r, E], logp, rewards, final_values float32[S_l, E], terminated, done bool[S_l, E]
+and attention int32[S_l, E, N-1] with an attention head (`observe.attention_targets`), else None."""
 
 
 def ppo_batch(
@@ -82,10 +74,11 @@ def ppo_batch(
     resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
     n_learners = last_obs.shape[1]
     per_learner = traj._replace(obs=None, resets=None)  # the rest are [T, S_l, E, ...]
-    fields = jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)._replace(
-        obs=jnp.moveaxis(obs, 2, 0), resets=jnp.broadcast_to(resets, (n_learners, *resets.shape))
+    return jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)._replace(
+        obs=jnp.moveaxis(obs, 2, 0),
+        resets=jnp.broadcast_to(resets, (n_learners, *resets.shape)),
+        carry0=carry0,
     )
-    return ppo.Batch(**fields._asdict(), carry0=carry0)
 
 
 def make_train(
@@ -199,6 +192,7 @@ def make_program(
             done=agent_done[:, learners].T,
             final_values=final_values[:n_learners],
             valid=alive[:, recorded].T,
+            carry0=None,
             attention=attention_targets(state.env_states),
         )
         new_state = state._replace(

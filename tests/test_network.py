@@ -130,9 +130,10 @@ def test_matmul_equals_xla_conv(small_params):
     """Both conv implementations compute the same function of the same params, and the same gradients.
 
     The matmul side also runs the encoder and decoder in chunks of 4 of the T * B = 15 frames (padded to 16,
-    with the checkpointing of `_map_chunks`); the xla side in one piece. Tolerances: the two computations'
-    float32 error bounds (`float_bounds.network_error`, dominated by Winograd's), plus the loss's sum over
-    every pixel and, for gradients, the path back and a weight gradient's sum over frames and pixels.
+    with the checkpointing of `chunks.map_chunks`); the xla side in one piece. Tolerances: the two
+    computations' float32 error bounds (`float_bounds.network_error`, dominated by Winograd's), plus the
+    loss's sum over every pixel and, for gradients, the path back and a weight gradient's sum over frames and
+    pixels.
     """
     cfg_mm = dataclasses.replace(SMALL, chunk=4)
     cfg_xla = dataclasses.replace(SMALL, conv_impl="xla")

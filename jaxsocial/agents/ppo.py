@@ -72,6 +72,7 @@ class Batch(NamedTuple):
     truncated (bootstrap through the time limit); valid: bool[T, E] the agent was acting (not done earlier);
     carry0: the LSTM state before step 0 (network.Carry of float32[E, H]); attention: int32[T, E, K] each
     other slot's cell in the learner's view (`observe.attention_targets`), None without an attention head.
+    The rollout records its steps in the same fields (`loop.Transition`: no time axis, carry0 None).
     """
 
     obs: jax.Array

@@ -1,0 +1,294 @@
+"""The network's Flax linen modules: `ActorCritic` (encoder -> LSTM -> policy and value heads, plus the
+auxiliary heads the config asks for), built from `Encoder`, `LSTM`, `MLP`, `Decoder` (the auxiliary frame
+head), `Conv`, `Embed` (symbolic views) and `Dense`. `network` applies them to a params dict.
+
+Conventions: conv kernels are HWIO ``[3, 3, C_in, C_out]``, and the conv layers take and return HWNC
+activations (`conv`); deconv kernels are ``[3, 3, C_in, C_out]`` with torch ConvTranspose2d (scatter)
+semantics; LSTM gates are ordered (i, f, g, o) like PyTorch: ``gates = x @ wi + h @ wh + b``. Every layer
+creates its params with `initialisers.param`: convs PyTorch's default U(-1/sqrt(fan_in), 1/sqrt(fan_in))
+(deconvs with the effective fan-in C_in * 9 / stride^2), dense layers orthogonal with gain sqrt(2) (hidden),
+1 (value output) or 0.01 (policy and attention outputs) and zero bias, LSTM N(0, 1/hidden) input weights,
+orthogonal recurrent weights per gate, zero bias.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import chex
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from jax import lax
+from jax.ad_checkpoint import checkpoint_name
+
+from jaxsocial.agents import conv
+from jaxsocial.agents.chunks import SAVED, leaky_relu, leaky_relu_unsaved, map_chunks
+from jaxsocial.agents.conv import KERNEL
+from jaxsocial.agents.initialisers import Init, param
+from jaxsocial.agents.network_config import ATTENTION_CLASSES, OBS_SHAPE, STRIDES, NetworkConfig
+from jaxsocial.agents.precision import matmul
+from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_VOCAB, symbolic_classes, symbolic_errors
+
+
+class Carry(NamedTuple):
+    """LSTM state, float32[*batch, hidden] each."""
+
+    c: jax.Array
+    h: jax.Array
+
+
+class Output(NamedTuple):
+    """Per-step network outputs: logits f32[T, B, A], value f32[T, B], LSTM output hidden f32[T, B, H]."""
+
+    logits: jax.Array
+    value: jax.Array
+    hidden: jax.Array
+
+
+class Dense(nn.Module):
+    """``x @ kernel + bias``: f32[..., n_in] -> f32[..., features]; orthogonal kernel (gain), zero bias; the
+    product's inputs in `dtype` (`precision.matmul`)."""
+
+    features: int
+    gain: float
+    dtype: str = "float32"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = param(self, "kernel", Init("orthogonal", self.gain), (x.shape[-1], self.features))
+        return matmul(x, kernel, self.dtype) + param(self, "bias", Init("zeros"), (self.features,))
+
+
+class MLP(nn.Module):
+    """f32[..., n_in] -> f32[..., n_out]: two tanh hidden layers of `width` (gain sqrt 2), a linear output."""
+
+    width: int
+    n_out: int
+    out_gain: float
+    dtype: str = "float32"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), self.dtype, name="dense0")(x))
+        x = jnp.tanh(Dense(self.width, math.sqrt(2.0), self.dtype, name="dense1")(x))
+        return Dense(self.n_out, self.out_gain, self.dtype, name="out")(x)
+
+
+class Conv(nn.Module):
+    """3x3 VALID convolution of HWNC activations f32[h, w, n, c_in] -> f32[h', w', n, features] (`conv.conv`;
+    transpose: `conv.deconv`), PyTorch's default uniform init with fan-in c_in * 9 (/ stride^2 transposed)."""
+
+    features: int
+    stride: int
+    impl: str
+    transpose: bool = False
+    dtype: str = "float32"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        c_in = x.shape[-1]
+        bound = 1.0 / math.sqrt(c_in * KERNEL * KERNEL / (self.stride**2 if self.transpose else 1))
+        kernel = param(self, "kernel", Init("uniform", bound), (KERNEL, KERNEL, c_in, self.features))
+        bias = param(self, "bias", Init("uniform", bound), (self.features,))
+        layer = conv.deconv if self.transpose else conv.conv
+        return layer(x, kernel, bias, self.stride, self.impl, self.dtype)
+
+
+class Embed(nn.Module):
+    """Symbolic view cells int8[..., 4] -> f32[..., features]: the sum of one learned vector per channel value
+    (the concatenated per-channel embeddings times a linear map), plus a bias. N(0, 1) init like
+    ``torch.nn.Embedding``, zero bias."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, cells: jax.Array) -> jax.Array:
+        kernel = param(self, "kernel", Init("normal", 1.0), (SYMBOLIC_VOCAB, self.features))
+        return kernel[symbolic_classes(cells)].sum(-2) + param(self, "bias", Init("zeros"), (self.features,))
+
+
+class Encoder(nn.Module):
+    """Frames uint8[N, 21, 21, 3] -> features f32[N, hidden]: three leaky-ReLU convs, FC, tanh. Symbolic
+    views int8[N, 7, 7, 4] (`NetworkConfig.obs`): an `Embed` per cell in place of conv1 (7x7 cells either
+    way).
+
+    The convolutions run in chunks of `NetworkConfig.chunk` frames (`map_chunks`), up to conv3's
+    pre-activation; its activation and the FC layer run on all N frames at once, as large matrix products.
+    """
+
+    cfg: NetworkConfig
+
+    def setup(self):
+        (c1, c2, c3), impl, dtype = self.cfg.conv_channels, self.cfg.conv_impl, self.cfg.dtype
+        if self.cfg.symbolic:
+            self.embed = Embed(c1)
+        else:
+            self.conv1 = Conv(c1, STRIDES[0], impl, dtype=dtype)
+        self.conv2 = Conv(c2, STRIDES[1], impl, dtype=dtype)
+        self.conv3 = Conv(c3, STRIDES[2], impl, dtype=dtype)
+        self.fc = Dense(self.cfg.hidden, math.sqrt(2.0), dtype)
+
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        chex.assert_shape(obs, (None, *self.cfg.obs_shape))
+        chex.assert_type(obs, self.cfg.obs_dtype)
+        x = leaky_relu(map_chunks(Encoder.conv_features, self, (obs,), self.cfg.chunk))
+        return jnp.tanh(self.fc(x))
+
+    def conv_features(self, obs: jax.Array) -> jax.Array:
+        """uint8[n, 21, 21, 3] (or int8[n, 7, 7, 4]) -> conv3's pre-activation f32[n, feature_size], flattened
+        (h, w, c)."""
+        if self.cfg.symbolic:
+            x = self.embed(conv.to_hwnc(obs))
+        else:
+            x = self.conv1(conv.to_hwnc(obs).astype(jnp.float32) * (1.0 / 255.0))
+        # conv1's activation is recomputed from obs, not saved (+0.6% FLOPs, 6 KB less memory per frame)
+        x = leaky_relu_unsaved(x)
+        x = leaky_relu(self.conv2(x))
+        x = self.conv3(x)
+        return conv.to_nhwc(x).reshape(x.shape[2], -1)
+
+
+class LSTM(nn.Module):
+    """LSTM over T steps of B sequences: carry `Carry` f32[B, features] x 2, x f32[T, B, n_in], resets
+    bool[T, B] (before step t, the carry of every sequence with resets[t, b] is zeroed) -> (final `Carry`,
+    h f32[T, B, features]). The input projection ``x @ wi + b`` runs on all T * B rows at once, only
+    ``h @ wh`` and the gates inside the `lax.scan` over T."""
+
+    features: int
+    dtype: str = "float32"
+
+    @nn.compact
+    def __call__(self, carry: Carry, x: jax.Array, resets: jax.Array) -> tuple[Carry, jax.Array]:
+        n_in, gates = x.shape[-1], 4 * self.features
+        wi = param(self, "wi", Init("normal", 1.0 / math.sqrt(n_in)), (n_in, gates))
+        wh = param(self, "wh", Init("orthogonal", 1.0, blocks=4), (self.features, gates))
+        xproj = matmul(x, wi, self.dtype) + param(self, "b", Init("zeros"), (gates,))
+
+        def cell(carry, inputs):
+            xp, reset = inputs
+            keep = ~reset[:, None]
+            c = jnp.where(keep, carry.c, 0.0)
+            h = jnp.where(keep, carry.h, 0.0)
+            i, f, g, o = jnp.split(xp + matmul(h, wh, self.dtype), 4, axis=-1)
+            c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
+            h = jax.nn.sigmoid(o) * jnp.tanh(c)
+            return Carry(c=c, h=h), h
+
+        return lax.scan(cell, carry, (xproj, resets))
+
+
+class Decoder(nn.Module):
+    """The auxiliary frame head: LSTM outputs f32[..., H] and actions int[...] -> frames f32[..., 21, 21, 3].
+
+    Unbounded (linear output layer); the learner compares it with obs / 255 (`aux_loss`). Runs in chunks of
+    `NetworkConfig.chunk` frames (`map_chunks`). Symbolic views: ``cell_logits``, a dense layer per view
+    cell, in place of deconv3 gives logits f32[..., 7, 7, PREDICTED_VOCAB] (`symbolic_errors`).
+    """
+
+    cfg: NetworkConfig
+
+    def setup(self):
+        (c1, c2, _), impl, dtype = self.cfg.conv_channels, self.cfg.conv_impl, self.cfg.dtype
+        self.aux_fc = Dense(self.cfg.feature_size, math.sqrt(2.0), dtype)
+        self.deconv1 = Conv(c2, STRIDES[2], impl, transpose=True, dtype=dtype)
+        self.deconv2 = Conv(c1, STRIDES[1], impl, transpose=True, dtype=dtype)
+        if self.cfg.symbolic:
+            self.cell_logits = Dense(PREDICTED_VOCAB, 1.0, dtype)
+        else:
+            self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True, dtype=dtype)
+
+    def __call__(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
+        batch = hidden.shape[:-1]
+        chex.assert_shape(hidden, (*batch, self.cfg.hidden))
+        chex.assert_shape(action, batch)
+        rows = (hidden.reshape(-1, hidden.shape[-1]), jnp.asarray(action).reshape(-1))
+        frames = map_chunks(
+            lambda mdl, *rows: conv.to_nhwc(mdl.frames_hwnc(*rows)), self, rows, self.cfg.chunk
+        )
+        return frames.reshape(*batch, *self.cfg.decoded_shape)
+
+    def frames_hwnc(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
+        """Rows hidden f32[N, H], action int[N] -> frames f32[21, 21, N, 3] (HWNC), in one piece (symbolic:
+        logits f32[7, 7, N, PREDICTED_VOCAB])."""
+        z = jnp.concatenate([hidden, jax.nn.one_hot(action, self.cfg.n_actions, dtype=hidden.dtype)], axis=-1)
+        x = checkpoint_name(jnp.tanh(self.aux_fc(z)), SAVED)
+        x = conv.to_hwnc(x.reshape(-1, *self.cfg.feature_shape))
+        x = leaky_relu(self.deconv1(x))
+        x = leaky_relu(self.deconv2(x))
+        return self.cell_logits(x) if self.cfg.symbolic else self.deconv3(x)  # linear output
+
+    def frame_errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
+        """Mean absolute error of each frame's prediction against target / 255, f32[N], for rows hidden
+        f32[N, H], action int[N], target uint8[N, 21, 21, 3], in one piece (symbolic: `symbolic_errors`)."""
+        if self.cfg.symbolic:
+            return symbolic_errors(self.frames_hwnc(hidden, action), conv.to_hwnc(target))
+        # Compared in 3x3 blocks, the layout of deconv3's matrix product: XLA then cancels the deconvolution's
+        # transpose to HWNC with this one, here and in the backward pass (+12% for the small training preset).
+        prediction = conv.blocks(self.frames_hwnc(hidden, action))
+        error = jnp.abs(prediction - conv.blocks(conv.to_hwnc(target)).astype(jnp.float32) / 255.0)
+        h, w, n, c = error.shape
+        # The sum over pixels as a matrix-vector product: XLA:CPU's reduction over axes (0, 1, 3) took 10x
+        # longer.
+        return (jnp.ones(h * w) @ error.reshape(h * w, n * c)).reshape(n, c).sum(axis=-1) / (h * w * c)
+
+    def errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
+        """`frame_errors` of rows f32[N, H], int[N], uint8[N, 21, 21, 3] (or int8[N, 7, 7, 4]) -> f32[N], in
+        chunks."""
+        return map_chunks(Decoder.frame_errors, self, (hidden, action, target), self.cfg.chunk)
+
+
+class ActorCritic(nn.Module):
+    """The recurrent actor-critic: ``ActorCritic(cfg).apply({"params": params}, carry, obs, resets)`` runs it
+    over T steps of B sequences and returns the final `Carry` and per-step `Output`s.
+
+    carry: `Carry` f32[B, hidden] x 2; obs uint8[T, B, 21, 21, 3] (int8[T, B, 7, 7, 4] symbolic); resets
+    bool[T, B] (before step t, the carry of every sequence with resets[t, b] is zeroed: a reset step starts a
+    fresh episode). ``init`` with the same arguments also creates the auxiliary heads' params (`decode`,
+    `attention_logits`).
+    """
+
+    cfg: NetworkConfig
+
+    def setup(self):
+        cfg = self.cfg
+        self.encoder = Encoder(cfg)
+        nn.share_scope(self, self.encoder)  # its layers are top-level entries of the params tree
+        self.lstm = LSTM(cfg.hidden, cfg.dtype)
+        self.policy = MLP(cfg.mlp, cfg.n_actions, 0.01, cfg.dtype)
+        self.value = MLP(cfg.mlp, 1, 1.0, cfg.dtype)
+        if cfg.attention:
+            self.attention = Dense(cfg.n_others * ATTENTION_CLASSES, 0.01, cfg.dtype)
+        if cfg.frame_aux != "none":
+            self.decoder = Decoder(cfg)
+            nn.share_scope(self, self.decoder)
+
+    def __call__(self, carry: Carry, obs: jax.Array, resets: jax.Array) -> tuple[Carry, Output]:
+        cfg = self.cfg
+        t, b = obs.shape[:2]
+        chex.assert_shape(obs, (t, b, *cfg.obs_shape))
+        chex.assert_shape(resets, (t, b))
+        chex.assert_shape([carry.c, carry.h], (b, cfg.hidden))
+        chex.assert_type([resets, carry.c, carry.h], [bool, jnp.float32, jnp.float32])
+        x = self.encoder(obs.reshape(t * b, *cfg.obs_shape)).reshape(t, b, -1)
+        carry, hidden = self.lstm(carry, x, resets)
+        out = Output(logits=self.policy(hidden), value=self.value(hidden)[..., 0], hidden=hidden)
+        if self.is_initializing():  # create the auxiliary heads' params too
+            if cfg.attention:
+                self.attention_logits(hidden)
+            if cfg.frame_aux != "none":
+                self.decode(hidden, jnp.zeros((t, b), jnp.int32))
+        return carry, out
+
+    def attention_logits(self, hidden: jax.Array) -> jax.Array:
+        """LSTM outputs f32[..., H] -> logits f32[..., n_others, 50] over each other slot's view cell."""
+        if not self.cfg.attention:
+            raise ValueError(f"cfg.aux == {self.cfg.aux!r} has no attention head")
+        logits = self.attention(hidden)
+        return logits.reshape(*hidden.shape[:-1], self.cfg.n_others, ATTENTION_CLASSES)
+
+    def decode(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
+        """`Decoder`: hidden f32[..., H], action int[...] -> f32[..., *cfg.decoded_shape]."""
+        self.cfg.check_decoder()
+        return self.decoder(hidden, action)
