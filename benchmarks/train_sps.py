@@ -101,7 +101,7 @@ def cpu_flags() -> dict[str, bool]:
 
 def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
     """Matrix-product FLOPs (2 per multiply-add) of one sample's forward pass, per layer, as `cfg.conv_impl`
-    computes them: the "matmul" implementation's stride-1 layers (Winograd, see jaxsocial.agents.network)
+    computes them: the "matmul" implementation's stride-1 layers (Winograd, see jaxsocial.agents.conv)
     count their channel products under the layer's name and their pixel transforms (products with constant
     matrices) under "<layer>.transforms"; "xla" counts direct convolutions. The Winograd kernel transforms
     (once per chunk, not per sample) are left out."""

@@ -1,4 +1,4 @@
-"""3x3 convolutions of the network (`network.Conv`): fast matrix-product kernels and the XLA reference.
+"""3x3 convolutions of the network (`modules.Conv`): fast matrix-product kernels and the XLA reference.
 
 Activations are HWNC ``f32[h, w, n, c]`` (spatial axes first: a linear map over the pixels of every frame and
 channel is one matrix product with ``x.reshape(h * w, n * c)``, a product over the channels of every pixel a
