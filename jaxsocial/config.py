@@ -277,10 +277,6 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
             "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
             "triggered by the return would start at another iteration for each seed: train them one by one"
         )
-    if cfg.init_from and not cfg.resume:
-        from jaxsocial import init_from  # here: it builds the source's program, with this module
-
-        init_from.check(cfg, pop.learners)
     frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
     return Setup(env_params, pop, stages, frozen, tuple(stage_envs))
 

@@ -87,9 +87,12 @@ def _learners(cfg: TrainConfig) -> tuple[int, ...]:
 
 
 def check(cfg: TrainConfig, learners: tuple[int, ...]) -> None:
-    """Validate `cfg.init_from` for a run whose learners are in slots `learners`: the source exists, has the
-    checkpoint, and has this run's network architecture and learner slots. ValueError or FileNotFoundError
-    naming the difference; nothing is compiled."""
+    """Validate `cfg.init_from` for a run whose learners are in slots `learners` (nothing to check without
+    it, or when the run resumes: it then loads its own state): the source exists, has the checkpoint, and
+    has this run's network architecture and learner slots. ValueError or FileNotFoundError naming the
+    difference; nothing is compiled."""
+    if not cfg.init_from or cfg.resume:
+        return
     source_iteration(cfg)
     for seed_dir in sorted(set(source_dirs(cfg))):
         source = _source_config(seed_dir)

@@ -81,6 +81,7 @@ def run(cfg: TrainConfig) -> Path:
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
     static = config.setup(cfg)  # validate before touching the disk or compiling; once per run
+    init_from.check(cfg, static.pop.learners)
     mesh = loop.data_mesh(cfg)
     run_dir = Path(cfg.runs_dir).expanduser() / run_name(cfg)
     cfg = init_from.pin(cfg, run_dir)  # RUN_DIR@ITERATION in config.json

@@ -23,20 +23,24 @@ def _branch(tmp_path, spec, **changes):
     return dataclasses.replace(TINY, **changes)
 
 
+def _check(cfg):
+    init_from.check(cfg, config.setup(cfg).pop.learners)
+
+
 def test_bad_sources_are_refused_before_anything_compiles(source, tmp_path):
     with pytest.raises(FileNotFoundError, match="no directory"):
-        config.setup(_branch(tmp_path, str(tmp_path / "nowhere")))
+        train.run(_branch(tmp_path, str(tmp_path / "nowhere")))  # the driver checks before writing
     with pytest.raises(FileNotFoundError, match="no checkpoint of iteration 3"):
-        config.setup(_branch(tmp_path, f"{source}@3"))
+        _check(_branch(tmp_path, f"{source}@3"))
     with pytest.raises(ValueError, match="whole number"):
-        config.setup(_branch(tmp_path, f"{source}@last"))
+        _check(_branch(tmp_path, f"{source}@last"))
     with pytest.raises(FileNotFoundError, match="hold checkpoints"):
-        config.setup(_branch(tmp_path, str(tmp_path)))
+        _check(_branch(tmp_path, str(tmp_path)))
     wider = dataclasses.replace(TINY.net, hidden=TINY.net.hidden * 2)
     with pytest.raises(ValueError, match=r"network differs in \['hidden'\]"):
-        config.setup(_branch(tmp_path, str(source), net=wider))
+        _check(_branch(tmp_path, str(source), net=wider))
     with pytest.raises(ValueError, match="learners are in slots"):
-        config.setup(_branch(tmp_path, str(source), slots="random,learner,random"))
+        _check(_branch(tmp_path, str(source), slots="random,learner,random"))
     with pytest.raises(ValueError, match="holds the source"):
         init_from.pin(_branch(tmp_path, str(source)), source.parent)
     assert not any(tmp_path.iterdir())  # nothing written
@@ -48,7 +52,7 @@ def test_pin_names_the_iteration_it_loads(source, tmp_path):
     assert init_from.pin(_branch(tmp_path, f"{source}@2"), tmp_path / "b").init_from == f"{source}@2"
     resumed = _branch(tmp_path, str(tmp_path / "gone"), resume=True)
     assert init_from.pin(resumed, tmp_path / "branch") is resumed  # a resumed run loads its own state
-    config.setup(resumed)  # and does not need the source any more
+    _check(resumed)  # and does not need the source any more
 
 
 def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
@@ -81,7 +85,7 @@ def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
     assert [r["iteration"] for r in logs.read_metrics(run_dir)] == [1, 2]
     twig = _branch(tmp_path, str(run_dir), run_name="twig")
     assert init_from.pin(twig, tmp_path / "twig").init_from == f"{run_dir}@2"  # a branch of the branch
-    config.setup(twig)
+    _check(twig)
     target = jax.eval_shape(lambda: loop.compiled(TINY).init(np.int32(0)))
     first_two = _adam_count(checkpoint.restore(source / "checkpoints", target, 2).opt_state)
     loaded = _adam_count(checkpoint.restore(source / "checkpoints", target, TINY.iterations).opt_state)
