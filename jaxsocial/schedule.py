@@ -35,6 +35,11 @@ class Stage:
     start: int | None = None
     threshold: float | None = None
 
+    def __str__(self) -> str:
+        """The stage as `parse_stages` reads it: 'N:field=value,...' or 'return>=X:field=value,...'."""
+        when = str(self.start) if self.start is not None else f"return>={self.threshold!r}"
+        return f"{when}:{format_assignments(dict(self.overrides))}"
+
 
 def parse_assignments(text: str) -> dict[str, Any]:
     """'a=1,b=x' -> {'a': 1, 'b': 'x'} (values parsed as Python literals when possible), the syntax of
@@ -85,6 +90,11 @@ def parse_stages(text: str) -> tuple[Stage, ...]:
             )
         stages.append(Stage(overrides, start=start))
     return tuple(stages)
+
+
+def format_stages(stages: tuple[Stage, ...]) -> str:
+    """The inverse of `parse_stages`."""
+    return ";".join(map(str, stages))
 
 
 def overrides_at(stages: tuple[Stage, ...], index: int) -> dict[str, Any]:

@@ -78,6 +78,12 @@ class ExpertSpec:
             if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
                 raise ValueError(f"expert {name}={value!r} must be a probability in [0, 1]")
 
+    def __str__(self) -> str:
+        """'kind' or 'kind:field=value,...' (the fields off their defaults), as `parse_expert` reads it."""
+        fields = [f for f in dataclasses.fields(self)[1:] if getattr(self, f.name) != f.default]
+        changed = [f"{f.name}={getattr(self, f.name)!r}" for f in fields]
+        return f"{self.kind}:{','.join(changed)}" if changed else self.kind
+
 
 def parse_expert(text: str) -> ExpertSpec:
     """Parse 'kind' or 'kind:field=value,...', e.g. 'explorer:epsilon=0.1,forget=0.02'.

@@ -38,6 +38,10 @@ class Slot:
         """Short name for results: the kind, 'expert:KIND' for a scripted expert."""
         return f"expert:{self.expert.kind}" if self.kind == "expert" else self.kind
 
+    def __str__(self) -> str:
+        """The slot as `parse_slot` reads it: 'learner', 'frozen:PATH', 'expert:KIND[:k=v,...]', ..."""
+        return {"frozen": f"frozen:{self.path}", "expert": f"expert:{self.expert}"}.get(self.kind, self.kind)
+
 
 def _split_entries(text: str) -> list[str]:
     """Split a slot list on commas, keeping an expert's own 'k=v,k=v' arguments with their entry."""
@@ -80,6 +84,11 @@ def parse_slots(text: str, n_agents: int, need_learner: bool = True) -> tuple[Sl
     if need_learner and not any(s.kind == "learner" for s in slots):
         raise ValueError(f"--slots {text!r} has no learner: nothing would be trained")
     return slots
+
+
+def format_slots(slots: tuple[Slot, ...]) -> str:
+    """The inverse of `parse_slots`: 'learner,expert:explorer,random'."""
+    return ",".join(map(str, slots))
 
 
 DEFAULT_EXPERT = {"goalcycle": "explorer", "fourrooms": "navigator", "maze": "navigator"}

@@ -1,0 +1,62 @@
+"""The command-line mini-languages (slots, experts, stages, assignments) each have one parser and one
+formatter, and formatting then parsing gives back what was parsed (hypothesis)."""
+
+import string
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from jaxsocial import schedule
+from jaxsocial.agents import experts, population
+
+probabilities = st.floats(0.0, 1.0, allow_nan=False)
+experts_ = st.builds(experts.ExpertSpec, st.sampled_from(experts.KINDS), probabilities, probabilities)
+paths = st.text(string.ascii_letters + string.digits + "/_-.@=", min_size=1, max_size=12)
+slots = st.one_of(
+    st.sampled_from([population.Slot("learner"), population.Slot("random")]),
+    st.builds(lambda p: population.Slot("frozen", p), paths),
+    st.builds(lambda e: population.Slot("expert", expert=e), experts_),
+)
+values = st.one_of(
+    st.integers(-(10**6), 10**6), st.floats(allow_nan=False, allow_infinity=False), st.booleans()
+)
+keys = st.text(string.ascii_lowercase + "_", min_size=1, max_size=10)
+overrides = st.dictionaries(keys, values, min_size=1, max_size=4)
+thresholds = st.floats(-1e6, 1e6, allow_nan=False)
+
+
+@st.composite
+def stage_lists(draw):
+    starts = sorted(draw(st.sets(st.integers(0, 10**5), max_size=3)))
+    stages = [schedule.Stage(tuple(draw(overrides).items()), start=s) for s in starts]
+    for threshold in draw(st.lists(thresholds, max_size=2)):
+        stages.append(schedule.Stage(tuple(draw(overrides).items()), threshold=threshold))
+    return tuple(stages)
+
+
+@given(st.lists(slots, min_size=1, max_size=6))
+def test_slots_round_trip(drawn):
+    drawn = tuple(drawn)
+    assert population.parse_slots(population.format_slots(drawn), len(drawn), need_learner=False) == drawn
+
+
+@given(experts_)
+def test_experts_round_trip(expert):
+    assert experts.parse_expert(str(expert)) == expert
+
+
+@given(stage_lists())
+def test_stages_round_trip(stages):
+    assert schedule.parse_stages(schedule.format_stages(stages)) == stages
+
+
+@given(overrides)
+def test_assignments_round_trip(values_):
+    assert schedule.parse_assignments(schedule.format_assignments(values_)) == values_
+
+
+def test_formatting_is_the_syntax_users_write():
+    text = "learner,expert:explorer:epsilon=0.2,forget=0.01,random,frozen:runs/h1/s0@600"
+    assert population.format_slots(population.parse_slots(text, 4)) == text
+    curriculum = "0:penalty=0.5;return>=10.0:penalty=1.0"
+    assert schedule.format_stages(schedule.parse_stages(curriculum)) == curriculum
