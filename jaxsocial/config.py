@@ -11,7 +11,10 @@ one of them, so a new field is placed by where it is declared.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, NamedTuple
+from collections.abc import Callable
+from typing import Annotated, Any, NamedTuple
+
+import tyro
 
 import jaxsocial
 from jaxsocial import envspec, logs, schedule
@@ -23,6 +26,42 @@ from jaxsocial.env.types import NUM_ACTIONS, EnvParams
 
 
 @dataclasses.dataclass(frozen=True)
+class TextField:
+    """A field written as text (a flag, config.json) and held parsed: `parse` runs once, where the config is
+    made (the command line, `config_from_dict`, or text given to the constructor); `format` gives the text
+    back (`parse(format(x)) == x`)."""
+
+    parse: Callable[[str], Any]
+    format: Callable[[Any], str]
+    metavar: str
+
+    def flag(self) -> tyro.constructors.PrimitiveConstructorSpec:
+        """How the command line reads and shows it."""
+        return tyro.constructors.PrimitiveConstructorSpec(
+            nargs=1,
+            metavar=self.metavar,
+            instance_from_str=lambda args: self.parse(args[0]),
+            is_instance=lambda value: isinstance(value, tuple),
+            str_from_instance=lambda value: [self.format(value)],
+        )
+
+
+ENV_ARGS = TextField(
+    lambda text: tuple(schedule.parse_assignments(text).items()),
+    lambda pairs: schedule.format_assignments(dict(pairs)),
+    "FIELD=VALUE,...",
+)
+SLOTS = TextField(population.parse_slot_list, population.format_slots, "SLOT,...")
+STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VALUE,...;...")
+TEXT_FIELDS = {"env_args": ENV_ARGS, "slots": SLOTS, "stages": STAGES}
+"""`RunConfig`'s fields written as text."""
+
+EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
+Slots = Annotated[tuple[population.Slot, ...], SLOTS.flag()]
+Stages = Annotated[tuple[schedule.Stage, ...], STAGES.flag()]
+
+
+@dataclasses.dataclass(frozen=True)
 class RunConfig:
     """What a run is (its environment, slots, stages, seed and chunk length): fixed for the life of a run, so
     `--resume` refuses to change it; not part of the compiled program, which gets the environment and slots
@@ -30,14 +69,14 @@ class RunConfig:
 
     env: str = "goalcycle3"
     """Environment preset (see `jaxsocial.registered_envs()`)."""
-    env_args: str = ""
+    env_args: EnvArgs = ()
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
-    slots: str = ""
+    slots: Slots = ()
     """One entry per agent slot: learner | random | frozen:RUN_DIR[@k] | expert:ckpt=RUN_DIR[@k] (a trained
     expert) | expert:KIND[:epsilon=E,forget=F] (scripted: explorer, oracle, navigator). Default: a learner in
     slot 0, the environment's scripted expert in the next two (explorer in Goal Cycle, navigator in Four
     Rooms and Maze), random distractors in any others."""
-    stages: str = ""
+    stages: Stages = ()
     """Environment changes during training, e.g. the penalty curriculum
     '0:penalty=0.5;return>=20:penalty=1.0;return>=20:penalty=1.5' or the switch to mixed solo/social
     training '5000:solo_prob=0.75' (see jaxsocial.schedule)."""
@@ -47,6 +86,12 @@ class RunConfig:
     """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
     preset: str = "small"
     """Hyperparameter preset the other defaults came from: 'small', 'paper' or 'expert'."""
+
+    def __post_init__(self):
+        for name, field in TEXT_FIELDS.items():
+            value = getattr(self, name)
+            if isinstance(value, str):  # text given to the constructor: parsed here, once
+                object.__setattr__(self, name, field.parse(value))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,7 +184,8 @@ class TrainConfig(DriverConfig, ProgramConfig, RunConfig):
 
     @property
     def env_overrides(self) -> dict[str, Any]:
-        return schedule.parse_assignments(self.env_args)
+        """`env_args` as a dict."""
+        return dict(self.env_args)
 
 
 EXPERT_CURRICULUM = "0:penalty=0.5;return>=10:penalty=1.0;return>=10:penalty=1.5"
@@ -180,7 +226,9 @@ FIXED_FIELDS = frozenset(f.name for f in dataclasses.fields(RunConfig) + datacla
 
 def resume_conflicts(saved: dict[str, Any], new: dict[str, Any]) -> list[str]:
     """The dotted keys (e.g. 'net.hidden') of `FIXED_FIELDS` in which config `new` differs from a run's
-    `saved` config (both as `config_dict` gives them)."""
+    `saved` config (both as config.json holds them; `saved` is read as `config_from_dict` reads it, so text
+    written differently, e.g. 'width=9, height=9', and fields added since at their defaults do not differ)."""
+    saved = config_dict(config_from_dict(saved))
     return [k for k in logs.config_diff(saved, new) if k.split(".")[0] in FIXED_FIELDS]
 
 
@@ -226,11 +274,9 @@ def _check_stage(
 def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     """Validate the config (every stage) and load frozen policies; raises ValueError before anything
     compiles. Builds each stage's environment once (`jaxsocial.make`); a run calls this once."""
-    stages = schedule.parse_stages(cfg.stages)
+    stages = cfg.stages
     _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
-    pop = population.Population(
-        population.parse_slots(cfg.slots or population.default_slots(env_params), env_params.n_agents)
-    )
+    pop = population.Population(population.run_slots(cfg.slots, env_params))
     _check_stage(cfg, env_params, env_params, pop, "--env-args")
     stage_envs = [env_params]
     for index in range(len(stages)):
@@ -282,8 +328,14 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
 
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:
-    """`cfg` as plain JSON values (what config.json holds)."""
-    return logs.to_json(dataclasses.asdict(cfg))
+    """`cfg` as plain JSON values (what config.json holds; `TEXT_FIELDS` as their text)."""
+    fields = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
+    text = {name: field.format(fields[name]) for name, field in TEXT_FIELDS.items()}
+    return logs.to_json({**{k: _plain(v) for k, v in fields.items()}, **text})
+
+
+def _plain(value: Any) -> Any:
+    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
 
 
 def config_from_dict(values: dict[str, Any]) -> TrainConfig:
@@ -299,6 +351,8 @@ def config_from_dict(values: dict[str, Any]) -> TrainConfig:
             default = getattr(defaults, field.name)
             if dataclasses.is_dataclass(default):
                 value = build(type(default), value)
+            elif field.name in TEXT_FIELDS:
+                value = TEXT_FIELDS[field.name].parse(value)
             elif isinstance(value, list):
                 value = tuple(value)
             kwargs[field.name] = value

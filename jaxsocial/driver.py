@@ -96,6 +96,35 @@ def stage_program(cfg: TrainConfig, static: config.Setup, mesh: jax.sharding.Mes
     return loop.compiled(cfg, mesh, env_params=static.stage(stage), pop=static.pop)
 
 
+def source_state(seed_dir: Path, iteration: int) -> RunnerState:
+    """The RunnerState of the source's checkpoint `iteration` (host arrays)."""
+    source = init_from.source_config(seed_dir)
+    static = config.setup(source, load_frozen=False)
+    init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
+    template = jax.eval_shape(init, jax.random.key(0))
+    return checkpoint.restore(seed_dir / init_from.CHECKPOINTS, template, iteration)
+
+
+def load_source_learners(cfg: TrainConfig, state: RunnerState, program: Program) -> RunnerState:
+    """The freshly initialised `state` ([K, ...] for K seeds) with the learners' params and optimiser state
+    of `cfg.init_from` (`jaxsocial.init_from`), placed as `program` places its state; `state` itself without
+    `init_from`. Called only for a state at iteration 0 (a resumed run with a checkpoint keeps its own)."""
+    if not cfg.init_from:
+        return state
+    iteration = init_from.source_iteration(cfg)
+    loaded = [source_state(d, iteration) for d in init_from.source_dirs(cfg)]
+    learned: Any = [(s.params, s.opt_state) for s in loaded]
+    params, opt_state = learned[0] if cfg.seeds == 1 else population.stack(learned)
+    ours = jax.tree.map(lambda x: (x.shape, x.dtype), (state.params, state.opt_state))
+    theirs = jax.tree.map(lambda x: (x.shape, x.dtype), (params, opt_state))
+    if ours != theirs:
+        raise ValueError(
+            f"--init-from {cfg.init_from}: the learners' params or optimiser state differ in shape"
+        )
+    placed = distributed.put((params, opt_state), (program.shardings.params, program.shardings.opt_state))
+    return state._replace(params=placed[0], opt_state=placed[1])
+
+
 @dataclasses.dataclass
 class Driver:
     """The training state between chunks, which every process holds and steps alike: the runner state and
@@ -133,7 +162,7 @@ class Driver:
             state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
         it = int(np.asarray(state.iteration).reshape(-1)[0])
         if it == 0:  # a new run, or a resumed one that saved nothing yet: from the source's learners
-            state = init_from.apply(cfg, state, program)
+            state = load_source_learners(cfg, state, program)
         return cls(cfg, static, mesh, seeds, state, stage, frozen, it, last_saved=it)
 
     def compile(self, n: int, announce: Callable[[int, int], None]) -> float | None:
@@ -191,7 +220,9 @@ def save_seeds(
 
 def export_policy(cfg: TrainConfig, seed_dir: Path, it: int, params: Any) -> None:
     """Write the learners' params (stacked [S_l, ...]) to `seed_dir/policy/<it>` unless that step exists."""
-    policy_io.export_policy(seed_dir, it, params, cfg.net, slots=cfg.slots, keep=cfg.keep_checkpoints)
+    policy_io.export_policy(
+        seed_dir, it, params, cfg.net, slots=population.format_slots(cfg.slots), keep=cfg.keep_checkpoints
+    )
 
 
 def restore_seeds(

@@ -9,23 +9,20 @@ total training a learner has had is the source's ITERATION plus the new run's.
 
 RUN_DIR is one seed's run directory (every seed of the new run starts from it) or a several-seed run
 directory holding `s<seed>/` for each of the new run's seeds (each starts from its own). The network
-architecture and the learner slots must be the source's (`check`, called by `config.setup` before anything
-compiles). A resumed run continues from its own checkpoints; `init_from` then does nothing.
+architecture and the learner slots must be the source's (`check`, called by the driver before anything is
+written or compiled). A resumed run continues from its own checkpoints; `init_from` then does nothing. This
+module validates and names the source; the driver loads its learners (`driver.load_source_learners`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
-
-import jax
 
 import jaxsocial
-from jaxsocial import checkpoint, config, distributed, logs, loop
+from jaxsocial import checkpoint, config, logs
 from jaxsocial.agents import policy_io, population
 from jaxsocial.config import TrainConfig
-from jaxsocial.loop import Program, RunnerState
 
 CHECKPOINTS = "checkpoints"
 
@@ -74,7 +71,7 @@ def source_iteration(cfg: TrainConfig) -> int:
     return iteration
 
 
-def _source_config(seed_dir: Path) -> TrainConfig:
+def source_config(seed_dir: Path) -> TrainConfig:
     """The source seed's config, without its own `init_from` (a branch of a branch needs only its source)."""
     return dataclasses.replace(config.config_from_dict(logs.read_config(seed_dir)), init_from=None)
 
@@ -82,8 +79,7 @@ def _source_config(seed_dir: Path) -> TrainConfig:
 def _learners(cfg: TrainConfig) -> tuple[int, ...]:
     """The learner slots of a run's config."""
     _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
-    slots = cfg.slots or population.default_slots(env_params)
-    return population.Population(population.parse_slots(slots, env_params.n_agents)).learners
+    return population.Population(population.run_slots(cfg.slots, env_params)).learners
 
 
 def check(cfg: TrainConfig, learners: tuple[int, ...]) -> None:
@@ -95,7 +91,7 @@ def check(cfg: TrainConfig, learners: tuple[int, ...]) -> None:
         return
     source_iteration(cfg)
     for seed_dir in sorted(set(source_dirs(cfg))):
-        source = _source_config(seed_dir)
+        source = source_config(seed_dir)
         theirs, ours = policy_io.architecture(source.net), policy_io.architecture(cfg.net)
         diff = sorted(k for k in ours if theirs.get(k) != ours[k])
         if diff:
@@ -120,32 +116,3 @@ def pin(cfg: TrainConfig, run_dir: str | Path) -> TrainConfig:
     if new == source.resolve() or new in source.resolve().parents:
         raise ValueError(f"--init-from {cfg.init_from}: the new run directory {run_dir} holds the source")
     return dataclasses.replace(cfg, init_from=f"{source}@{source_iteration(cfg)}")
-
-
-def _source_state(seed_dir: Path, iteration: int) -> RunnerState:
-    """The RunnerState of the source's checkpoint `iteration` (host arrays)."""
-    source = _source_config(seed_dir)
-    static = config.setup(source, load_frozen=False)
-    init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
-    template = jax.eval_shape(init, jax.random.key(0))
-    return checkpoint.restore(seed_dir / CHECKPOINTS, template, iteration)
-
-
-def apply(cfg: TrainConfig, state: RunnerState, program: Program) -> RunnerState:
-    """The freshly initialised `state` ([K, ...] for K seeds) with the learners' params and optimiser state
-    of `cfg.init_from`, placed as `program` places its state; `state` itself without `init_from`. The
-    driver calls it only for a state at iteration 0 (a resumed run with a checkpoint keeps its own)."""
-    if not cfg.init_from:
-        return state
-    iteration = source_iteration(cfg)
-    loaded = [_source_state(d, iteration) for d in source_dirs(cfg)]
-    learned: Any = [(s.params, s.opt_state) for s in loaded]
-    params, opt_state = learned[0] if cfg.seeds == 1 else population.stack(learned)
-    ours = jax.tree.map(lambda x: (x.shape, x.dtype), (state.params, state.opt_state))
-    theirs = jax.tree.map(lambda x: (x.shape, x.dtype), (params, opt_state))
-    if ours != theirs:
-        raise ValueError(
-            f"--init-from {cfg.init_from}: the learners' params or optimiser state differ in shape"
-        )
-    placed = distributed.put((params, opt_state), (program.shardings.params, program.shardings.opt_state))
-    return state._replace(params=placed[0], opt_state=placed[1])

@@ -15,10 +15,14 @@ from jaxsocial.config import TrainConfig
 from jaxsocial.env import core
 from jaxsocial.env.observe import observe
 
+TINY_ENV_ARGS = "max_steps=6,width=7,height=7"  # an episode ends in every 8-step rollout
+TINY_SLOTS = (
+    "learner,random,random"  # scripted experts cost compile time; the CLI test runs the default slots
+)
 TINY = TrainConfig(
     env="goalcycle3",
-    env_args="max_steps=6,width=7,height=7",  # an episode ends in every 8-step rollout
-    slots="learner,random,random",  # scripted experts cost compile time; the CLI test runs the default slots
+    env_args=TINY_ENV_ARGS,
+    slots=TINY_SLOTS,
     num_envs=4,
     rollout_steps=8,
     iterations=4,
@@ -35,12 +39,12 @@ _TINY_NET_PPO_FLAGS = [
     "--ppo.chunk-length", "4", "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2",
 ]  # fmt: skip
 TINY_FLAGS = [
-    "--env-args", TINY.env_args, "--num-envs", "4", "--rollout-steps", "8", "--iterations", "2",
+    "--env-args", TINY_ENV_ARGS, "--num-envs", "4", "--rollout-steps", "8", "--iterations", "2",
     "--chunk-iterations", "1", *_TINY_NET_PPO_FLAGS, "--no-progress",
 ]  # fmt: skip
 """Command-line flags of a 2-iteration run of TINY's sizes with the environment's default slots."""
 TINY_RUN_FLAGS = [
-    "--env-args", TINY.env_args, "--slots", TINY.slots, "--num-envs", "4", "--rollout-steps", "8",
+    "--env-args", TINY_ENV_ARGS, "--slots", TINY_SLOTS, "--num-envs", "4", "--rollout-steps", "8",
     "--iterations", "4", "--chunk-iterations", "2", "--checkpoint-every", "2", *_TINY_NET_PPO_FLAGS,
     "--ppo.lr", "3e-3", "--no-progress",
 ]  # fmt: skip

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxsocial import config, logs
+from jaxsocial import config, logs, schedule
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import counts, figures, recipes, runner
 
@@ -33,10 +33,10 @@ def test_learned_mixing_switches_each_seed_on_its_own_return(tmp_path, capsys):
     reaches MIXING_RETURN; the dry run lists one command per seed, and the seeds are read back together."""
     assert recipes.CONDITIONS["social_pred_mixed_learned"].program_per_seed
     first, second = recipes.condition_programs(recipes.GPU, "social_pred_mixed_learned", 0, 2, str(tmp_path))
-    assert first.stages == second.stages == f"return>={recipes.MIXING_RETURN:g}:solo_prob=0.75"
-    assert (
-        recipes.condition_config(recipes.GPU, "social_pred_mixed", 0, 2, "r").stages == "200:solo_prob=0.75"
-    )
+    assert first.stages == second.stages
+    assert schedule.format_stages(first.stages) == f"return>={recipes.MIXING_RETURN!r}:solo_prob=0.75"
+    mixed = recipes.condition_config(recipes.GPU, "social_pred_mixed", 0, 2, "r")
+    assert schedule.format_stages(mixed.stages) == "200:solo_prob=0.75"
     cli.main(["run", "mixing", "--scale", "gpu", "--seeds", "2", "--runs-dir", str(tmp_path), "--dry-run"])
     out = capsys.readouterr().out
     for seed in (0, 1):
@@ -58,9 +58,9 @@ def test_paper_scale_is_the_paper_preset():
         paper.rollout_steps,
         paper.iterations,
     )
-    assert cfg.env_args == ""  # 13x13 Goal Cycle as in the paper
+    assert cfg.env_args == ()  # 13x13 Goal Cycle as in the paper
     mixed = recipes.condition_config(recipes.PAPER, "social_pred_mixed", 0, 1, "r")
-    assert mixed.stages == f"{round(paper.iterations / 3)}:solo_prob=0.75"
+    assert schedule.format_stages(mixed.stages) == f"{round(paper.iterations / 3)}:solo_prob=0.75"
 
 
 def _rows(returns, episodes):

@@ -1,5 +1,5 @@
 """`--init-from RUN_DIR[@ITERATION]`: validation before anything compiles, loading the source's learners into
-a fresh state, and (with the driver calling `init_from.pin` and `init_from.apply`) a branched run."""
+a fresh state (`driver.load_source_learners`), and a branched run."""
 
 import dataclasses
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial import checkpoint, config, init_from, logs, loop, train
+from jaxsocial import checkpoint, config, driver, init_from, logs, loop, train
 
 
 @pytest.fixture(scope="module")
@@ -60,14 +60,14 @@ def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
     static = config.setup(cfg)
     program = loop.compiled(cfg, env_params=static.stage(-1), pop=static.pop)
     fresh = program.init(np.int32(cfg.seed))
-    state = init_from.apply(cfg, fresh, program)
+    state = driver.load_source_learners(cfg, fresh, program)
     template = jax.eval_shape(lambda: fresh)
     saved = checkpoint.restore(source / "checkpoints", template, 2)
     for got, want in ((state.params, saved.params), (state.opt_state, saved.opt_state)):
         jax.tree.map(np.testing.assert_array_equal, got, want)
     jax.tree.map(np.testing.assert_array_equal, state.env_states, fresh.env_states)  # the new seed's own
     assert int(state.iteration) == 0
-    assert init_from.apply(dataclasses.replace(cfg, init_from=None), fresh, program) is fresh
+    assert driver.load_source_learners(dataclasses.replace(cfg, init_from=None), fresh, program) is fresh
 
 
 def _adam_count(opt_state) -> int:
@@ -76,7 +76,7 @@ def _adam_count(opt_state) -> int:
 
 
 def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
-    """The driver's part (`train.run` calls `init_from.pin` and `init_from.apply`): a new run directory, the
+    """The driver's part (`init_from.pin`, `driver.load_source_learners`): a new run directory, the
     source and iteration in its config, and the optimiser's step count going on from the source's. The
     branch has the source's config and seed, so without the source's state it would repeat the source's
     first 2 iterations and end with their count (the KL stop makes the step count per iteration vary)."""

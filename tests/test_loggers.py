@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import TINY
+from conftest import TINY, TINY_ENV_ARGS
 
 from jaxsocial import logs, train
 
@@ -58,7 +58,7 @@ def test_tensorboard_event_files_hold_every_metric(tmp_path):
     assert set(scalars) == set(expected) and {"return/0", "policy_loss/0", "env_steps_per_s"} <= set(scalars)
     for tag, by_step in expected.items():  # stored as float32
         assert scalars[tag] == {step: float(np.float32(v)) for step, v in by_step.items()}, tag
-    assert len(texts) == 1 and json.dumps(TINY.env_args) in texts[0]  # the run's config, as JSON
+    assert len(texts) == 1 and json.dumps(TINY_ENV_ARGS) in texts[0]  # the run's config, as JSON
 
 
 def wandb_records(path: Path):
@@ -97,4 +97,4 @@ def test_wandb_offline_run_holds_every_metric_and_the_config(tmp_path, monkeypat
     assert {k for row in history.values() for k in row} == set(expected)
     for key, by_step in expected.items():
         assert {step: history[step][key] for step in by_step} == by_step, key
-    assert config["env_args"] == TINY.env_args and config["num_envs"] == TINY.num_envs
+    assert config["env_args"] == TINY_ENV_ARGS and config["num_envs"] == TINY.num_envs

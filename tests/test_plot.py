@@ -8,7 +8,7 @@ import sys
 import imageio.v3 as iio
 import numpy as np
 import pytest
-from conftest import TINY
+from conftest import TINY_ENV_ARGS
 
 from jaxsocial import axes, logs, plot
 from jaxsocial.experiments import figures
@@ -68,7 +68,7 @@ def test_env_steps_read_as_people_write_them(value, text):
 
 
 def test_seeds_group_by_config(run_dir, tmp_path):
-    other = copy_seed(run_dir / "s0", tmp_path / "other", env_args=f"{TINY.env_args},penalty=0.5")
+    other = copy_seed(run_dir / "s0", tmp_path / "other", env_args=f"{TINY_ENV_ARGS},penalty=0.5")
     # The whole run, one of its seeds again (counted once) and a run of another config.
     groups = plot.load_groups([run_dir / "s1", run_dir, other])
     assert [(g.label, len(g.rows)) for g in groups] == [("tiny/s1 +1", 2), ("other", 1)]

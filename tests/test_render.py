@@ -8,7 +8,7 @@ import imageio.v3 as iio
 import jax
 import numpy as np
 import pytest
-from conftest import TINY
+from conftest import TINY, TINY_ENV_ARGS, TINY_SLOTS
 
 import jaxsocial
 from jaxsocial import playback
@@ -234,7 +234,7 @@ def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, ca
     assert "steps: 6 (time limit)" in stdout and "wrote 6 frames" in stdout
     frames = iio.imread(out, index=None)
     assert frames.shape[0] == 6
-    assert cli.main(["--env", TINY.env + ":" + TINY.env_args, "--out", str(random_out), "--steps", "5"]) == 0
+    assert cli.main(["--env", TINY.env + ":" + TINY_ENV_ARGS, "--out", str(random_out), "--steps", "5"]) == 0
     random_frames = iio.imread(random_out, index=None)
     assert random_frames.shape[0] == 6  # 5 steps and the final state
     # The same layout, with one more panel: the learner's predicted view.
@@ -242,9 +242,9 @@ def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, ca
 
 
 def test_predicted_view_beside_the_learners_view(learner_run):
-    spec = f"{TINY.env}:{TINY.env_args}"
+    spec = f"{TINY.env}:{TINY_ENV_ARGS}"
     episode = playback.play_episode(
-        playback.episode_setup(str(learner_run / "s0"), spec, TINY.slots), steps=6
+        playback.episode_setup(str(learner_run / "s0"), spec, TINY_SLOTS), steps=6
     )
     assert episode["learner"] == 0 and episode["actions"].shape == (6, 3) and episode["truncated"][-1]
     predicted = playback.predicted_views(episode)

@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import TINY
+from conftest import TINY, TINY_ENV_ARGS, TINY_SLOTS
 from float_bounds import assert_trees_within, decoder_error, gamma
 
 from jaxsocial import evaluate, logs, train
@@ -16,7 +16,7 @@ from jaxsocial.agents import policy_io
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred", obs="symbolic")
 T, B = 3, 2
-SYMBOLIC_ARGS = f"{TINY.env_args},observation=symbolic"
+SYMBOLIC_ARGS = f"{TINY_ENV_ARGS},observation=symbolic"
 SYMBOLIC = dataclasses.replace(
     TINY,
     env_args=SYMBOLIC_ARGS,
@@ -124,7 +124,7 @@ def test_tiny_symbolic_run_trains_saves_and_evaluates(symbolic_run):
     params = policy_io.load_policy(str(run_dir), SYMBOLIC.net)
     assert params["embed"]["kernel"].shape == (net.SYMBOLIC_VOCAB, 4)
     result = evaluate.evaluate(
-        evaluate.EvalConfig(ckpt=(str(run_dir),), env_args=SYMBOLIC_ARGS, slots=TINY.slots, episodes=2)
+        evaluate.EvalConfig(ckpt=(str(run_dir),), env_args=SYMBOLIC_ARGS, slots=TINY_SLOTS, episodes=2)
     )
     assert result  # played
 
@@ -145,7 +145,7 @@ def test_rgb_network_on_symbolic_views_is_refused_before_compiling(tmp_path):
 def test_policy_of_the_other_observation_kind_is_refused(symbolic_run, tmp_path):
     run_dir, _ = symbolic_run
     with pytest.raises(ValueError, match="'rgb' observations, but the network takes 'symbolic'"):
-        evaluate.evaluate(evaluate.EvalConfig(ckpt=(str(run_dir),), env_args=TINY.env_args, slots=TINY.slots))
+        evaluate.evaluate(evaluate.EvalConfig(ckpt=(str(run_dir),), env_args=TINY_ENV_ARGS, slots=TINY_SLOTS))
     frozen = dataclasses.replace(TINY, slots=f"learner,frozen:{run_dir},random", runs_dir=str(tmp_path))
     with pytest.raises(ValueError, match="another architecture"):
         train.run(frozen)

@@ -2,8 +2,8 @@
 expert or a random distractor. Neural slots share one architecture; their parameters are stacked on a
 leading slot axis and applied with `jax.vmap`, so nothing is shared between agents but the code.
 
-This module is the slot mini-language (`parse_slots`) and acting (`act`, `values`, traced under `jit`);
-saved policies are read and written by `jaxsocial.agents.policy_io`.
+This module is the slot mini-language (`parse_slot_list`, `format_slots`, `check_slots`) and acting (`act`,
+`values`, traced under `jit`); saved policies are read and written by `jaxsocial.agents.policy_io`.
 """
 
 from __future__ import annotations
@@ -73,21 +73,31 @@ def parse_slot(entry: str) -> Slot:
     return Slot(kind, arg or None)
 
 
-def parse_slots(text: str, n_agents: int, need_learner: bool = True) -> tuple[Slot, ...]:
-    """Parse 'learner,expert:explorer,random,frozen:PATH' (one entry per agent slot). Raises ValueError."""
-    entries = _split_entries(text)
-    if len(entries) != n_agents:
+def parse_slot_list(text: str) -> tuple[Slot, ...]:
+    """Parse 'learner,expert:explorer,random,frozen:PATH' (one entry per agent slot; '' gives ()): the
+    syntax only, see `check_slots`. Raises ValueError."""
+    return tuple(parse_slot(e) for e in _split_entries(text))
+
+
+def check_slots(slots: tuple[Slot, ...], n_agents: int, need_learner: bool = True) -> tuple[Slot, ...]:
+    """`slots` if there is one per agent and (with `need_learner`) a learner among them; else ValueError."""
+    if len(slots) != n_agents:
         raise ValueError(
-            f"--slots lists {len(entries)} slots ({text!r}) but the environment has {n_agents} agents"
+            f"--slots lists {len(slots)} slots ({format_slots(slots)!r}) but the environment has {n_agents} "
+            "agents"
         )
-    slots = tuple(parse_slot(e) for e in entries)
     if need_learner and not any(s.kind == "learner" for s in slots):
-        raise ValueError(f"--slots {text!r} has no learner: nothing would be trained")
+        raise ValueError(f"--slots {format_slots(slots)!r} has no learner: nothing would be trained")
     return slots
 
 
+def parse_slots(text: str, n_agents: int, need_learner: bool = True) -> tuple[Slot, ...]:
+    """`parse_slot_list` then `check_slots`. Raises ValueError."""
+    return check_slots(parse_slot_list(text), n_agents, need_learner)
+
+
 def format_slots(slots: tuple[Slot, ...]) -> str:
-    """The inverse of `parse_slots`: 'learner,expert:explorer,random'."""
+    """The inverse of `parse_slot_list`: 'learner,expert:explorer,random'."""
     return ",".join(map(str, slots))
 
 
@@ -100,6 +110,12 @@ def default_slots(params: EnvParams) -> str:
     own agents), random distractors in any further slots (the `-distractors` presets)."""
     expert = f"expert:{DEFAULT_EXPERT[params.layout]}"
     return ",".join(["learner"] + [expert] * min(2, params.n_agents - 1) + ["random"] * (params.n_agents - 3))
+
+
+def run_slots(slots: tuple[Slot, ...], params: EnvParams) -> tuple[Slot, ...]:
+    """A training run's slots: `slots` (a run's `--slots`), or the environment's default where empty;
+    checked for one per agent and a learner (ValueError)."""
+    return check_slots(slots or parse_slot_list(default_slots(params)), params.n_agents)
 
 
 def require_rgb(params: EnvParams, where: str) -> None:
