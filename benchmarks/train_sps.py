@@ -18,6 +18,11 @@ the unneeded ones, `grad_flops`; recomputation in the backward pass is not count
 float32 ``jnp.dot`` measured in the same run. XLA's ``cost_analysis`` counts a loop body once rather than
 once per iteration, so it only cross-checks the forward count on a loop-free call (T=1, B=64).
 
+``--impls auto`` (and ``--dtypes auto``) resolves the config first (`jaxsocial.agents.autotune.resolve`, at
+the minibatch's ``--seq * --batch`` frames: per-layer choices measured, or read from the autotune cache,
+``--autotune-cache``); the row records the resolved per-layer `conv_impl` and dtype, what was asked for
+(`requested`) and each layer's measured candidates (`autotune`).
+
 ``--dtypes float32,bfloat16`` measures each `NetworkConfig.dtype` (bfloat16: product inputs in bfloat16,
 float32 accumulation; the "matmul" implementation's stride-1 layers then run as im2col products, whose FLOPs
 are counted as direct convolutions). With ``--torch PYTHON`` (a python with torch installed; torch is not a
@@ -71,7 +76,7 @@ import jax.numpy as jnp
 import numpy as np
 from run_info import REPO, metadata, write_results
 
-from jaxsocial.agents import network
+from jaxsocial.agents import autotune, conv, network
 
 TORCH_SCRIPT = Path(__file__).resolve().parent / "pytorch_paper_net.py"
 """The PyTorch reference (run with the `--torch` python; the only file that imports torch)."""
@@ -87,12 +92,7 @@ AVX512-BF16 (or AMX, whose tiles multiply bfloat16 matrices)."""
 
 def cpu_flags() -> dict[str, bool]:
     """Which of `CPU_FLAGS` this machine's CPU has (all False where /proc/cpuinfo is missing)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        text = ""
-    lines = [line for line in text.splitlines() if line.startswith("flags")]
-    flags = lines[0].split(":", 1)[1].split() if lines else []
+    flags = autotune.cpu_flags()
     return {flag: flag in flags for flag in CPU_FLAGS}
 
 
@@ -101,10 +101,10 @@ def cpu_flags() -> dict[str, bool]:
 
 def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
     """Matrix-product FLOPs (2 per multiply-add) of one sample's forward pass, per layer, as `cfg.conv_impl`
-    computes them: the "matmul" implementation's stride-1 layers (Winograd, see jaxsocial.agents.conv)
-    count their channel products under the layer's name and their pixel transforms (products with constant
-    matrices) under "<layer>.transforms"; "xla" counts direct convolutions. The Winograd kernel transforms
-    (once per chunk, not per sample) are left out."""
+    computes them (per layer): the "matmul" implementation's stride-1 layers (Winograd in float32, see
+    jaxsocial.agents.conv) count their channel products under the layer's name and their pixel transforms
+    (products with constant matrices) under "<layer>.transforms"; the others count direct convolutions. The
+    Winograd kernel transforms (once per chunk, not per sample) are left out."""
     c1, c2, c3 = cfg.conv_channels
     hid, mlp, k2 = cfg.hidden, cfg.mlp, network.KERNEL**2
     s1, s2, s3 = 7 * 7, 5 * 5, 3 * 3  # output positions of conv1..3 (and input positions of the deconvs)
@@ -119,9 +119,9 @@ def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
     if cfg.frame_aux != "none":
         layers |= {"aux_fc": (hid + cfg.n_actions) * s3 * c3, "deconv3": s1 * c1 * k2 * 3}
         stride1 |= {"deconv1": (s3, s2, c3, c2), "deconv2": (s2, s1, c2, c1)}
-    winograd = cfg.conv_impl == "matmul" and cfg.dtype == "float32"  # (bfloat16: im2col, direct FLOPs)
     for name, (p_in, p_out, c_in, c_out) in stride1.items():
-        if winograd:
+        # (bfloat16: im2col, direct FLOPs)
+        if conv.formulation(cfg.impl_for(name), 1, cfg.compute_dtype) == "winograd":
             tile = max(p_in, p_out)  # transformed pixels: (m + 2)^2
             layers[name] = tile * c_in * c_out
             layers[f"{name}.transforms"] = tile * (p_in * c_in + p_out * c_out)
@@ -249,6 +249,29 @@ def run_torch(python: str, seq: int, batch: int, repeats: int, dtype: str) -> di
     return result
 
 
+def resolved(cfg: network.NetworkConfig, batch: int, cache: str | None) -> tuple[network.NetworkConfig, dict]:
+    """`cfg` with its "auto" fields resolved (`autotune.resolve` at `batch` frames) and what to report of it:
+    {} when nothing was "auto", else what was asked for and each tuned layer's candidates and choice."""
+    if not cfg.unresolved:
+        return cfg, {}
+    requested = {"conv_impl": cfg.conv_impl, "dtype": cfg.dtype}
+    if cfg.dtype == "auto":
+        cfg = dataclasses.replace(cfg, dtype=autotune.auto_dtype())
+    t0 = time.perf_counter()
+    tuning = autotune.tune(cfg, batch, path=cache)
+    seconds = time.perf_counter() - t0
+    layers = {layer: dataclasses.asdict(c) for layer, c in tuning.choices.items()}
+    print(f"  autotune ({'cached' if tuning.cached else 'measured'}, {seconds:.1f} s):", flush=True)
+    for layer, c in tuning.choices.items():
+        times = ", ".join(f"{impl} {t * 1e3:.2f} ms" for impl, t in sorted(c.times_s.items()))
+        print(f"    {layer:7s} {c.impl:6s} (alone: {c.alone}; {times})", flush=True)
+    for impls, t in tuning.step_s.items():
+        print(f"    gradient step {t * 1e3:.1f} ms with {impls}", flush=True)
+    cfg = autotune.resolve(cfg, batch, path=cache)  # (from the cache tune filled)
+    report = {"autotune": layers, "autotune_step_s": tuning.step_s, "autotune_cached": tuning.cached}
+    return cfg, {"requested": requested, **report, "autotune_s": seconds}
+
+
 def section_network(args: argparse.Namespace) -> dict:
     peak = matmul_peak()
     print(f"matmul peak (float32 {peak['n']}^2 jnp.dot): {peak['best_gflops_per_s']:.0f} GFLOP/s", flush=True)
@@ -262,9 +285,12 @@ def section_network(args: argparse.Namespace) -> dict:
         )
         for dtype, impl, chunk in itertools.product(args.dtypes, args.impls, args.chunks or [cfg.chunk]):
             cfg_impl = dataclasses.replace(cfg, conv_impl=impl, chunk=chunk, dtype=dtype)
+            cfg_impl, tuned = resolved(cfg_impl, args.seq * args.batch, args.autotune_cache)
             repeats = args.repeats if impl != "xla" else max(2, args.repeats // 3)  # xla: ~13 s per call
             row = bench_network(name, cfg_impl, args.seq, args.batch, repeats)
             row["conv_impl"] = impl
+            row["layer_impls"] = cfg_impl.layer_impls
+            row |= tuned
             row["loadavg_after"] = os.getloadavg()
             rows.append(row)
             g, f = row["grad"], row["forward"]
@@ -279,7 +305,7 @@ def section_network(args: argparse.Namespace) -> dict:
     result = {"matmul_peak": peak, "rows": rows}
     if args.torch:
         result["torch"] = []
-        for dtype in args.dtypes:
+        for dtype in dict.fromkeys(autotune.auto_dtype() if d == "auto" else d for d in args.dtypes):
             print(f"running the PyTorch reference in {dtype} ...", flush=True)
             torch_row = run_torch(args.torch, args.seq, args.batch, max(3, args.repeats // 2), dtype)
             torch_row["loadavg_after"] = os.getloadavg()
@@ -295,6 +321,7 @@ def section_network_hugepages(args: argparse.Namespace) -> dict:
         cmd = [sys.executable, __file__, "--sections", "network", "--hugepages", "--out", str(out)]
         cmd += ["--configs", ",".join(args.configs), "--impls", ",".join(args.impls)]
         cmd += ["--dtypes", ",".join(args.dtypes)]
+        cmd += ["--autotune-cache", args.autotune_cache] if args.autotune_cache else []
         cmd += ["--chunks", ",".join(map(str, args.chunks))] if args.chunks else []
         cmd += ["--seq", str(args.seq), "--batch", str(args.batch), "--repeats", str(args.repeats)]
         subprocess.run(cmd, check=True, timeout=3600)
@@ -334,7 +361,9 @@ def section_train(args: argparse.Namespace) -> dict:
     rows = []
     for preset, dtype in itertools.product(args.presets, args.dtypes):
         cfg, n_iter = train_run(preset)
-        cfg = dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, dtype=dtype))
+        minibatch = cfg.ppo.minibatch_chunks * cfg.ppo.chunk_length
+        net, tuned = resolved(dataclasses.replace(cfg.net, dtype=dtype), minibatch, args.autotune_cache)
+        cfg = dataclasses.replace(cfg, net=net)
         init, run_chunk, _ = make_train(cfg)
         state = jax.jit(init)(jax.random.key(0))
         fn = jax.jit(run_chunk, static_argnums=2)
@@ -355,6 +384,9 @@ def section_train(args: argparse.Namespace) -> dict:
         row = {
             "preset": preset,
             "dtype": dtype,
+            "net_dtype": net.dtype,
+            "net_conv_impl": net.conv_impl,
+            **tuned,
             "env": cfg.env,
             "slots": ",".join(slot.label for slot in setup(cfg).pop.slots),
             "iterations_per_call": n_iter,
@@ -509,6 +541,8 @@ def print_table(net: dict) -> None:
             f"{g['best_samples_per_s']:>8,.0f} {g['best_gflops_per_s']:>7.0f} {g['compile_s']:>6.1f}s | "
             f"{f['best_samples_per_s']:>8,.0f} {f['best_gflops_per_s']:>7.0f} {f['compile_s']:>6.1f}s"
         )
+        if "autotune" in r:
+            print(f"{'':>6} {'':>8} {'':>6} {'':>5} | {r['network_config']['conv_impl']}")
     for t in net.get("torch", []):
         if "error" not in t:
             print(
@@ -523,8 +557,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sections", default="network,train", help=f"comma-separated: {', '.join(SECTIONS)}")
     parser.add_argument("--configs", default="paper,small", help=f"comma-separated: {', '.join(CONFIGS)}")
-    parser.add_argument("--impls", default="matmul,xla", help="comma-separated conv_impl values")
-    parser.add_argument("--dtypes", default="float32", help="comma-separated NetworkConfig.dtype values")
+    parser.add_argument(
+        "--impls", default="matmul,xla", help="comma-separated conv_impl values (auto: autotuned per layer)"
+    )
+    parser.add_argument(
+        "--dtypes", default="float32", help="comma-separated NetworkConfig.dtype values (auto: the machine's)"
+    )
+    parser.add_argument(
+        "--autotune-cache", help="the autotune's cache file (default: jaxsocial.agents.autotune.cache_path())"
+    )
     parser.add_argument(
         "--presets", default="small,small-random,paper", help=f"section train: {', '.join(TRAIN_RUNS)}"
     )
@@ -549,8 +590,8 @@ def main() -> None:
     for kind, values, known in [
         ("section", args.sections, SECTIONS),
         ("config", args.configs, CONFIGS),
-        ("impl", args.impls, network.CONV_IMPLS),
-        ("dtype", args.dtypes, network.DTYPES),
+        ("impl", args.impls, (*network.CONV_IMPLS, "auto")),
+        ("dtype", args.dtypes, (*network.DTYPES, "auto")),
         ("preset", args.presets, TRAIN_RUNS),
     ]:
         if unknown := sorted(set(values) - set(known)):

@@ -41,6 +41,19 @@ KERNEL = 3
 IMPLS = ("matmul", "im2col", "xla")
 
 
+def formulation(impl: str, stride: int, dtype: str = "float32") -> str:
+    """The computation `impl` runs for a layer of `stride` in `dtype`: "winograd", "im2col", "blocks" (stride
+    3) or "xla". Implementations with one formulation compute alike (the autotune measures one of them)."""
+    if impl not in IMPLS:
+        raise ValueError(f"unknown convolution implementation {impl!r}; choose from {IMPLS}")
+    if impl == "xla":
+        return "xla"
+    _check_stride(stride)
+    if stride == KERNEL:
+        return "blocks"
+    return "winograd" if impl == "matmul" and dtype == "float32" else "im2col"
+
+
 def conv(
     x: jax.Array, kernel: jax.Array, bias: jax.Array, stride: int, impl: str, dtype: str = "float32"
 ) -> jax.Array:

@@ -121,13 +121,13 @@ class Encoder(nn.Module):
     cfg: NetworkConfig
 
     def setup(self):
-        (c1, c2, c3), impl, dtype = self.cfg.conv_channels, self.cfg.conv_impl, self.cfg.dtype
+        (c1, c2, c3), impl, dtype = self.cfg.conv_channels, self.cfg.impl_for, self.cfg.compute_dtype
         if self.cfg.symbolic:
             self.embed = Embed(c1)
         else:
-            self.conv1 = Conv(c1, STRIDES[0], impl, dtype=dtype)
-        self.conv2 = Conv(c2, STRIDES[1], impl, dtype=dtype)
-        self.conv3 = Conv(c3, STRIDES[2], impl, dtype=dtype)
+            self.conv1 = Conv(c1, STRIDES[0], impl("conv1"), dtype=dtype)
+        self.conv2 = Conv(c2, STRIDES[1], impl("conv2"), dtype=dtype)
+        self.conv3 = Conv(c3, STRIDES[2], impl("conv3"), dtype=dtype)
         self.fc = Dense(self.cfg.hidden, math.sqrt(2.0), dtype)
 
     def __call__(self, obs: jax.Array) -> jax.Array:
@@ -190,14 +190,14 @@ class Decoder(nn.Module):
     cfg: NetworkConfig
 
     def setup(self):
-        (c1, c2, _), impl, dtype = self.cfg.conv_channels, self.cfg.conv_impl, self.cfg.dtype
+        (c1, c2, _), impl, dtype = self.cfg.conv_channels, self.cfg.impl_for, self.cfg.compute_dtype
         self.aux_fc = Dense(self.cfg.feature_size, math.sqrt(2.0), dtype)
-        self.deconv1 = Conv(c2, STRIDES[2], impl, transpose=True, dtype=dtype)
-        self.deconv2 = Conv(c1, STRIDES[1], impl, transpose=True, dtype=dtype)
+        self.deconv1 = Conv(c2, STRIDES[2], impl("deconv1"), transpose=True, dtype=dtype)
+        self.deconv2 = Conv(c1, STRIDES[1], impl("deconv2"), transpose=True, dtype=dtype)
         if self.cfg.symbolic:
             self.cell_logits = Dense(PREDICTED_VOCAB, 1.0, dtype)
         else:
-            self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl, transpose=True, dtype=dtype)
+            self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl("deconv3"), transpose=True, dtype=dtype)
 
     def __call__(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
         batch = hidden.shape[:-1]
@@ -252,14 +252,14 @@ class ActorCritic(nn.Module):
     cfg: NetworkConfig
 
     def setup(self):
-        cfg = self.cfg
+        cfg, dtype = self.cfg, self.cfg.compute_dtype
         self.encoder = Encoder(cfg)
         nn.share_scope(self, self.encoder)  # its layers are top-level entries of the params tree
-        self.lstm = LSTM(cfg.hidden, cfg.dtype)
-        self.policy = MLP(cfg.mlp, cfg.n_actions, 0.01, cfg.dtype)
-        self.value = MLP(cfg.mlp, 1, 1.0, cfg.dtype)
+        self.lstm = LSTM(cfg.hidden, dtype)
+        self.policy = MLP(cfg.mlp, cfg.n_actions, 0.01, dtype)
+        self.value = MLP(cfg.mlp, 1, 1.0, dtype)
         if cfg.attention:
-            self.attention = Dense(cfg.n_others * ATTENTION_CLASSES, 0.01, cfg.dtype)
+            self.attention = Dense(cfg.n_others * ATTENTION_CLASSES, 0.01, dtype)
         if cfg.frame_aux != "none":
             self.decoder = Decoder(cfg)
             nn.share_scope(self, self.decoder)

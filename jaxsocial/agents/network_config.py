@@ -4,6 +4,11 @@
 the frames per chunk in which the conv encoder and the decoder run (`chunks.map_chunks`), and the input
 dtype of every matrix product and convolution (`precision.matmul`; params, LSTM state and outputs stay
 float32). Why and how fast: docs/performance.md.
+
+`conv_impl` names one implementation for every conv layer ("matmul"), or one per layer
+("conv1=xla,conv2=matmul,..."; `CONV_LAYERS`, `parse_conv_impl`). "auto" (for every layer, or for some:
+"conv2=auto") and ``dtype="auto"`` are choices left to the machine: `autotune.resolve` replaces them with
+concrete ones (measured, and cached), which is what a run's config.json records.
 """
 
 from __future__ import annotations
@@ -23,7 +28,18 @@ STRIDES = (3, 1, 1)  # encoder strides; the decoder mirrors them in reverse orde
 AUX_KINDS = ("none", "rec", "pred", "attention", "rec+attention", "pred+attention")
 ATTENTION_CLASSES = (OBS_SHAPE[0] // KERNEL) ** 2 + 1  # the 7x7 view cells, then "not in view"
 CONV_IMPLS = conv.IMPLS
+"""The concrete convolution implementations (`NetworkConfig.conv_impl`, for all layers or per layer)."""
 DTYPES = precision.DTYPES
+"""The concrete compute dtypes (`NetworkConfig.dtype`)."""
+AUTO = "auto"
+"""The `conv_impl` and `dtype` value (also of one layer's `conv_impl`) that `autotune.resolve` replaces with
+the machine's choice."""
+CONV_LAYERS = ("conv1", "conv2", "conv3", "deconv1", "deconv2", "deconv3")
+"""The conv layers a per-layer `conv_impl` names: the encoder's (conv1: RGB only) and the decoder's (deconv3:
+RGB only; the decoder only with a frame auxiliary loss). `NetworkConfig.conv_layers`: those a config has."""
+UNRESOLVED_IMPL = "matmul"
+"""What a layer still set to "auto" computes with when the network is built unresolved (the formulation
+measured fastest on CPU and GPU for the paper network; the same function as every other)."""
 DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")  # the `Decoder`'s entries of the params tree
 
 
@@ -45,7 +61,10 @@ class NetworkConfig:
     conv_impl: str = "matmul"
     """How convolutions are computed (same result, different speed): "matmul" (matrix products: Winograd in
     float32, im2col in bfloat16; fastest measured on CPU and GPU), "im2col" (one product of the 3x3 patches
-    per layer) or "xla" (XLA's convolutions)."""
+    per layer) or "xla" (XLA's convolutions), for every layer; or per layer, comma-separated ``layer=impl``
+    entries of `CONV_LAYERS` ("conv1=xla,conv2=matmul"), with at most one bare impl as the default of the
+    layers not named (without one: "matmul"). "auto", for all layers or as a layer's impl: measured on this
+    machine at start-up (`autotune.resolve`, which writes the per-layer choice here)."""
     chunk: int = 512
     """Frames processed at a time by the conv encoder and decoder (speed and memory only)."""
     n_others: int = 2
@@ -55,7 +74,8 @@ class NetworkConfig:
     dtype: str = "float32"
     """Input dtype of matrix products and convolutions: "float32", or "bfloat16" (float32 accumulation;
     params, optimiser state, LSTM state and losses stay float32). Whether it is faster depends on the
-    hardware (docs/performance.md)."""
+    hardware (docs/performance.md). "auto": bfloat16 on GPUs and on CPUs with AMX, float32 otherwise
+    (`autotune.auto_dtype`)."""
 
     def __post_init__(self):
         channels = tuple(self.conv_channels)
@@ -73,16 +93,50 @@ class NetworkConfig:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
         if self.aux not in AUX_KINDS:
             raise ValueError(f"unknown aux {self.aux!r}; choose from {AUX_KINDS}")
-        if self.conv_impl not in CONV_IMPLS:
-            raise ValueError(f"unknown conv_impl {self.conv_impl!r}; choose from {CONV_IMPLS}")
+        parse_conv_impl(self.conv_impl)  # raises ValueError
         if self.obs not in OBS_KINDS:
             raise ValueError(f"unknown obs {self.obs!r}; choose from {OBS_KINDS}")
-        if self.dtype not in DTYPES:
-            raise ValueError(f"unknown dtype {self.dtype!r}; choose from {DTYPES}")
+        if self.dtype not in (*DTYPES, AUTO):
+            raise ValueError(f"unknown dtype {self.dtype!r}; choose from {(*DTYPES, AUTO)}")
 
     @property
     def symbolic(self) -> bool:
         return self.obs == "symbolic"
+
+    @property
+    def conv_layers(self) -> tuple[str, ...]:
+        """The conv layers of this network (`CONV_LAYERS` less conv1 and deconv3 for symbolic views, less the
+        decoder's without a frame auxiliary loss)."""
+        layers = ("conv2", "conv3") if self.symbolic else ("conv1", "conv2", "conv3")
+        if self.frame_aux != "none":
+            layers += ("deconv1", "deconv2") if self.symbolic else ("deconv1", "deconv2", "deconv3")
+        return layers
+
+    @property
+    def layer_impls(self) -> dict[str, str]:
+        """`conv_layers` -> their `conv_impl` entry (a `CONV_IMPLS` value or "auto")."""
+        impls = parse_conv_impl(self.conv_impl)
+        return {layer: impls[layer] for layer in self.conv_layers}
+
+    def impl_for(self, layer: str) -> str:
+        """The implementation `layer` computes with (`UNRESOLVED_IMPL` for one still "auto")."""
+        impl = parse_conv_impl(self.conv_impl)[layer]
+        return UNRESOLVED_IMPL if impl == AUTO else impl
+
+    @property
+    def compute_dtype(self) -> str:
+        """The dtype the products compute in: `dtype`, or the machine's choice for "auto"
+        (`autotune.auto_dtype`; `autotune.resolve` writes it into the config)."""
+        if self.dtype != AUTO:
+            return self.dtype
+        from jaxsocial.agents import autotune  # (autotune imports this module)
+
+        return autotune.auto_dtype()
+
+    @property
+    def unresolved(self) -> bool:
+        """Some choice is still "auto" (`autotune.resolve` makes it concrete)."""
+        return self.dtype == AUTO or AUTO in self.layer_impls.values()
 
     @property
     def obs_shape(self) -> tuple[int, int, int]:
@@ -130,3 +184,38 @@ class NetworkConfig:
         """Raises ValueError if the config builds no auxiliary decoder (`frame_aux` "none")."""
         if self.frame_aux == "none":
             raise ValueError(f"decoding needs an auxiliary decoder, but cfg.aux == {self.aux!r} built none")
+
+
+def parse_conv_impl(value: str) -> dict[str, str]:
+    """`NetworkConfig.conv_impl` -> every layer of `CONV_LAYERS` -> its impl (a `CONV_IMPLS` value or "auto").
+
+    "xla" (every layer), "conv1=xla,conv2=matmul" (the layers not named: "matmul") or "xla,conv2=auto" (the
+    bare entry is the default). Raises ValueError for an unknown impl or layer, a layer named twice, two
+    defaults or an empty entry.
+    """
+    choices = (*CONV_IMPLS, AUTO)
+    if not isinstance(value, str):
+        raise ValueError(f"conv_impl must be a string, got {value!r}")
+    default, named = None, {}
+    for entry in value.split(","):
+        layer, sep, impl = (part.strip() for part in entry.strip().rpartition("="))
+        if impl not in choices:
+            raise ValueError(f"conv_impl {value!r}: unknown implementation {impl!r}; choose from {choices}")
+        if not sep:
+            if default is not None:
+                raise ValueError(f"conv_impl {value!r}: two defaults ({default!r}, {impl!r})")
+            default = impl
+        elif layer not in CONV_LAYERS:
+            raise ValueError(f"conv_impl {value!r}: unknown layer {layer!r}; choose from {CONV_LAYERS}")
+        elif layer in named:
+            raise ValueError(f"conv_impl {value!r}: layer {layer!r} named twice")
+        else:
+            named[layer] = impl
+    return {layer: named.get(layer, default or "matmul") for layer in CONV_LAYERS}
+
+
+def format_conv_impl(impls: dict[str, str]) -> str:
+    """{layer: impl} -> the per-layer `conv_impl` string in `CONV_LAYERS` order ("conv1=xla,conv2=matmul")."""
+    if unknown := set(impls) - set(CONV_LAYERS):
+        raise ValueError(f"unknown conv layers {sorted(unknown)}; choose from {CONV_LAYERS}")
+    return ",".join(f"{layer}={impls[layer]}" for layer in CONV_LAYERS if layer in impls)
