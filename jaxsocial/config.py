@@ -14,11 +14,12 @@ import dataclasses
 from collections.abc import Callable
 from typing import Annotated, Any, NamedTuple
 
+import jax
 import tyro
 
 import jaxsocial
 from jaxsocial import envspec, logs, schedule
-from jaxsocial.agents import policy_io, population, ppo
+from jaxsocial.agents import autotune, policy_io, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
@@ -325,6 +326,23 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         )
     frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
     return Setup(env_params, pop, stages, frozen, tuple(stage_envs))
+
+
+def resolve_network(cfg: TrainConfig) -> TrainConfig:
+    """`cfg` with its network's "auto" choices (`--net.dtype auto`, `--net.conv-impl auto`) made for this
+    machine (`autotune.resolve`: measured once, then cached) at the frames of one gradient step, so that
+    config.json and saved policies name what ran; `cfg` itself when nothing is "auto". ValueError in a
+    multi-process run, whose processes could measure differently."""
+    if not cfg.net.unresolved:
+        return cfg
+    if jax.process_count() > 1:
+        raise ValueError("--net.dtype/--net.conv-impl 'auto' are chosen per machine: give them concretely")
+    frames = (
+        cfg.ppo.minibatch_chunks * cfg.ppo.chunk_length
+        if cfg.algo == "ppo"
+        else cfg.num_envs * cfg.rollout_steps
+    )
+    return dataclasses.replace(cfg, net=autotune.resolve(cfg.net, frames))
 
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:

@@ -85,6 +85,7 @@ def run(cfg: TrainConfig) -> Path:
     mesh = loop.data_mesh(cfg)
     run_dir = Path(cfg.runs_dir).expanduser() / run_name(cfg)
     cfg = init_from.pin(cfg, run_dir)  # RUN_DIR@ITERATION in config.json
+    cfg = config.resolve_network(cfg)  # after every check: an "auto" network measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)
     distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written

@@ -72,9 +72,10 @@ def dense_layer(n_in: int) -> float:
     return gamma(n_in + 1)
 
 
-def _stride1(cfg: NetworkConfig, m: int, c_in: int) -> float:
-    """A stride-1 3x3 layer's bound as `cfg.conv_impl` computes it in float32 (Winograd for "matmul")."""
-    return winograd_layer(m, c_in) if cfg.conv_impl == "matmul" else dense_layer(conv.KERNEL**2 * c_in)
+def _stride1(cfg: NetworkConfig, layer: str, m: int, c_in: int) -> float:
+    """A stride-1 3x3 layer's bound as `cfg` computes `layer` in float32 (Winograd for "matmul")."""
+    winograd = cfg.impl_for(layer) == "matmul"
+    return winograd_layer(m, c_in) if winograd else dense_layer(conv.KERNEL**2 * c_in)
 
 
 def decoder_error(cfg: NetworkConfig) -> float:
@@ -82,7 +83,8 @@ def decoder_error(cfg: NetworkConfig) -> float:
     inputs: aux FC, deconv1, deconv2, then deconv3 (or the symbolic cell logits)."""
     c1, c2, c3 = cfg.conv_channels
     last = dense_layer(c1) if cfg.symbolic else dense_layer(conv.KERNEL**2 * c1)
-    layers = [dense_layer(cfg.hidden + cfg.n_actions), _stride1(cfg, 3, c3), _stride1(cfg, 5, c2), last]
+    deconvs = [_stride1(cfg, "deconv1", 3, c3), _stride1(cfg, "deconv2", 5, c2)]
+    layers = [dense_layer(cfg.hidden + cfg.n_actions), *deconvs, last]
     return sum(layers)
 
 
@@ -93,7 +95,8 @@ def network_error(cfg: NetworkConfig, steps: int, decoder: bool = True) -> float
     `decoder_error`)."""
     c1, c2, _ = cfg.conv_channels
     first = dense_layer(4) if cfg.symbolic else dense_layer(conv.KERNEL**2 * 3)  # embedding sum or conv1
-    encoder = [first, _stride1(cfg, 5, c1), _stride1(cfg, 3, c2), dense_layer(cfg.feature_size)]
+    convs = [_stride1(cfg, "conv2", 5, c1), _stride1(cfg, "conv3", 3, c2)]
+    encoder = [first, *convs, dense_layer(cfg.feature_size)]
     lstm = [dense_layer(cfg.hidden)] * (1 + steps)
     heads = [dense_layer(cfg.hidden), dense_layer(cfg.mlp), dense_layer(cfg.mlp)]
     return sum(encoder) + sum(lstm) + max(sum(heads), decoder_error(cfg) if decoder else 0.0)

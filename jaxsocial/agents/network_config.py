@@ -125,13 +125,13 @@ class NetworkConfig:
 
     @property
     def compute_dtype(self) -> str:
-        """The dtype the products compute in: `dtype`, or the machine's choice for "auto"
-        (`autotune.auto_dtype`; `autotune.resolve` writes it into the config)."""
-        if self.dtype != AUTO:
-            return self.dtype
-        from jaxsocial.agents import autotune  # (autotune imports this module)
-
-        return autotune.auto_dtype()
+        """The dtype the products compute in; ValueError for "auto", which `autotune.resolve` (run by the
+        trainer at start-up) replaces with the machine's choice first."""
+        if self.dtype == AUTO:
+            raise ValueError(
+                'net.dtype="auto" is chosen by autotune.resolve(net, batch) before the network is built'
+            )
+        return self.dtype
 
     @property
     def unresolved(self) -> bool:
