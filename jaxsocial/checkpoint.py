@@ -13,6 +13,7 @@ The tree structure itself is not stored: ``restore`` rebuilds it from ``target``
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -21,8 +22,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
-
-from jaxsocial import logs
 
 __all__ = [
     "CheckpointMismatchError",
@@ -153,15 +152,19 @@ def _to_target_type(data: np.ndarray, leaf: Any, entry: Mapping[str, Any]) -> An
 
 
 def _jsonable(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
-    """`metadata` as plain JSON values (`logs.to_json`: non-finite floats become null)."""
+    """`metadata` ({} for None), checked to be plain JSON values (`logs.to_json` makes them: dicts, lists,
+    str, finite numbers, bool, None); TypeError otherwise."""
     if metadata is None:
         return {}
     if not isinstance(metadata, Mapping):
         raise TypeError(f"checkpoint metadata must be a dict, got {type(metadata).__name__}")
     try:
-        return logs.to_json(metadata)
-    except TypeError as err:
-        raise TypeError(f"checkpoint metadata: {err}") from None
+        json.dumps(metadata, allow_nan=False)
+    except (TypeError, ValueError) as err:
+        raise TypeError(
+            f"checkpoint metadata must be plain JSON values (logs.to_json makes them): {err}"
+        ) from None
+    return dict(metadata)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -223,8 +226,8 @@ def save(
 
     state: nested dicts/lists/tuples/NamedTuples/flax struct dataclasses of jax or numpy arrays (typed PRNG
     keys included) and python scalars. keep: number of most recent steps kept (None: all). metadata: small
-    JSON-able dict stored alongside (NaN/inf become null). Steps must increase: an existing step raises
-    FileExistsError, a step below the latest one ValueError. Returns the step directory.
+    dict of plain JSON values stored alongside (TypeError otherwise). Steps must increase: an existing step
+    raises FileExistsError, a step below the latest one ValueError. Returns the step directory.
     """
     directory = _dir(directory)
     step = int(step)

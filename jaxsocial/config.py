@@ -263,7 +263,7 @@ def _check_stage(
     changed = [f for f in schedule.STRUCTURAL_FIELDS if getattr(env_params, f) != getattr(first, f)]
     if changed:
         raise ValueError(f"{where} changes {changed}, which set array shapes; a stage may not change them")
-    population.require_obs(cfg.net, env_params, where)
+    cfg.net.check_env(env_params, where)
     if env_params.solo_prob > 0 and any(i >= env_params.solo_agents for i in pop.learners):
         raise ValueError(
             f"{where}: solo episodes keep only the first solo_agents={env_params.solo_agents} slots, but "

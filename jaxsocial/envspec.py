@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import jaxsocial
 from jaxsocial import schedule
-from jaxsocial.agents import population
 from jaxsocial.env.types import EnvParams
 
 
@@ -23,6 +22,6 @@ def check_eval_envs(specs: tuple[str, ...], net, episodes: int) -> list[tuple[st
     parsed = []
     for spec in specs:
         env_params = parse_env_spec(spec)
-        population.require_obs(net, env_params, f"eval env {spec!r}")
+        net.check_env(env_params, f"eval env {spec!r}")
         parsed.append((spec, env_params))
     return parsed

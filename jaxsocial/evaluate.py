@@ -161,7 +161,7 @@ def _setup(cfg: EvalConfig):
     first = (list(cfg.ckpt) + paths)[:1]
     net = policy_io.saved_net(first[0]) if first else network.NetworkConfig(obs=env_params.observation)
     if first:
-        population.require_obs(net, env_params, f"--env {cfg.env} with the policy {first[0]}")
+        net.check_env(env_params, f"--env {cfg.env} with the policy {first[0]}")
     frozen = [policy_io.load_policy(p, net) for p in paths]
     if cfg.protocol == "ct" and (
         pop.learners != (0,) or env_params.n_agents < 2 or env_params.solo_agents != 1

@@ -20,9 +20,9 @@ import numpy as np
 
 from jaxsocial import config, distributed, nonfinite
 from jaxsocial.agents import bc, network, policy_io, population, ppo
-from jaxsocial.batching import any_in_batch
 from jaxsocial.config import ProgramConfig, TrainConfig
 from jaxsocial.env import core, observe
+from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import EnvParams, EnvState
 
 

@@ -38,7 +38,7 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     """
     net = policy_io.saved_net(run_dir)
     env_params = parse_env_spec(env_spec)
-    population.require_obs(net, env_params, f"env {env_spec!r} with the policy {run_dir}")
+    net.check_env(env_params, f"env {env_spec!r} with the policy {run_dir}")
     population.require_rgb(env_params, f"env {env_spec!r}")
     if slots is None:
         pop = population.default_population(env_params)

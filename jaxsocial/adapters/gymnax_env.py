@@ -30,8 +30,8 @@ except ModuleNotFoundError as err:  # pragma: no cover - depends on the installe
 
 import jaxsocial
 from jaxsocial.agents import network, policy_io, population
-from jaxsocial.batching import any_in_batch
 from jaxsocial.env import core
+from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 
 
@@ -87,7 +87,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
             else network.NetworkConfig(obs=params.observation)
         )
         if frozen_paths:
-            population.require_obs(self.net, params, f"frozen slot {frozen_paths[0]}")
+            self.net.check_env(params, f"frozen slot {frozen_paths[0]}")
         self.frozen_params = policy_io.load_frozen(self.companions, self.net)
         self.env_name = name
         self._params = params

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from jaxsocial.batching import any_in_batch
+from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import (
     BONUS,
     DIR_VEC,

@@ -133,6 +133,21 @@ class NetworkConfig:
             )
         return self.dtype
 
+    def check_env(self, params, where: str) -> None:
+        """ValueError unless the network takes the observations that environment `params` (`EnvParams`) gives
+        (`obs`, and their shape: the networks see a 7x7 view); `where` names the check's context."""
+        if self.obs != params.observation:
+            raise ValueError(
+                f"{where}: the environment gives {params.observation!r} observations, but the network takes "
+                f"{self.obs!r} ones (net.obs={self.obs!r}; a policy trained on one kind cannot act on the "
+                "other)"
+            )
+        if tuple(params.obs_shape) != self.obs_shape:
+            raise ValueError(
+                f"{where}: the network takes observations of shape {self.obs_shape} (view_size=7), the "
+                f"environment gives {tuple(params.obs_shape)}"
+            )
+
     @property
     def unresolved(self) -> bool:
         """Some choice is still "auto" (`autotune.resolve` makes it concrete)."""

@@ -124,21 +124,6 @@ def require_rgb(params: EnvParams, where: str) -> None:
         raise ValueError(f"{where}: pictures of predicted frames need RGB observations (observation='rgb')")
 
 
-def require_obs(net: network.NetworkConfig, params: EnvParams, where: str) -> None:
-    """ValueError unless the network `net` takes the observations `params` gives (`NetworkConfig.obs`, and
-    their shape: the networks see a 7x7 view)."""
-    if net.obs != params.observation:
-        raise ValueError(
-            f"{where}: the environment gives {params.observation!r} observations, but the network takes "
-            f"{net.obs!r} ones (net.obs={net.obs!r}; a policy trained on one kind cannot act on the other)"
-        )
-    if tuple(params.obs_shape) != net.obs_shape:
-        raise ValueError(
-            f"{where}: the network takes observations of shape {net.obs_shape} (view_size=7), the "
-            f"environment gives {tuple(params.obs_shape)}"
-        )
-
-
 @dataclasses.dataclass(frozen=True)
 class Population:
     """Static slot bookkeeping: indices of learner, frozen, neural (learner then frozen) and expert slots."""

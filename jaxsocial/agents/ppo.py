@@ -20,7 +20,7 @@ import optax
 
 from jaxsocial.agents import network
 from jaxsocial.agents.network import NetworkConfig
-from jaxsocial.batching import any_in_batch
+from jaxsocial.env.batching import any_in_batch
 
 
 @dataclasses.dataclass(frozen=True)

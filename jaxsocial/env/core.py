@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.batching import any_in_batch
+from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.dynamics import world_step
 from jaxsocial.env.layouts import generate, parse_ascii
 from jaxsocial.env.observe import observe
