@@ -5,7 +5,7 @@ Reads the run directories `RUNS_DIR/<float32 prefix>/<condition>-s0-2` and `RUNS
 (written by `python -m jaxsocial.train` with the cpu scale's flags of `jaxsocial.experiments.recipes`, the
 bfloat16 ones with `--net.dtype bfloat16` added) and writes:
 
-* `OUT.json`: per condition and dtype, the learner's final return per seed (`figures.final_return`: the
+* `OUT.json`: per condition and dtype, the learner's final return per seed (`metrics.final_return`: the
   episode-weighted mean over the last 10% of iterations), its mean and 95% Student-t interval over seeds, and
   whether each dtype's mean lies within the other's interval (issue 28's criterion); with the runs' configs'
   provenance (run directories relative to RUNS_DIR, iterations, dtype) and this script's metadata.
@@ -24,8 +24,7 @@ from pathlib import Path
 
 from run_info import REPO, metadata, write_results
 
-from jaxsocial import logs, plot
-from jaxsocial.experiments import figures
+from jaxsocial import logs, metrics, plot
 
 CONDITIONS = ("social_pred_nopenalty", "social_pred")
 """The cpu-scale conditions compared (issue 28: the h1 social PPO + pred, and the no-penalty social one)."""
@@ -48,7 +47,7 @@ def compare(
             group.label = f"{condition} {dtype}"
             groups.append(group)
             config = logs.read_config(run_dir)
-            entry[dtype] = figures.stats([figures.final_return(rows) for rows in group.rows]) | {
+            entry[dtype] = metrics.stats([metrics.final_return(rows) for rows in group.rows]) | {
                 "run_dir": str(run_dir.relative_to(runs_dir)),
                 "net_dtype": config["net"].get("dtype", "float32"),
                 "iterations": [len(rows) for rows in group.rows],

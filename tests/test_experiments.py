@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from jaxsocial import config, logs, schedule
+from jaxsocial import config, logs, metrics, schedule
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import counts, figures, recipes, runner
+from jaxsocial.experiments import counts, figures, kinds, recipes, runner
 
 
 @pytest.mark.parametrize("scale", sorted(recipes.SCALES))
@@ -72,26 +72,26 @@ def _rows(returns, episodes):
 
 def test_final_return_is_episode_weighted_over_the_last_tenth():
     rows = _rows([5.0] * 18 + [1.0, 4.0], [1] * 18 + [3, 1])
-    assert figures.final_return(rows) == pytest.approx((3 * 1.0 + 4.0) / 4)
-    assert figures.final_return(rows, slot=1) == 10.0
-    assert math.isnan(figures.final_return(_rows([0.0] * 10, [0] * 10)))
-    x, y = figures.curve(rows, points=4)
+    assert metrics.final_return(rows) == pytest.approx((3 * 1.0 + 4.0) / 4)
+    assert metrics.final_return(rows, slot=1) == 10.0
+    assert math.isnan(metrics.final_return(_rows([0.0] * 10, [0] * 10)))
+    x, y = metrics.curve(rows, points=4)
     np.testing.assert_array_equal(x, [5, 10, 15, 20])
     assert y[-1] == pytest.approx((5.0 * 3 + 3.0 + 4.0) / 7)
 
 
 def test_stats_and_ci_separation():
-    s = figures.stats([1.0, 2.0, 3.0])
+    s = metrics.stats([1.0, 2.0, 3.0])
     half = 4.303 * 1.0 / math.sqrt(3)
     assert s["mean"] == 2.0
     assert s["ci95"] == pytest.approx([2.0 - half, 2.0 + half], abs=1e-4)
     conditions = {
-        "a": figures.stats([10.0, 10.5, 11.0]),  # CI [9.26, 11.74]
-        "b": figures.stats([1.0, 2.0, 3.0]),  # CI [-0.48, 4.48]
+        "a": metrics.stats([10.0, 10.5, 11.0]),  # CI [9.26, 11.74]
+        "b": metrics.stats([1.0, 2.0, 3.0]),  # CI [-0.48, 4.48]
         "c": s,  # the same as b: neither is above the other
-        "d": figures.stats([0.0, 2.5, 5.0]),  # CI [-3.71, 8.71]
+        "d": metrics.stats([0.0, 2.5, 5.0]),  # CI [-3.71, 8.71]
     }
-    assert figures.separations(conditions) == {
+    assert kinds.separations(conditions) == {
         "a > b": True,
         "a > c": True,
         "a > d": True,
@@ -109,7 +109,7 @@ def test_fisher_exact_one_sided():
     assert counts.fisher_greater(2, 3, 1, 3) == pytest.approx(0.5)
     conditions = {c: {"seeds_above_one_tile": k, "final_returns": [1.0] * n} for c, k, n in
                   (("a", 2, 6), ("b", 0, 6), ("c", 0, 3))}  # fmt: skip
-    tests = figures.learned_seed_tests(conditions)
+    tests = kinds.learned_seed_tests(conditions)
     assert tests == {"a > b": pytest.approx(0.2273, abs=1e-4), "a > c": pytest.approx(15 / 36, abs=1e-4)}
 
 
@@ -141,13 +141,13 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     runs = figures.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 6, str(tmp_path))
     assert runs.missing == ["solo_pred", "social_pred"]
     assert runs.missing_seeds == {"social_none": [1, 2, 3, 4, 5]}
-    assert [figures.final_return(rows) for rows in runs.rows["social_rec"]] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    assert [metrics.final_return(rows) for rows in runs.rows["social_rec"]] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
     assert runs.seed_dirs["social_none"] == [base / "social_none-s0-0"]
     summary = figures.summarize(runs, "the command")
     assert summary["conditions"]["social_rec"]["seeds_above_one_tile"] == 3  # seeds 3, 4, 5 return > 2
     assert summary["learned_seeds_fisher_p"] == {"social_rec > social_none": pytest.approx(4 / 7, abs=1e-4)}
     takeoffs = summary["time_to_learning"]["conditions"]["social_rec"]
-    first_block = figures.curve(runs.rows["social_rec"][0])[0][0]  # every iteration of seeds 3-5 is above 2
+    first_block = metrics.curve(runs.rows["social_rec"][0])[0][0]  # every iteration of seeds 3-5 is above 2
     assert takeoffs["takeoff_iterations"] == [None] * 3 + [first_block] * 3
     cfg = runs.configs["social_rec"]
     assert takeoffs["takeoff_env_steps"][3] == first_block * cfg.num_envs * cfg.rollout_steps
@@ -226,8 +226,8 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
     for name, entry in summary["conditions"].items():
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
         rows = logs.read_metrics(runner.seed_dirs(cfg)[0])
-        assert entry["final_returns"] == [round(figures.final_return(rows), 4)]
-        assert entry["seeds_above_one_tile"] == int(figures.final_return(rows) > figures.LEARNED_RETURN)
+        assert entry["final_returns"] == [round(metrics.final_return(rows), 4)]
+        assert entry["seeds_above_one_tile"] == int(metrics.final_return(rows) > kinds.LEARNED_RETURN)
         key = "eval/goalcycle4:width=7,height=7,max_steps=20"
         assert entry[key]["final_returns"] == [round(rows[-1][key], 4)]
     assert summary["experts"]["mean"] > 0  # the scripted experts collect tiles
@@ -264,8 +264,8 @@ def test_no_train_evaluates_the_conditions_trained_elsewhere(mixing_runs, capsys
     assert "solo_pred: not trained" in out and "bc: not trained" in out
     cfg = recipes.condition_config(recipes.TINY, "social_pred", 0, 1, str(mixing_runs))
     (seed_dir,) = runner.seed_dirs(cfg)
-    for spec in runner.transfer_specs(recipes.RECIPES["transfer"], recipes.TINY):
-        result = json.loads(runner.eval_path(seed_dir, spec).read_text())
+    for spec in kinds.transfer_specs(recipes.RECIPES["transfer"], recipes.TINY):
+        result = json.loads(kinds.eval_path(seed_dir, spec).read_text())
         assert result["checkpoints"] == [str(seed_dir)]
         assert f"social_pred {seed_dir.name} in {spec}" in out
 
@@ -283,11 +283,11 @@ def test_ct_recipe_trains_evaluates_and_summarises(mixing_runs, tmp_path):
     for name, entry in summary["conditions"].items():
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
         (seed_dir,) = runner.seed_dirs(cfg)
-        result = json.loads(runner.ct_path(seed_dir, recipes.TINY).read_text())
+        result = json.loads(kinds.ct_path(seed_dir, recipes.TINY).read_text())
         assert result["protocol"] == "ct" and result["checkpoints"] == [str(seed_dir)]
         assert entry["ct"]["final_returns"] == [round(result["ct"]["mean"], 4)]
         assert entry["recall"]["final_returns"] == [round(result["recall"]["mean"], 4)]
-        assert entry["final_returns"] == [round(figures.final_return(logs.read_metrics(seed_dir)), 4)]
+        assert entry["final_returns"] == [round(metrics.final_return(logs.read_metrics(seed_dir)), 4)]
     medal = recipes.condition_config(recipes.TINY, "social_medal", 0, 1, str(mixing_runs))
     assert "attention_loss/0" in logs.read_metrics(runner.seed_dirs(medal)[0])[-1]
     assert set(summary["separated_ci95"]) == {"final", "ct", "recall"}

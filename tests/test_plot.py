@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from conftest import TINY_ENV_ARGS
 
-from jaxsocial import axes, logs, plot
-from jaxsocial.experiments import figures
+from jaxsocial import axes, logs, metrics, plot
 
 
 @pytest.fixture
@@ -45,7 +44,7 @@ def test_two_seeds_panels_mean_and_band(run_dir):
     for ax in fig.axes:  # two faint seed lines, the mean, and the CI band
         assert len(ax.lines) == 3 and len(ax.collections) == 1
     returns = fig.axes[0]
-    curves = [figures.curve(rows, 0) for rows in group.rows]
+    curves = [metrics.curve(rows, 0) for rows in group.rows]
     np.testing.assert_allclose(returns.lines[2].get_xdata(), curves[0][0] * 32)
     mean = np.mean([y for _, y in curves], axis=0)
     np.testing.assert_allclose(returns.lines[2].get_ydata(), mean)

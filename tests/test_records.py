@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from jaxsocial import logs
+from jaxsocial import logs, metrics, playback
 from jaxsocial.agents import policy_io
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, predictions, recipes, records
+from jaxsocial.experiments import figures, recipes, records
 
 REPO = Path(__file__).resolve().parents[1]
 SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"
@@ -35,7 +35,7 @@ def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_
     assert logs.to_json(figures.summarize(runs, committed["command"])) == committed
     assert committed["provenance"]["unrecorded"] == []
     for condition, dirs in committed["seed_dirs"].items():
-        finals = [round(figures.final_return(logs.read_metrics(d)), 4) for d in dirs]
+        finals = [round(metrics.final_return(logs.read_metrics(d)), 4) for d in dirs]
         assert committed["training"][condition]["final_returns"] == finals
     argv = committed["command"].split()[3:]  # after 'python -m jaxsocial.experiments'
     argv[argv.index("--out-dir") + 1] = str(tmp_path)
@@ -61,7 +61,7 @@ def test_a_record_reads_like_a_run_directory():
             f"--run-name {provenance['record']['source'].rsplit('/', 1)[0]}" in provenance["run"]["command"]
         )
     # what `render --ckpt` and `evaluate --ckpt` load: the policy with the network it was trained with
-    setup = predictions.episode_setup(str(record_dirs[0]), recipes.goalcycle_spec("goalcycle3", recipes.TINY))
+    setup = playback.episode_setup(str(record_dirs[0]), recipes.goalcycle_spec("goalcycle3", recipes.TINY))
     assert setup.net == policy_io.saved_net(str(record_dirs[0]))
 
 

@@ -18,28 +18,10 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import logs, metrics
-from jaxsocial.curves import band  # noqa: F401 - figures.band, as before
 from jaxsocial.experiments import kinds, prereg, recipes, records, runner
-from jaxsocial.experiments.kinds import (  # noqa: F401 - the shared measures, also figures.NAME as before
-    CT_SCORES,
-    LEARNED_RETURN,
-    ct_score,
-    learned_seed_tests,
-    separations,
-    takeoffs,
-)
+from jaxsocial.experiments.kinds import LEARNED_RETURN, takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.metrics import (  # noqa: F401 - the metrics readers, also figures.NAME as before
-    CURVE_POINTS,
-    FINAL_FRACTION,
-    curve,
-    eval_curve,
-    final_return,
-    metric_curve,
-    slot_returns,
-    stats,
-    switch_iteration,
-)
+from jaxsocial.metrics import final_return
 
 
 class RecipeRuns:

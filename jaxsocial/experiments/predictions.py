@@ -12,13 +12,7 @@ import numpy as np
 
 from jaxsocial.agents import network
 from jaxsocial.env.types import FORWARD, LEFT, RIGHT
-from jaxsocial.playback import (  # noqa: F401 - the episode's names, kept here for the notebook and tests
-    EpisodeSetup,
-    episode_setup,
-    episode_video,
-    play_episode,
-    predicted_views,
-)
+from jaxsocial.playback import episode_setup, play_episode
 
 MOVES = {"left": LEFT, "right": RIGHT, "forward": FORWARD}
 WARM_UP = 8

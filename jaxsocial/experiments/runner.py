@@ -12,13 +12,6 @@ from pathlib import Path
 from jaxsocial import evaluate, logs, train
 from jaxsocial.config import TrainConfig, setup
 from jaxsocial.experiments import kinds, recipes
-from jaxsocial.experiments.kinds import (  # noqa: F401 - where evaluations go, also runner.NAME as before
-    EVAL_DIR,
-    ct_path,
-    ct_spec,
-    eval_path,
-    transfer_specs,
-)
 from jaxsocial.experiments.recipes import Recipe, Scale
 
 

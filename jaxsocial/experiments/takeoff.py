@@ -1,7 +1,7 @@
 """Time to social learning: when each seed left the one-tile plateau, and the fraction of seeds that had by
 each point of training (a survival-style curve; outcomes are bimodal, so a mean return hides them).
 
-A seed's *takeoff* is the end of the first block of its learning curve (`figures.curve`: consecutive
+A seed's *takeoff* is the end of the first block of its learning curve (`metrics.curve`: consecutive
 iterations averaged, episode-weighted) whose mean return exceeds the "learned" threshold; None if none does.
 """
 
