@@ -328,11 +328,12 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     return Setup(env_params, pop, stages, frozen, tuple(stage_envs))
 
 
-def resolve_network(cfg: TrainConfig) -> TrainConfig:
+def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig:
     """`cfg` with its network's "auto" choices (`--net.dtype auto`, `--net.conv-impl auto`) made for this
-    machine (`autotune.resolve`: measured once, then cached) at the frames of one gradient step, so that
-    config.json and saved policies name what ran; `cfg` itself when nothing is "auto". ValueError in a
-    multi-process run, whose processes could measure differently."""
+    machine (`autotune.resolve`: measured once, then cached) at the frames of one gradient step (PPO: a
+    minibatch; BC: every demonstrator slot of `pop`'s rollout), so that config.json and saved policies name
+    what ran; `cfg` itself when nothing is "auto". ValueError in a multi-process run, whose processes could
+    measure differently."""
     if not cfg.net.unresolved:
         return cfg
     if jax.process_count() > 1:
@@ -340,20 +341,22 @@ def resolve_network(cfg: TrainConfig) -> TrainConfig:
     frames = (
         cfg.ppo.minibatch_chunks * cfg.ppo.chunk_length
         if cfg.algo == "ppo"
-        else cfg.num_envs * cfg.rollout_steps
+        else cfg.num_envs * cfg.rollout_steps * len(pop.demonstrators)
     )
     return dataclasses.replace(cfg, net=autotune.resolve(cfg.net, frames))
 
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:
     """`cfg` as plain JSON values (what config.json holds; `TEXT_FIELDS` as their text)."""
-    fields = {f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg)}
-    text = {name: field.format(fields[name]) for name, field in TEXT_FIELDS.items()}
-    return logs.to_json({**{k: _plain(v) for k, v in fields.items()}, **text})
-
-
-def _plain(value: Any) -> Any:
-    return dataclasses.asdict(value) if dataclasses.is_dataclass(value) else value
+    values = {}
+    for field in dataclasses.fields(cfg):
+        value = getattr(cfg, field.name)
+        if field.name in TEXT_FIELDS:
+            value = TEXT_FIELDS[field.name].format(value)
+        elif dataclasses.is_dataclass(value):
+            value = dataclasses.asdict(value)
+        values[field.name] = value
+    return logs.to_json(values)
 
 
 def config_from_dict(values: dict[str, Any]) -> TrainConfig:

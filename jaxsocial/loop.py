@@ -97,15 +97,24 @@ def make_train(
     """
     if cfg.stages:
         raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
-    if env_params is None or pop is None:
-        static = config.setup(cfg, load_frozen=False)
-        env_params, pop = static.env_params, static.pop
+    env_params, pop = _validated(cfg, env_params, pop)
     init, run_chunk = make_program(cfg.program, env_params, pop, mesh)
 
     def train(key: jax.Array):
         return run_chunk(init(key), policy_io.load_frozen(pop, cfg.net), cfg.iterations)
 
     return init, run_chunk, train
+
+
+def _validated(
+    cfg: TrainConfig, env_params: EnvParams | None, pop: population.Population | None
+) -> tuple[EnvParams, population.Population]:
+    """`env_params` and `pop` as given, or `cfg`'s validated ones (`config.setup`: the environment before
+    the first stage) when either is missing."""
+    if env_params is None or pop is None:
+        static = config.setup(cfg, load_frozen=False)
+        return static.env_params, static.pop
+    return env_params, pop
 
 
 def make_program(
@@ -354,7 +363,4 @@ def compiled(
     (`config.Setup`); default: validated here, the environment before the first stage."""
     if mesh is None:
         mesh = data_mesh(cfg)
-    if env_params is None or pop is None:
-        static = config.setup(cfg, load_frozen=False)
-        env_params, pop = static.env_params, static.pop
-    return _compiled(cfg.program, mesh, env_params, pop)
+    return _compiled(cfg.program, mesh, *_validated(cfg, env_params, pop))

@@ -59,11 +59,11 @@ def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[tuple[TrainConfig, Path]]
     the config of a one-seed run of that seed (so it reads like one, e.g. for `frozen:RUN_DIR/s1`)."""
     if cfg.seeds == 1:
         return [(cfg, run_dir)]
-    runs = []
-    for seed in range(cfg.seed, cfg.seed + cfg.seeds):
-        name = f"{run_name(cfg)}/s{seed}"
-        runs.append((dataclasses.replace(cfg, seed=seed, seeds=1, run_name=name), run_dir / f"s{seed}"))
-    return runs
+    seeds = range(cfg.seed, cfg.seed + cfg.seeds)
+    return [
+        (dataclasses.replace(cfg, seed=seed, seeds=1, run_name=f"{run_name(cfg)}/{name}"), run_dir / name)
+        for seed, name in zip(seeds, metrics.seed_dir_names(cfg.seed, cfg.seeds), strict=True)
+    ]
 
 
 def run(cfg: TrainConfig) -> Path:
@@ -85,7 +85,7 @@ def run(cfg: TrainConfig) -> Path:
     mesh = loop.data_mesh(cfg)
     run_dir = Path(cfg.runs_dir).expanduser() / run_name(cfg)
     cfg = init_from.pin(cfg, run_dir)  # RUN_DIR@ITERATION in config.json
-    cfg = config.resolve_network(cfg)  # after every check: an "auto" network measures this machine
+    cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)
     distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
@@ -234,7 +234,7 @@ class Outputs:
                 rows[-1].update(self.evaluation(k, end, params))
             metrics_log.append(rows)
             for row in rows:
-                extra.log(row, row["iteration"])
+                extra.log(row, row[metrics.ITERATION])
         if check.failure is not None and not check.stop and first_nonfinite and distributed.is_main():
             print(f"warning: {failure_text(self.cfg, chunk.first, check.failure)}; training on "
                   "(--on-nonfinite warn)", file=sys.stderr)  # fmt: skip
