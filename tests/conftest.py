@@ -34,6 +34,25 @@ TINY = TrainConfig(
 )
 """The tiny training run the test files share (one compiled program, in the persistent cache below)."""
 
+SOLO_LEARNING = TrainConfig(
+    env="goalcycle3-solo",
+    env_args="width=7,height=7,n_goals=2,penalty=0.0,max_steps=32",
+    num_envs=32,
+    rollout_steps=32,
+    iterations=200,
+    net=NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32),
+    ppo=PPOConfig(lr=1e-3, entropy_coef=0.01, num_minibatches=4, minibatch_chunks=32, chunk_length=8,
+                  kl_target=0.02, kl_hard_limit=0.05),
+)  # fmt: skip
+"""A run whose return rises clearly: solo, 7x7, two tiles, no penalty, 32-step episodes (a random policy
+collects about 0.2 per episode; 200 iterations, 205k steps, under a minute on 2 cores, reach well above 2)."""
+
+
+def mean_return(returns, episodes) -> float:
+    """The mean return over the episodes of iterations with `returns` (per-iteration means) and `episodes`."""
+    return float((returns * episodes).sum() / episodes.sum())
+
+
 _TINY_NET_PPO_FLAGS = [
     "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8",
     "--ppo.chunk-length", "4", "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2",

@@ -3,39 +3,18 @@
 import jax
 import numpy as np
 import pytest
+from conftest import SOLO_LEARNING, mean_return
 
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
-from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.config import TrainConfig
 from jaxsocial.loop import make_train
 
 
-def mean_return(returns, episodes):
-    return float((returns * episodes).sum() / episodes.sum())
-
-
 @pytest.mark.slow
 def test_return_rises_on_small_goal_cycle():
-    """Solo agent, 7x7 grid, two tiles, no penalty, 32-step episodes: a random policy collects about 0.2
-    per episode; 200 iterations (205k steps, under a minute on 2 cores) reach well above 2."""
-    cfg = TrainConfig(
-        env="goalcycle3-solo",
-        env_args="width=7,height=7,n_goals=2,penalty=0.0,max_steps=32",
-        num_envs=32,
-        rollout_steps=32,
-        iterations=200,
-        net=NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32),
-        ppo=PPOConfig(
-            lr=1e-3,
-            entropy_coef=0.01,
-            num_minibatches=4,
-            minibatch_chunks=32,
-            chunk_length=8,
-            kl_target=0.02,
-            kl_hard_limit=0.05,
-        ),
-    )
+    """`SOLO_LEARNING`: a random policy collects about 0.2 per episode; 200 iterations reach well above 2."""
+    cfg = SOLO_LEARNING
     _, _, train = make_train(cfg)
     _, metrics = jax.jit(train)(jax.random.key(0))
     returns, episodes = np.asarray(metrics["return"])[:, 0], np.asarray(metrics["episodes"])[:, 0]

@@ -17,13 +17,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import SOLO_LEARNING, mean_return
 
 from jaxsocial import train
 from jaxsocial.agents import network as net
 from jaxsocial.agents import policy_io, precision
-from jaxsocial.agents.network import NetworkConfig
-from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.config import TrainConfig
 from jaxsocial.loop import make_train
 
 T, B = 5, 3
@@ -167,27 +165,18 @@ def test_saved_policy_records_its_dtype(tmp_path):
 
 @pytest.mark.slow
 def test_bfloat16_learns_like_float32():
-    """`test_learning.test_return_rises_on_small_goal_cycle`'s run (solo, 7x7, two tiles, no penalty; the
-    return rises from about 0.2 to above 2 in 200 iterations) in both dtypes from the same seed: bfloat16
+    """`SOLO_LEARNING` (`test_learning.test_return_rises_on_small_goal_cycle`'s run: the return rises from
+    about 0.2 to above 2 in 200 iterations) in both dtypes from the same seed: bfloat16
     also learns (first 20 iterations below 1, last 20 above 2) and ends within 1.0 of float32's final return
     (half the rise the learning test demands; rounding makes the two runs' trajectories diverge, so their
     returns agree in distribution, not step by step)."""
     finals = {}
     for dtype in precision.DTYPES:
-        cfg = TrainConfig(
-            env="goalcycle3-solo",
-            env_args="width=7,height=7,n_goals=2,penalty=0.0,max_steps=32",
-            num_envs=32,
-            rollout_steps=32,
-            iterations=200,
-            net=NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32, dtype=dtype),
-            ppo=PPOConfig(lr=1e-3, entropy_coef=0.01, num_minibatches=4, minibatch_chunks=32, chunk_length=8,
-                          kl_target=0.02, kl_hard_limit=0.05),
-        )  # fmt: skip
+        cfg = dataclasses.replace(SOLO_LEARNING, net=dataclasses.replace(SOLO_LEARNING.net, dtype=dtype))
         _, _, train = make_train(cfg)
         _, metrics = jax.jit(train)(jax.random.key(0))
         returns, episodes = np.asarray(metrics["return"])[:, 0], np.asarray(metrics["episodes"])[:, 0]
-        first = float((returns[:20] * episodes[:20]).sum() / episodes[:20].sum())
-        finals[dtype] = float((returns[-20:] * episodes[-20:]).sum() / episodes[-20:].sum())
+        first = mean_return(returns[:20], episodes[:20])
+        finals[dtype] = mean_return(returns[-20:], episodes[-20:])
         assert first < 1.0 and finals[dtype] > 2.0, (dtype, first, finals[dtype])
     assert abs(finals["bfloat16"] - finals["float32"]) < 1.0, finals
