@@ -52,7 +52,7 @@ environment with torch, see benchmarks/pytorch_paper_net.py):
     python benchmarks/train_sps.py --sections network,network_hugepages --torch ~/torchref/bin/python
     python benchmarks/train_sps.py --configs paper --impls matmul --repeats 10 --hugepages
     python benchmarks/train_sps.py --sections network,train --configs paper --impls matmul \
-        --dtypes float32,bfloat16 --presets paper,symbolic --torch /work/torchref/bin/python
+        --dtypes float32,bfloat16 --presets paper,symbolic --torch PYTHON
 """
 
 from __future__ import annotations

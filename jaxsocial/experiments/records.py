@@ -33,6 +33,8 @@ from jaxsocial.agents import policy_io
 RECORDS_DIR = "benchmarks/results/records"
 """Where the repository keeps its records."""
 PROVENANCE_FILE = "provenance.json"
+ORBAX_COMMIT_NOTE = "commit_success.txt"
+"""The file orbax writes into each saved item naming the absolute path it went to (reading needs none)."""
 RUN_FIELDS = ("command", "commit", "device", "jax", "started", "ended", "rc")
 """What `provenance.json` says about the run (None where unknown)."""
 
@@ -131,7 +133,11 @@ def pack(
         (record_dir / logs.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode(), mtime=0))
     else:  # a record packed again
         shutil.copy2(seed_dir / logs.METRICS_GZ_FILE, record_dir / logs.METRICS_GZ_FILE)
-    shutil.copytree(policy_dir / str(iteration), record_dir / policy_io.POLICY_DIR / str(iteration))
+    shutil.copytree(  # without orbax's commit notes, which name the absolute path it was written to
+        policy_dir / str(iteration),
+        record_dir / policy_io.POLICY_DIR / str(iteration),
+        ignore=shutil.ignore_patterns(ORBAX_COMMIT_NOTE),
+    )
     if (seed_dir / logs.EVAL_DIR).is_dir():
         shutil.copytree(seed_dir / logs.EVAL_DIR, record_dir / logs.EVAL_DIR)
     provenance = {
