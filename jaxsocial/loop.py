@@ -60,23 +60,33 @@ Transition = ppo.Batch
 """One rollout step, in `ppo.Batch`'s fields without their time axis and with carry0 None (`ppo_batch` adds
 both). obs, actions and valid are of the recorded slots (learners for PPO, demonstrators for BC), the rest of
 the learners: obs uint8 or int8 [E, S_r, ...] (the environment's observations), resets bool[E], actions
-int32[S_r, E], valid bool[S_r, E], logp, rewards, final_values float32[S_l, E], terminated, done bool[S_l, E]
-and attention int32[S_l, E, N-1] with an attention head (`observe.attention_targets`), else None."""
+int32[S_r, E], valid bool[S_r, E], logp, rewards, values, final_values float32[S_l, E], terminated, done
+bool[S_l, E], chunk_carries the LSTM states before the step (Carry of float32[S_l, E, H]) and attention
+int32[S_l, E, N-1] with an attention head (`observe.attention_targets`), else None."""
 
 
 def ppo_batch(
-    traj: Transition, last_obs: jax.Array, last_resets: jax.Array, carry0: network.Carry
+    traj: Transition,
+    last_obs: jax.Array,
+    last_resets: jax.Array,
+    last_values: jax.Array,
+    carry0: network.Carry,
+    chunk_length: int,
 ) -> ppo.Batch:
     """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (scan-stacked
-    Transitions, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...] and
-    `last_resets` bool[E] (the bootstrap step), starting from the learners' LSTM states `carry0`."""
+    Transitions, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...],
+    `last_resets` bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the
+    learners' LSTM states `carry0`; the chunk-start states are those before every `chunk_length`-th step."""
     obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
     resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
     n_learners = last_obs.shape[1]
     per_learner = traj._replace(obs=None, resets=None)  # the rest are [T, S_l, E, ...]
-    return jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)._replace(
+    batch = jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)
+    return batch._replace(
         obs=jnp.moveaxis(obs, 2, 0),
         resets=jnp.broadcast_to(resets, (n_learners, *resets.shape)),
+        values=jnp.concatenate([batch.values, last_values[:, None]], 1),
+        chunk_carries=jax.tree.map(lambda c: c[:, ::chunk_length], batch.chunk_carries),
         carry0=carry0,
     )
 
@@ -174,7 +184,7 @@ def make_program(
     def env_step(carry, key):
         state, params = carry
         k_act, k_env = jax.random.split(key)
-        actions, slots, logp, _ = population.act(
+        actions, slots, logp, values = population.act(
             k_act, pop, net, env_params, params, state.slots, state.obs, state.env_states, state.resets
         )
         alive, present = state.env_states.active, state.env_states.present  # [E, N] at the step's start
@@ -203,6 +213,8 @@ def make_program(
             valid=alive[:, recorded].T,
             carry0=None,
             attention=attention_targets(state.env_states),
+            values=None if bc_mode else values[:n_learners],
+            chunk_carries=None if bc_mode else jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
         )
         new_state = state._replace(
             env_states=env_states,
@@ -213,8 +225,11 @@ def make_program(
         )
         return (new_state, params), (transition, stats)
 
-    def ppo_update(state: RunnerState, traj: Transition, carry0, k_update):
-        batch = ppo_batch(traj, state.obs[:, learners], state.resets, carry0)  # [S_l, T(+1), E, ...]
+    def ppo_update(state: RunnerState, params, traj: Transition, carry0, k_update):
+        bootstrap = population.values(pop, net, params, state.slots.carry, state.obs, state.resets)
+        batch = ppo_batch(  # [S_l, T(+1), E, ...]
+            traj, state.obs[:, learners], state.resets, bootstrap[:n_learners], carry0, ppo_cfg.chunk_length
+        )
 
         # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
         # vmapped paper-size network, whose chunked convolutions are themselves a `lax.map`.
@@ -256,7 +271,7 @@ def make_program(
         if bc_mode:
             state, losses = bc_update(state, traj)
         else:
-            state, losses = ppo_update(state, traj, carry0, k_update)
+            state, losses = ppo_update(state, params, traj, carry0, k_update)
         episodes_per_slot = jnp.sum(episodes, 0)
         metrics = {
             "episodes": episodes_per_slot,

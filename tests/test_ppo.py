@@ -57,7 +57,7 @@ def test_gae_matches_python_loop_with_truncation_bootstrap():
     assert float(a[0, 0]) == 2.0
 
 
-def synthetic_rollout(key, params):
+def synthetic_rollout(key, params, net=NET):
     """A step-by-step rollout of the network on random observations with episode boundaries."""
     k_obs, k_reset, k_act, k_rew = jax.random.split(key, 4)
     obs = jax.random.randint(k_obs, (T + 1, E, 21, 21, 3), 0, 256).astype(jnp.uint8)
@@ -66,12 +66,15 @@ def synthetic_rollout(key, params):
 
     def body(carry, inputs):
         o, r, k = inputs
-        carry, out = network.step(params, NET, carry, o, r)
+        new_carry, out = network.step(params, net, carry, o, r)
         action = jax.random.categorical(k, out.logits)
         logp = jax.nn.log_softmax(out.logits)[jnp.arange(E), action]
-        return carry, (action, logp)
+        return new_carry, (action, logp, out.value, carry)
 
-    _, (actions, logp) = jax.lax.scan(body, carry0, (obs[:T], resets[:T], jax.random.split(k_act, T)))
+    last_carry, (actions, logp, values, carries) = jax.lax.scan(
+        body, carry0, (obs[:T], resets[:T], jax.random.split(k_act, T))
+    )
+    _, last = network.step(params, net, last_carry, obs[T], resets[T])  # the bootstrap step
     done = resets[1:]
     return ppo.Batch(
         obs=obs,
@@ -84,13 +87,23 @@ def synthetic_rollout(key, params):
         final_values=jnp.ones((T, E)),
         valid=jnp.ones((T, E), bool),
         carry0=carry0,
+        values=jnp.concatenate([values, last.value[None]]),
+        chunk_carries=jax.tree.map(lambda c: c[::L], carries),
     )
 
 
 @pytest.fixture(scope="module")
-def setup():
+def recorded():
+    """Params and a rollout that recorded its values and chunk-start states (as the trainer's does)."""
     params = init(jax.random.key(0), NET)
-    return params, jax.jit(synthetic_rollout)(jax.random.key(1), params)
+    return params, jax.jit(synthetic_rollout, static_argnums=2)(jax.random.key(1), params)
+
+
+@pytest.fixture(scope="module")
+def setup(recorded):
+    """Params and the rollout without its recorded values: minibatch 0 recomputes its targets."""
+    params, batch = recorded
+    return params, batch._replace(values=None, chunk_carries=None)
 
 
 def test_replay_from_stored_states_equals_step_by_step_and_ratio_is_one(setup):
@@ -105,6 +118,44 @@ def test_replay_from_stored_states_equals_step_by_step_and_ratio_is_one(setup):
     _, out = unroll(params, NET, mb["carry"], mb["obs"], mb["resets"])
     logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), mb["actions"][..., None], -1)[..., 0]
     np.testing.assert_allclose(logp, mb["logp"], atol=NET_REORDERED)
+
+
+def test_rollout_targets_equal_the_recompute_with_the_rollout_params(recorded):
+    params, batch = recorded
+    expected = recompute(params, NET, CFG, batch)
+    targets = ppo.rollout_targets(CFG, batch)
+    for got, want in zip(jax.tree.leaves(targets.carries), jax.tree.leaves(expected.carries), strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=NET_REORDERED)  # tanh-bounded states
+    # The values differ by NET_REORDERED of their size; an advantage sums (gamma lambda)^k-weighted
+    # differences of two values a step, so it moves by at most 2 that / (1 - gamma lambda).
+    size = float(jnp.abs(batch.values).max())
+    bound = 2 * NET_REORDERED * size / (1 - CFG.gamma * CFG.gae_lambda)
+    np.testing.assert_allclose(targets.advantages, expected.advantages, rtol=0, atol=bound)
+    np.testing.assert_allclose(targets.returns, expected.returns, rtol=0, atol=bound + NET_REORDERED * size)
+
+
+@pytest.mark.parametrize("aux", ["none", "pred"])
+def test_update_from_rollout_targets_has_the_recomputed_update_losses(aux):
+    """Minibatch 0 on the rollout's own targets: its losses are those with the targets recomputed (to 1e-5
+    relative: the targets differ by float rounding, about 1e-6, see the test above), and a rollout that
+    recorded its values one step late moves them far beyond that."""
+    net = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8, aux=aux)
+    params = init(jax.random.key(0), net)
+    batch = jax.jit(synthetic_rollout, static_argnums=2)(jax.random.key(1), params, net)
+    cfg = ppo.PPOConfig(**{**CFG.__dict__, "num_minibatches": 1})
+    opt_state = ppo.make_optimizer(cfg).init(params)
+    update = jax.jit(ppo.update, static_argnums=(3, 4))
+
+    def losses(b):
+        *_, metrics = update(jax.random.key(2), params, opt_state, net, cfg, b)
+        assert float(metrics["minibatches"]) == 1.0
+        names = ("policy_loss", "value_loss", "entropy", "kl", *(("aux_loss",) if aux != "none" else ()))
+        return np.array([float(metrics[name]) for name in names])
+
+    recomputed = losses(batch._replace(values=None, chunk_carries=None))
+    np.testing.assert_allclose(losses(batch), recomputed, rtol=1e-5, atol=1e-7)
+    late = losses(batch._replace(values=jnp.roll(batch.values, 1, axis=0)))
+    assert not np.allclose(late, recomputed, rtol=1e-5, atol=1e-7)
 
 
 def test_minibatch_next_obs_is_the_following_step(setup):
@@ -240,3 +291,23 @@ def test_vmapped_learners_stopping_at_different_minibatches_equal_their_own_upda
 def test_impossible_configs_are_rejected(changes, steps, envs, message):
     with pytest.raises(ValueError, match=message):
         ppo.validate(ppo.PPOConfig(**changes), steps, envs)
+
+
+def test_trainer_records_the_targets_its_recompute_would_compute(monkeypatch):
+    """The TINY run's first iteration (episodes end and are truncated inside its rollouts) with minibatch 0
+    on the targets the rollout recorded, and with them recomputed: the same losses up to float rounding."""
+    from conftest import TINY
+
+    from jaxsocial import loop
+
+    def first_iteration():
+        init, run_chunk, _ = loop.make_train(TINY)
+        _, metrics = jax.jit(run_chunk, static_argnums=2)(jax.jit(init)(jax.random.key(0)), None, 1)
+        return {name: float(metrics[name][0, 0]) for name in ("policy_loss", "value_loss", "entropy", "kl")}
+
+    recorded = first_iteration()
+    record = loop.ppo_batch
+    monkeypatch.setattr(loop, "ppo_batch", lambda *a: record(*a)._replace(values=None, chunk_carries=None))
+    recomputed = first_iteration()
+    for name, value in recorded.items():
+        np.testing.assert_allclose(value, recomputed[name], rtol=1e-5, atol=1e-7, err_msg=name)

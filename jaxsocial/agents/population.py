@@ -261,8 +261,15 @@ def record_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:
 
 
 def values(
-    pop: Population, net: network.NetworkConfig, params, carry: network.Carry, obs: jax.Array
+    pop: Population,
+    net: network.NetworkConfig,
+    params,
+    carry: network.Carry,
+    obs: jax.Array,
+    resets: jax.Array | None = None,
 ) -> jax.Array:
-    """float32[S, E] neural slots' values of `obs` ([E, N, ...]) continuing from `carry` (no reset)."""
-    _, out = _step_neural(pop, net, params, carry, obs, jnp.zeros(obs.shape[0], bool))
+    """float32[S, E] neural slots' values of `obs` ([E, N, ...]) continuing from `carry`, zeroed first where
+    `resets` (bool[E]; None: nowhere)."""
+    resets = jnp.zeros(obs.shape[0], bool) if resets is None else resets
+    _, out = _step_neural(pop, net, params, carry, obs, resets)
     return out.value

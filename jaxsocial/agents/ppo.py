@@ -72,7 +72,12 @@ class Batch(NamedTuple):
     truncated (bootstrap through the time limit); valid: bool[T, E] the agent was acting (not done earlier);
     carry0: the LSTM state before step 0 (network.Carry of float32[E, H]); attention: int32[T, E, K] each
     other slot's cell in the learner's view (`observe.attention_targets`), None without an attention head.
-    The rollout records its steps in the same fields (`loop.Transition`: no time axis, carry0 None).
+    values: float32[T+1, E] the rollout policy's values (the last of the bootstrap step) and chunk_carries:
+    its LSTM states before each chunk's first step (Carry of float32[C, E, H]); both given, they are the
+    targets of minibatch 0 (`rollout_targets`: what its recompute would compute, without the unroll), both
+    None, minibatch 0 recomputes them.
+    The rollout records its steps in the same fields (`loop.Transition`: no time axis, carry0 None,
+    chunk_carries every step's LSTM state).
     """
 
     obs: jax.Array
@@ -86,6 +91,8 @@ class Batch(NamedTuple):
     valid: jax.Array
     carry0: network.Carry
     attention: jax.Array | None = None
+    values: jax.Array | None = None
+    chunk_carries: network.Carry | None = None
 
 
 def gae(
@@ -155,11 +162,22 @@ def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Any 
     last_carry, (carries, values) = jax.lax.scan(unroll_chunk, batch.carry0, chunks)
     values = values.reshape(n_steps, *values.shape[2:])
     _, last = network.unroll(params, net, last_carry, batch.obs[-1:], batch.resets[-1:])
-    following = jnp.concatenate([values[1:], last.value], axis=0)
+    return _targets(cfg, batch, carries, jnp.concatenate([values, last.value], axis=0))
+
+
+def rollout_targets(cfg: PPOConfig, batch: Batch) -> Targets:
+    """The targets of the rollout policy from the values and chunk-start states the rollout recorded
+    (`batch.values`, `batch.chunk_carries`): `recompute` with the rollout's params, up to float rounding."""
+    return _targets(cfg, batch, batch.chunk_carries, batch.values)
+
+
+def _targets(cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.Array) -> Targets:
+    """Targets from chunk-start states and values float32[T+1, E] (the last bootstraps): GAE, where a
+    truncated episode bootstraps from the value of its final observation (`batch.final_values`)."""
     truncated = batch.done & ~batch.terminated
-    next_values = jnp.where(truncated, batch.final_values, following)
+    next_values = jnp.where(truncated, batch.final_values, values[1:])
     advantages, returns = gae(
-        batch.rewards, values, next_values, batch.terminated, batch.done, cfg.gamma, cfg.gae_lambda
+        batch.rewards, values[:-1], next_values, batch.terminated, batch.done, cfg.gamma, cfg.gae_lambda
     )
     return Targets(carries, advantages, returns)
 
@@ -282,12 +300,13 @@ def update(
     """One PPO update of one learner on its rollout (the paper's minibatch loop).
 
     Minibatch m draws `minibatch_chunks` chunks uniformly; before minibatches 0, k, 2k, ... the hidden
-    states and advantages are recomputed with the current params. Each minibatch measures the KL to the
-    rollout policy with the current params: above `kl_hard_limit` every change of this update is reverted
-    (params and optimiser state) and the loop ends; above `kl_target` the loop ends without applying it.
-    The minibatches after the end compute nothing (a `lax.cond`; under `vmap` until every member ended).
-    Returns new params, optimiser state and metrics (means over the minibatches that ran). `dp`: data
-    parallelism (see the module docstring).
+    states and advantages are recomputed with the current params (before minibatch 0 they are the rollout
+    policy's: `rollout_targets` where the batch carries the rollout's values). Each minibatch measures the
+    KL to the rollout policy with the current params: above `kl_hard_limit` every change of this update is
+    reverted (params and optimiser state) and the loop ends; above `kl_target` the loop ends without
+    applying it. The minibatches after the end compute nothing (a `lax.cond`; under `vmap` until every
+    member ended). Returns new params, optimiser state and metrics (means over the minibatches that ran).
+    `dp`: data parallelism (see the module docstring).
     """
     optimizer = make_optimizer(cfg)
     if dp is not None:
@@ -295,10 +314,12 @@ def update(
     n_chunks = batch.actions.shape[0] // cfg.chunk_length * batch.actions.shape[1]
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
+    from_rollout = batch.values is not None
+
     def minibatch_step(state: UpdateState, inputs):
         m, k = inputs
         targets = jax.lax.cond(
-            m % cfg.recompute_every == 0,
+            (m % cfg.recompute_every == 0) & ((m > 0) | (not from_rollout)),
             lambda: recompute(state.params, net, cfg, batch, dp),
             lambda: state.targets,
         )
@@ -332,15 +353,11 @@ def update(
         return new_state, (metrics, state.running)
 
     params0, opt0 = params, opt_state
-    targets0 = jax.eval_shape(lambda: recompute(params, net, cfg, batch))
-    init = UpdateState(
-        params,
-        opt_state,
-        jnp.array(True),
-        jnp.array(False),
-        jnp.array(0),
-        jax.tree.map(jnp.zeros_like, targets0),
-    )
+    if from_rollout:
+        targets0 = rollout_targets(cfg, batch)
+    else:
+        targets0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(lambda: recompute(params, net, cfg, batch)))
+    init = UpdateState(params, opt_state, jnp.array(True), jnp.array(False), jnp.array(0), targets0)
     steps = (jnp.arange(cfg.num_minibatches), jax.random.split(key, cfg.num_minibatches))
     final, (metrics, ran) = jax.lax.scan(step_or_skip, init, steps)
     summary = {name: _masked_mean(value, ran) for name, value in metrics.items()}
