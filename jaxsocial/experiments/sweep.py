@@ -1,0 +1,298 @@
+"""The exploratory sample-efficiency sweep: which settings make auxiliary-loss learners leave the one-tile
+plateau early on a 2-core CPU (exploration only: seeds below 100, no confirmatory result).
+
+A *setting* is a condition of `recipes.CONDITIONS` at the cpu scale with some flags changed, a budget and
+the reason it is tried. Each seed trains in a process of its own pinned to one core (two such processes
+give 1.3x the env-steps/s of one process on both cores: docs/performance.md), and its record goes to
+``benchmarks/results/records/sweep/<setting>/s<seed>/``. The summary (`summarise`) gives per setting each
+seed's takeoff (the end of the first window of `WINDOW_STEPS` env-steps whose mean learner return exceeds
+`kinds.LEARNED_RETURN`) in env-steps and in CPU-minutes on the machine that ran it, the fraction of seeds
+past the plateau against both, and the final returns.
+
+    python -m jaxsocial.experiments.sweep list
+    python -m jaxsocial.experiments.sweep run mb8k8_rec --seeds 0 1      # one process per seed and core
+    python -m jaxsocial.experiments.sweep record mb8k8_rec --seeds 0 1 --device "AMD EPYC, 2 cores"
+    python -m jaxsocial.experiments.sweep figure                         # every recorded setting
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import os
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxsocial import logs, metrics
+from jaxsocial.experiments import recipes, records, takeoff
+from jaxsocial.experiments.kinds import LEARNED_RETURN
+
+RUNS_DIR = "runs/sweep"
+RECORDS_SUBDIR = "sweep"
+SUMMARY = "benchmarks/results/science/sweep"
+"""The summary's path without its suffix (.json, .png)."""
+WINDOW_STEPS = 200_000
+"""Env-steps per window of the learning curve in which a takeoff is looked for."""
+SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+RUN_FILE = "sweep_run.json"
+"""What the runner knows of a seed's process (command, commit, cores, start, end, exit status), in its run
+directory."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Setting:
+    """One point of the sweep: `condition` at the cpu scale with `flags` on top, for `iterations`."""
+
+    name: str
+    condition: str
+    flags: tuple[str, ...]
+    iterations: int
+    why: str
+
+
+def _flags(text: str) -> tuple[str, ...]:
+    return tuple(shlex.split(text))
+
+
+ONE_SAMPLE = _flags("--ppo.num-minibatches 8 --ppo.recompute-every 8")
+"""One gradient sample per env-step, the targets of the rollout only (no recompute): 2.2x the env-steps/s of
+the cpu scale's two samples with a recompute every 2 minibatches (docs/performance.md)."""
+TWENTY_M = 2442
+"""Iterations of 8,192 env-steps: 20.0M, the sweep goal's horizon."""
+
+SETTINGS = {
+    s.name: s
+    for s in (
+        Setting(
+            "mb8k8_rec",
+            "social_rec",
+            ONE_SAMPLE,
+            TWENTY_M,
+            "The cpu scale (128 envs: 8x the gpu scale's updates per env-step, at the same env-steps/s) with "
+            "the cheapest PPO (1 gradient sample per env-step, no recompute), and the reconstruction loss "
+            "that took off early in the one unseen gpu-scale seed.",
+        ),
+        Setting(
+            "mb8k8_rec_pen1",
+            "social_rec",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
+            TWENTY_M,
+            "mb8k8_rec with the wrong-tile penalty at 1.0 instead of 1.5: a shallower one-tile plateau, so "
+            "following the experts pays sooner (the baselines must then be checked to stay on it).",
+        ),
+    )
+}
+
+
+def train_flags(setting: Setting, seed: int, runs_dir: str) -> list[str]:
+    """The `python -m jaxsocial.train` flags of one seed of `setting` (later flags override earlier)."""
+    base = recipes.condition_flags(recipes.CPU, setting.condition, seed, 1, runs_dir)
+    return [
+        *base,
+        *setting.flags,
+        "--iterations",
+        str(setting.iterations),
+        "--run-name",
+        f"{setting.name}-s{seed}",
+    ]
+
+
+def run_dir(setting: Setting, seed: int, runs_dir: str) -> Path:
+    return Path(runs_dir) / f"{setting.name}-s{seed}"
+
+
+def run(setting: Setting, seeds: list[int], runs_dir: str, cores: int) -> list[int]:
+    """Train `seeds` of `setting`, one process per seed pinned to one of `cores` cores, at most `cores` at a
+    time; each writes its log beside its run directory and `RUN_FILE` into it. Returns the exit codes."""
+    commit = records.head_commit()
+    pending, active, codes = list(seeds), {}, {}
+    free = list(range(cores))
+    while pending or active:
+        while pending and free:
+            seed, core = pending.pop(0), free.pop(0)
+            command = [sys.executable, "-m", "jaxsocial.train", *train_flags(setting, seed, runs_dir)]
+            log = run_dir(setting, seed, runs_dir).with_suffix(".log")
+            log.parent.mkdir(parents=True, exist_ok=True)
+            env = {**os.environ, "XLA_FLAGS": SINGLE_CORE_XLA_FLAGS}
+            started = _now()
+            proc = subprocess.Popen(
+                ["taskset", "-c", str(core), *command],
+                stdout=log.open("w"),
+                stderr=subprocess.STDOUT,
+                env=env,
+            )
+            active[seed] = (proc, core, command, started)
+            print(f"{setting.name} seed {seed}: core {core}, log {log}", flush=True)
+        time.sleep(5)
+        for seed, (proc, core, command, started) in list(active.items()):
+            if proc.poll() is None:
+                continue
+            del active[seed]
+            free.append(core)
+            codes[seed] = proc.returncode
+            info = {
+                "command": shlex.join(["python", *command[1:]]),
+                "commit": commit,
+                "cores": 1,
+                "started": started,
+                "ended": _now(),
+                "rc": proc.returncode,
+            }
+            if (run_dir(setting, seed, runs_dir) / logs.CONFIG_FILE).is_file():
+                logs.write_json(run_dir(setting, seed, runs_dir) / RUN_FILE, info)
+            print(f"{setting.name} seed {seed}: exit {proc.returncode}", flush=True)
+    return [codes[s] for s in seeds]
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_version: str) -> None:
+    """Pack each seed's run directory into its record (`records.pack`), with the runner's provenance."""
+    for seed in seeds:
+        source = run_dir(setting, seed, runs_dir)
+        info = logs.read_json(source / RUN_FILE)
+        provenance = {k: info.get(k) for k in records.RUN_FIELDS} | {"device": device, "jax": jax_version}
+        target = Path(records.RECORDS_DIR) / RECORDS_SUBDIR / setting.name / f"s{seed}"
+        records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/s{seed}")
+        rec = logs.read_json(target / records.PROVENANCE_FILE)
+        rec["run"]["cores"] = info.get("cores")
+        logs.write_json(target / records.PROVENANCE_FILE, rec)
+        print(f"recorded {target}")
+
+
+def seed_summary(seed_dir: Path) -> dict[str, Any]:
+    """One seed's takeoff (env-steps and CPU-minutes; None if it stayed on the plateau), final return and
+    cost, from its record or run directory."""
+    config = logs.read_config(seed_dir)
+    rows = metrics.read_rows(seed_dir)
+    prov = records.read_provenance(seed_dir) or {}
+    cores = (prov.get("run") or {}).get("cores") or 1
+    per_iteration = metrics.steps_per_iteration(config)
+    seconds = np.cumsum([per_iteration / row[metrics.SPEED] for row in rows])
+    windows = max(1, len(rows) * per_iteration // WINDOW_STEPS)
+    iterations, returns = metrics.curve(rows, points=windows)
+    lift = takeoff.takeoff(iterations, returns, LEARNED_RETURN)
+    return {
+        "seed": config["seed"],
+        "iterations": len(rows),
+        "env_steps": len(rows) * per_iteration,
+        "cpu_minutes": float(seconds[-1] * cores / 60),
+        "takeoff_env_steps": None if lift is None else lift * per_iteration,
+        "takeoff_cpu_minutes": None if lift is None else float(seconds[lift - 1] * cores / 60),
+        "final_return": metrics.final_return(rows),
+        "expert_final_return": [metrics.final_return(rows, s) for s in metrics.slots(rows[-1]) if s != 0],
+        "curve": {"env_steps": (iterations * per_iteration).tolist(), "return": returns.tolist()},
+    }
+
+
+def summarise(records_root: Path) -> dict[str, Any]:
+    """Every recorded setting's seeds (`seed_summary`) and how many took off."""
+    out: dict[str, Any] = {"learned_return": LEARNED_RETURN, "window_env_steps": WINDOW_STEPS, "settings": {}}
+    for setting_dir in sorted(p for p in (records_root / RECORDS_SUBDIR).glob("*") if p.is_dir()):
+        seeds = [seed_summary(d) for d in sorted(setting_dir.glob("s*"), key=lambda d: int(d.name[1:]))]
+        setting = SETTINGS.get(setting_dir.name)
+        out["settings"][setting_dir.name] = {
+            "why": setting.why if setting else None,
+            "flags": list(setting.flags) if setting else None,
+            "condition": setting.condition if setting else None,
+            "seeds": seeds,
+            "took_off": sum(s["takeoff_env_steps"] is not None for s in seeds),
+            "n": len(seeds),
+        }
+    return out
+
+
+def draw(summary: dict[str, Any], path: Path) -> None:
+    """The fraction of seeds past the plateau against env-steps and against CPU-minutes, per setting, and
+    each seed's learning curve."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (name, s) in enumerate(summary["settings"].items()):
+        color = colors[i % len(colors)]
+        for ax, unit, scale in ((axes[0], "env_steps", 1e6), (axes[1], "cpu_minutes", 1.0)):
+            lifts = [
+                None if x[f"takeoff_{unit}"] is None else x[f"takeoff_{unit}"] / scale for x in s["seeds"]
+            ]
+            end = max(x[unit] for x in s["seeds"]) / scale
+            takeoff.draw(ax, lifts, end, name, color)
+        for j, seed in enumerate(s["seeds"]):
+            axes[2].plot(
+                np.array(seed["curve"]["env_steps"]) / 1e6,
+                seed["curve"]["return"],
+                color=color,
+                lw=1,
+                label=name if j == 0 else None,
+            )
+    axes[0].set(xlabel="env-steps (M)", ylabel="fraction of seeds past the plateau", ylim=(-0.02, 1.02))
+    axes[1].set(xlabel="CPU-minutes (1 core per seed)", ylim=(-0.02, 1.02))
+    axes[2].axhline(LEARNED_RETURN, color="grey", ls=":", lw=1)
+    axes[2].set(xlabel="env-steps (M)", ylabel="learner return (per 200k-step window)")
+    for ax in axes:
+        ax.legend(fontsize=7)
+    fig.suptitle(f"Exploratory sweep (seeds < 100): takeoff = return > {LEARNED_RETURN:g} in a window")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, metadata={"Software": None})
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m jaxsocial.experiments.sweep", description=__doc__.split("\n")[0]
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("list", help="the settings and why each is tried")
+    for name in ("run", "record"):
+        p = sub.add_parser(name)
+        p.add_argument("setting", choices=sorted(SETTINGS))
+        p.add_argument("--seeds", type=int, nargs="+", required=True, help="seeds, each below 100")
+        p.add_argument("--runs-dir", default=RUNS_DIR)
+        if name == "run":
+            p.add_argument("--cores", type=int, default=os.cpu_count(), help="processes at a time")
+        else:
+            p.add_argument("--device", required=True, help="the machine the runs trained on, in words")
+    p = sub.add_parser("figure", help="summary JSON and figure of every recorded setting")
+    p.add_argument("--records-dir", default=records.RECORDS_DIR)
+    p.add_argument("--out", default=SUMMARY, help="path without suffix")
+    args = parser.parse_args(argv)
+    if args.command == "list":
+        for s in SETTINGS.values():
+            print(f"{s.name}: {s.condition} {shlex.join(s.flags)}, {s.iterations} iterations\n  {s.why}")
+        return
+    if args.command in ("run", "record") and any(not 0 <= s < 100 for s in args.seeds):
+        parser.error("the sweep is exploratory: seeds must be in 0-99 (confirmatory designs use 200 and up)")
+    setting = SETTINGS.get(getattr(args, "setting", None))
+    if args.command == "run":
+        codes = run(setting, args.seeds, args.runs_dir, max(1, args.cores))
+        sys.exit(max(codes))
+    if args.command == "record":
+        import jax
+
+        record(setting, args.seeds, args.runs_dir, args.device, jax.__version__)
+        return
+    summary = summarise(Path(args.records_dir))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    logs.write_json(out.with_suffix(".json"), summary)
+    draw(summary, out.with_suffix(".png"))
+    for name, s in summary["settings"].items():
+        lifts = [x["takeoff_env_steps"] for x in s["seeds"]]
+        print(f"{name}: {s['took_off']} of {s['n']} seeds past the plateau; takeoffs (env-steps) {lifts}")
+    print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
+
+
+if __name__ == "__main__":
+    main()
