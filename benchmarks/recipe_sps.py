@@ -1,0 +1,236 @@
+"""The science recipe's training speed on this machine, split into rollout, recomputation and gradient
+minibatches, optionally side by side with an older commit (``--against REV``).
+
+Each (recipe, tree) pair runs in a worker process of its own (this file with ``--worker``), which compiles
+three one-iteration programs of the recipe with the KL stop off, so every minibatch runs:
+
+  full   the recipe as configured: the rollout, R recomputes and M gradient minibatches;
+  once   recompute_every = M: the rollout, R0 recomputes (the first minibatch's targets) and M minibatches;
+  one    1 minibatch, recompute_every 1: the rollout, R0 recomputes and 1 minibatch;
+
+R0 is 1 where minibatch 0 recomputes its targets and 0 where it takes the rollout's (`ppo.rollout_targets`),
+so recompute = (full - once) / (R - R0), gradient minibatch = (once - one) / (M - 1), rollout = one - R0
+recompute - gradient. The parent asks the workers for one timed iteration of each program in turn, so the
+trees' timings interleave (only one worker computes at a time), and reports each tree's best of
+``--repeats``, its joint env-steps/s, the breakdown and the ratio to the first tree. ``--against REV``
+checks REV out in a temporary git worktree and imports jaxsocial from there.
+
+``--single-core`` also measures the throughput of two seeds as two processes pinned to one core each
+(XLA:CPU single-threaded), both timing the full program at once, against one process on all cores.
+
+    python benchmarks/recipe_sps.py --recipes cpu_rec,gpu_rec --against 191032c --repeats 3 \
+        --out benchmarks/results/recipe_sps.json
+
+Writes JSON with the CPU model and flags, the commits and the load average (`run_info.metadata`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+RECIPES = {
+    "cpu_rec": ("cpu", "social_rec", ()),
+    "cpu_pred": ("cpu", "social_pred", ()),
+    "cpu_rec_symbolic": ("cpu", "social_rec", ("--net.obs", "symbolic")),
+    "gpu_rec": ("gpu", "social_rec", ()),
+    "gpu_pred": ("gpu", "social_pred", ()),
+    "cpu_rec_mb8k8": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "8")),
+    "cpu_rec_mb8k2": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "2")),
+    "cpu_rec_k4": ("cpu", "social_rec", ("--ppo.recompute-every", "4")),
+}
+"""name -> (scale, condition, extra train flags): the recipe's conditions and the levers that change
+learning (measured for speed only)."""
+VARIANTS = ("full", "once", "one")
+SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+
+
+def worker(recipe: str) -> None:
+    """Compile the recipe's variants, print one JSON line, then time a variant per line read from stdin."""
+    import jax
+
+    from jaxsocial import config, loop, train
+    from jaxsocial.agents import ppo
+    from jaxsocial.experiments import recipes
+
+    scale, condition, extra = RECIPES[recipe]
+    flags = [*recipes.condition_flags(recipes.SCALES[scale], condition, 0, 1, "/tmp/unused"), *extra]
+    base = train.parse_args(flags)
+    static = config.setup(base, load_frozen=False)
+    m, k = base.ppo.num_minibatches, base.ppo.recompute_every
+    programs, compile_s = {}, {}
+    for variant, (mb, every) in {"full": (m, k), "once": (m, m), "one": (1, 1)}.items():
+        ppo_cfg = dataclasses.replace(
+            base.ppo, num_minibatches=mb, recompute_every=every, kl_target=1e9, kl_hard_limit=1e9
+        )
+        cfg = dataclasses.replace(base, ppo=ppo_cfg)
+        init, run_chunk = loop.make_program(cfg.program, static.env_params, static.pop)
+        state = jax.jit(init)(jax.random.key(0))
+        t0 = time.perf_counter()
+        fn = jax.jit(run_chunk, static_argnums=2, donate_argnums=0).lower(state, None, 1).compile()
+        compile_s[variant] = time.perf_counter() - t0
+        state, metrics = fn(state, None)  # warm-up: past the first, all-reset rollout
+        jax.block_until_ready(metrics)
+        programs[variant] = [fn, state]
+    first_from_rollout = hasattr(ppo, "rollout_targets")
+    recomputes = -(-m // k) - int(first_from_rollout)
+    print(json.dumps({"compile_s": compile_s, "minibatches": m, "recompute_every": k,
+                      "recomputes": recomputes, "first_recompute": int(not first_from_rollout),
+                      "env_steps": base.num_envs * base.rollout_steps}), flush=True)  # fmt: skip
+    for line in sys.stdin:
+        fn, state = programs[line.strip()]
+        t0 = time.perf_counter()
+        state, metrics = fn(state, None)
+        jax.block_until_ready(metrics)
+        programs[line.strip()][1] = state
+        print(json.dumps({"seconds": time.perf_counter() - t0}), flush=True)
+
+
+class Worker:
+    """A worker process for one recipe, importing jaxsocial from `tree`."""
+
+    def __init__(self, recipe: str, tree: Path, env: dict[str, str] | None = None, cpus: str | None = None):
+        env = {**os.environ, **(env or {}), "PYTHONPATH": str(tree)}
+        command = [sys.executable, str(Path(__file__).resolve()), "--worker", recipe]
+        if cpus is not None:
+            command = ["taskset", "-c", cpus, *command]
+        self.proc = subprocess.Popen(
+            command, cwd=tree, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        self.info = self._read()
+
+    def _read(self) -> dict:
+        line = self.proc.stdout.readline()
+        if not line:
+            raise RuntimeError(f"worker exited with {self.proc.wait()}")
+        return json.loads(line)
+
+    def ask(self, variant: str) -> None:
+        self.proc.stdin.write(variant + "\n")
+        self.proc.stdin.flush()
+
+    def time(self, variant: str) -> float:
+        self.ask(variant)
+        return self._read()["seconds"]
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.wait()
+
+
+def breakdown(info: dict, best: dict[str, float]) -> dict[str, float]:
+    """Seconds per iteration of each part (see the module docstring)."""
+    m, r, r0 = info["minibatches"], info["recomputes"], info["first_recompute"]
+    recompute = (best["full"] - best["once"]) / (r - r0) if r > r0 else float("nan")
+    gradient = (best["once"] - best["one"]) / (m - 1) if m > 1 else float("nan")
+    rollout = best["one"] - r0 * (recompute if r0 else 0.0) - gradient
+    return {
+        "rollout_s": rollout,
+        "recompute_s_each": recompute,
+        "recomputes": r,
+        "recompute_s": recompute * r if r else 0.0,
+        "gradient_s_each": gradient,
+        "gradient_s": gradient * m,
+        "iteration_s": best["full"],
+    }
+
+
+def worktree(rev: str, where: Path) -> Path:
+    """A detached git worktree of `rev` under `where`."""
+    path = where / f"against-{rev}"
+    subprocess.run(["git", "worktree", "add", "--detach", str(path), rev], check=True, capture_output=True)
+    return path
+
+
+def single_core_pair(recipe: str, tree: Path, repeats: int) -> dict:
+    """Two single-core workers timing the full program at the same moment: their summed env-steps/s."""
+    env = {"XLA_FLAGS": SINGLE_CORE_XLA_FLAGS}
+    workers = [Worker(recipe, tree, env, cpus=str(core)) for core in range(2)]
+    rates = []
+    for _ in range(repeats):
+        for w in workers:
+            w.ask("full")
+        seconds = [w._read()["seconds"] for w in workers]
+        rates.append(sum(workers[0].info["env_steps"] / s for s in seconds))
+    for w in workers:
+        w.close()
+    return {"best_total_env_steps_per_s": max(rates), "totals": rates}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    parser.add_argument("--recipes", default="cpu_rec,gpu_rec", help=f"of {', '.join(RECIPES)}")
+    parser.add_argument("--against", help="a git revision to time side by side")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--single-core", action="store_true", help="also two single-core processes")
+    parser.add_argument("--out", help="JSON results path")
+    args = parser.parse_args()
+    if args.worker:
+        return worker(args.worker)
+    names = args.recipes.split(",")
+    unknown = [n for n in names if n not in RECIPES]
+    if unknown:
+        parser.error(f"unknown recipes {unknown}; choose from {', '.join(RECIPES)}")
+    from run_info import REPO, metadata, write_results
+
+    tmp = Path(tempfile.mkdtemp(prefix="recipe_sps-"))
+    trees = {"HEAD": REPO}
+    if args.against:
+        trees[args.against] = worktree(args.against, tmp)
+    rows = []
+    try:
+        for name in names:
+            workers = {label: Worker(name, tree) for label, tree in trees.items()}
+            times = {label: {v: [] for v in VARIANTS} for label in trees}
+            for _ in range(args.repeats):
+                for variant in VARIANTS:
+                    for label, w in workers.items():  # interleaved: one worker computes at a time
+                        times[label][variant].append(w.time(variant))
+            for label, w in workers.items():
+                w.close()
+                best = {v: min(ts) for v, ts in times[label].items()}
+                row = {
+                    "recipe": name,
+                    "tree": label,
+                    **w.info,
+                    "times_s": times[label],
+                    "best_env_steps_per_s": w.info["env_steps"] / best["full"],
+                    **breakdown(w.info, best),
+                    "loadavg_after": os.getloadavg(),
+                }
+                rows.append(row)
+            base = rows[-len(trees)]["best_env_steps_per_s"]
+            for row in rows[-len(trees) :]:
+                row["ratio_to_head"] = row["best_env_steps_per_s"] / base
+                print(
+                    f"{name:18s} {row['tree']:10s} {row['best_env_steps_per_s']:8,.0f} env-steps/s "
+                    f"(x{row['ratio_to_head']:.2f}); rollout {row['rollout_s']:.2f}s, recompute "
+                    f"{row['recomputes']}x{row['recompute_s_each']:.3f}s, gradient "
+                    f"{row['minibatches']}x{row['gradient_s_each']:.3f}s; compile "
+                    f"{sum(row['compile_s'].values()):.0f}s (3 programs); load {row['loadavg_after'][0]:.1f}",
+                    flush=True,
+                )
+            if args.single_core:
+                pair = single_core_pair(name, REPO, args.repeats)
+                rows.append({"recipe": name, "tree": "HEAD", "layout": "2 processes x 1 core", **pair})
+                one = rows[-1 - len(trees)]["best_env_steps_per_s"]
+                total = pair["best_total_env_steps_per_s"]
+                print(f"{name:18s} 2 x 1 core {total:8,.0f} env-steps/s in total (x{total / one:.2f} "
+                      "one 2-core process)", flush=True)  # fmt: skip
+    finally:
+        if args.against:
+            subprocess.run(["git", "worktree", "remove", "--force", str(trees[args.against])], check=False)
+    if args.out:
+        write_results(args.out, metadata(args), {"recipe": {"rows": rows}})
+
+
+if __name__ == "__main__":
+    main()
