@@ -1,0 +1,57 @@
+"""The exploratory sweep: settings that parse, takeoff in env-steps and CPU-minutes from a hand-built run,
+and seeds outside the exploratory range refused."""
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxsocial import logs, train
+from jaxsocial.experiments import sweep
+from jaxsocial.experiments.kinds import LEARNED_RETURN
+
+
+@pytest.mark.parametrize("name", sorted(sweep.SETTINGS))
+def test_every_setting_parses_to_its_flags(name):
+    setting = sweep.SETTINGS[name]
+    cfg = train.parse_args(sweep.train_flags(setting, 3, "runs/x"))
+    assert cfg.iterations == setting.iterations and cfg.seed == 3 and cfg.run_name == f"{name}-s3"
+    assert cfg.num_envs * cfg.rollout_steps * setting.iterations >= 20_000_000  # the goal's horizon
+    if "--ppo.num-minibatches" in setting.flags:
+        value = setting.flags[setting.flags.index("--ppo.num-minibatches") + 1]
+        assert cfg.ppo.num_minibatches == int(value)  # the setting's flag overrides the scale's
+
+
+def hand_built_run(path, returns, sps, cores):
+    """A seed directory of 2 envs x 5 steps a row (10 env-steps), one learner episode a row."""
+    path.mkdir(parents=True)
+    logs.write_json(path / logs.CONFIG_FILE, {"seed": 7, "num_envs": 2, "rollout_steps": 5, "iterations": 4})
+    rows = [
+        {"iteration": i + 1, "env_steps_per_s": sps, "return/0": r, "episodes/0": 1, "return/1": 30.0,
+         "episodes/1": 1}
+        for i, r in enumerate(returns)
+    ]  # fmt: skip
+    (path / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    logs.write_json(path / "provenance.json", {"run": {"cores": cores}})
+
+
+def test_takeoff_in_env_steps_and_cpu_minutes(tmp_path, monkeypatch):
+    monkeypatch.setattr(sweep, "WINDOW_STEPS", 20)  # windows of 2 rows
+    hand_built_run(tmp_path / "run", [0.0, 1.0, LEARNED_RETURN + 1, LEARNED_RETURN + 3], sps=0.5, cores=2)
+    s = sweep.seed_summary(tmp_path / "run")
+    # Windows: rows 1-2 (mean 0.5), rows 3-4 (mean above the threshold): takeoff at the end of row 4.
+    assert s["takeoff_env_steps"] == 40 and s["env_steps"] == 40
+    assert s["takeoff_cpu_minutes"] == pytest.approx(4 * 10 / 0.5 * 2 / 60)  # 4 rows of 20 s, on 2 cores
+    assert s["expert_final_return"] == [30.0]
+    np.testing.assert_allclose(s["curve"]["return"], [0.5, LEARNED_RETURN + 2])
+
+
+def test_a_seed_on_the_plateau_has_no_takeoff(tmp_path):
+    hand_built_run(tmp_path / "run", [1.0, 0.9, 1.1, LEARNED_RETURN], sps=10.0, cores=1)
+    assert sweep.seed_summary(tmp_path / "run")["takeoff_env_steps"] is None  # not above the threshold
+
+
+def test_confirmatory_seeds_are_refused(capsys):
+    with pytest.raises(SystemExit):
+        sweep.main(["run", "mb8k8_rec", "--seeds", "200"])
+    assert "seeds must be in 0-99" in capsys.readouterr().err
