@@ -129,6 +129,9 @@ class DriverConfig:
 
     iterations: int = 500
     """PPO iterations (one rollout + one update each)."""
+    stop_at_return: float | None = None
+    """End the run early, saved as at its end, after the first chunk whose learners' mean return (over its
+    episodes and seeds) reaches this (the exploratory sweep's stop for a seed clearly past the plateau)."""
     checkpoint_every: int = 100
     """Save a checkpoint every this many iterations (rounded up to whole chunks) and at the end."""
     keep_checkpoints: int = 3

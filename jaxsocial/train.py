@@ -152,13 +152,25 @@ def train_chunks(
                 raise nonfinite.NonFiniteError(stop_message(cfg, driver.it, check.failure, driver.last_saved))
             driver.it += n
             pooled = pool_seeds(chunk.metrics, cfg.seeds)
-            driver.switch_stage(metrics.learner_return(pooled, static.pop))
-            if checkpoint_due(cfg, driver.it, driver.last_saved):
+            learner_return = metrics.learner_return(pooled, static.pop)
+            driver.switch_stage(learner_return)
+            stop = reached(cfg.stop_at_return, learner_return)
+            if stop or checkpoint_due(cfg, driver.it, driver.last_saved):
                 driver.save(check.healthy_end)
             out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
+            if stop:
+                if distributed.is_main():
+                    print(f"stopped after iteration {driver.it}: the learners' return {learner_return:.3g} "
+                          f"reached --stop-at-return {cfg.stop_at_return:g}")  # fmt: skip
+                break
     finally:
         out.close()
     out.report(run_dir, driver.it)
+
+
+def reached(threshold: float | None, learner_return: float | None) -> bool:
+    """Whether a chunk's learner return ends the run early (`TrainConfig.stop_at_return`)."""
+    return threshold is not None and learner_return is not None and learner_return >= threshold
 
 
 @dataclasses.dataclass

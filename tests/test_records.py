@@ -104,6 +104,14 @@ def test_pack_checks_before_it_writes(tmp_path):
     logs.write_config(unfinished, {**logs.read_config(source), "iterations": 1000})
     with pytest.raises(ValueError, match="unfinished"):
         records.pack(unfinished, tmp_path / "u", run, "tiny/u/s0")
+    # A run its --stop-at-return ended is finished when its last chunk's learner return reached the threshold.
+    stopped = {**logs.read_config(source), "iterations": 1000}
+    logs.write_config(unfinished, {**stopped, "stop_at_return": 1e9})
+    with pytest.raises(ValueError, match="unfinished"):
+        records.pack(unfinished, tmp_path / "u", run, "tiny/u/s0")
+    logs.write_config(unfinished, {**stopped, "stop_at_return": -1e9})
+    packed = records.pack(unfinished, tmp_path / "s", run, "tiny/s/s0")
+    assert logs.read_json(packed / records.PROVENANCE_FILE)["record"]["stopped_early"] is True
     with pytest.raises(FileNotFoundError, match="not a finished seed run"):
         records.pack(tmp_path / "nowhere", tmp_path / "n", run, "n")
     assert not (tmp_path / "u").exists() and not (tmp_path / "n").exists()

@@ -71,6 +71,18 @@ def tiny_runs(tmp_path_factory):
     return {"runs_dir": runs_dir, "full": full, "again": again, "other": other, "resumed": resumed}
 
 
+def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, capsys):
+    cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="stop", stop_at_return=-1e9)
+    run_dir = run(cfg)
+    assert len(logs.read_metrics(run_dir)) == TINY.chunk_iterations < TINY.iterations
+    assert (
+        checkpoint.latest_step(run_dir / policy_io.POLICY_DIR) == TINY.chunk_iterations
+    )  # saved at the stop
+    assert f"stopped after iteration {TINY.chunk_iterations}" in capsys.readouterr().out
+    never = run(dataclasses.replace(cfg, run_name="never", stop_at_return=1e9))
+    assert len(logs.read_metrics(never)) == TINY.iterations
+
+
 def test_same_seed_same_run(tiny_runs):
     full = metrics_without_speed(tiny_runs["full"])
     assert metrics_without_speed(tiny_runs["again"]) == full

@@ -27,7 +27,7 @@ from typing import Any
 
 import jax
 
-from jaxsocial import checkpoint, logs
+from jaxsocial import checkpoint, logs, metrics
 from jaxsocial.agents import policy_io
 
 RECORDS_DIR = "benchmarks/results/records"
@@ -117,8 +117,9 @@ def pack(
     if iteration is None:
         raise FileNotFoundError(f"{seed_dir} has no exported policy under {policy_dir}")
     rows = logs.read_metrics(seed_dir)
-    planned = logs.read_config(seed_dir)["iterations"]
-    if len(rows) < planned:
+    config = logs.read_config(seed_dir)
+    planned = config["iterations"]
+    if len(rows) < planned and not (stopped_early(config, rows) and iteration == len(rows)):
         raise ValueError(f"{seed_dir} is unfinished: {len(rows)} of {planned} iterations logged")
     if record_dir.exists() and any(record_dir.iterdir()):
         if not overwrite:
@@ -145,6 +146,7 @@ def pack(
         "record": {
             "source": source,
             "iterations": len(rows),
+            "stopped_early": len(rows) < planned,
             "policy_iteration": iteration,
             "packed": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "packed_at_commit": head_commit(),
@@ -153,6 +155,23 @@ def pack(
     }
     logs.write_json(record_dir / PROVENANCE_FILE, provenance)
     return record_dir
+
+
+def stopped_early(config: dict[str, Any], rows: list[dict[str, Any]]) -> bool:
+    """Whether a run's metrics end where its `stop_at_return` stopped it: the learners' mean return over its
+    last chunk's rows reached the threshold."""
+    threshold = config.get("stop_at_return")
+    if threshold is None or not rows:
+        return False
+    last = rows[-config.get("chunk_iterations", 1) :]
+    learners = metrics.learners(rows[-1])
+    total = sum(
+        row[metrics.key(metrics.RETURN, s)] * row[metrics.key(metrics.EPISODES, s)]
+        for row in last
+        for s in learners
+    )
+    episodes = sum(row[metrics.key(metrics.EPISODES, s)] for row in last for s in learners)
+    return episodes > 0 and total / episodes >= threshold
 
 
 def size_bytes(directory: str | Path) -> int:

@@ -38,6 +38,9 @@ RUNS_DIR = "runs/sweep"
 RECORDS_SUBDIR = "sweep"
 SUMMARY = "benchmarks/results/science/sweep"
 """The summary's path without its suffix (.json, .png)."""
+STOP_RETURN = 5.0
+"""A seed stops once a chunk's mean learner return reaches this (`--stop-at-return`): clearly past the
+one-tile plateau (about 1) and the takeoff threshold (`LEARNED_RETURN`), so its remaining budget is saved."""
 WINDOW_STEPS = 200_000
 """Env-steps per window of the learning curve in which a takeoff is looked for."""
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
@@ -101,6 +104,8 @@ def train_flags(setting: Setting, seed: int, runs_dir: str) -> list[str]:
         str(setting.iterations),
         "--run-name",
         f"{setting.name}-s{seed}",
+        "--stop-at-return",
+        str(STOP_RETURN),
     ]
 
 
