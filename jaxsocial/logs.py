@@ -73,7 +73,7 @@ def prepare_run_dir(root: str | Path, name: str, *, resume: bool = False, overwr
         if not overwrite:
             raise FileExistsError(
                 f"run directory {run_dir} already exists and is not empty; pass --resume to continue "
-                "that run or --overwrite to delete it and start fresh (or choose another name)"
+                "that run or --overwrite to delete it and start fresh (or choose another --run-name)"
             )
         shutil.rmtree(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
