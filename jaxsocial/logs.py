@@ -269,7 +269,7 @@ class Progress:
 
     On a TTY the line is rewritten in place with ``\\r``; otherwise a new line is printed at most every
     `interval` seconds (and at completion), which keeps CI logs short. The rate is (n - initial) * unit_scale
-    per second since construction, shown in `unit`/s.
+    per second since construction, less the time given to `exclude`, shown in `unit`/s.
     """
 
     def __init__(
@@ -314,6 +314,10 @@ class Progress:
         else:
             tail = f"eta {_fmt_time((self.total - n) / rate)}" if rate else "eta ?"
         return " ".join(parts) + "  " + tail
+
+    def exclude(self, seconds: float) -> None:
+        """Leave `seconds` just spent (e.g. compiling) out of the rate and the ETA."""
+        self.start += seconds
 
     def update(self, n: int, **fields: Any) -> None:
         """Shows progress: `n` is the number of completed units so far (absolute, not an increment) and

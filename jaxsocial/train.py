@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -144,7 +145,7 @@ def train_chunks(
         while driver.it < cfg.iterations:
             n = plan_chunk(cfg, static.stages, driver.stage, driver.it)
             compile_s = driver.compile(n, announce=out.compiling)
-            out.start_progress(driver.it)
+            out.start_progress(driver.it, compile_s)
             chunk = driver.run_chunk(n)
             check = check_chunk(chunk.finite, static.pop.learners, cfg.seeds, cfg.on_nonfinite)
             out.record(chunk, check, compile_s, driver.state.params)
@@ -187,6 +188,7 @@ class Outputs:
     learner_eval: Any  # `evaluate.make_learner_eval`'s, or None
     progress: logs.Progress | None = None  # from the first chunk on, with `cfg.progress`
     nonfinite_iterations: list[int] = dataclasses.field(default_factory=list)
+    evaluated: bool = False  # an evaluation (and its compile) has run
 
     @classmethod
     def open(
@@ -220,10 +222,13 @@ class Outputs:
         if self.shows_progress:
             print(f"{self.desc}: compiling {chunk_description(n, self.static.stages, stage)} ...", flush=True)
 
-    def start_progress(self, it: int) -> None:
-        """Starts the progress line at iteration `it` unless started (after the first compile line)."""
+    def start_progress(self, it: int, compile_s: float | None) -> None:
+        """Starts the progress line at iteration `it` unless started (after the first compile line); a later
+        chunk's compile time `compile_s` is left out of its rate and ETA."""
         if self.progress is None and self.shows_progress:
             self.progress = logs.Progress(self.cfg.iterations, desc=self.desc, initial=it)
+        elif self.progress is not None and compile_s is not None:
+            self.progress.exclude(compile_s)
 
     def record(self, chunk: Chunk, check: Check, compile_s: float | None, params: Any) -> None:
         """Record step: each seed's metrics rows of `chunk` (`chunk_rows`, those `check` keeps) with the
@@ -243,10 +248,14 @@ class Outputs:
             if compile_s is not None:
                 rows[0][metrics.COMPILE_S] = round(compile_s, 2)
             if evaluating:
+                t0 = time.perf_counter()
                 rows[-1].update(self.evaluation(k, end, params))
+                if self.progress is not None and not self.evaluated:  # it compiled the evaluation
+                    self.progress.exclude(time.perf_counter() - t0)
             metrics_log.append(rows)
             for row in rows:
                 extra.log(row, row[metrics.ITERATION])
+        self.evaluated = self.evaluated or evaluating
         if check.failure is not None and not check.stop and first_nonfinite and distributed.is_main():
             print(f"warning: {failure_text(self.cfg, chunk.first, check.failure)}; training on "
                   "(--on-nonfinite warn)", file=sys.stderr)  # fmt: skip

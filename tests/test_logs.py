@@ -102,6 +102,16 @@ def test_progress_non_tty(capsys):
     assert len(lines) == 2 and "3/3" in lines[1] and "elapsed" in lines[1]  # first and final update
 
 
+def test_progress_rate_leaves_out_excluded_time(monkeypatch):
+    clock = [100.0]
+    monkeypatch.setattr(logs.time, "monotonic", lambda: clock[0])
+    progress = logs.Progress(100, unit="it", stream=io.StringIO())
+    clock[0] += 30.0  # 10 units in 10 s of training and 20 s of compiling
+    progress.exclude(20.0)
+    line = progress.format(10, {})
+    assert "1 it/s" in line and "eta 0:01:30" in line  # 90 units left at 1 unit/s
+
+
 def test_progress_tty():
     class Tty(io.StringIO):
         def isatty(self):
