@@ -90,6 +90,32 @@ SETTINGS = {
             "mb8k8_rec with the wrong-tile penalty at 1.0 instead of 1.5: a shallower one-tile plateau, so "
             "following the experts pays sooner (the baselines must then be checked to stay on it).",
         ),
+        Setting(
+            "mb8k8_rec_7x7",
+            "social_rec",
+            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
+            TWENTY_M,
+            "mb8k8_rec in a 7x7 grid (5x5 interior) instead of 9x9: the 7x7 view then covers most of the "
+            "grid, so the experts and the goals they visit are in view far more often, and an expert's "
+            "path to the next goal is shorter to follow.",
+        ),
+        Setting(
+            "mb8k8_pred",
+            "social_pred",
+            ONE_SAMPLE,
+            TWENTY_M,
+            "mb8k8_rec with the paper's next-frame prediction loss, which it found stronger than "
+            "reconstruction: predicting the next frame models the experts' moves.",
+        ),
+        Setting(
+            "mb16k2_rec",
+            "social_rec",
+            (),
+            TWENTY_M,
+            "The cpu scale's PPO unchanged (2 gradient samples per env-step, a recompute every 2 "
+            "minibatches), to tell whether mb8k8's cheaper update costs sample efficiency (2.2x the CPU "
+            "per env-step).",
+        ),
     )
 }
 
