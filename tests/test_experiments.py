@@ -123,6 +123,25 @@ def _fake_run(root, scale, condition, first, last, iterations):
     (run / logs.CONFIG_FILE).write_text("{}")
 
 
+def test_a_seed_two_runs_hold_is_an_error_unless_one_is_picked(tmp_path):
+    scale, n = recipes.TINY, recipes.TINY.iterations
+    _fake_run(tmp_path, scale, "social_rec", 0, 2, n)
+    _fake_run(tmp_path, scale, "social_rec", 1, 1, n)  # seed 1 again, in a run of its own
+    with pytest.raises(ValueError, match=r"seed 1 of social_rec is held by 2 runs .*--pick"):
+        runner.condition_seed_dirs(scale, "social_rec", 0, 3, str(tmp_path))
+    with pytest.raises(ValueError, match="held by 2 runs"):
+        figures.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 3, str(tmp_path))
+    base = tmp_path / "tiny"
+    dirs = runner.condition_seed_dirs(scale, "social_rec", 0, 3, str(tmp_path), pick=("social_rec-s1-1",))
+    assert dirs == [
+        base / "social_rec-s0-2" / "s0",
+        base / "social_rec-s1-1",
+        base / "social_rec-s0-2" / "s2",
+    ]
+    dirs = runner.condition_seed_dirs(scale, "social_rec", 0, 3, str(tmp_path), pick=("social_rec-s0-2",))
+    assert dirs[1] == base / "social_rec-s0-2" / "s1"
+
+
 def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     """Seeds trained in two programs (`--seeds 3`, then `--seed 3 --seeds 3`) read together as `--seeds 6`;
     a seed no run holds is left out of its condition, and listed."""

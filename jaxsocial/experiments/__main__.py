@@ -41,6 +41,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             "--seed", type=int, default=None, help="first seed (default 0, or the recipe's design)"
         )
         p.add_argument("--runs-dir", default="runs/experiments", help="root of the run directories")
+        p.add_argument(
+            "--pick",
+            action="append",
+            default=[],
+            metavar="RUN",
+            help="the run to read a seed from when several runs of its condition hold it (a run directory "
+            "name, e.g. social_rec-s0-5; repeatable)",
+        )
         if name == "run":
             p.add_argument("--dry-run", action="store_true", help="print the training commands and states")
             p.add_argument(
@@ -91,7 +99,10 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
     runs_dir = Path(args.runs_dir)
     plan = []
     for condition in recipe.conditions:
-        for seed_dir in runner.condition_seed_dirs(scale, condition, args.seed, args.seeds, args.runs_dir):
+        dirs = runner.condition_seed_dirs(
+            scale, condition, args.seed, args.seeds, args.runs_dir, tuple(args.pick)
+        )
+        for seed_dir in dirs:
             if not seed_dir.is_dir():
                 print(f"  {condition}: no run {seed_dir}, skipped")
                 continue
@@ -140,11 +151,12 @@ def main(argv: list[str] | None = None) -> None:
                 args.runs_dir,
                 dry_run=args.dry_run,
                 train_missing=not args.no_train,
+                pick=tuple(args.pick),
             )
         elif args.command == "record":
             record(args, recipe, scale)
         else:
-            runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir)
+            runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
             json_path, png_path = figures.write(runs, args.out_dir)
             print(f"wrote {json_path}\nwrote {png_path}")
             if recipe.design is not None:

@@ -29,14 +29,16 @@ class RecipeRuns:
     are left out of their condition (`missing_seeds`), and conditions without any are left out (`missing`);
     FileNotFoundError if all are."""
 
-    def __init__(self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str):
+    def __init__(
+        self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, pick: tuple[str, ...] = ()
+    ):
         self.recipe, self.scale = recipe, scale
         self.configs = {  # the first program's (conditions trained one program per seed: the first seed's)
             c: recipes.condition_programs(scale, c, seed, seeds, runs_dir)[0] for c in recipe.conditions
         }
         self.seed_dirs, self.rows, self.missing_seeds = {}, {}, {}
         for c in recipe.conditions:
-            dirs = runner.condition_seed_dirs(scale, c, seed, seeds, runs_dir)
+            dirs = runner.condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick)
             rows = [metrics.read_rows(d) for d in dirs]
             self.seed_dirs[c] = [d for d, r in zip(dirs, rows, strict=True) if r]
             self.rows[c] = [r for r in rows if r]

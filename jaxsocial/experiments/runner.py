@@ -21,18 +21,22 @@ def seed_dirs(cfg: TrainConfig) -> list[Path]:
     return [d for _, d in train.seed_runs(cfg, run_dir)]
 
 
-def condition_seed_dirs(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[Path]:
+def condition_seed_dirs(
+    scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str, pick: tuple[str, ...] = ()
+) -> list[Path]:
     """The run directory of each seed seed..seed+seeds-1 of a condition, from whichever of the condition's
-    runs at this scale holds it: the recipe's own run (`<condition>-s<seed>-<last>`, or one run per seed for
-    `recipes.condition_programs`) first, then any other
-    (e.g. seeds trained in two programs, `--seeds 3` then `--seed 3 --seeds 3`, read together as `--seeds
-    6`). A seed that no run holds keeps the directory the recipe's own run would give it."""
+    runs at this scale (`<condition>-s<first>-<last>`) holds it: the recipe's own run, or another (e.g.
+    seeds trained in two programs, `--seeds 3` then `--seed 3 --seeds 3`, read together as `--seeds 6`). A
+    seed that no run holds keeps the directory the recipe's own run would give it.
+
+    A seed held by several runs is never chosen silently: ValueError naming them, unless exactly one of them
+    is in `pick` (run directory names, e.g. 'social_rec-s0-5')."""
     own = [
         d
         for cfg in recipes.condition_programs(scale, condition, seed, seeds, runs_dir)
         for d in seed_dirs(cfg)
     ]
-    held: dict[int, Path] = {}
+    held: dict[int, list[Path]] = {}
     for run_dir in sorted((Path(runs_dir) / scale.name).glob(f"{condition}-s*")):
         match = re.fullmatch(rf"{re.escape(condition)}-s(\d+)-(\d+)", run_dir.name)
         if not match:
@@ -41,8 +45,27 @@ def condition_seed_dirs(scale: Scale, condition: str, seed: int, seeds: int, run
         for s in range(first, last + 1):
             d = run_dir if first == last else run_dir / f"s{s}"
             if logs.has_metrics(d):
-                held.setdefault(s, d)
-    return [d if logs.has_metrics(d) else held.get(s, d) for s, d in enumerate(own, start=seed)]
+                held.setdefault(s, []).append(d)
+    return [_one_holder(condition, s, held.get(s, []), d, pick) for s, d in enumerate(own, start=seed)]
+
+
+def _one_holder(condition: str, seed: int, holders: list[Path], default: Path, pick: tuple[str, ...]) -> Path:
+    """The one directory of `holders` that holds `seed` (`default` if none; see `condition_seed_dirs`)."""
+    if len(holders) <= 1:
+        return holders[0] if holders else default
+    picked = [d for d in holders if _run_of(d).name in pick]
+    if len(picked) == 1:
+        return picked[0]
+    runs = ", ".join(str(_run_of(d)) for d in holders)
+    raise ValueError(
+        f"seed {seed} of {condition} is held by {len(holders)} runs ({runs}); name the one to read with "
+        f"--pick RUN (e.g. --pick {_run_of(holders[0]).name})"
+    )
+
+
+def _run_of(seed_dir: Path) -> Path:
+    """The run directory of a seed directory (itself for a one-seed run)."""
+    return seed_dir.parent if re.fullmatch(r"s\d+", seed_dir.name) else seed_dir
 
 
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:
@@ -62,18 +85,20 @@ def run(
     runs_dir: str,
     dry_run: bool = False,
     train_missing: bool = True,
+    pick: tuple[str, ...] = (),
 ) -> None:
     """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
 
     Every config is validated before anything trains, so a bad recipe fails at once. `dry_run` prints the
     commands and what is done instead. With `train_missing=False` nothing trains: the conditions already
-    trained (e.g. on another machine) are evaluated and the others are skipped with a note.
+    trained (e.g. on another machine) are evaluated and the others are skipped with a note. `pick`: see
+    `condition_seed_dirs`.
     """
     programs = {c: recipes.condition_programs(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
     for cfgs in programs.values():
         for cfg in cfgs:
             setup(cfg, load_frozen=False)
-    dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir) for c in programs}
+    dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     skipped = []
     for name, cfgs in programs.items():
         for cfg in cfgs:
