@@ -91,6 +91,29 @@ SETTINGS = {
             "following the experts pays sooner (the baselines must then be checked to stay on it).",
         ),
         Setting(
+            "mb8k8_solo_pred_pen1",
+            "solo_pred",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
+            TWENTY_M,
+            "Baseline for mb8k8_rec_pen1: a solo learner with the prediction loss at penalty 1.0. Social "
+            "learning at that penalty needs it to stay on the plateau.",
+        ),
+        Setting(
+            "mb8k8_none_pen1",
+            "social_none",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
+            TWENTY_M,
+            "Baseline for mb8k8_rec_pen1: a social learner without an auxiliary loss at penalty 1.0 (the "
+            "paper's vanilla PPO, which did not learn from the experts).",
+        ),
+        Setting(
+            "mb8k8_pred_pen1",
+            "social_pred",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
+            TWENTY_M,
+            "mb8k8_rec_pen1 with the paper's prediction loss instead of reconstruction.",
+        ),
+        Setting(
             "mb8k8_rec_7x7",
             "social_rec",
             (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
