@@ -30,6 +30,9 @@ from jaxsocial import logs
 
 ITERATION = "iteration"
 SPEED = "env_steps_per_s"
+LEARNED_RETURN = 2.0
+"""A seed whose final return exceeds this has learned more than the cautious individual policy, which collects
+the free first tile (+1) and then avoids tiles (the one-tile plateau); summaries count such seeds."""
 """Env-steps per second per seed of the chunk the row belongs to."""
 STAGE = "stage"
 """The schedule stage the iteration trained in (-1: before the first stage)."""

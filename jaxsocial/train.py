@@ -289,10 +289,38 @@ class Outputs:
             return
         where = f" ({len(self.seeds)} seeds: s{self.cfg.seed}/ ...)" if len(self.seeds) > 1 else ""
         print(f"wrote {run_dir}{where} ({it} iterations)")
+        print(outcome(metrics.read_rows(self.seeds[0][1]), self.static))
+        first = self.seeds[0][1]
+        print(f"next: python -m jaxsocial.plot {first} --out curves.png\n"
+              f"      python -m jaxsocial.render --ckpt {first} --out learner.gif\n"
+              f"      python -m jaxsocial.evaluate --ckpt {first} --env goalcycle4")  # fmt: skip
         if self.nonfinite_iterations:
             count, first = len(self.nonfinite_iterations), self.nonfinite_iterations[0]
             print(f"warning: {count} iterations had non-finite values (the first: {first}), marked "
                   f"'{nonfinite.ROW_KEY}' in metrics.jsonl", file=sys.stderr)  # fmt: skip
+
+
+def outcome(rows: list[dict[str, Any]], static: config.Setup) -> str:
+    """What a run's metrics `rows` (its first seed's) show: each slot's final return (the last 10% of the
+    iterations) and, for the first learner, whether it left the one-tile plateau, and whether that is what
+    this budget leads one to expect."""
+    if not rows:
+        return "no iteration was logged"
+    finals = ", ".join(
+        f"{slot.label} {metrics.final_return(rows, i):.3g}" for i, slot in enumerate(static.pop.slots)
+    )
+    text = f"final return (last 10% of the iterations): {finals}"
+    learner = static.pop.learners[0]
+    ret, env = metrics.final_return(rows, learner), static.env_params
+    if env.layout != "goalcycle" or env.penalty == 0 or not static.pop.experts:
+        return text
+    if ret > metrics.LEARNED_RETURN:
+        return text + f"\nthe learner left the one-tile plateau (return > {metrics.LEARNED_RETURN:g})"
+    return text + (
+        f"\nthe learner is on the one-tile plateau (return <= {metrics.LEARNED_RETURN:g}: the free first "
+        f"tile, then no more): expected at this budget under the {env.penalty:g} penalty; learning from the "
+        "experts takes millions of env-steps (docs/experiments.md)"
+    )
 
 
 def chunk_rows(

@@ -246,7 +246,7 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
         rows = logs.read_metrics(runner.seed_dirs(cfg)[0])
         assert entry["final_returns"] == [round(metrics.final_return(rows), 4)]
-        assert entry["seeds_above_one_tile"] == int(metrics.final_return(rows) > kinds.LEARNED_RETURN)
+        assert entry["seeds_above_one_tile"] == int(metrics.final_return(rows) > metrics.LEARNED_RETURN)
         key = "eval/goalcycle4:width=7,height=7,max_steps=20"
         assert entry[key]["final_returns"] == [round(rows[-1][key], 4)]
     assert summary["experts"]["mean"] > 0  # the scripted experts collect tiles

@@ -8,7 +8,7 @@ import pytest
 
 from jaxsocial import logs, train
 from jaxsocial.experiments import sweep
-from jaxsocial.experiments.kinds import LEARNED_RETURN
+from jaxsocial.metrics import LEARNED_RETURN
 
 
 @pytest.mark.parametrize("name", sorted(sweep.SETTINGS))

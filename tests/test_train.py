@@ -83,6 +83,22 @@ def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, c
     assert len(logs.read_metrics(never)) == TINY.iterations
 
 
+def test_the_run_ends_with_its_outcome():
+    from jaxsocial.train import outcome
+
+    def rows(learner_return):
+        return [{"iteration": 1, "return/0": learner_return, "episodes/0": 2, "return/1": 38.0,
+                 "episodes/1": 2, "return/2": 39.0, "episodes/2": 2}]  # fmt: skip
+
+    social = config.setup(PRESETS["small"], load_frozen=False)  # a learner beside two experts, penalty 1.5
+    plateau = outcome(rows(0.9), social)
+    assert plateau.startswith("final return (last 10% of the iterations): learner 0.9, expert:explorer 38")
+    assert "on the one-tile plateau" in plateau and "expected at this budget under the 1.5 penalty" in plateau
+    assert "left the one-tile plateau" in outcome(rows(12.0), social)
+    no_penalty = config.setup(dataclasses.replace(PRESETS["small"], env_args="penalty=0"), load_frozen=False)
+    assert "plateau" not in outcome(rows(0.9), no_penalty)
+
+
 def test_same_seed_same_run(tiny_runs):
     full = metrics_without_speed(tiny_runs["full"])
     assert metrics_without_speed(tiny_runs["again"]) == full

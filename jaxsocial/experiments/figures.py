@@ -19,9 +19,9 @@ from typing import Any
 
 from jaxsocial import logs, metrics
 from jaxsocial.experiments import kinds, prereg, recipes, records, runner
-from jaxsocial.experiments.kinds import LEARNED_RETURN, takeoffs
+from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.metrics import final_return
+from jaxsocial.metrics import LEARNED_RETURN, final_return
 
 
 class RecipeRuns:

@@ -26,11 +26,7 @@ from jaxsocial.axes import steps_axis
 from jaxsocial.curves import band
 from jaxsocial.experiments import counts, predictions, recipes, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.metrics import curve, eval_curve, final_return, metric_curve, stats
-
-LEARNED_RETURN = 2.0
-"""A seed whose final return exceeds this has learned more than the cautious individual policy, which collects
-the free first tile (+1) and then avoids tiles; the summary counts such seeds per condition."""
+from jaxsocial.metrics import LEARNED_RETURN, curve, eval_curve, final_return, metric_curve, stats
 
 LOSS_PANEL = {"aux_loss": "auxiliary loss (MAE)", "bc_loss": "behaviour-cloning loss (cross-entropy)"}
 """The learner's (slot 0) loss drawn beside the returns: each condition's first of these metrics."""

@@ -143,7 +143,7 @@ class Condition:
 
 MIXING_RETURN = 10.0
 """The return at which `social_pred_mixed_learned` switches to mixed episodes: far above the one-tile
-plateau (about 1; `kinds.LEARNED_RETURN` is 2) and below the experts' 26-39, so the learner has learned
+plateau (about 1; `metrics.LEARNED_RETURN` is 2) and below the experts' 26-39, so the learner has learned
 from them, as the paper's social agent had when it was switched (its Fig. 6)."""
 IMPERFECT_EXPERT = "expert:explorer:epsilon=0.2,forget=0.01"
 EXPERT_DROPOUT = "dropout_prob=0.5,dropin_prob=0.25"

@@ -6,7 +6,7 @@ the reason it is tried. Each seed trains in a process of its own pinned to one c
 give 1.3x the env-steps/s of one process on both cores: docs/performance.md), and its record goes to
 ``benchmarks/results/records/sweep/<setting>/s<seed>/``. The summary (`summarise`) gives per setting each
 seed's takeoff (the end of the first window of `WINDOW_STEPS` env-steps whose mean learner return exceeds
-`kinds.LEARNED_RETURN`) in env-steps and in CPU-minutes on the machine that ran it, the fraction of seeds
+`metrics.LEARNED_RETURN`) in env-steps and in CPU-minutes on the machine that ran it, the fraction of seeds
 past the plateau against both, and the final returns.
 
     python -m jaxsocial.experiments.sweep list
@@ -32,7 +32,7 @@ import numpy as np
 
 from jaxsocial import logs, metrics
 from jaxsocial.experiments import recipes, records, takeoff
-from jaxsocial.experiments.kinds import LEARNED_RETURN
+from jaxsocial.metrics import LEARNED_RETURN
 
 RUNS_DIR = "runs/sweep"
 RECORDS_SUBDIR = "sweep"
