@@ -1,6 +1,7 @@
 """Learned-seed statistics: the exact count tests and their power, time to learning, and pre-registered
 designs (their power, their seeds, their commit before the runs')."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -116,6 +117,33 @@ def test_preregistered_block():
     assert "design_precedes_every_run: NO" in said and "a/s1" in said
 
 
+def test_design_seeds_that_do_not_count_are_named():
+    design = dataclasses.replace(prereg.load("h1_prereg"), seeds=2, training_commit="a" * 40)
+    settings = {"env": "goalcycle3", "num_envs": 1024}
+    good = {
+        "config": {**settings, "iterations": design.iterations},
+        "rows": design.iterations,
+        "commit": "a" * 40,
+    }
+    conditions = {c: [good, good] for c in (*design.treatment, *design.control)}
+    conditions["social_rec"] = [None, {**good, "rows": 7}]
+    conditions["social_pred"] = [
+        {**good, "config": {**settings, "iterations": 9}},
+        {**good, "commit": "b" * 40},
+    ]
+    conditions["solo_pred"] = [good, {**good, "config": {**good["config"], "num_envs": 128}}]
+    expected = dict.fromkeys(conditions, settings)
+    s0, s1 = design.seed, design.seed + 1
+    assert prereg.seed_problems(design, conditions, expected) == [
+        f"social_rec seed {s0}: missing",
+        f"social_rec seed {s1}: unfinished (7 of {design.iterations} iterations)",
+        f"social_pred seed {s0}: trained for 9 iterations",
+        f"social_pred seed {s1}: trained at {'b' * 40}, not {'a' * 40}",
+        f"solo_pred seed {s1}: trained with other settings (num_envs)",
+    ]
+    assert prereg.seed_problems(design, {c: [good, good] for c in conditions}, expected) == []
+
+
 def test_commit_order():
     head, parent = records.head_commit(), records.git("rev-parse", "HEAD~1").stdout.strip()
     if head is None or not parent:
@@ -142,4 +170,11 @@ def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
     assert block["result"]["treatment_learned"] == 1 and block["result"]["control_learned"] == 0
     assert block["result"]["treatment_seeds"] == block["result"]["control_seeds"] == 2
     assert not block["checks"]["scale_as_designed"] and not block["checks"]["seeds_as_designed"]
-    assert capsys.readouterr().out.endswith(prereg.verdict(block) + "\n")
+    assert (
+        not block["valid"]
+        and f"social_pred seed {prereg.load('h1_prereg').seed}: missing" in block["problems"]
+    )
+    said = capsys.readouterr().out
+    assert said.endswith(prereg.verdict(block) + "\n") and said.rstrip().endswith(
+        "NOT VALID: the result above does not test the design (see the problems listed)"
+    )

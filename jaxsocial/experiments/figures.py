@@ -13,11 +13,13 @@ pre-registered (`prereg`). What a summary and figure hold besides depends on the
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import logs, metrics
+from jaxsocial import config, logs, metrics
 from jaxsocial.experiments import kinds, prereg, recipes, records, runner
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
@@ -36,10 +38,11 @@ class RecipeRuns:
         self.configs = {  # the first program's (conditions trained one program per seed: the first seed's)
             c: recipes.condition_programs(scale, c, seed, seeds, runs_dir)[0] for c in recipe.conditions
         }
-        self.seed_dirs, self.rows, self.missing_seeds = {}, {}, {}
+        self.seed_dirs, self.rows, self.missing_seeds, self.dirs_by_seed = {}, {}, {}, {}
         for c in recipe.conditions:
             dirs = runner.condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick)
             rows = [metrics.read_rows(d) for d in dirs]
+            self.dirs_by_seed[c] = [d if r else None for d, r in zip(dirs, rows, strict=True)]
             self.seed_dirs[c] = [d for d, r in zip(dirs, rows, strict=True) if r]
             self.rows[c] = [r for r in rows if r]
             absent = [s for s, r in zip(range(seed, seed + seeds), rows, strict=True) if not r]
@@ -126,6 +129,36 @@ class RecipeRuns:
         }
 
 
+def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
+    """`prereg.seed_problems` of the design's seeds as `runs` found them (seeds read where they are)."""
+    fields = {f.name for kind in (config.RunConfig, config.ProgramConfig) for f in dataclasses.fields(kind)}
+    fields -= {"seed", "seeds", "seed_batching"}
+
+    def settings(cfg) -> dict[str, Any]:
+        values = json.loads(json.dumps(config.config_dict(cfg)))  # as config.json holds them
+        return {k: values[k] for k in sorted(fields)}
+
+    conditions, expected = {}, {}
+    design_seeds = range(design.seed, design.seed + design.seeds)
+    for c in (*design.treatment, *design.control):
+        expected[c] = settings(
+            recipes.condition_config(runs.scale, c, design.seed, design.seeds, runs.runs_dir)
+        )
+        read = runs.dirs_by_seed.get(c, [])  # seeds runs.seed, runs.seed + 1, ...
+        dirs = [read[i] if 0 <= (i := s - runs.seed) < len(read) else None for s in design_seeds]
+        conditions[c] = [
+            None
+            if d is None
+            else {
+                "config": logs.read_config(d) if (d / logs.CONFIG_FILE).is_file() else {},
+                "rows": len(metrics.read_rows(d)),
+                "commit": (records.read_provenance(d) or {}).get("run", {}).get("commit"),
+            }
+            for d in dirs
+        ]
+    return prereg.seed_problems(design, conditions, expected)
+
+
 def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     """The JSON summary of a recipe (see the module docstring for the measures; the kind's part from
     `kinds.KINDS`); `command` re-creates it (default: `runs.command()`)."""
@@ -142,6 +175,12 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         out["preregistered"]["checks"]["seeds_as_designed"] &= (runs.seed, runs.seeds) == (
             design.seed,
             design.seeds,
+        )
+        problems = design_problems(runs, design)
+        out["preregistered"]["problems"] = problems
+        checks = out["preregistered"]["checks"]
+        out["preregistered"]["valid"] = not problems and all(
+            v for v in checks.values() if isinstance(v, bool)
         )
     return out
 

@@ -50,6 +50,9 @@ class Design:
     power: float
     """The power under `hazard_per_million`, as `power_of` computes it (stored to 3 decimals)."""
     rationale: str = ""
+    training_commit: str | None = None
+    """The commit every run is trained at (from a worktree of it): `figure` requires each record's commit to
+    be this one. None (designs before this field): each run's commit must follow the design's."""
 
     @property
     def arm_seeds(self) -> dict[str, int]:
@@ -144,6 +147,35 @@ def preregistered(
     }
 
 
+def seed_problems(
+    design: Design, conditions: dict[str, list[dict[str, Any] | None]], expected: dict[str, dict[str, Any]]
+) -> list[str]:
+    """What keeps each design seed from counting: missing, unfinished, trained for other iterations or with
+    other run or program settings than `expected` (each condition's config.json values of the design's
+    command), or at another commit than `design.training_commit`.
+
+    conditions: per condition the seeds design.seed.. in order, each None (no run holds it) or
+    {'config': its config.json, 'rows': metrics rows logged, 'commit': its record's commit or None}."""
+    problems = []
+    for c in (*design.treatment, *design.control):
+        seeds = conditions.get(c, [])
+        for offset in range(design.seeds):
+            s, run = design.seed + offset, seeds[offset] if offset < len(seeds) else None
+            if run is None:
+                problems.append(f"{c} seed {s}: missing")
+                continue
+            if run["rows"] < design.iterations:
+                problems.append(f"{c} seed {s}: unfinished ({run['rows']} of {design.iterations} iterations)")
+            if run["config"].get("iterations") != design.iterations:
+                problems.append(f"{c} seed {s}: trained for {run['config'].get('iterations')} iterations")
+            differ = sorted(k for k, v in expected[c].items() if run["config"].get(k) != v)
+            if differ:
+                problems.append(f"{c} seed {s}: trained with other settings ({', '.join(differ)})")
+            if design.training_commit and run["commit"] != design.training_commit:
+                problems.append(f"{c} seed {s}: trained at {run['commit']}, not {design.training_commit}")
+    return problems
+
+
 def verdict(block: dict[str, Any]) -> str:
     """A `preregistered` block's result and checks, for people."""
     r, checks = block["result"], block["checks"]
@@ -156,6 +188,9 @@ def verdict(block: dict[str, Any]) -> str:
     lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
     if checks["runs_not_after_design"]:
         lines.append(f"  runs not shown to follow the design: {', '.join(checks['runs_not_after_design'])}")
+    lines += [f"  {problem}" for problem in block.get("problems", [])]
+    if not block.get("valid", True):
+        lines.append("NOT VALID: the result above does not test the design (see the problems listed)")
     return "\n".join(lines)
 
 

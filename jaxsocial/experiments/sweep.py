@@ -10,7 +10,7 @@ seed's takeoff (the end of the first window of `WINDOW_STEPS` env-steps whose me
 past the plateau against both, and the final returns.
 
     python -m jaxsocial.experiments.sweep list
-    python -m jaxsocial.experiments.sweep run mb8k8_rec --seeds 0 1      # one process per seed and core
+    python -m jaxsocial.experiments.sweep run mb8k8_rec --seeds 0 1 --cores 0 1   # one process a core
     python -m jaxsocial.experiments.sweep record mb8k8_rec --seeds 0 1 --device "AMD EPYC, 2 cores"
     python -m jaxsocial.experiments.sweep figure                         # every recorded setting
 """
@@ -114,6 +114,22 @@ SETTINGS = {
             "mb8k8_rec_pen1 with the paper's prediction loss instead of reconstruction.",
         ),
         Setting(
+            "mb8k8_rec_pen125",
+            "social_rec",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
+            TWENTY_M,
+            "Between 1.0, where both social (rec) and solo (pred) learners left the plateau by 8M env-steps, "
+            "and 1.5, where rec stayed on it for 20M: a penalty at which following the experts may still "
+            "pay before individual exploration does.",
+        ),
+        Setting(
+            "mb8k8_solo_pred_pen125",
+            "solo_pred",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
+            TWENTY_M,
+            "Baseline for mb8k8_rec_pen125: the solo learner with the prediction loss at penalty 1.25.",
+        ),
+        Setting(
             "mb8k8_rec_7x7",
             "social_rec",
             (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
@@ -162,12 +178,13 @@ def run_dir(setting: Setting, seed: int, runs_dir: str) -> Path:
     return Path(runs_dir) / f"{setting.name}-s{seed}"
 
 
-def run(setting: Setting, seeds: list[int], runs_dir: str, cores: int) -> list[int]:
-    """Train `seeds` of `setting`, one process per seed pinned to one of `cores` cores, at most `cores` at a
-    time; each writes its log beside its run directory and `RUN_FILE` into it. Returns the exit codes."""
+def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> list[int]:
+    """Train `seeds` of `setting`, one process per seed pinned to one of the CPU `cores`, one process a core
+    at a time; each writes its log beside its run directory and `RUN_FILE` into it. Returns the exit
+    codes."""
     commit = records.head_commit()
     pending, active, codes = list(seeds), {}, {}
-    free = list(range(cores))
+    free = list(cores)
     while pending or active:
         while pending and free:
             seed, core = pending.pop(0), free.pop(0)
@@ -315,7 +332,13 @@ def main(argv: list[str] | None = None) -> None:
         p.add_argument("--seeds", type=int, nargs="+", required=True, help="seeds, each below 100")
         p.add_argument("--runs-dir", default=RUNS_DIR)
         if name == "run":
-            p.add_argument("--cores", type=int, default=os.cpu_count(), help="processes at a time")
+            p.add_argument(
+                "--cores",
+                type=int,
+                nargs="+",
+                default=list(range(os.cpu_count() or 1)),
+                help="the CPU cores to pin the seeds' processes to, one process a core (default: all)",
+            )
         else:
             p.add_argument("--device", required=True, help="the machine the runs trained on, in words")
     p = sub.add_parser("figure", help="summary JSON and figure of every recorded setting")
@@ -330,7 +353,7 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("the sweep is exploratory: seeds must be in 0-99 (confirmatory designs use 200 and up)")
     setting = SETTINGS.get(getattr(args, "setting", None))
     if args.command == "run":
-        codes = run(setting, args.seeds, args.runs_dir, max(1, args.cores))
+        codes = run(setting, args.seeds, args.runs_dir, args.cores)
         sys.exit(max(codes))
     if args.command == "record":
         import jax
