@@ -259,7 +259,8 @@ def seed_summary(seed_dir: Path) -> dict[str, Any]:
         "cpu_minutes": float(seconds[-1] * cores / 60),
         "takeoff_env_steps": None if lift is None else lift * per_iteration,
         "takeoff_cpu_minutes": None if lift is None else float(seconds[lift - 1] * cores / 60),
-        "final_return": metrics.final_return(rows),
+        "stopped_early": bool((prov.get("record") or {}).get("stopped_early")),
+        "final_return": metrics.final_return(rows),  # the last 10% of its iterations (until its stop)
         "expert_final_return": [metrics.final_return(rows, s) for s in metrics.slots(rows[-1]) if s != 0],
         "curve": {"env_steps": (iterations * per_iteration).tolist(), "return": returns.tolist()},
     }
