@@ -38,7 +38,6 @@ from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 from jaxsocial.envspec import check_eval_envs
-from jaxsocial.envspec import parse_env_spec as parse_env_spec  # evaluate.parse_env_spec, as before
 from jaxsocial.metrics import mean_ci95
 
 
@@ -122,7 +121,7 @@ def episode_returns(
 
 def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episodes: int):
     """Evaluation during training: `fn(key, params) -> {spec: mean return}` plays `episodes` episodes of
-    each environment spec (`parse_env_spec`) with one learner's `params` (unstacked) in slot 0 beside the
+    each environment spec (`envspec.parse_env_spec`) with one learner's `params` (unstacked) in slot 0 beside the
     environment's default companions (scripted experts, distractors), and returns the learner's mean episode
     return over the episodes it took part in. Validates everything (ValueError) before compiling."""
     setups = [

@@ -6,7 +6,8 @@ One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`
 neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
 (`lax.map` over learners), whose losses, parameters and optimiser state are checked for non-finite values
 (`jaxsocial.nonfinite`). A chunk of iterations is one `lax.scan` inside one `jit`; the driver
-(`jaxsocial.train.run`) loops over chunks to log, checkpoint and draw progress.
+(`jaxsocial.train.train_chunks` over the steps of `jaxsocial.driver`) loops over chunks to log, checkpoint and
+draw progress.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from conftest import TINY
 from test_regimes import save_policy
 
 import jaxsocial
-from jaxsocial import evaluate
+from jaxsocial import envspec, evaluate
 from jaxsocial.agents import policy_io, population
 from jaxsocial.evaluate import Episodes, EvalConfig
 
@@ -68,7 +68,7 @@ def saved_learner(tmp_path_factory):
 
 def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     net = TINY.net
-    env_params = evaluate.parse_env_spec(f"{CT_ENV}:{CT_ARGS}")
+    env_params = envspec.parse_env_spec(f"{CT_ENV}:{CT_ARGS}")
     pop = population.Population(population.parse_slots(CT_SLOTS, 3))
     params = population.stack([policy_io.load_policy(saved_learner, net)])
     play = jax.jit(evaluate.episode_returns, static_argnums=(1, 2, 3, 5))
