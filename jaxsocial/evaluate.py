@@ -121,9 +121,10 @@ def episode_returns(
 
 def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episodes: int):
     """Evaluation during training: `fn(key, params) -> {spec: mean return}` plays `episodes` episodes of
-    each environment spec (`envspec.parse_env_spec`) with one learner's `params` (unstacked) in slot 0 beside the
-    environment's default companions (scripted experts, distractors), and returns the learner's mean episode
-    return over the episodes it took part in. Validates everything (ValueError) before compiling."""
+    each environment spec (`envspec.parse_env_spec`) with one learner's `params` (unstacked) in slot 0
+    beside the environment's default companions (scripted experts, distractors), and returns the learner's
+    mean episode return over the episodes it took part in. Validates everything (ValueError) before
+    compiling."""
     setups = [
         (spec, population.default_population(p), p) for spec, p in check_eval_envs(specs, net, episodes)
     ]
