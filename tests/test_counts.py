@@ -83,7 +83,9 @@ def test_a_design_fixes_its_seeds(tmp_path, capsys):
     cli.main(["run", "h1_prereg", "--scale", design.scale, "--runs-dir", str(tmp_path), "--dry-run"])
     out = capsys.readouterr().out
     last = design.seed + design.seeds - 1
-    assert f"--iterations {design.iterations} " in out and f"social_pred-s{design.seed}-{last}" in out
+    assert f"--iterations {design.iterations} " in out
+    # in a folder of their own: no ordinary `run h1 --seed 100 --seeds 4` can share their directories
+    assert f"--run-name {design.scale}/prereg-h1_prereg/social_pred-s{design.seed}-{last}" in out
 
 
 def test_preregistered_block():

@@ -51,7 +51,7 @@ class RecipeRuns:
         self.missing = [c for c, seed_rows in self.rows.items() if not seed_rows]
         if len(self.missing) == len(self.configs):
             raise FileNotFoundError(
-                f"no metrics for any condition of {recipe.name} under {runs_dir}/{scale.name}: "
+                f"no metrics for any condition of {recipe.name} under {runs_dir}/{scale.runs_root}: "
                 f"run `python -m jaxsocial.experiments run {recipe.name} --scale {scale.name} "
                 f"--seeds {seeds}` first"
             )

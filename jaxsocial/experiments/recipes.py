@@ -42,6 +42,14 @@ class Scale:
     eval_episodes: int
     """Episodes per seed of every evaluation (during and after training)."""
     note: str = ""
+    runs_subdir: str = ""
+    """A folder of the scale's runs the recipe's runs go in ('prereg-<design>' for a pre-registered design's,
+    so that no ordinary recipe run can share their directories)."""
+
+    @property
+    def runs_root(self) -> str:
+        """Where this scale's runs go under the runs root: '<name>' or '<name>/<runs_subdir>'."""
+        return f"{self.name}/{self.runs_subdir}" if self.runs_subdir else self.name
 
 
 CPU = Scale(
@@ -272,14 +280,16 @@ RECIPES = {
 
 
 def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
-    """The scale `recipe` runs at: `scale`, with the design's iterations where the recipe carries a design
-    for this scale."""
+    """The scale `recipe` runs at: `scale`, with the design's iterations and its own runs folder
+    (`Scale.runs_subdir`) where the recipe carries a design for this scale."""
     if recipe.design is None:
         return scale
     from jaxsocial.experiments import prereg  # here: prereg imports the runner, which imports this module
 
     design = prereg.load(recipe.design)
-    return dataclasses.replace(scale, iterations=design.iterations) if design.scale == scale.name else scale
+    if design.scale != scale.name:
+        return scale
+    return dataclasses.replace(scale, iterations=design.iterations, runs_subdir=f"prereg-{design.name}")
 
 
 def goalcycle_spec(name: str, scale: Scale, extra: str = "") -> str:
@@ -295,8 +305,9 @@ def mixing_switch(scale: Scale, cond: Condition) -> int:
 
 
 def run_name(scale: Scale, condition: str, seed: int, seeds: int) -> str:
-    """The run directory of a condition under the runs root: `<scale>/<condition>-s<first>-<last>`."""
-    return f"{scale.name}/{condition}-s{seed}-{seed + seeds - 1}"
+    """The run directory of a condition under the runs root:
+    `<scale>[/<runs_subdir>]/<condition>-s<first>-<last>` (`Scale.runs_root`)."""
+    return f"{scale.runs_root}/{condition}-s{seed}-{seed + seeds - 1}"
 
 
 def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[str]:

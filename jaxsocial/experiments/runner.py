@@ -37,7 +37,7 @@ def condition_seed_dirs(
         for d in seed_dirs(cfg)
     ]
     held: dict[int, list[Path]] = {}
-    for run_dir in sorted((Path(runs_dir) / scale.name).glob(f"{condition}-s*")):
+    for run_dir in sorted((Path(runs_dir) / scale.runs_root).glob(f"{condition}-s*")):
         match = re.fullmatch(rf"{re.escape(condition)}-s(\d+)-(\d+)", run_dir.name)
         if not match:
             continue
