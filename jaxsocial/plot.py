@@ -1,13 +1,14 @@
-"""Learning curves of training runs, one row of panels per agent slot.
+"""Learning curves of training runs, one row of panels per learner slot and the other slots' returns below.
 
     python -m jaxsocial.plot runs/goalcycle3-s0-2 --out curves.png
     python -m jaxsocial.plot runs/a-s0 runs/a-s1 runs/b-s0 --out compare.pdf
 
-Each row shows a slot's episode return (episode-weighted, in `--points` blocks of iterations) and, for
-learner slots, the losses it logged per iteration (auxiliary, attention, behaviour cloning), KL and entropy,
-against env steps. Seeds of the same config (every setting but the seed and the driver's, e.g.
-`iterations`) form one group, whether they come from one `--seeds N` run or from separate runs: each seed
-is a faint line, the mean a thick one, with a 95% Student-t band over the seeds.
+A learner's row shows its episode return (episode-weighted, in `--points` blocks of iterations) and the
+losses it logged per iteration (auxiliary, attention, behaviour cloning), KL and entropy, against env steps;
+the other slots' (experts', distractors') returns sit side by side below. Seeds of the same config (every
+setting but the seed and the driver's, e.g. `iterations`) form one group, whether they come from one
+`--seeds N` run or from separate runs: each seed is a faint line, the mean a thick one, with a 95% Student-t
+band over the seeds.
 """
 
 from __future__ import annotations
@@ -35,6 +36,15 @@ PANELS = {
     "entropy": "entropy",
 }
 """Metric name prefixes (metrics.jsonl keys are 'NAME/SLOT') and their panel titles, in column order."""
+Y_LABELS = {
+    "return": "return per episode",
+    "aux_loss": "mean absolute error",
+    "bc_loss": "cross-entropy (nats)",
+    "attention_loss": "cross-entropy (nats)",
+    "kl": "KL (nats)",
+    "entropy": "entropy (nats)",
+}
+"""Each panel's y-axis label."""
 
 NOT_GROUPED = frozenset(
     {
@@ -133,22 +143,31 @@ def panels(groups: list[Group]) -> list[list[str]]:
     ]
 
 
+def grid(layout: list[list[str]]) -> list[list[tuple[int, str]]]:
+    """The figure's rows of (slot, panel key): a row per slot with more panels than its return (learners),
+    then the return-only slots (experts, distractors) side by side, as many a row as the widest row holds."""
+    ncols = max(len(p) for p in layout)
+    rows = [[(slot, k) for k in keys] for slot, keys in enumerate(layout) if len(keys) > 1]
+    alone = [(slot, keys[0]) for slot, keys in enumerate(layout) if len(keys) == 1]
+    return rows + [alone[i : i + ncols] for i in range(0, len(alone), ncols)]
+
+
 def draw(groups: list[Group], points: int = metrics.CURVE_POINTS):
-    """The curves as a matplotlib Figure (not managed by pyplot): a row per slot, a column per panel (unused
-    axes removed). Returns are episode-weighted means over `points` blocks of iterations; losses are per
-    iteration."""
+    """The curves as a matplotlib Figure (not managed by pyplot): a row of panels per learner slot, the other
+    slots' returns side by side below (`grid`; no empty axes). Returns are episode-weighted means over
+    `points` blocks of iterations; losses are per iteration."""
     import matplotlib
     from matplotlib.figure import Figure
 
-    layout = panels(groups)
-    ncols = max(len(p) for p in layout)
-    fig = Figure(figsize=(4 * ncols, 3 * len(layout)))
-    axes = fig.subplots(len(layout), ncols, squeeze=False)
+    rows = grid(panels(groups))
+    ncols = max(len(r) for r in rows)
+    fig = Figure(figsize=(4 * ncols, 3 * len(rows)))
+    axes = fig.subplots(len(rows), ncols, squeeze=False)
     colors = matplotlib.colormaps["tab10"].colors
-    for slot, (keys, row_axes) in enumerate(zip(layout, axes, strict=True)):
-        for ax in row_axes[len(keys) :]:
+    for cells, row_axes in zip(rows, axes, strict=True):
+        for ax in row_axes[len(cells) :]:
             fig.delaxes(ax)
-        for key, ax in zip(keys, row_axes, strict=False):
+        for (slot, key), ax in zip(cells, row_axes, strict=False):
             for i, g in enumerate(groups):
                 if slot >= len(g.slots) or (key != metrics.RETURN and not _logged(g, key, slot)):
                     continue
@@ -162,6 +181,7 @@ def draw(groups: list[Group], points: int = metrics.CURVE_POINTS):
                 band(ax, xs, list(ys), label, colors[i % len(colors)])
             names = sorted({g.slots[slot] for g in groups if slot < len(g.slots)})
             ax.set_title(f"slot {slot} ({' / '.join(names)}): {PANELS[key]}", fontsize=9)
+            ax.set_ylabel(Y_LABELS[key], fontsize=8)
             steps_axis(ax)
             ax.tick_params(labelsize=7)
     axes[0, 0].legend(fontsize=7)

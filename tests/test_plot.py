@@ -41,6 +41,11 @@ def test_two_seeds_panels_mean_and_band(run_dir):
         "slot 1 (random): episode return",
         "slot 2 (random): episode return",
     ]
+    assert [ax.get_ylabel() for ax in fig.axes[:4]] == [
+        "return per episode", "mean absolute error", "KL (nats)", "entropy (nats)"
+    ]  # fmt: skip
+    rows = sorted({round(ax.get_position().y0, 3) for ax in fig.axes})
+    assert len(rows) == 2  # the two distractors' returns share the second row: no rows of empty panels
     for ax in fig.axes:  # two faint seed lines, the mean, and the CI band
         assert len(ax.lines) == 3 and len(ax.collections) == 1
     returns = fig.axes[0]
