@@ -171,6 +171,8 @@ def test_jaxmarl_interface_and_exact_native_steps():
     for agent in env.agents:
         assert env.action_space(agent).n == 7 and env.observation_space(agent).shape == (21, 21, 3)
     logged = jaxmarl_wrappers.LogWrapper(env)
+    # JaxMARL's baselines ask for the spaces without an agent, through the wrapper
+    assert logged.action_space().n == 7 and logged.observation_space().shape == (21, 21, 3)
     params = env.params
     keys = jax.random.split(jax.random.key(0), (STEPS, ENVS))
     obs0, state0 = jax.vmap(logged.reset)(jax.random.split(jax.random.key(1), ENVS))

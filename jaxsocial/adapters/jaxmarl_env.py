@@ -42,6 +42,15 @@ class SocialMultiAgentEnv(MultiAgentEnv):
         self.observation_spaces = {a: spaces.Box(low, high, params.obs_shape, dtype) for a in self.agents}
         self.action_spaces = {a: spaces.Discrete(NUM_ACTIONS) for a in self.agents}
 
+    def observation_space(self, agent: str | None = None) -> spaces.Box:
+        """Every slot's observation space (one for all, so the agent may be left out, as JaxMARL's own
+        baselines do)."""
+        return self.observation_spaces[agent or self.agents[0]]
+
+    def action_space(self, agent: str | None = None) -> spaces.Discrete:
+        """Every slot's action space (one for all; the agent may be left out)."""
+        return self.action_spaces[agent or self.agents[0]]
+
     def _split(self, x: jax.Array) -> dict[str, jax.Array]:
         return {a: x[i] for i, a in enumerate(self.agents)}
 
