@@ -130,6 +130,20 @@ SETTINGS = {
             "Baseline for mb8k8_rec_pen125: the solo learner with the prediction loss at penalty 1.25.",
         ),
         Setting(
+            "mb8k8_none_pen125",
+            "social_none",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
+            TWENTY_M,
+            "The other baseline for mb8k8_rec_pen125: social vanilla PPO (no auxiliary loss) at 1.25.",
+        ),
+        Setting(
+            "mb8k8_pred_pen125",
+            "social_pred",
+            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
+            TWENTY_M,
+            "mb8k8_rec_pen125 with the paper's prediction loss instead of reconstruction.",
+        ),
+        Setting(
             "mb8k8_rec_7x7",
             "social_rec",
             (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
