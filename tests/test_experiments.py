@@ -164,6 +164,10 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     assert runs.seed_dirs["social_none"] == [base / "social_none-s0-0"]
     summary = figures.summarize(runs, "the command")
     assert summary["conditions"]["social_rec"]["seeds_above_one_tile"] == 3  # seeds 3, 4, 5 return > 2
+    said = figures.outcome_lines(summary)  # what `figure` ends with
+    assert said[[c for c in runs.rows].index("social_rec")].startswith(
+        "social PPO + aux rec: 3 of 6 seeds past the one-tile plateau (the first at "
+    )
     assert summary["learned_seeds_fisher_p"] == {"social_rec > social_none": pytest.approx(4 / 7, abs=1e-4)}
     takeoffs = summary["time_to_learning"]["conditions"]["social_rec"]
     first_block = metrics.curve(runs.rows["social_rec"][0])[0][0]  # every iteration of seeds 3-5 is above 2

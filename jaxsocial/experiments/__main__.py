@@ -159,6 +159,7 @@ def main(argv: list[str] | None = None) -> None:
             runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
             json_path, png_path = figures.write(runs, args.out_dir)
             print(f"wrote {json_path}\nwrote {png_path}")
+            print("\n".join(figures.outcome_lines(logs.read_json(json_path))))
             if recipe.design is not None:
                 print(prereg.verdict(logs.read_json(json_path)["preregistered"]))
     except (ValueError, FileExistsError, FileNotFoundError) as err:

@@ -129,6 +129,24 @@ class RecipeRuns:
         }
 
 
+def outcome_lines(summary: dict[str, Any]) -> list[str]:
+    """What a summary found, a line per condition: its final return (mean and 95% interval over seeds,
+    where the summary has one) and how many seeds left the one-tile plateau, and when the first did."""
+    finals = {**summary.get("training", {}), **summary.get("conditions", {})}
+    lines = []
+    for c, t in summary.get("time_to_learning", {}).get("conditions", {}).items():
+        label = recipes.CONDITIONS[c].label if c in recipes.CONDITIONS else c
+        text = f"{label}: {t['took_off']} of {t['seeds']} seeds past the one-tile plateau"
+        steps = [s for s in t["takeoff_env_steps"] if s is not None]
+        text += f" (the first at {min(steps):,} env-steps)" if steps else ""
+        final = finals.get(c, {})
+        if isinstance(final, dict) and final.get("mean") is not None:
+            lo, hi = final["ci95"]
+            text += f"; final return {final['mean']:.3g} [{lo:.3g}, {hi:.3g}]"
+        lines.append(text)
+    return lines
+
+
 def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
     """`prereg.seed_problems` of the design's seeds as `runs` found them (seeds read where they are)."""
     fields = {f.name for kind in (config.RunConfig, config.ProgramConfig) for f in dataclasses.fields(kind)}
