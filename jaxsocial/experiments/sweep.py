@@ -22,6 +22,7 @@ import dataclasses
 import datetime
 import os
 import shlex
+import shutil
 import subprocess
 import sys
 import time
@@ -193,9 +194,9 @@ def run_dir(setting: Setting, seed: int, runs_dir: str) -> Path:
 
 
 def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> list[int]:
-    """Train `seeds` of `setting`, one process per seed pinned to one of the CPU `cores`, one process a core
-    at a time; each writes its log beside its run directory and `RUN_FILE` into it. Returns the exit
-    codes."""
+    """Train `seeds` of `setting`, one process per seed pinned to one of the CPU `cores` (with `taskset`,
+    where there is one), one process a core at a time; each writes its log beside its run directory and
+    `RUN_FILE` into it. Returns the exit codes."""
     commit = records.head_commit()
     pending, active, codes = list(seeds), {}, {}
     free = list(cores)
@@ -207,8 +208,9 @@ def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> 
             log.parent.mkdir(parents=True, exist_ok=True)
             env = {**os.environ, "XLA_FLAGS": SINGLE_CORE_XLA_FLAGS}
             started = _now()
+            pin = ["taskset", "-c", str(core)] if shutil.which("taskset") else []  # Linux (util-linux)
             proc = subprocess.Popen(
-                ["taskset", "-c", str(core), *command],
+                [*pin, *command],
                 stdout=log.open("w"),
                 stderr=subprocess.STDOUT,
                 env=env,
