@@ -91,12 +91,15 @@ def test_the_run_ends_with_its_outcome():
                  "episodes/1": 2, "return/2": 39.0, "episodes/2": 2}]  # fmt: skip
 
     social = config.setup(PRESETS["small"], load_frozen=False)  # a learner beside two experts, penalty 1.5
-    plateau = outcome(rows(0.9), social)
+    plateau = outcome(rows(0.9), social, 512_000)
     assert plateau.startswith("final return (last 10% of the iterations): learner 0.9, expert:explorer 38")
-    assert "on the one-tile plateau" in plateau and "expected at this budget under the 1.5 penalty" in plateau
-    assert "left the one-tile plateau" in outcome(rows(12.0), social)
+    assert "on the one-tile plateau" in plateau
+    assert "expected at this budget (512,000 env-steps) under the 1.5 penalty" in plateau
+    long = outcome(rows(0.9), social, 20_000_000)
+    assert "expected" not in long and long.endswith("after 20,000,000 env-steps under the 1.5 penalty")
+    assert "left the one-tile plateau" in outcome(rows(12.0), social, 512_000)
     no_penalty = config.setup(dataclasses.replace(PRESETS["small"], env_args="penalty=0"), load_frozen=False)
-    assert "plateau" not in outcome(rows(0.9), no_penalty)
+    assert "plateau" not in outcome(rows(0.9), no_penalty, 512_000)
 
 
 def test_same_seed_same_run(tiny_runs):
