@@ -164,13 +164,9 @@ def stopped_early(config: dict[str, Any], rows: list[dict[str, Any]]) -> bool:
     if threshold is None or not rows:
         return False
     last = rows[-config.get("chunk_iterations", 1) :]
-    learners = metrics.learners(rows[-1])
-    total = sum(
-        row[metrics.key(metrics.RETURN, s)] * row[metrics.key(metrics.EPISODES, s)]
-        for row in last
-        for s in learners
-    )
-    episodes = sum(row[metrics.key(metrics.EPISODES, s)] for row in last for s in learners)
+    per_learner = [metrics.slot_returns(last, s) for s in metrics.learners(rows[-1])]
+    total = sum(returns.sum() for returns, _ in per_learner)
+    episodes = sum(counts.sum() for _, counts in per_learner)
     return episodes > 0 and total / episodes >= threshold
 
 

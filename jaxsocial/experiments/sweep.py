@@ -247,12 +247,10 @@ def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_v
     for seed in seeds:
         source = run_dir(setting, seed, runs_dir)
         info = logs.read_json(source / RUN_FILE)
-        provenance = {k: info.get(k) for k in records.RUN_FIELDS} | {"device": device, "jax": jax_version}
+        provenance = {k: info.get(k) for k in records.RUN_FIELDS}
+        provenance |= {"device": device, "jax": jax_version, "cores": info.get("cores")}
         target = Path(records.RECORDS_DIR) / RECORDS_SUBDIR / setting.name / f"s{seed}"
         records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/s{seed}")
-        rec = logs.read_json(target / records.PROVENANCE_FILE)
-        rec["run"]["cores"] = info.get("cores")
-        logs.write_json(target / records.PROVENANCE_FILE, rec)
         print(f"recorded {target}")
 
 
