@@ -154,6 +154,22 @@ SETTINGS = {
             "path to the next goal is shorter to follow.",
         ),
         Setting(
+            "mb8k8_solo_pred_7x7",
+            "solo_pred",
+            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
+            TWENTY_M,
+            "Baseline for mb8k8_rec_7x7: the solo learner with the prediction loss in the 7x7 grid, where "
+            "individual exploration also finds the goals sooner; social learning there needs it to stay on "
+            "the plateau.",
+        ),
+        Setting(
+            "mb8k8_none_7x7",
+            "social_none",
+            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
+            TWENTY_M,
+            "The other baseline for mb8k8_rec_7x7: social vanilla PPO (no auxiliary loss) in the 7x7 grid.",
+        ),
+        Setting(
             "mb8k8_pred",
             "social_pred",
             ONE_SAMPLE,
