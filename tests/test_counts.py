@@ -10,32 +10,38 @@ import pytest
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import counts, prereg, recipes, records, takeoff
 
-GRID_ERROR = 2 * 40 * (2 / (counts.NUISANCE_GRID - 1)) / (counts.REFINE - 1)
-"""Bound on `boschloo_greater`'s error for at most 40 seeds: the tail's derivative in the common rate is at
-most 2 (n_a + n_b), and the refined grid lands within one refined step of the maximising rate."""
-
 
 def test_boschloo_most_extreme_table_has_a_closed_form():
     """When the observed table is the only most extreme one (every seed of a learned, none of b), the tail is
     p^n_a (1 - p)^n_b, largest at p = n_a / (n_a + n_b)."""
     for n_a, n_b in ((6, 6), (8, 8), (4, 7)):
         p = n_a / (n_a + n_b)
-        exact = p**n_a * (1 - p) ** n_b
-        assert counts.boschloo_greater(n_a, n_a, 0, n_b) == pytest.approx(exact, abs=GRID_ERROR)
+        assert counts.boschloo(n_a, n_a, 0, n_b) == pytest.approx(p**n_a * (1 - p) ** n_b, rel=1e-9)
 
 
 def test_boschloo_is_never_above_fisher():
     for table in ((3, 12, 0, 9), (2, 6, 0, 6), (5, 20, 1, 20), (0, 4, 0, 4), (2, 3, 1, 3)):
-        assert counts.boschloo_greater(*table) <= counts.fisher_greater(*table) + GRID_ERROR
-    assert counts.boschloo_greater(0, 5, 0, 5) == pytest.approx(1.0, abs=GRID_ERROR)  # no evidence
+        assert counts.boschloo(*table) <= counts.fisher(*table) * (1 + 1e-9)
+    assert counts.boschloo(0, 5, 0, 5) == 1.0  # no evidence
 
 
-def test_boschloo_matches_scipy():
-    stats = pytest.importorskip("scipy.stats")
-    for k_a, n_a, k_b, n_b in ((3, 12, 0, 9), (4, 8, 0, 8), (5, 20, 1, 20)):
-        table = [[k_a, k_b], [n_a - k_a, n_b - k_b]]
-        want = stats.boschloo_exact(table, alternative="greater").pvalue
-        assert counts.boschloo_greater(k_a, n_a, k_b, n_b) == pytest.approx(want, abs=GRID_ERROR)
+def test_fisher_exact_by_hand():
+    # one-sided: 2 of 6 against 0 of 6, the learned pair lands in a's 6 seeds in C(6,2) of the C(12,2) ways
+    assert counts.fisher(2, 6, 0, 6) == pytest.approx(math.comb(6, 2) / math.comb(12, 2))
+    assert counts.fisher(6, 6, 0, 6) == pytest.approx(1 / math.comb(12, 6))
+    assert counts.fisher(0, 3, 0, 3) == 1.0  # nothing learned: no evidence
+    # one-sided tail: 2 of 3 against 1 of 3 sums P(2 in a) + P(3 in a) = (9 + 1) / 20
+    assert counts.fisher(2, 3, 1, 3) == pytest.approx(0.5)
+    # two-sided: 3 of 3 against 0 of 3 and its mirror, each 1 / C(6,3)
+    assert counts.fisher(3, 3, 0, 3, "two-sided") == pytest.approx(2 / math.comb(6, 3))
+
+
+def test_holm_adjusts_step_down():
+    # sorted 0.01, 0.03, 0.04 -> 3 x 0.01, 2 x 0.03, then max(0.06, 1 x 0.04)
+    adjusted = counts.holm({"a": 0.01, "b": 0.04, "c": 0.03})
+    assert adjusted == pytest.approx({"a": 0.03, "b": 0.06, "c": 0.06})
+    assert counts.holm({"a": 0.6, "b": 0.7}) == {"a": 1.0, "b": 1.0}  # capped at 1
+    assert counts.holm({}) == {}
 
 
 def test_power():

@@ -80,9 +80,13 @@ def test_final_return_is_episode_weighted_over_the_last_tenth():
     assert y[-1] == pytest.approx((5.0 * 3 + 3.0 + 4.0) / 7)
 
 
+T_975_DF2 = 0.95 / math.sqrt(2 * 0.975 * 0.025)
+"""Student t's 0.975 quantile at 2 degrees of freedom, in closed form: (2p - 1) / sqrt(2p(1 - p))."""
+
+
 def test_stats_and_ci_separation():
     s = metrics.stats([1.0, 2.0, 3.0])
-    half = 4.303 * 1.0 / math.sqrt(3)
+    half = T_975_DF2 * 1.0 / math.sqrt(3)
     assert s["mean"] == 2.0
     assert s["ci95"] == pytest.approx([2.0 - half, 2.0 + half], abs=1e-4)
     conditions = {
@@ -100,17 +104,45 @@ def test_stats_and_ci_separation():
     }
 
 
-def test_fisher_exact_one_sided():
-    # 2 of 6 against 0 of 6: the learned pair lands in a's 6 seeds in C(6,2) of the C(12,2) ways
-    assert counts.fisher_greater(2, 6, 0, 6) == pytest.approx(math.comb(6, 2) / math.comb(12, 2))
-    assert counts.fisher_greater(6, 6, 0, 6) == pytest.approx(1 / math.comb(12, 6))
-    assert counts.fisher_greater(0, 3, 0, 3) == 1.0  # nothing learned: no evidence
-    # one-sided tail: 2 of 3 against 1 of 3 sums P(2 in a) + P(3 in a) = (9 + 1) / 20
-    assert counts.fisher_greater(2, 3, 1, 3) == pytest.approx(0.5)
+def test_iqm_and_its_bootstrap_interval():
+    # a quarter cut from each end: 6 seeds keep the middle 4
+    s = metrics.stats([0.7, 30.0, 0.9, 35.2, 0.8, 1.1])
+    assert s["iqm"] == pytest.approx((0.8 + 0.9 + 1.1 + 30.0) / 4)
+    assert 0.7 <= s["iqm_ci95"][0] < s["iqm"] < s["iqm_ci95"][1] <= 35.2
+    assert metrics.stats([0.7, 30.0, 0.9, 35.2, 0.8, 1.1]) == s  # a fixed generator: re-derives exactly
+    # seeds that either learn or do not: the t interval leaves the seeds' range, the IQM's does not
+    bimodal = metrics.stats([0.0, 0.0, 0.0, 30.0, 30.0, 30.0])
+    assert bimodal["ci95"][0] < 0.0 and bimodal["ci95"][1] > 30.0
+    assert bimodal["iqm_ci95"][0] >= 0.0 and bimodal["iqm_ci95"][1] <= 30.0
+    assert metrics.stats([5.0])["iqm_ci95"] == [5.0, 5.0]
+    assert metrics.stats([float("nan")])["iqm"] is None
+
+
+def test_learned_seed_tests_state_their_direction():
+    """The recipe's stated comparisons are one-sided in their direction, whichever way the counts fall; every
+    other pair is two-sided and Holm-adjusted over the exploratory pairs."""
     conditions = {c: {"seeds_above_one_tile": k, "final_returns": [1.0] * n} for c, k, n in
-                  (("a", 2, 6), ("b", 0, 6), ("c", 0, 3))}  # fmt: skip
-    tests = kinds.learned_seed_tests(conditions)
-    assert tests == {"a > b": pytest.approx(0.2273, abs=1e-4), "a > c": pytest.approx(15 / 36, abs=1e-4)}
+                  (("a", 2, 6), ("b", 0, 6), ("c", 0, 3), ("d", 3, 3))}  # fmt: skip
+    tests = kinds.learned_seed_tests(conditions, (("a", "b"), ("c", "d"), ("a", "absent")))
+    assert list(tests["stated"]) == ["a > b", "c > d"]  # a comparison with an absent condition is dropped
+    assert tests["stated"]["a > b"]["fisher_p"] == pytest.approx(math.comb(6, 2) / math.comb(12, 2), abs=1e-4)
+    assert tests["stated"]["c > d"]["fisher_p"] == 1.0  # against the counts: no evidence in the stated way
+    assert tests["stated"]["a > b"]["learned"] == [2, 6, 0, 6]
+    exploratory = tests["exploratory"]
+    assert list(exploratory) == ["a vs c", "a vs d", "b vs c", "b vs d"]
+    raw = {pair: counts.fisher(*e["learned"], alternative="two-sided") for pair, e in exploratory.items()}
+    assert exploratory["b vs d"]["fisher_p"] == pytest.approx(raw["b vs d"], abs=1e-4)
+    holm = counts.holm(raw)
+    for pair, entry in exploratory.items():
+        assert entry["fisher_p_holm"] == pytest.approx(holm[pair], abs=1e-4)
+        assert entry["boschloo_p_holm"] >= entry["boschloo_p"]
+    assert "one-sided" in tests["method"] and "Holm" in tests["method"]
+
+
+def test_every_stated_comparison_names_the_recipes_conditions():
+    for recipe in recipes.RECIPES.values():
+        for a, b in recipe.hypotheses:
+            assert a in recipe.conditions and b in recipe.conditions and a != b, recipe.name
 
 
 def _fake_run(root, scale, condition, first, last, iterations):
@@ -168,7 +200,10 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     assert said[[c for c in runs.rows].index("social_rec")].startswith(
         "social PPO + aux rec: 3 of 6 seeds past the one-tile plateau (the first at "
     )
-    assert summary["learned_seeds_fisher_p"] == {"social_rec > social_none": pytest.approx(4 / 7, abs=1e-4)}
+    # h1 states social_rec > social_none: 3 of 6 against 0 of 1, one-sided
+    stated = summary["learned_seed_tests"]["stated"]
+    assert list(stated) == ["social_rec > social_none"]
+    assert stated["social_rec > social_none"]["fisher_p"] == pytest.approx(4 / 7, abs=1e-4)
     takeoffs = summary["time_to_learning"]["conditions"]["social_rec"]
     first_block = metrics.curve(runs.rows["social_rec"][0])[0][0]  # every iteration of seeds 3-5 is above 2
     assert takeoffs["takeoff_iterations"] == [None] * 3 + [first_block] * 3

@@ -126,7 +126,8 @@ def test_slot_parsing_with_expert_arguments():
 
 def test_ci95():
     mean, low, high = mean_ci95(np.array([1.0, 2.0, 3.0]))
-    assert mean == 2.0 and np.isclose(high - mean, 4.303 * 1.0 / np.sqrt(3))
+    t_975_df2 = 0.95 / np.sqrt(2 * 0.975 * 0.025)  # closed form at 2 degrees of freedom
+    assert mean == 2.0 and np.isclose(high - mean, t_975_df2 * 1.0 / np.sqrt(3))
     assert mean_ci95(np.array([5.0])) == (5.0, 5.0, 5.0)
 
 

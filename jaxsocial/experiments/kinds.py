@@ -121,16 +121,44 @@ def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
 
 
 def learned_seed_tests(
-    conditions: dict[str, dict[str, Any]], test: str = "fisher-greater"
-) -> dict[str, float]:
-    """For each ordered pair with more learned seeds (`seeds_above_one_tile`) in a than in b, 'a > b': the
-    one-sided p-value of that difference by `test` (`counts.TESTS`)."""
-    out = {}
-    for a, b in itertools.permutations(conditions, 2):
-        (la, na), (lb, nb) = ((conditions[c]["seeds_above_one_tile"], _seeds(conditions[c])) for c in (a, b))
-        if la > lb:
-            out[f"{a} > {b}"] = round(counts.p_value(test, la, na, lb, nb), 4)
+    conditions: dict[str, dict[str, Any]], stated: tuple[tuple[str, str], ...]
+) -> dict[str, Any]:
+    """Fisher and Boschloo exact tests of the learned-seed counts (`seeds_above_one_tile` of each condition's
+    finite seeds). 'stated': each hypothesis (a, b) of `stated` whose conditions are both present, 'a > b',
+    one-sided in that direction. 'exploratory': every other pair, 'a vs b', two-sided, with p-values
+    Holm-adjusted over the exploratory family (`_holm` keys). Each test also gives the counts
+    [learned_a, seeds_a, learned_b, seeds_b]."""
+    table = {c: (conditions[c]["seeds_above_one_tile"], _seeds(conditions[c])) for c in conditions}
+    stated = tuple((a, b) for a, b in stated if a in table and b in table)
+    out: dict[str, Any] = {"method": LEARNED_TESTS_METHOD}
+    out["stated"] = {f"{a} > {b}": _count_tests(table[a], table[b], "greater") for a, b in stated}
+    explored = {
+        f"{a} vs {b}": _count_tests(table[a], table[b], "two-sided")
+        for a, b in itertools.combinations(conditions, 2)
+        if (a, b) not in stated and (b, a) not in stated
+    }
+    for test in ("fisher_p", "boschloo_p"):
+        adjusted = counts.holm({pair: entry[test] for pair, entry in explored.items()})
+        for pair, entry in explored.items():
+            entry[f"{test}_holm"] = adjusted[pair]
+    out["exploratory"] = explored
+    for entry in (*out["stated"].values(), *explored.values()):
+        entry.update({k: round(v, 4) for k, v in entry.items() if k != "learned"})
     return out
+
+
+LEARNED_TESTS_METHOD = (
+    "stated: the recipe's hypotheses, each 'a > b' one-sided (a's seeds learned more often), uncorrected; "
+    "exploratory: every other pair, two-sided, *_holm adjusted over the exploratory pairs (Holm)"
+)
+
+
+def _count_tests(a: tuple[int, int], b: tuple[int, int], alternative: str) -> dict[str, Any]:
+    return {
+        "learned": [a[0], a[1], b[0], b[1]],
+        "fisher_p": counts.fisher(*a, *b, alternative=alternative),
+        "boschloo_p": counts.boschloo(*a, *b, alternative=alternative),
+    }
 
 
 def _seeds(condition: dict[str, Any]) -> int:
@@ -181,8 +209,7 @@ def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
         slots = metrics.slots(seed_rows[0][0])[1:]  # the learner is in slot 0
         out["experts"] = stats([float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows])
     out["separated_ci95"] = separations(conditions)
-    out["learned_seeds_fisher_p"] = learned_seed_tests(conditions)
-    out["learned_seeds_boschloo_p"] = learned_seed_tests(conditions, "boschloo-greater")
+    out["learned_seed_tests"] = learned_seed_tests(conditions, runs.recipe.hypotheses)
     out["conditions"] = conditions
     return out
 
@@ -207,6 +234,10 @@ def summarise_ct(runs) -> dict[str, Any]:
     return {"separated_ci95": separated, "conditions": conditions}
 
 
+def _rounded(values: list[float]) -> list[float]:
+    return [round(v, 4) for v in values]
+
+
 def summarise_transfer(runs) -> dict[str, Any]:
     """Learner and expert returns in each evaluation environment, and the training returns."""
     training = {c: stats([final_return(rows) for rows in r]) for c, r in runs.rows.items()}
@@ -220,10 +251,9 @@ def summarise_transfer(runs) -> dict[str, Any]:
         first = _read_eval(next(iter(runs.seed_dirs.values()))[0], spec)
         experts = [s for s in first if s["kind"] == "expert"]
         per_cond["experts"] = {
-            "per_slot": [round(s["mean_return"], 4) for s in experts],
+            "per_slot": [{"mean": round(s["mean_return"], 4), "ci95": _rounded(s["ci95"])} for s in experts],
             "mean": round(float(np.mean([s["mean_return"] for s in experts])), 4),
-            "ci95": [round(float(np.mean([s["ci95"][i] for s in experts])), 4) for i in (0, 1)],
-            "ci_over": "episodes",
+            "ci_over": "episodes, each slot its own",
         }
         conditions[spec] = per_cond
     return {"training": training, "conditions": conditions}
@@ -251,11 +281,12 @@ def _save(plt, fig, path: Path) -> None:
 
 
 def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
-    """Returns through training (and zoomed), the learner's loss, and the time to learning."""
+    """Returns through training (and zoomed), the learner's loss, the time to learning, and each seed's final
+    return with the mean and IQM intervals."""
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
     steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
-    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax) = plt.subplots(1, 4, figsize=(22, 4.2))
+    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax, final_ax) = plt.subplots(1, 5, figsize=(27, 4.2))
     used = set()
     for i, (c, seed_rows) in enumerate(runs.rows.items()):
         xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
@@ -278,6 +309,11 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
         steps_axis(ax)
     returns_ax.legend(fontsize=8)
     draw_takeoffs(takeoff_ax, runs, summary, colors)
+    finals = dict(summary["conditions"])
+    if summary.get("experts", {}).get("mean") is not None:
+        finals["experts"] = summary["experts"]
+    bars(final_ax, finals, [*colors[: len(runs.rows)], "0.3"])
+    final_ax.set(title="final return, per seed", ylabel="learner episode return")
     _save(plt, fig, path)
 
 
@@ -361,20 +397,39 @@ def draw_takeoffs(ax, runs, summary: dict[str, Any], colors) -> None:
 
 
 def bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
-    """One bar per condition (mean, 95% CI whiskers, a cross per seed), labelled below."""
+    """One bar per condition: the mean with its t interval (where there is one), the IQM (a diamond) with its
+    bootstrap interval, a cross per seed (per slot for the experts); labelled below, explained in a legend."""
     names = list(per_cond)
     for j, name in enumerate(names):
         s = per_cond[name]
         if s["mean"] is None:
             continue
-        lo, hi = s["ci95"]
-        ax.bar(j, s["mean"], color=colors[j], yerr=[[s["mean"] - lo], [hi - s["mean"]]], capsize=4)
-        marks = s.get("final_returns", [])
+        ax.bar(j, s["mean"], color=colors[j], yerr=_whisker(s["mean"], s.get("ci95")), capsize=4)
+        if s.get("iqm") is not None:
+            iqm_whisker = _whisker(s["iqm"], s["iqm_ci95"])
+            ax.errorbar(j + 0.25, s["iqm"], iqm_whisker, fmt="D", color="k", ms=4, capsize=3)
+        marks = s.get("final_returns") or [slot["mean"] for slot in s.get("per_slot", [])]
         ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
     labels = [
         recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts" for n in names
     ]
     ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
+    ax.legend(handles=_bar_key(), fontsize=7)
+
+
+def _whisker(centre: float, interval: list[float] | None) -> list[list[float]] | None:
+    return None if interval is None else [[centre - interval[0]], [interval[1] - centre]]
+
+
+def _bar_key() -> list:
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    return [
+        Patch(color="0.6", label="mean, t 95% CI"),
+        Line2D([], [], color="k", marker="D", ms=4, label="IQM, bootstrap 95% CI"),
+        Line2D([], [], color="k", marker="x", ls="", label="one seed (or expert slot)"),
+    ]
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -244,20 +244,32 @@ class Recipe:
     (the cultural-transmission evaluation, `jaxsocial.evaluate --protocol ct`, after training)."""
     transfer_envs: tuple[str, ...] = ()
     """Evaluation environments after training ('transfer'); Goal Cycle ones take the scale's env_args."""
+    hypotheses: tuple[tuple[str, str], ...] = ()
+    """The comparisons the recipe states in advance: (a, b) says a's seeds learn more often than b's. Its
+    summary tests these one-sided and every other pair as exploratory (`kinds.learned_seed_tests`)."""
     design: str | None = None
     """The pre-registered design it carries (`prereg.load(design)`): its seeds and, at its scale, its
     budget (`recipe_scale`)."""
 
 
+AUX_OVER_BASELINES = tuple(
+    (aux, baseline) for aux in ("social_rec", "social_pred") for baseline in ("solo_pred", "social_none")
+)
+"""H1 (the paper's Fig. 3): each social learner with an auxiliary loss learns more often than each
+baseline."""
+
 RECIPES = {
     r.name: r
     for r in (
         Recipe("h1", "H1: social learning with an auxiliary loss (paper Fig. 3)",
-               ("solo_pred", "social_none", "social_rec", "social_pred"), "curves"),
+               ("solo_pred", "social_none", "social_rec", "social_pred"), "curves",
+               hypotheses=AUX_OVER_BASELINES),
         Recipe("h1_prereg", "H1, pre-registered: auxiliary-loss learners against the baselines",
-               ("solo_pred", "social_none", "social_rec", "social_pred"), "curves", design="h1_prereg"),
+               ("solo_pred", "social_none", "social_rec", "social_pred"), "curves",
+               hypotheses=AUX_OVER_BASELINES, design="h1_prereg"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
-               ("solo_pred", "social_pred", "social_pred_imperfect"), "curves"),
+               ("solo_pred", "social_pred", "social_pred_imperfect"), "curves",
+               hypotheses=(("social_pred", "solo_pred"), ("social_pred_imperfect", "solo_pred"))),
         Recipe("transfer", "H2: zero-shot transfer with new experts (paper Fig. 5)",
                ("social_pred", "solo_pred", "bc"), "transfer", ("goalcycle4", "fourrooms", "maze")),
         Recipe("mixing", "Solo/social mixing (paper Fig. 6)",
@@ -270,7 +282,8 @@ RECIPES = {
                ("social_pred", "social_pred_distractors"), "curves"),
         Recipe("bc", "Appendix: behaviour cloning training curve", ("bc",), "curves"),
         Recipe("curriculum", "Appendix: expert training through the penalty curriculum",
-               ("expert_curriculum", "solo_pred"), "curves"),
+               ("expert_curriculum", "solo_pred"), "curves",
+               hypotheses=(("expert_curriculum", "solo_pred"),)),
         Recipe("predictions", "A trained learner's predicted next frames (paper Fig. 2)", ("social_pred",),
                "predictions"),
         Recipe("ct", "Beyond the paper: cultural transmission (expert dropout, attention loss)",
