@@ -1,6 +1,6 @@
 """Every decimal that README.md and docs/*.md quote in a section that declares its sources is in one of them.
 
-A section (from a heading to the next heading) declares where its numbers come from with a comment
+A section (from a heading to the next heading) declares where its numbers come from with a comment line
 `<!-- numbers: PATH [PATH ...] -->`, paths from the repository root (globs allowed). Every decimal in its
 prose and tables (12.5, -1.5, 0.10, 4.75M, 82.5%, x3.37; code is skipped) must equal, at its printed precision
 and scaled by its suffix (k, M, G, %), some number in those files: a value, or a number written inside a
@@ -34,7 +34,7 @@ DECLARED = {
 }
 """(file, heading) of the sections whose numbers must be checked: the results the project reports."""
 
-SOURCES = re.compile(r"<!--\s*numbers:\s*(.*?)\s*-->", re.S)
+SOURCES = re.compile(r"^<!--\s*numbers:\s*(.*?)\s*-->", re.S | re.M)
 HEADING = re.compile(r"#+ (.*)$")
 CODE = re.compile(r"```.*?```|`[^`\n]*`", re.S)
 DECIMAL = re.compile(r"(?<![A-Za-wyz\d_.\-])(-?\d{1,3}(?:,\d{3})*\.\d+|-?\d+\.\d+)([kMG%]?)(?![\w.]\d|\d)")
