@@ -325,6 +325,43 @@ def format_table(result: dict[str, Any]) -> str:
     return "\n".join([f"{head}; 95% intervals over {over}", *body])
 
 
+def _contains_zero(value: dict[str, Any]) -> bool:
+    return value["ci95"][0] <= 0.0 <= value["ci95"][1]
+
+
+def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
+    """What an `evaluate` result shows, in words, and the commands to look further: the learner's return
+    against its experts'; for `--protocol ct`, whether the experts make a difference and whether it lasts
+    after they leave."""
+    lines = []
+    if result.get("protocol") == "ct":
+        ct, recall = result["ct"], result["recall"]
+        if _contains_zero(ct):
+            lines.append("the experts make no difference the interval can tell from 0 (CT score)")
+        elif ct["mean"] > 0 and _contains_zero(recall):
+            lines.append(
+                "the learner scores more beside the experts, but not once they leave (recall about 0): "
+                "it follows them rather than having learned the task from them"
+            )
+        elif ct["mean"] > 0:
+            lines.append("the learner scores more beside the experts, and keeps part of it after they leave")
+        else:
+            lines.append("the learner scores less beside the experts than alone")
+    else:
+        by_kind = {kind: [s for s in result["results"] if s["kind"] == kind and s["episodes"]] for kind in
+                   ("learner", "expert")}  # fmt: skip
+        if by_kind["learner"] and by_kind["expert"]:
+            learner = np.mean([s["mean_return"] for s in by_kind["learner"]])
+            experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
+            lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
+    if cfg.ckpt:
+        env = f"--env {cfg.env}" + (f" --env-args {cfg.env_args}" if cfg.env_args else "")
+        lines.append(f"next: python -m jaxsocial.render --ckpt {cfg.ckpt[0]} {env} --out learner.gif")
+    if not cfg.out:
+        lines.append("      add --out FILE to keep every number above (and the per-seed values) as JSON")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> None:
     import tyro
 
@@ -336,6 +373,8 @@ def main(argv: list[str] | None = None) -> None:
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
     print(format_table(result))
+    for line in outcome(result, cfg):
+        print(line)
     if cfg.out:
         Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(cfg.out, result)

@@ -147,6 +147,12 @@ def main(argv: list[str] | None = None) -> int:
             f"{int((rewards[:, i] > 0).sum())} rewards, {int((rewards[:, i] < 0).sum())} penalties"
         )
     print(f"wrote {len(frames)} frames to {args.out}")
+    if args.ckpt is None:
+        print("next: watch a trained learner instead: --ckpt RUN_DIR (one seed's run directory)")
+    else:
+        env_args = f" --env-args {args.env.partition(':')[2]}" if args.env.partition(":")[2] else ""
+        print(f"next: its return over many episodes: python -m jaxsocial.evaluate --ckpt {args.ckpt} "
+              f"--env {args.env.partition(':')[0]}{env_args}")  # fmt: skip
     return 0
 
 

@@ -1,5 +1,6 @@
 """`python -m jaxsocial.evaluate` output: a table on stdout, the JSON only in --out."""
 
+import dataclasses
 import json
 
 import pytest
@@ -48,3 +49,32 @@ def test_ct_table_names_the_scores():
     table = evaluate.format_table(result)
     assert "CT score  0.125 [0.115, 0.135]" in table and "recall    -0.250 [-0.260, -0.240]" in table
     assert "over training seeds" in table and "training iteration 200, 200" in table and "36.80" in table
+
+
+def _interval(mean: float, half: float = 0.01) -> dict:
+    return {"mean": mean, "ci95": [mean - half, mean + half]}
+
+
+RENDER = "next: python -m jaxsocial.render --ckpt runs/a --env goalcycle3 --env-args width=9,height=9 --out learner.gif"  # noqa: E501
+
+
+def test_the_outcome_says_what_the_evaluation_shows():
+    cfg = evaluate.EvalConfig(ckpt=("runs/a", "runs/b"), env="goalcycle3", env_args="width=9,height=9")
+    ct = {"protocol": "ct", "ct": _interval(0.125), "recall": _interval(0.0, 0.05)}
+    said = evaluate.outcome(ct, cfg)
+    assert "follows them rather than having learned the task" in said[0]
+    assert said[1] == RENDER
+    assert "--out FILE" in said[2]
+    kept = evaluate.outcome({**ct, "recall": _interval(0.2)}, cfg)[0]
+    assert "keeps part of it after they leave" in kept
+    assert "no difference" in evaluate.outcome({**ct, "ct": _interval(0.0, 0.1)}, cfg)[0]
+    slots = [
+        {"kind": "learner", "mean_return": 3.0, "episodes": 4},
+        {"kind": "expert", "mean_return": 30.0, "episodes": 4},
+        {"kind": "expert", "mean_return": 32.0, "episodes": 4},
+    ]
+    said = evaluate.outcome({"results": slots}, dataclasses.replace(cfg, out="x.json"))
+    assert said == [
+        "the learner scored 3.00 per episode beside experts scoring 31.00",
+        RENDER,
+    ]

@@ -187,6 +187,7 @@ def test_cli_writes_gif(tmp_path):
     assert frames.ndim == 4 and frames.shape[0] > 1 and frames.shape[-1] == 3
     assert "goalcycle3" in result.stdout and "steps: 4" in result.stdout and str(out) in result.stdout
     assert result.stdout.count("penalties") == 3
+    assert "next: watch a trained learner instead: --ckpt RUN_DIR" in result.stdout
 
 
 def test_cli_scale_draws_every_panel_larger(tmp_path):
@@ -232,6 +233,9 @@ def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, ca
     stdout = capsys.readouterr().out
     assert "slots learner,random,random" in stdout and "decoder's output beside its view" in stdout
     assert "steps: 6 (time limit)" in stdout and "wrote 6 frames" in stdout
+    # it ends with the command that measures the learner over many episodes, in the run's environment
+    assert f"next: its return over many episodes: python -m jaxsocial.evaluate --ckpt {learner_run / 's0'} " \
+        f"--env {TINY.env} --env-args {TINY_ENV_ARGS}" in stdout  # fmt: skip
     frames = iio.imread(out, index=None)
     assert frames.shape[0] == 6
     assert cli.main(["--env", TINY.env + ":" + TINY_ENV_ARGS, "--out", str(random_out), "--steps", "5"]) == 0
