@@ -349,3 +349,20 @@ def test_ct_recipe_trains_evaluates_and_summarises(mixing_runs, tmp_path):
     medal = recipes.condition_config(recipes.TINY, "social_medal", 0, 1, str(mixing_runs))
     assert "attention_loss/0" in logs.read_metrics(runner.seed_dirs(medal)[0])[-1]
     assert set(summary["separated_ci95"]) == {"final", "ct", "recall"}
+
+
+def test_figures_name_environments_and_scales_for_people():
+    assert kinds.env_title("goalcycle4:width=9,height=9") == "4-goal Goal Cycle, 9x9"
+    assert (
+        kinds.env_title("goalcycle3-solo:penalty=0,max_steps=20")
+        == "3-goal Goal Cycle alone, penalty 0, max steps 20"
+    )
+    assert kinds.env_title("fourrooms") == "Four Rooms"
+
+    class Runs:  # what `scale_title` reads of a RecipeRuns
+        scale, seed, seeds = recipes.TINY, 0, 2
+        configs = {"a": recipes.condition_config(recipes.TINY, "social_pred", 0, 2, "runs")}
+
+    assert kinds.scale_title(Runs) == (
+        "tiny scale (plumbing only: it learns nothing): 256 env-steps per seed, seeds 0-1"
+    )

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import logs, metrics
-from jaxsocial.axes import steps_axis
+from jaxsocial.axes import format_steps, steps_axis
 from jaxsocial.curves import band
 from jaxsocial.experiments import counts, predictions, recipes, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
@@ -273,7 +273,32 @@ def _pyplot():
     return plt
 
 
-def _save(plt, fig, path: Path) -> None:
+ENV_NAMES = {"goalcycle3": "3-goal Goal Cycle", "goalcycle4": "4-goal Goal Cycle", "fourrooms": "Four Rooms",
+             "maze": "Maze"}  # fmt: skip
+VARIANTS = {"solo": "alone", "distractors": "with distractors"}
+
+
+def env_title(spec: str) -> str:
+    """A reader's name for an environment spec: 'goalcycle4:width=9,height=9' -> '4-goal Goal Cycle, 9x9',
+    'goalcycle3-solo:penalty=0' -> '3-goal Goal Cycle alone, penalty 0'."""
+    name, _, args = spec.partition(":")
+    base, _, variant = name.partition("-")
+    fields = dict(a.split("=", 1) for a in args.split(",") if a)
+    title = " ".join(t for t in (ENV_NAMES.get(base, base), VARIANTS.get(variant, variant)) if t)
+    size = [f"{fields.pop('width')}x{fields.pop('height')}"] if {"width", "height"} <= set(fields) else []
+    return ", ".join([title, *size, *(f"{k.replace('_', ' ')} {v}" for k, v in fields.items())])
+
+
+def scale_title(runs) -> str:
+    """What a figure was trained at: the scale, env-steps per seed and seeds (and the scale's caveat)."""
+    steps = max(cfg.iterations * cfg.num_envs * cfg.rollout_steps for cfg in runs.configs.values())
+    seeds = f"seed {runs.seed}" if runs.seeds == 1 else f"seeds {runs.seed}-{runs.seed + runs.seeds - 1}"
+    caveat = f" ({runs.scale.caveat})" if runs.scale.caveat else ""
+    return f"{runs.scale.name} scale{caveat}: {format_steps(steps)} env-steps per seed, {seeds}"
+
+
+def _save(plt, fig, path: Path, runs) -> None:
+    fig.suptitle(f"{runs.recipe.title}\n{scale_title(runs)}", fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=70)
@@ -301,7 +326,7 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
             band(loss_ax, its, list(losses), recipes.CONDITIONS[c].label, colors[i])
     if "experts" in summary and summary["experts"]["mean"] is not None:
         returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
-    returns_ax.set(ylabel="learner episode return", title=runs.recipe.title)
+    returns_ax.set(ylabel="learner episode return", title="the learners' returns")
     zoom_ax.set(title="the learners' returns, zoomed")
     names = " / ".join(LOSS_PANEL[n] for n in LOSS_PANEL if n in used)
     loss_ax.set(ylabel=names, title="training loss")
@@ -314,7 +339,7 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
         finals["experts"] = summary["experts"]
     bars(final_ax, finals, [*colors[: len(runs.rows)], "0.3"])
     final_ax.set(title="final return, per seed", ylabel="learner episode return")
-    _save(plt, fig, path)
+    _save(plt, fig, path, runs)
 
 
 def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
@@ -338,9 +363,9 @@ def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
                 ax.axvline(switch, color=colors[i], ls=":")
     axes[0].set(title="training environment (with experts)", xlabel="iteration", ylabel="learner return")
     for ax, key in zip(axes[1:], keys, strict=True):
-        ax.set(title=metrics.eval_spec(key), xlabel="iteration")
+        ax.set(title=env_title(metrics.eval_spec(key)), xlabel="iteration")
     axes[0].legend(fontsize=8)
-    _save(plt, fig, path)
+    _save(plt, fig, path, runs)
 
 
 def draw_ct(runs, summary: dict[str, Any], path: Path) -> None:
@@ -358,7 +383,7 @@ def draw_ct(runs, summary: dict[str, Any], path: Path) -> None:
         bars(ax, per_cond, colors)
         ax.axhline(0, color="k", lw=0.5)
         ax.set(title=title)
-    _save(plt, fig, path)
+    _save(plt, fig, path, runs)
 
 
 def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
@@ -370,8 +395,8 @@ def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
     draw_takeoffs(axes[0, -1], runs, summary, colors)
     for ax, spec in zip(axes[0, :-1], specs, strict=True):
         bars(ax, summary["conditions"][spec], colors)
-        ax.set(title=spec, ylabel="mean episode return")
-    _save(plt, fig, path)
+        ax.set(title=env_title(spec), ylabel="mean episode return")
+    _save(plt, fig, path, runs)
 
 
 def draw_predictions(runs, summary: dict[str, Any], path: Path) -> None:

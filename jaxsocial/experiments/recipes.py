@@ -42,6 +42,8 @@ class Scale:
     eval_episodes: int
     """Episodes per seed of every evaluation (during and after training)."""
     note: str = ""
+    caveat: str = ""
+    """What a reader of its figures must know first (written on every figure), e.g. that it learns nothing."""
     runs_subdir: str = ""
     """A folder of the scale's runs the recipe's runs go in ('prereg-<design>' for a pre-registered design's,
     so that no ordinary recipe run can share their directories)."""
@@ -117,6 +119,7 @@ TINY = Scale(
     eval_every=2,
     eval_episodes=2,
     note="Plumbing only: seconds per run, learns nothing.",
+    caveat="plumbing only: it learns nothing",
 )
 
 SCALES = {s.name: s for s in (CPU, GPU, PAPER, TINY)}
