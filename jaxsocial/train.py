@@ -166,7 +166,7 @@ def train_chunks(
                 break
     finally:
         out.close()
-    out.report(run_dir, driver.it)
+    out.report(run_dir, driver.it, learner_return if stop else None)
 
 
 def reached(threshold: float | None, learner_return: float | None) -> bool:
@@ -283,18 +283,22 @@ class Outputs:
         for extra in self.extras:
             extra.close()
 
-    def report(self, run_dir: Path, it: int) -> None:
-        """The lines a run that trained up to iteration `it` ends with."""
+    def report(self, run_dir: Path, it: int, stopped_at: float | None = None) -> None:
+        """The lines a run that trained up to iteration `it` ends with (`stopped_at`: the learners' return
+        that stopped it early, `--stop-at-return`)."""
         if not distributed.is_main():
             return
         where = f" ({len(self.seeds)} seeds: s{self.cfg.seed}/ ...)" if len(self.seeds) > 1 else ""
         print(f"wrote {run_dir}{where} ({it} iterations)")
         rows = metrics.read_rows(self.seeds[0][1])
-        print(outcome(rows, self.static, len(rows) * self.cfg.num_envs * self.cfg.rollout_steps))
+        env_steps = len(rows) * self.cfg.num_envs * self.cfg.rollout_steps
+        print(outcome(rows, self.static, env_steps, stopped_at))
         first = self.seeds[0][1]
+        grid = {k: v for k, v in self.cfg.env_overrides.items() if k in ("width", "height")}
+        grid_args = f" --env-args {config.ENV_ARGS.format(tuple(grid.items()))}" if grid else ""
         print(f"next: python -m jaxsocial.plot {first} --out curves.png\n"
               f"      python -m jaxsocial.render --ckpt {first} --out learner.gif\n"
-              f"      python -m jaxsocial.evaluate --ckpt {first} --env goalcycle4")  # fmt: skip
+              f"      python -m jaxsocial.evaluate --ckpt {first} --env goalcycle4{grid_args}")  # fmt: skip
         if self.nonfinite_iterations:
             count, first = len(self.nonfinite_iterations), self.nonfinite_iterations[0]
             print(f"warning: {count} iterations had non-finite values (the first: {first}), marked "
@@ -306,12 +310,22 @@ SMALL_BUDGET = 2_000_000
 takeoffs came after 4.5M (docs/experiments.md)."""
 
 
-def outcome(rows: list[dict[str, Any]], static: config.Setup, env_steps: int) -> str:
+def outcome(
+    rows: list[dict[str, Any]], static: config.Setup, env_steps: int, stopped_at: float | None = None
+) -> str:
     """What a run's metrics `rows` (its first seed's, `env_steps` of them) show: each slot's final return
     (the last 10% of the iterations) and, for the first learner, whether it left the one-tile plateau, and
-    whether that is what this budget leads one to expect."""
+    whether that is what this budget leads one to expect. A run stopped early at the learners' return
+    `stopped_at` (`--stop-at-return`) is judged by that return: its final window mostly precedes the stop."""
     if not rows:
         return "no iteration was logged"
+    if stopped_at is not None:
+        left = "left" if stopped_at > metrics.LEARNED_RETURN else "did not leave"
+        return (
+            f"stopped early: the learners' return reached {stopped_at:.3g} after {env_steps:,} env-steps, so "
+            f"the learner {left} the one-tile plateau (return > {metrics.LEARNED_RETURN:g}); the final "
+            "return over the last 10% of the iterations (mostly before the stop) is not the measure here"
+        )
     finals = ", ".join(
         f"{slot.label} {metrics.final_return(rows, i):.3g}" for i, slot in enumerate(static.pop.slots)
     )

@@ -100,6 +100,10 @@ def test_the_run_ends_with_its_outcome():
     assert "left the one-tile plateau" in outcome(rows(12.0), social, 512_000)
     no_penalty = config.setup(dataclasses.replace(PRESETS["small"], env_args="penalty=0"), load_frozen=False)
     assert "plateau" not in outcome(rows(0.9), no_penalty, 512_000)
+    # a run stopped by --stop-at-return: its last chunk, not the diluted final window, says what happened
+    stopped = outcome(rows(0.9), social, 12_861_440, stopped_at=5.58)
+    assert stopped.startswith("stopped early: the learners' return reached 5.58 after 12,861,440 env-steps")
+    assert "the learner left the one-tile plateau" in stopped and "final return: learner" not in stopped
 
 
 def test_same_seed_same_run(tiny_runs):
