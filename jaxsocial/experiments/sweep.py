@@ -170,6 +170,14 @@ SETTINGS = {
             "The other baseline for mb8k8_rec_7x7: social vanilla PPO (no auxiliary loss) in the 7x7 grid.",
         ),
         Setting(
+            "mb8k8_pred_7x7",
+            "social_pred",
+            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
+            TWENTY_M,
+            "mb8k8_rec_7x7 with the paper's prediction loss: whether the 7x7 grid frees the paper's own "
+            "social learner too, so a pre-registered H1 can pool both auxiliary losses as the paper does.",
+        ),
+        Setting(
             "mb8k8_pred",
             "social_pred",
             ONE_SAMPLE,
