@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from jaxsocial import logs
-from jaxsocial.experiments import figures, prereg, recipes, records, runner
+from jaxsocial.experiments import figures, pinned, prereg, recipes, records, runner
 
 FIGURES_DIR = "runs/experiments/figures"
 """Where `figure` writes by default (the repository's summaries are written with an explicit --out-dir)."""
@@ -56,14 +56,25 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 action="store_true",
                 help="train nothing: evaluate the conditions already trained (e.g. on another machine)",
             )
+            p.add_argument(
+                "--cores",
+                type=int,
+                nargs="+",
+                default=[],
+                metavar="CORE",
+                help="train every seed as a one-seed program in its own single-threaded process pinned to "
+                "one of these CPU cores, one per core at a time (e.g. --cores 0 1; default: each condition's "
+                "seeds in one program, in this process)",
+            )
         elif name == "figure":
             p.add_argument("--out-dir", default=FIGURES_DIR, help="where <recipe>-<scale>.json/.png go")
         else:
             p.add_argument("--out-dir", default=RECORDS_OUT, help="root of the records (mirrors --runs-dir)")
             p.add_argument(
                 "--commands-log",
-                required=True,
-                help="log of the training commands: '<ISO date> <commit> <command with --run-name>' lines",
+                default=None,
+                help="log of the training commands: '<ISO date> <commit> <command with --run-name>' lines "
+                f"(default: each run's {pinned.RUN_FILE}, which `run --cores` writes)",
             )
             p.add_argument("--device", required=True, help="the device the runs trained on, in words")
             p.add_argument("--jax", required=True, help="the jax version the runs trained with")
@@ -95,7 +106,7 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
     """Pack every seed of the recipe that has a run directory and no record yet (or every one, with
     --overwrite); everything is checked before the first write."""
-    commands = records.read_commands_log(args.commands_log)
+    commands = records.read_commands_log(args.commands_log) if args.commands_log else None
     runs_dir = Path(args.runs_dir)
     plan = []
     for condition in recipe.conditions:
@@ -109,7 +120,10 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             relative = seed_dir.relative_to(runs_dir)
             one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
             run_name = relative.parent if one_of_several else relative
-            run = records.run_provenance(str(run_name), commands, args.device, args.jax)
+            if commands is None:
+                run = pinned.run_provenance(runs_dir / run_name, args.device, args.jax)
+            else:
+                run = records.run_provenance(str(run_name), commands, args.device, args.jax)
             if run["rc"] not in (None, 0):
                 raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
             rows, planned = len(logs.read_metrics(seed_dir)), logs.read_config(seed_dir)["iterations"]
@@ -152,6 +166,7 @@ def main(argv: list[str] | None = None) -> None:
                 dry_run=args.dry_run,
                 train_missing=not args.no_train,
                 pick=tuple(args.pick),
+                cores=tuple(args.cores),
             )
         elif args.command == "record":
             record(args, recipe, scale)
@@ -162,7 +177,7 @@ def main(argv: list[str] | None = None) -> None:
             print("\n".join(figures.outcome_lines(logs.read_json(json_path))))
             if recipe.design is not None:
                 print(prereg.verdict(logs.read_json(json_path)["preregistered"]))
-    except (ValueError, FileExistsError, FileNotFoundError) as err:
+    except (ValueError, FileExistsError, FileNotFoundError, runner.TrainingFailed) as err:
         raise SystemExit(f"error: {err}") from err
 
 

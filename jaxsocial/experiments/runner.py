@@ -11,8 +11,12 @@ from pathlib import Path
 
 from jaxsocial import evaluate, logs, train
 from jaxsocial.config import TrainConfig, setup
-from jaxsocial.experiments import kinds, recipes
+from jaxsocial.experiments import kinds, pinned, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
+
+
+class TrainingFailed(Exception):
+    """A training process (`run` with cores) exited with an error."""
 
 
 def seed_dirs(cfg: TrainConfig) -> list[Path]:
@@ -86,34 +90,52 @@ def run(
     dry_run: bool = False,
     train_missing: bool = True,
     pick: tuple[str, ...] = (),
+    cores: tuple[int, ...] = (),
 ) -> None:
     """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
 
     Every config is validated before anything trains, so a bad recipe fails at once. `dry_run` prints the
     commands and what is done instead. With `train_missing=False` nothing trains: the conditions already
     trained (e.g. on another machine) are evaluated and the others are skipped with a note. `pick`: see
-    `condition_seed_dirs`.
+    `condition_seed_dirs`. With `cores`, every seed trains as a one-seed program (`<condition>-s<k>-<k>`) in
+    a process of its own pinned to one of them, as many at once as there are cores (`pinned.run`);
+    `TrainingFailed` after they end if any failed.
     """
-    programs = {c: recipes.condition_programs(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
+    if cores:
+        programs = {
+            c: [recipes.condition_config(scale, c, s, 1, runs_dir) for s in range(seed, seed + seeds)]
+            for c in recipe.conditions
+        }
+    else:
+        programs = {c: recipes.condition_programs(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
     for cfgs in programs.values():
         for cfg in cfgs:
             setup(cfg, load_frozen=False)
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
-    skipped = []
+    skipped, jobs = [], []
     for name, cfgs in programs.items():
         for cfg in cfgs:
             own = slice(cfg.seed - seed, cfg.seed - seed + cfg.seeds)  # this program's seeds in dirs[name]
             state = status(cfg, dirs[name][own])
             label = name if len(cfgs) == 1 else f"{name} s{cfg.seed}"
             print(f"[{recipe.name}/{scale.name}] {label}: {state}")
+            flags = recipes.condition_flags(scale, name, cfg.seed, cfg.seeds, runs_dir)
             if dry_run:
-                flags = recipes.condition_flags(scale, name, cfg.seed, cfg.seeds, runs_dir)
                 print("  python -m jaxsocial.train " + shlex.join(flags))
+            elif state != "done" and train_missing and cores:
+                resume = ["--resume"] if state == "partial" else []
+                run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
+                jobs.append(pinned.Job(f"{label}", pinned.train_command([*flags, *resume]), run_dir))
             elif state != "done" and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == "partial"))
                 dirs[name][own] = seed_dirs(cfg)
             elif state != "done" and name not in skipped:
                 skipped.append(name)
+    if jobs:
+        failed = [job.label for job, rc in zip(jobs, pinned.run(jobs, list(cores)), strict=True) if rc != 0]
+        if failed:
+            raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
+        dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     for name in skipped:
         print(f"  {name}: not trained, not evaluated (--no-train)")
     evaluated = [name for name in programs if name not in skipped]

@@ -2,8 +2,8 @@
 plateau early on a 2-core CPU (exploration only: seeds below 100, no confirmatory result).
 
 A *setting* is a condition of `recipes.CONDITIONS` at the cpu scale with some flags changed, a budget and
-the reason it is tried. Each seed trains in a process of its own pinned to one core (two such processes
-give 1.3x the env-steps/s of one process on both cores: docs/performance.md), and its record goes to
+the reason it is tried. Each seed trains in a process of its own pinned to one core (`pinned`), and its
+record goes to
 ``benchmarks/results/records/sweep/<setting>/s<seed>/``. The summary (`summarise`) gives per setting each
 seed's takeoff (the end of the first window of `WINDOW_STEPS` env-steps whose mean learner return exceeds
 `metrics.LEARNED_RETURN`) in env-steps and in CPU-minutes on the machine that ran it, the fraction of seeds
@@ -19,20 +19,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
 import os
 import shlex
-import shutil
-import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from jaxsocial import logs, metrics
-from jaxsocial.experiments import recipes, records, takeoff
+from jaxsocial.experiments import pinned, recipes, records, takeoff
 from jaxsocial.metrics import LEARNED_RETURN
 
 RUNS_DIR = "runs/sweep"
@@ -44,10 +40,6 @@ STOP_RETURN = 5.0
 one-tile plateau (about 1) and the takeoff threshold (`LEARNED_RETURN`), so its remaining budget is saved."""
 WINDOW_STEPS = 200_000
 """Env-steps per window of the learning curve in which a takeoff is looked for."""
-SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-RUN_FILE = "sweep_run.json"
-"""What the runner knows of a seed's process (command, commit, cores, start, end, exit status), in its run
-directory."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,61 +210,21 @@ def run_dir(setting: Setting, seed: int, runs_dir: str) -> Path:
 
 
 def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> list[int]:
-    """Train `seeds` of `setting`, one process per seed pinned to one of the CPU `cores` (with `taskset`,
-    where there is one), one process a core at a time; each writes its log beside its run directory and
-    `RUN_FILE` into it. Returns the exit codes."""
-    commit = records.head_commit()
-    pending, active, codes = list(seeds), {}, {}
-    free = list(cores)
-    while pending or active:
-        while pending and free:
-            seed, core = pending.pop(0), free.pop(0)
-            command = [sys.executable, "-m", "jaxsocial.train", *train_flags(setting, seed, runs_dir)]
-            log = run_dir(setting, seed, runs_dir).with_suffix(".log")
-            log.parent.mkdir(parents=True, exist_ok=True)
-            env = {**os.environ, "XLA_FLAGS": SINGLE_CORE_XLA_FLAGS}
-            started = _now()
-            pin = ["taskset", "-c", str(core)] if shutil.which("taskset") else []  # Linux (util-linux)
-            proc = subprocess.Popen(
-                [*pin, *command],
-                stdout=log.open("w"),
-                stderr=subprocess.STDOUT,
-                env=env,
-            )
-            active[seed] = (proc, core, command, started)
-            print(f"{setting.name} seed {seed}: core {core}, log {log}", flush=True)
-        time.sleep(5)
-        for seed, (proc, core, command, started) in list(active.items()):
-            if proc.poll() is None:
-                continue
-            del active[seed]
-            free.append(core)
-            codes[seed] = proc.returncode
-            info = {
-                "command": shlex.join(["python", *command[1:]]),
-                "commit": commit,
-                "cores": 1,
-                "started": started,
-                "ended": _now(),
-                "rc": proc.returncode,
-            }
-            if (run_dir(setting, seed, runs_dir) / logs.CONFIG_FILE).is_file():
-                logs.write_json(run_dir(setting, seed, runs_dir) / RUN_FILE, info)
-            print(f"{setting.name} seed {seed}: exit {proc.returncode}", flush=True)
-    return [codes[s] for s in seeds]
-
-
-def _now() -> str:
-    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    """Train `seeds` of `setting`, each in its own process pinned to one of `cores` (`pinned.run`).
+    Returns the exit codes."""
+    jobs = [
+        pinned.Job(f"{setting.name} seed {seed}", pinned.train_command(train_flags(setting, seed, runs_dir)),
+                   run_dir(setting, seed, runs_dir))
+        for seed in seeds
+    ]  # fmt: skip
+    return pinned.run(jobs, cores)
 
 
 def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_version: str) -> None:
     """Pack each seed's run directory into its record (`records.pack`), with the runner's provenance."""
     for seed in seeds:
         source = run_dir(setting, seed, runs_dir)
-        info = logs.read_json(source / RUN_FILE)
-        provenance = {k: info.get(k) for k in records.RUN_FIELDS}
-        provenance |= {"device": device, "jax": jax_version, "cores": info.get("cores")}
+        provenance = pinned.run_provenance(source, device, jax_version)
         target = Path(records.RECORDS_DIR) / RECORDS_SUBDIR / setting.name / f"s{seed}"
         records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/s{seed}")
         print(f"recorded {target}")

@@ -1,0 +1,69 @@
+"""Runs as pinned single-core processes: the pool (`pinned.run`) and a recipe trained that way, recorded from
+the processes' own provenance and read back by `figure`."""
+
+import json
+
+import pytest
+
+from jaxsocial import logs
+from jaxsocial.experiments import __main__ as cli
+from jaxsocial.experiments import pinned
+
+
+def _job(tmp_path, name: str, code: str) -> pinned.Job:
+    """A job whose process makes its run directory (a config.json) and then runs `code`."""
+    run_dir = tmp_path / name
+    make = (
+        f"import pathlib; d = pathlib.Path({str(run_dir)!r}); d.mkdir(); (d / 'config.json').write_text('1')"
+    )
+    return pinned.Job(name, ("-c", f"{make}; {code}"), run_dir)
+
+
+def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(pinned, "POLL_SECONDS", 0.05)
+    jobs = [
+        _job(tmp_path, "first", "import time; time.sleep(1.1)"),
+        _job(tmp_path, "second", "import sys; sys.exit(3)"),
+        pinned.Job("nothing", ("-c", "pass"), tmp_path / "never_made"),
+    ]
+    assert pinned.run(jobs, [0]) == [0, 3, 0]  # in the jobs' order
+    first, second = (json.loads((tmp_path / n / pinned.RUN_FILE).read_text()) for n in ("first", "second"))
+    assert second["started"] >= first["ended"]  # one core: the second waited for the first
+    assert first["rc"] == 0 and second["rc"] == 3 and first["cores"] == 1
+    assert first["command"].startswith("python -c ")
+    assert not (tmp_path / "never_made").exists()  # no run directory: no provenance written
+    assert "first: core 0" in capsys.readouterr().out
+    provenance = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
+    assert provenance["device"] == "a CPU" and provenance["rc"] == 0 and provenance["cores"] == 1
+    with pytest.raises(FileNotFoundError, match="not trained by"):
+        pinned.run_provenance(tmp_path, "a CPU", "0.0")
+    with pytest.raises(ValueError, match="at least one core"):
+        pinned.run(jobs, [])
+
+
+def test_the_xla_of_each_process_is_single_threaded(tmp_path, monkeypatch):
+    monkeypatch.setattr(pinned, "POLL_SECONDS", 0.05)
+    out = tmp_path / "flags.txt"
+    code = f"import os, pathlib; pathlib.Path({str(out)!r}).write_text(os.environ['XLA_FLAGS'])"
+    assert pinned.run([pinned.Job("x", ("-c", code), tmp_path / "x")], [0]) == [0]
+    assert out.read_text() == pinned.SINGLE_CORE_XLA_FLAGS
+
+
+@pytest.mark.slow
+def test_a_recipe_trains_seed_by_seed_on_pinned_cores(tmp_path, monkeypatch):
+    """`run --cores`: every seed a one-seed program in its own process; `record` takes each run's provenance
+    from its process file (no commands log); `figure` reads the seeds from their one-seed runs."""
+    monkeypatch.setattr(pinned, "POLL_SECONDS", 0.2)
+    runs, records_dir = tmp_path / "runs", tmp_path / "records"
+    common = ["bc", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs)]
+    cli.main(["run", *common, "--cores", "0", "0"])
+    for s in (0, 1):
+        run_dir = runs / "tiny" / f"bc-s{s}-{s}"
+        assert len(logs.read_metrics(run_dir)) == 4 and (run_dir / pinned.RUN_FILE).is_file()
+        assert f"--seed {s} --seeds 1" in json.loads((run_dir / pinned.RUN_FILE).read_text())["command"]
+    cli.main(["record", *common, "--device", "a CPU", "--jax", "0.0", "--out-dir", str(records_dir)])
+    provenance = json.loads((records_dir / "tiny" / "bc-s1-1" / "provenance.json").read_text())
+    assert provenance["run"]["device"] == "a CPU" and provenance["run"]["cores"] == 1
+    cli.main(["figure", *common[:-2], "--runs-dir", str(records_dir), "--out-dir", str(tmp_path / "fig")])
+    summary = json.loads((tmp_path / "fig" / "bc-tiny.json").read_text())
+    assert len(summary["conditions"]["bc"]["final_returns"]) == 2
