@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from jaxsocial import checkpoint, config, distributed, init_from, loop, nonfinite, schedule
+from jaxsocial import checkpoint, config, distributed, init_from, loop, nonfinite, rundir, schedule
 from jaxsocial.agents import policy_io, population
 from jaxsocial.config import TrainConfig, config_dict
 from jaxsocial.loop import Program, RunnerState
@@ -102,7 +102,7 @@ def source_state(seed_dir: Path, iteration: int) -> RunnerState:
     static = config.setup(source, load_frozen=False)
     init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
     template = jax.eval_shape(init, jax.random.key(0))
-    return checkpoint.restore(seed_dir / init_from.CHECKPOINTS, template, iteration)
+    return checkpoint.restore(rundir.checkpoints(seed_dir), template, iteration)
 
 
 def load_source_learners(cfg: TrainConfig, state: RunnerState, program: Program) -> RunnerState:
@@ -159,7 +159,9 @@ class Driver:
         if frozen is not None:
             frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
         if cfg.resume:
-            state, stage = restore_seeds(cfg, [d / "checkpoints" for _, d in seeds], state, program, stage)
+            state, stage = restore_seeds(
+                cfg, [rundir.checkpoints(d) for _, d in seeds], state, program, stage
+            )
         it = int(np.asarray(state.iteration).reshape(-1)[0])
         if it == 0:  # a new run, or a resumed one that saved nothing yet: from the source's learners
             state = load_source_learners(cfg, state, program)
@@ -212,7 +214,7 @@ def save_seeds(
     for k, (seed_cfg, seed_dir) in enumerate(seeds):
         seed_state = seed_part(host, k, cfg.seeds)
         export_policy(cfg, seed_dir, it, seed_state.params)
-        ckpt_dir = seed_dir / "checkpoints"
+        ckpt_dir = rundir.checkpoints(seed_dir)
         if it not in checkpoint.all_steps(ckpt_dir):  # else saved before an interruption: the same state
             metadata = {**config_dict(seed_cfg), "stage": stage}
             checkpoint.save(ckpt_dir, it, seed_state, metadata=metadata, keep=cfg.keep_checkpoints)

@@ -20,11 +20,9 @@ import dataclasses
 from pathlib import Path
 
 import jaxsocial
-from jaxsocial import checkpoint, config, logs
+from jaxsocial import checkpoint, config, logs, rundir
 from jaxsocial.agents import policy_io, population
 from jaxsocial.config import TrainConfig
-
-CHECKPOINTS = "checkpoints"
 
 
 def parse(spec: str) -> tuple[Path, int | None]:
@@ -40,10 +38,10 @@ def source_dirs(cfg: TrainConfig) -> list[Path]:
     run_dir, _ = parse(cfg.init_from)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"--init-from {cfg.init_from}: no directory {run_dir}")
-    if (run_dir / CHECKPOINTS).is_dir():
+    if rundir.checkpoints(run_dir).is_dir():
         return [run_dir] * cfg.seeds
-    dirs = [run_dir / f"s{seed}" for seed in range(cfg.seed, cfg.seed + cfg.seeds)]
-    missing = [str(d) for d in dirs if not (d / CHECKPOINTS).is_dir()]
+    dirs = [run_dir / rundir.seed_name(seed) for seed in range(cfg.seed, cfg.seed + cfg.seeds)]
+    missing = [str(d) for d in dirs if not rundir.checkpoints(d).is_dir()]
     if missing:
         raise FileNotFoundError(
             f"--init-from {cfg.init_from}: neither {run_dir} nor {missing} hold checkpoints; pass one seed's "
@@ -57,7 +55,7 @@ def source_iteration(cfg: TrainConfig) -> int:
     FileNotFoundError if a source lacks it."""
     dirs = source_dirs(cfg)
     _, iteration = parse(cfg.init_from)
-    steps = [set(checkpoint.all_steps(d / CHECKPOINTS)) for d in dirs]
+    steps = [set(checkpoint.all_steps(rundir.checkpoints(d))) for d in dirs]
     common = set.intersection(*steps)
     if iteration is None:
         if not common:

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from scipy import stats as scipy_stats
 
-from jaxsocial import logs
+from jaxsocial import logs, rundir
 
 ITERATION = "iteration"
 SPEED = "env_steps_per_s"
@@ -300,12 +300,6 @@ REQUIRED = {"env", "seed", "seeds", "num_envs", "rollout_steps"}
 """Keys a training run's config.json must have to be read as one."""
 
 
-def seed_dir_names(seed: int, seeds: int) -> list[str]:
-    """The sub-directory of each seed of a run of `seeds` seeds from `seed` ('' for a one-seed run: the run
-    itself), as `python -m jaxsocial.train` writes them (`train.seed_runs`)."""
-    return [""] if seeds == 1 else [f"s{s}" for s in range(seed, seed + seeds)]
-
-
 def run_config(run_dir: Path) -> dict[str, Any]:
     """The config.json of a training run. ValueError if `run_dir` is not a run written by
     `python -m jaxsocial.train`."""
@@ -330,7 +324,7 @@ def seed_dirs(run_dir: str | Path) -> list[Path]:
     `run_dir` is not a run written by `python -m jaxsocial.train`, or a seed's directory is missing."""
     run_dir = Path(run_dir)
     config = run_config(run_dir)
-    dirs = [run_dir / name if name else run_dir for name in seed_dir_names(config["seed"], config["seeds"])]
+    dirs = rundir.seed_dirs(run_dir, config["seed"], config["seeds"])
     for d in dirs:
         if not (d / logs.CONFIG_FILE).is_file():
             raise ValueError(f"{d} is missing ({run_dir} was trained with --seeds {config['seeds']})")

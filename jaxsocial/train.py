@@ -29,6 +29,7 @@ from jaxsocial import (
     loop,
     metrics,
     nonfinite,
+    rundir,
     runlock,
     schedule,
 )
@@ -63,7 +64,7 @@ def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[tuple[TrainConfig, Path]]
     seeds = range(cfg.seed, cfg.seed + cfg.seeds)
     return [
         (dataclasses.replace(cfg, seed=seed, seeds=1, run_name=f"{run_name(cfg)}/{name}"), run_dir / name)
-        for seed, name in zip(seeds, metrics.seed_dir_names(cfg.seed, cfg.seeds), strict=True)
+        for seed, name in zip(seeds, rundir.seed_dir_names(cfg.seed, cfg.seeds), strict=True)
     ]
 
 
@@ -110,7 +111,7 @@ def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConf
         if diff:
             raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
     for _, seed_dir in seeds:
-        for sub in ("checkpoints", policy_io.POLICY_DIR):  # made here, before any process looks
+        for sub in (rundir.CHECKPOINTS_DIR, policy_io.POLICY_DIR):  # made here, before any process looks
             (seed_dir / sub).mkdir(parents=True, exist_ok=True)
     if not cfg.resume:
         write_configs(cfg, run_dir, seeds)

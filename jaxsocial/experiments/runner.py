@@ -9,7 +9,7 @@ import re
 import shlex
 from pathlib import Path
 
-from jaxsocial import evaluate, logs, train
+from jaxsocial import evaluate, logs, rundir, train
 from jaxsocial.config import TrainConfig, setup
 from jaxsocial.experiments import kinds, pinned, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
@@ -47,7 +47,7 @@ def condition_seed_dirs(
             continue
         first, last = int(match[1]), int(match[2])
         for s in range(first, last + 1):
-            d = run_dir if first == last else run_dir / f"s{s}"
+            d = run_dir if first == last else run_dir / rundir.seed_name(s)
             if logs.has_metrics(d):
                 held.setdefault(s, []).append(d)
     return [_one_holder(condition, s, held.get(s, []), d, pick) for s, d in enumerate(own, start=seed)]

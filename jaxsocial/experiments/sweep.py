@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial import logs, metrics
+from jaxsocial import logs, metrics, rundir
 from jaxsocial.experiments import pinned, recipes, records, takeoff
 from jaxsocial.metrics import LEARNED_RETURN
 
@@ -225,7 +225,7 @@ def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_v
     for seed in seeds:
         source = run_dir(setting, seed, runs_dir)
         provenance = pinned.run_provenance(source, device, jax_version)
-        target = Path(records.RECORDS_DIR) / RECORDS_SUBDIR / setting.name / f"s{seed}"
+        target = Path(records.RECORDS_DIR) / RECORDS_SUBDIR / setting.name / rundir.seed_name(seed)
         records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/s{seed}")
         print(f"recorded {target}")
 

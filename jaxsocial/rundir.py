@@ -1,0 +1,38 @@
+"""Where things go in a training run's directory, named in one place::
+
+    <runs_dir>/<run_name>/          config.json, metrics.jsonl (`logs`), the writer's lock (`runlock`)
+        s<seed>/                    one per seed of a several-seed run; a one-seed run is its own seed
+            config.json             the config of a one-seed run of that seed (it reads like one)
+            checkpoints/<it>/       params, optimiser state and stage, to resume or branch from
+            policy/<it>/            the exported policy (`agents.policy_io`)
+            eval/<spec>.json        evaluations after training (`logs.EVAL_DIR`)
+
+Records (`experiments.records`) keep the same layout, less the checkpoints.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+CHECKPOINTS_DIR = "checkpoints"
+
+
+def seed_name(seed: int) -> str:
+    """The sub-directory of `seed` in a several-seed run (or in the records of a sweep setting)."""
+    return f"s{seed}"
+
+
+def seed_dir_names(seed: int, seeds: int) -> list[str]:
+    """The sub-directory of each seed of a run of `seeds` seeds from `seed` ('' for a one-seed run: the run
+    itself)."""
+    return [""] if seeds == 1 else [seed_name(s) for s in range(seed, seed + seeds)]
+
+
+def seed_dirs(run_dir: Path, seed: int, seeds: int) -> list[Path]:
+    """The directory of each seed of the run `run_dir` of `seeds` seeds from `seed`."""
+    return [run_dir / name if name else run_dir for name in seed_dir_names(seed, seeds)]
+
+
+def checkpoints(seed_dir: Path) -> Path:
+    """A seed's checkpoint directory."""
+    return Path(seed_dir) / CHECKPOINTS_DIR
