@@ -68,18 +68,27 @@ def draw(runs, path: Path, env_spec: str) -> None:
 
     condition = runs.recipe.conditions[0]
     run_dir = runs.seed_dirs[condition][0]
-    out = predicted_frames(learner_episode(str(run_dir), env_spec))
-    names = {v: k for k, v in MOVES.items()}
-    panels = [("observed (t)", out["observed"])]
-    panels += [(f"predicted: {m}", f) for m, f in out["predicted"].items()]
-    panels += [(f"observed (t+1), took {names.get(out['action'], out['action'])}", out["next"])]
-    fig, axes = plt.subplots(1, len(panels), figsize=(2.4 * len(panels), 2.8))
-    for ax, (title, frame) in zip(axes, panels, strict=True):
-        ax.imshow(frame, interpolation="nearest")
-        ax.set_title(title, fontsize=8)
-        ax.axis("off")
-    fig.suptitle(f"{run_dir}, step {out['step']}", fontsize=8)
-    fig.tight_layout()
+    fig = frames_figure(predicted_frames(learner_episode(str(run_dir), env_spec)), str(run_dir))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def frames_figure(out: dict[str, Any], title: str):
+    """A matplotlib figure of a `predicted_frames` result: the view at t, the decoder's prediction for each
+    movement action and the view at t+1, side by side on one colour scale (views as uint8 / 255, the
+    decoder's target scale)."""
+    import matplotlib.pyplot as plt
+
+    names = {v: k for k, v in MOVES.items()}
+    panels = [("observed (t)", out["observed"] / 255.0)]
+    panels += [(f"predicted: {m}", f) for m, f in out["predicted"].items()]
+    panels += [(f"observed (t+1), took {names.get(out['action'], out['action'])}", out["next"] / 255.0)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.4 * len(panels), 2.8))
+    for ax, (label, frame) in zip(axes, panels, strict=True):
+        ax.imshow(frame, interpolation="nearest", vmin=0.0, vmax=1.0)
+        ax.set_title(label, fontsize=8)
+        ax.axis("off")
+    fig.suptitle(f"{title}, step {out['step']}", fontsize=8)
+    fig.tight_layout()
+    return fig
