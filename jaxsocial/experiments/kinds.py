@@ -334,22 +334,29 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
         steps_axis(ax)
     returns_ax.legend(fontsize=8)
     draw_takeoffs(takeoff_ax, runs, summary, colors)
-    finals = dict(summary["conditions"])
-    if summary.get("experts", {}).get("mean") is not None:
-        finals["experts"] = summary["experts"]
-    bars(final_ax, finals, [*colors[: len(runs.rows)], "0.3"])
-    final_ax.set(title="final return, per seed", ylabel="learner episode return")
+    draw_finals(final_ax, runs, summary, colors)
     _save(plt, fig, path, runs)
 
 
+def draw_finals(ax, runs, summary: dict[str, Any], colors) -> None:
+    """The final-return panel: per condition (and the experts) each seed, the mean and the IQM (`bars`)."""
+    finals = {c: summary["conditions"][c] for c in runs.rows}
+    if summary.get("experts", {}).get("mean") is not None:
+        finals["experts"] = summary["experts"]
+    bars(ax, finals, [*colors[: len(runs.rows)], "0.3"])
+    ax.set(title="final return, per seed", ylabel="learner episode return")
+
+
 def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
-    """Returns through training and in each evaluation environment, with each seed's switch."""
+    """Returns through training and in each evaluation environment, with each seed's switch; the time to
+    learning; the final returns (`draw_finals`)."""
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
     keys = metrics.eval_keys(r for rows in runs.rows.values() for r in rows)
-    fig, axes = plt.subplots(1, 2 + len(keys), figsize=(5 * (2 + len(keys)), 4))
-    draw_takeoffs(axes[-1], runs, summary, colors)
-    axes = axes[:-1]
+    fig, axes = plt.subplots(1, 3 + len(keys), figsize=(5 * (3 + len(keys)), 4))
+    draw_finals(axes[-1], runs, summary, colors)
+    draw_takeoffs(axes[-2], runs, summary, colors)
+    axes = axes[:-2]
     for i, (c, seed_rows) in enumerate(runs.rows.items()):
         label = recipes.CONDITIONS[c].label
         xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
