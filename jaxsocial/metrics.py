@@ -345,3 +345,9 @@ def read_rows(seed_dir: str | Path) -> list[dict[str, Any]]:
 def steps_per_iteration(config: Mapping[str, Any]) -> int:
     """Env-steps per iteration and seed of a run's config."""
     return config["num_envs"] * config["rollout_steps"]
+
+
+def training_seconds(rows: list[Mapping[str, Any]], per_iteration: int) -> np.ndarray:
+    """float64[N] the wall-clock seconds of training (compilation excluded) up to the end of each of the N
+    rows, from each row's logged env-steps/s (`per_iteration` env-steps a row)."""
+    return np.cumsum([per_iteration / row[SPEED] for row in rows], dtype=np.float64)

@@ -1,6 +1,7 @@
 """Experiment recipes: every condition is a valid run at every scale, the summaries' arithmetic, and the
 run -> resume/skip -> figure plumbing at the tiny scale (with evaluation during training and a stage)."""
 
+import dataclasses
 import json
 import math
 
@@ -366,3 +367,26 @@ def test_figures_name_environments_and_scales_for_people():
     assert kinds.scale_title(Runs) == (
         "tiny scale (plumbing only: it learns nothing): 256 env-steps per seed, seeds 0-1"
     )
+
+
+def test_time_to_learning_in_cpu_minutes_where_the_record_says_the_cores(tmp_path):
+    """A seed's CPU-minutes to takeoff: its training seconds (from the logged env-steps/s) to the takeoff
+    times its recorded cores; None for a seed whose record does not say them."""
+    seed_rows = [
+        {"iteration": i + 1, "env_steps_per_s": 5.0, "return/0": 0.0 if i < 50 else 5.0, "episodes/0": 1}
+        for i in range(100)
+    ]  # 10 env-steps an iteration at 5 a second: 2 s an iteration
+    recorded, unrecorded = tmp_path / "a", tmp_path / "b"
+    recorded.mkdir()
+    logs.write_json(recorded / "provenance.json", {"run": {"cores": 2}})
+
+    class Runs:  # what `takeoffs` reads of a RecipeRuns
+        rows = {"social_rec": [seed_rows, seed_rows]}
+        configs = {"social_rec": dataclasses.replace(config.TrainConfig(), num_envs=2, rollout_steps=5)}
+        seed_dirs = {"social_rec": [recorded, unrecorded]}
+
+    entry = kinds.takeoffs(Runs)["social_rec"]
+    lift = entry["takeoff_iterations"][0]
+    assert lift > 50 and entry["takeoff_env_steps"][0] == lift * 10
+    assert entry["takeoff_cpu_minutes"] == [pytest.approx(lift * 2.0 * 2 / 60, abs=0.01), None]
+    assert entry["cores"] == [2, None]

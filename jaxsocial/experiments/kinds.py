@@ -24,7 +24,7 @@ import numpy as np
 from jaxsocial import logs, metrics
 from jaxsocial.axes import format_steps, steps_axis
 from jaxsocial.curves import band
-from jaxsocial.experiments import counts, predictions, recipes, takeoff
+from jaxsocial.experiments import counts, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.metrics import LEARNED_RETURN, curve, eval_curve, final_return, metric_curve, stats
 
@@ -166,16 +166,28 @@ def _seeds(condition: dict[str, Any]) -> int:
 
 
 def takeoffs(runs) -> dict[str, dict[str, Any]]:
-    """Each condition's time to learning (`takeoff`): every seed's takeoff iteration and env-step, and how
-    many seeds took off by the end."""
+    """Each condition's time to learning (`takeoff`): every seed's takeoff iteration, env-step and CPU-minutes
+    (training seconds to the takeoff times the cores its record says it had; None where it has no record of
+    them), and how many seeds took off by the end."""
     out = {}
     for c, seed_rows in runs.rows.items():
         cfg = runs.configs[c]
+        per_iteration = cfg.num_envs * cfg.rollout_steps
         iterations = [takeoff.takeoff(*curve(rows), LEARNED_RETURN) for rows in seed_rows]
-        steps = [None if i is None else i * cfg.num_envs * cfg.rollout_steps for i in iterations]
+        cores = [
+            ((records.read_provenance(d) or {}).get("run") or {}).get("cores") for d in runs.seed_dirs[c]
+        ]
+        minutes = [
+            None
+            if i is None or k is None
+            else round(float(metrics.training_seconds(rows, per_iteration)[i - 1]) * k / 60, 2)
+            for i, k, rows in zip(iterations, cores, seed_rows, strict=True)
+        ]
         out[c] = {
             "takeoff_iterations": iterations,
-            "takeoff_env_steps": steps,
+            "takeoff_env_steps": [None if i is None else i * per_iteration for i in iterations],
+            "takeoff_cpu_minutes": minutes,
+            "cores": cores,
             "took_off": sum(i is not None for i in iterations),
             "seeds": len(iterations),
         }

@@ -238,7 +238,7 @@ def seed_summary(seed_dir: Path) -> dict[str, Any]:
     prov = records.read_provenance(seed_dir) or {}
     cores = (prov.get("run") or {}).get("cores") or 1
     per_iteration = metrics.steps_per_iteration(config)
-    seconds = np.cumsum([per_iteration / row[metrics.SPEED] for row in rows])
+    seconds = metrics.training_seconds(rows, per_iteration)
     windows = max(1, len(rows) * per_iteration // WINDOW_STEPS)
     iterations, returns = metrics.curve(rows, points=windows)
     lift = takeoff.takeoff(iterations, returns, LEARNED_RETURN)
