@@ -67,3 +67,21 @@ def test_a_recipe_trains_seed_by_seed_on_pinned_cores(tmp_path, monkeypatch):
     cli.main(["figure", *common[:-2], "--runs-dir", str(records_dir), "--out-dir", str(tmp_path / "fig")])
     summary = json.loads((tmp_path / "fig" / "bc-tiny.json").read_text())
     assert len(summary["conditions"]["bc"]["final_returns"]) == 2
+
+
+def test_run_with_cores_trains_seed_by_seed(tmp_path, monkeypatch, capsys):
+    """Every condition of a seed before the next seed, so a sitting cut short leaves whole seeds; a failed
+    process is an error naming it, after every process has ended."""
+    started = []
+
+    def fake_run(jobs, cores):
+        started.extend(job.label for job in jobs)
+        return [1 if job.label == "social_rec s1" else 0 for job in jobs]
+
+    monkeypatch.setattr(pinned, "run", fake_run)
+    with pytest.raises(SystemExit, match="training failed for social_rec s1"):
+        cli.main(
+            ["run", "h1", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(tmp_path), "--cores", "0"]
+        )
+    conditions = ["solo_pred", "social_none", "social_rec", "social_pred"]
+    assert started == [f"{c} s{s}" for s in (0, 1) for c in conditions]

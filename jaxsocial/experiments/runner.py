@@ -98,8 +98,8 @@ def run(
     commands and what is done instead. With `train_missing=False` nothing trains: the conditions already
     trained (e.g. on another machine) are evaluated and the others are skipped with a note. `pick`: see
     `condition_seed_dirs`. With `cores`, every seed trains as a one-seed program (`<condition>-s<k>-<k>`) in
-    a process of its own pinned to one of them, as many at once as there are cores (`pinned.run`);
-    `TrainingFailed` after they end if any failed.
+    a process of its own pinned to one of them, as many at once as there are cores (`pinned.run`), seed by
+    seed (every condition of a seed before the next seed); `TrainingFailed` after they end if any failed.
     """
     if cores:
         programs = {
@@ -125,13 +125,17 @@ def run(
             elif state != "done" and train_missing and cores:
                 resume = ["--resume"] if state == "partial" else []
                 run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
-                jobs.append(pinned.Job(f"{label}", pinned.train_command([*flags, *resume]), run_dir))
+                jobs.append((cfg.seed, pinned.Job(label, pinned.train_command([*flags, *resume]), run_dir)))
             elif state != "done" and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == "partial"))
                 dirs[name][own] = seed_dirs(cfg)
             elif state != "done" and name not in skipped:
                 skipped.append(name)
-    if jobs:
+    if jobs:  # seed by seed, every condition of a seed before the next seed: a session cut short leaves
+        # whole seeds done, not one condition's
+        jobs = [
+            job for _, job in sorted(jobs, key=lambda pair: pair[0])
+        ]  # stable: conditions keep their order
         failed = [job.label for job, rc in zip(jobs, pinned.run(jobs, list(cores)), strict=True) if rc != 0]
         if failed:
             raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
