@@ -69,7 +69,7 @@ def test_a_recipe_trains_seed_by_seed_on_pinned_cores(tmp_path, monkeypatch):
     assert len(summary["conditions"]["bc"]["final_returns"]) == 2
 
 
-def test_run_with_cores_trains_seed_by_seed(tmp_path, monkeypatch, capsys):
+def test_run_with_cores_trains_seed_by_seed(tmp_path, monkeypatch):
     """Every condition of a seed before the next seed, so a sitting cut short leaves whole seeds; a failed
     process is an error naming it, after every process has ended."""
     started = []
