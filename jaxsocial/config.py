@@ -209,6 +209,32 @@ PRESETS = {
         ppo=PPOConfig(),
     ),
 }
+PRESETS["laptop"] = dataclasses.replace(
+    PRESETS["small"],
+    preset="laptop",
+    env_args=(("width", 7), ("height", 7)),
+    iterations=2442,  # 20.0M env-steps
+    num_envs=128,
+    rollout_steps=64,
+    chunk_iterations=10,
+    checkpoint_every=100,
+    net=dataclasses.replace(
+        PRESETS["small"].net, conv_channels=(16, 32, 32), hidden=64, mlp=64, n_actions=3, aux="rec"
+    ),
+    ppo=dataclasses.replace(
+        PRESETS["small"].ppo,
+        lr=1e-3,
+        entropy_coef=0.01,
+        num_minibatches=8,
+        minibatch_chunks=64,
+        recompute_every=8,
+        kl_target=0.02,
+        kl_hard_limit=0.05,
+    ),
+)
+"""Social learning on a laptop (the `laptop` recipe scale): a learner with the reconstruction loss beside two
+experts in a 7x7 Goal Cycle, the cpu scale's small network, one gradient sample per env-step, 20.0M
+env-steps (docs/experiments.md)."""
 PRESETS["expert"] = dataclasses.replace(
     PRESETS["paper"],
     preset="expert",

@@ -407,7 +407,7 @@ def stop_message(cfg: TrainConfig, it: int, failure: nonfinite.Failure, last_sav
 
 
 USAGE = """Train independent conv-LSTM PPO learners (or behaviour cloning) beside experts in a jaxsocial
-environment. Every option below is a flag; `--preset small|paper|expert` picks the defaults first.
+environment. Every option below is a flag; `--preset small|laptop|paper|expert` picks the defaults first.
 
   python -m jaxsocial.train --env goalcycle3                  # the small default, minutes on 2 CPU cores
   python -m jaxsocial.train --preset paper --env goalcycle3   # the paper's network and PPO (for GPUs)

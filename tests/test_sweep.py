@@ -1,13 +1,14 @@
 """The exploratory sweep: settings that parse, takeoff in env-steps and CPU-minutes from a hand-built run,
 and seeds outside the exploratory range refused."""
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from jaxsocial import logs, train
-from jaxsocial.experiments import sweep
+from jaxsocial.experiments import recipes, sweep
 from jaxsocial.metrics import LEARNED_RETURN
 
 
@@ -20,6 +21,24 @@ def test_every_setting_parses_to_its_flags(name):
     if "--ppo.num-minibatches" in setting.flags:
         value = setting.flags[setting.flags.index("--ppo.num-minibatches") + 1]
         assert cfg.ppo.num_minibatches == int(value)  # the setting's flag overrides the scale's
+
+
+@pytest.mark.parametrize(
+    "condition, setting",
+    [
+        ("social_rec", "mb8k8_rec_7x7"),
+        ("solo_pred", "mb8k8_solo_pred_7x7"),
+        ("social_none", "mb8k8_none_7x7"),
+    ],
+)
+def test_the_laptop_scale_is_the_sweeps_7x7_setting(condition, setting):
+    """What the sweep screened is what the `laptop` scale (and `--preset laptop`) trains: every field but the
+    preset's name, the run's name and the sweep's early stop."""
+    laptop = recipes.condition_config(recipes.LAPTOP, condition, 3, 1, "runs/x")
+    swept = train.parse_args(sweep.train_flags(sweep.SETTINGS[setting], 3, "runs/x"))
+    differ = {f.name for f in dataclasses.fields(laptop) if getattr(laptop, f.name) != getattr(swept, f.name)}
+    assert differ == {"preset", "run_name", "stop_at_return"}
+    assert train.parse_args(["--preset", "laptop"]).net.aux == "rec"  # the demo: social PPO + rec
 
 
 def hand_built_run(path, returns, sps, cores):

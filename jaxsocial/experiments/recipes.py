@@ -8,6 +8,8 @@ each is trained once per scale and seed range.
 Scales:
   * `cpu`: the paper's mechanism sized for 2 CPU cores, every condition's seeds within a session (see
     `CPU.note` for what differs from the paper and why; the README's Results say what it showed);
+  * `laptop`: the science's home on 2 CPU cores, chosen by the exploratory sweep: a 7x7 grid, one gradient
+    sample per env-step, 20.0M env-steps a seed, each seed on one core (`run --cores 0 1`; `LAPTOP.note`);
   * `paper`: the paper's settings (`--preset paper`: 13x13 Goal Cycle, the paper's network and PPO, 375M
     env-steps per run); meant for GPUs;
   * `tiny`: seconds per run, for tests and the notebook's smoke run (learns nothing).
@@ -98,6 +100,28 @@ GPU = Scale(
     ),
 )
 
+LAPTOP = Scale(
+    name="laptop",
+    flags=("--preset", "laptop"),
+    env_args="width=7,height=7",
+    iterations=PRESETS["laptop"].iterations,
+    eval_every=250,
+    eval_episodes=64,
+    note=(
+        "The cpu scale's network and learning rates in a 7x7 Goal Cycle (5x5 interior) instead of 9x9, with "
+        "one pass of 8 minibatches (1 gradient sample per env-step, the rollout's own value targets: no "
+        "recompute) instead of two passes of 16, for 2,442 iterations (20.0M env-steps, about 25-30 minutes "
+        "a seed on one core of a 2-core AMD EPYC; `run --cores 0 1` trains two seeds at once). The 7x7 view "
+        "covers most of the grid, so the experts and the tiles they visit are nearly always in view. Chosen "
+        "by the exploratory sweep (docs/experiments.md, `mb8k8_rec_7x7` and its baselines), the first "
+        "setting at which social learners with an auxiliary loss left the one-tile plateau within 20M "
+        "env-steps under the 1.5 penalty while solo learners did not. Kept from the paper: independent "
+        "learners beside two scripted experts, 7x7 partial RGB views, the -1.5 penalty, prestige colours, "
+        "the auxiliary loss (coefficient 3); the rest as the cpu scale's note says. `--preset laptop` is its "
+        "social PPO + rec run."
+    ),
+)
+
 PAPER = Scale(
     name="paper",
     flags=("--preset", "paper"),
@@ -122,7 +146,7 @@ TINY = Scale(
     caveat="plumbing only: it learns nothing",
 )
 
-SCALES = {s.name: s for s in (CPU, GPU, PAPER, TINY)}
+SCALES = {s.name: s for s in (CPU, LAPTOP, GPU, PAPER, TINY)}
 
 
 @dataclasses.dataclass(frozen=True)
