@@ -18,10 +18,10 @@ the unneeded ones, `grad_flops`; recomputation in the backward pass is not count
 float32 ``jnp.dot`` measured in the same run. XLA's ``cost_analysis`` counts a loop body once rather than
 once per iteration, so it only cross-checks the forward count on a loop-free call (T=1, B=64).
 
-``--impls auto`` (and ``--dtypes auto``) resolves the config first (`jaxsocial.agents.autotune.resolve`, at
-the minibatch's ``--seq * --batch`` frames: per-layer choices measured, or read from the autotune cache,
-``--autotune-cache``); the row records the resolved per-layer `conv_impl` and dtype, what was asked for
-(`requested`) and each layer's measured candidates (`autotune`).
+``--impls auto`` (and ``--dtypes auto``) resolves the config first
+(`jaxsocial.agents.fast.autotune.resolve`, at the minibatch's ``--seq * --batch`` frames: per-layer choices
+measured, or read from the autotune cache, ``--autotune-cache``); the row records the resolved per-layer
+`conv_impl` and dtype, what was asked for (`requested`) and each layer's measured candidates (`autotune`).
 
 ``--dtypes float32,bfloat16`` measures each `NetworkConfig.dtype` (bfloat16: product inputs in bfloat16,
 float32 accumulation; the "matmul" implementation's stride-1 layers then run as im2col products, whose FLOPs
@@ -76,7 +76,8 @@ import jax.numpy as jnp
 import numpy as np
 from run_info import REPO, metadata, write_results
 
-from jaxsocial.agents import autotune, conv, network
+from jaxsocial.agents import network
+from jaxsocial.agents.fast import autotune, conv
 
 TORCH_SCRIPT = Path(__file__).resolve().parent / "pytorch_paper_net.py"
 """The PyTorch reference (run with the `--torch` python; the only file that imports torch)."""
@@ -102,7 +103,7 @@ def cpu_flags() -> dict[str, bool]:
 def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
     """Matrix-product FLOPs (2 per multiply-add) of one sample's forward pass, per layer, as `cfg.conv_impl`
     computes them (per layer): the "matmul" implementation's stride-1 layers (Winograd in float32, see
-    jaxsocial.agents.conv) count their channel products under the layer's name and their pixel transforms
+    jaxsocial.agents.fast.conv) count their channel products under the layer's name and their pixel transforms
     (products with constant matrices) under "<layer>.transforms"; the others count direct convolutions. The
     Winograd kernel transforms (once per chunk, not per sample) are left out."""
     c1, c2, c3 = cfg.conv_channels
@@ -490,7 +491,7 @@ PRODUCTS = {
 def section_products(args: argparse.Namespace) -> dict:
     """GFLOP/s of the network's product shapes (`PRODUCTS`), jitted, best of ``--repeats``, in each of
     ``--dtypes`` (`precision.matmul`: bfloat16 inputs cast inside the call, float32 accumulation)."""
-    from jaxsocial.agents.precision import matmul
+    from jaxsocial.agents.fast.precision import matmul
 
     rng = np.random.default_rng(0)
     rows = []
@@ -564,7 +565,8 @@ def main() -> None:
         "--dtypes", default="float32", help="comma-separated NetworkConfig.dtype values (auto: the machine's)"
     )
     parser.add_argument(
-        "--autotune-cache", help="the autotune's cache file (default: jaxsocial.agents.autotune.cache_path())"
+        "--autotune-cache",
+        help="the autotune's cache file (default: jaxsocial.agents.fast.autotune.cache_path())",
     )
     parser.add_argument(
         "--presets", default="small,small-random,paper", help=f"section train: {', '.join(TRAIN_RUNS)}"

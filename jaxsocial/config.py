@@ -19,8 +19,9 @@ import tyro
 
 import jaxsocial
 from jaxsocial import envspec, logs, schedule
-from jaxsocial.agents import autotune, policy_io, population, ppo
+from jaxsocial.agents import policy_io, population, ppo
 from jaxsocial.agents.bc import BCConfig
+from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxsocial.agents import conv
+from jaxsocial.agents.fast import conv
 from jaxsocial.agents.network import NetworkConfig
 
 U = 2.0**-24

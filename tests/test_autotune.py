@@ -12,8 +12,8 @@ import pytest
 from float_bounds import assert_trees_within, gamma, network_error
 
 from jaxsocial import config
-from jaxsocial.agents import autotune
 from jaxsocial.agents import network as net
+from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network_config import CONV_LAYERS
 
 TINY = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")

@@ -1,4 +1,4 @@
-"""3x3 convolution kernels (`jaxsocial.agents.conv`): every implementation against direct sums and XLA's
+"""3x3 convolution kernels (`jaxsocial.agents.fast.conv`): every implementation against direct sums and XLA's
 convolutions, outputs and gradients; the Winograd transforms. Tolerances: per element, the float32 error bound
 of `float_bounds` (summation length times the magnitude of the terms)."""
 
@@ -9,7 +9,7 @@ import pytest
 from float_bounds import U, conv_magnitude, gamma, winograd_terms
 from jax import lax
 
-from jaxsocial.agents import conv
+from jaxsocial.agents.fast import conv
 
 
 def _hwnc(x):

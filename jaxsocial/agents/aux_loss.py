@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxsocial.agents.chunks import split_chunks
+from jaxsocial.agents.fast.chunks import split_chunks
 from jaxsocial.agents.initialisers import Params
 from jaxsocial.agents.modules import Decoder
 from jaxsocial.agents.network_config import NetworkConfig

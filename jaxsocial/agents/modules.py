@@ -23,12 +23,12 @@ import jax.numpy as jnp
 from jax import lax
 from jax.ad_checkpoint import checkpoint_name
 
-from jaxsocial.agents import conv
-from jaxsocial.agents.chunks import SAVED, leaky_relu, leaky_relu_unsaved, map_chunks
-from jaxsocial.agents.conv import KERNEL
+from jaxsocial.agents.fast import conv
+from jaxsocial.agents.fast.chunks import SAVED, leaky_relu, leaky_relu_unsaved, map_chunks
+from jaxsocial.agents.fast.conv import KERNEL
+from jaxsocial.agents.fast.precision import matmul
 from jaxsocial.agents.initialisers import Init, param
 from jaxsocial.agents.network_config import ATTENTION_CLASSES, OBS_SHAPE, STRIDES, NetworkConfig
-from jaxsocial.agents.precision import matmul
 from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_VOCAB, symbolic_classes, symbolic_errors
 
 

@@ -13,9 +13,10 @@ The parts, one job each:
 * `network_config`: `NetworkConfig` and the shapes that follow from it.
 * `modules`: the Flax modules (`ActorCritic`, `Encoder`, `LSTM`, `MLP`, `Decoder`, `Conv`, `Embed`, `Dense`).
 * `initialisers`: each parameter's distribution, and the params drawn from two random buffers.
-* `chunks`: the conv layers in chunks of frames, saving only each layer's activation for the backward pass.
 * `aux_loss`: the auxiliary frame loss, fused with its gradient.
 * `symbolic`: the symbolic views' vocabulary and their masked cross-entropy.
+* `fast`: how it runs fast on CPUs, not what it computes (conv kernels, chunks of frames, bfloat16
+  products, the machine's own choice among them), selected by `conv_impl`, `chunk` and `dtype`.
 
 The params tree is flat: ``conv1, conv2, conv3, fc`` (`Encoder`), ``lstm`` (``wi, wh, b``), ``policy`` and
 ``value`` (``dense0, dense1, out``), ``attention`` and ``aux_fc, deconv1, deconv2, deconv3`` (`Decoder`);
@@ -63,7 +64,7 @@ import jax.numpy as jnp
 
 from jaxsocial.agents import initialisers
 from jaxsocial.agents.aux_loss import aux_loss
-from jaxsocial.agents.conv import KERNEL
+from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.initialisers import Params
 from jaxsocial.agents.modules import ActorCritic, Carry, Output
 from jaxsocial.agents.network_config import (

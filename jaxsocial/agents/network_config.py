@@ -18,8 +18,8 @@ import math
 
 import jax.numpy as jnp
 
-from jaxsocial.agents import conv, precision
-from jaxsocial.agents.conv import KERNEL
+from jaxsocial.agents.fast import conv, precision
+from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_SHAPE
 
 OBS_SHAPE = (21, 21, 3)  # 7x7 grid cells of 3x3 pixels (marlgrid tile size 3)

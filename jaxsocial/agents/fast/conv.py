@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from jaxsocial.agents.precision import matmul
+from jaxsocial.agents.fast.precision import matmul
 
 KERNEL = 3
 IMPLS = ("matmul", "im2col", "xla")

@@ -48,7 +48,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.agents import conv
+from jaxsocial.agents.fast import conv
 from jaxsocial.agents.network_config import (
     AUTO,
     CONV_IMPLS,
