@@ -65,33 +65,41 @@ def test_takeoff_and_the_fraction_learned():
     np.testing.assert_array_equal(fraction, [0, 0.25, 0.25, 0.5, 0.5])
 
 
-def test_the_committed_design_has_the_power_it_states(capsys):
-    recipe = recipes.RECIPES["h1_prereg"]
+DESIGNED = sorted(r.name for r in recipes.RECIPES.values() if r.design)
+
+
+@pytest.mark.parametrize("name", DESIGNED)
+def test_the_committed_design_has_the_power_it_states(name, capsys):
+    recipe = recipes.RECIPES[name]
     design = prereg.load(recipe.design)
     scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
-    assert scale.iterations == design.iterations != recipes.SCALES[design.scale].iterations
+    assert scale.iterations == design.iterations and scale.runs_subdir == f"prereg-{design.name}"
     assert recipes.recipe_scale(recipe, recipes.TINY) == recipes.TINY  # the budget is the design scale's
     assert set(design.treatment + design.control) == set(recipe.conditions)
-    cfg = recipes.condition_config(scale, "social_pred", design.seed, design.seeds, "r")
+    assert design.seed >= 100 and design.training_commit is None  # fresh seeds; runs follow the design
+    cfg = recipes.condition_config(scale, recipe.conditions[0], design.seed, design.seeds, "r")
     assert prereg.power_of(design, scale.iterations * cfg.num_envs * cfg.rollout_steps) == pytest.approx(
         design.power, abs=5e-4
     )  # stored to 3 decimals
     assert design.power >= 0.8
-    cli.main(["power", "h1_prereg"])
+    cli.main(["power", name])
     assert f"power: {design.power:.3f}" in capsys.readouterr().out
 
 
-def test_a_design_fixes_its_seeds(tmp_path, capsys):
-    design = prereg.load("h1_prereg")
+@pytest.mark.parametrize("name", DESIGNED)
+def test_a_design_fixes_its_seeds(name, tmp_path, capsys):
+    recipe = recipes.RECIPES[name]
+    design = prereg.load(recipe.design)
     with pytest.raises(SystemExit):
-        cli.main(["run", "h1_prereg", "--scale", design.scale, "--seeds", "3", "--dry-run"])
+        cli.main(["run", name, "--scale", design.scale, "--seeds", "3", "--dry-run"])
     assert f"fixes {design.seeds}" in capsys.readouterr().err
-    cli.main(["run", "h1_prereg", "--scale", design.scale, "--runs-dir", str(tmp_path), "--dry-run"])
+    cli.main(["run", name, "--scale", design.scale, "--runs-dir", str(tmp_path), "--dry-run"])
     out = capsys.readouterr().out
     last = design.seed + design.seeds - 1
     assert f"--iterations {design.iterations} " in out
     # in a folder of their own: no ordinary `run h1 --seed 100 --seeds 4` can share their directories
-    assert f"--run-name {design.scale}/prereg-h1_prereg/social_pred-s{design.seed}-{last}" in out
+    condition = recipe.conditions[-1]
+    assert f"--run-name {design.scale}/prereg-{design.name}/{condition}-s{design.seed}-{last}" in out
 
 
 def test_preregistered_block():
