@@ -48,7 +48,8 @@ def test_scores_are_the_normalised_gains():
     assert result["learner_returns"]["dropout"]["second_half"]["mean"] == pytest.approx(1.5)
     one = evaluate.cultural_transmission({k: v[:1] for k, v in played.items()}, (1,))
     assert one["ci_over"] == "episodes"  # per-episode gains (0.3, 0.5) / 10 -> mean 0.4, t interval
-    np.testing.assert_allclose(one["ct"]["ci95"], 0.4 + np.array([-1, 1]) * 12.706 * 0.1, rtol=1e-6)
+    t_975_df1 = np.tan(np.pi * 0.475)  # Student t at 1 degree of freedom is Cauchy: tan(pi (p - 1/2))
+    np.testing.assert_allclose(one["ct"]["ci95"], 0.4 + np.array([-1, 1]) * t_975_df1 * 0.1, rtol=1e-6)
     played["with"][0] = episodes([4, 6], [1, 3], [0, 0], [0, 0])
     with pytest.raises(ValueError, match="must be > 0"):
         evaluate.cultural_transmission(played, (1,))
