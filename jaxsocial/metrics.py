@@ -347,7 +347,10 @@ def steps_per_iteration(config: Mapping[str, Any]) -> int:
     return config["num_envs"] * config["rollout_steps"]
 
 
-def training_seconds(rows: list[Mapping[str, Any]], per_iteration: int) -> np.ndarray:
-    """float64[N] the wall-clock seconds of training (compilation excluded) up to the end of each of the N
-    rows, from each row's logged env-steps/s (`per_iteration` env-steps a row)."""
-    return np.cumsum([per_iteration / row[SPEED] for row in rows], dtype=np.float64)
+def cpu_minutes(
+    rows: list[Mapping[str, Any]], per_iteration: int, cores: int, iterations: int | None = None
+) -> float:
+    """CPU-minutes of training (compilation excluded) over the first `iterations` rows (default: all), from
+    each row's logged env-steps/s (`per_iteration` env-steps a row), on `cores` cores."""
+    seconds = sum(per_iteration / row[SPEED] for row in rows[:iterations])
+    return float(seconds) * cores / 60

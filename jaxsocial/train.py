@@ -48,6 +48,11 @@ from jaxsocial.driver import (
 )
 
 
+def run_path(cfg: TrainConfig) -> Path:
+    """The run directory of a config: `runs_dir/run_name`."""
+    return Path(cfg.runs_dir).expanduser() / run_name(cfg)
+
+
 def run_name(cfg: TrainConfig) -> str:
     """`cfg.run_name`, or '<env>-s<seed>' ('<env>-s<first>-<last>' for several seeds)."""
     if cfg.run_name:
@@ -85,7 +90,7 @@ def run(cfg: TrainConfig) -> Path:
     static = config.setup(cfg)  # validate before touching the disk or compiling; once per run
     init_from.check(cfg, static.pop.learners)
     mesh = loop.data_mesh(cfg)
-    run_dir = Path(cfg.runs_dir).expanduser() / run_name(cfg)
+    run_dir = run_path(cfg)
     cfg = init_from.pin(cfg, run_dir)  # RUN_DIR@ITERATION in config.json
     cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)

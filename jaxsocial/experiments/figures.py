@@ -93,11 +93,7 @@ class RecipeRuns:
 
     def commits(self) -> dict[str, str | None]:
         """Each seed directory's recorded training commit (None: no record)."""
-        return {
-            str(d): (records.read_provenance(d) or {}).get("run", {}).get("commit")
-            for dirs in self.seed_dirs.values()
-            for d in dirs
-        }
+        return {str(d): records.run_field(d, "commit") for dirs in self.seed_dirs.values() for d in dirs}
 
     def header(self, command: str) -> dict[str, Any]:
         unfinished = {
@@ -170,7 +166,7 @@ def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
             else {
                 "config": logs.read_config(d) if (d / logs.CONFIG_FILE).is_file() else {},
                 "rows": len(metrics.read_rows(d)),
-                "commit": (records.read_provenance(d) or {}).get("run", {}).get("commit"),
+                "commit": records.run_field(d, "commit"),
             }
             for d in dirs
         ]

@@ -174,13 +174,9 @@ def takeoffs(runs) -> dict[str, dict[str, Any]]:
         cfg = runs.configs[c]
         per_iteration = cfg.num_envs * cfg.rollout_steps
         iterations = [takeoff.takeoff(*curve(rows), LEARNED_RETURN) for rows in seed_rows]
-        cores = [
-            ((records.read_provenance(d) or {}).get("run") or {}).get("cores") for d in runs.seed_dirs[c]
-        ]
+        cores = [records.run_field(d, "cores") for d in runs.seed_dirs[c]]
         minutes = [
-            None
-            if i is None or k is None
-            else round(float(metrics.training_seconds(rows, per_iteration)[i - 1]) * k / 60, 2)
+            None if i is None or k is None else round(metrics.cpu_minutes(rows, per_iteration, k, i), 2)
             for i, k, rows in zip(iterations, cores, seed_rows, strict=True)
         ]
         out[c] = {

@@ -58,6 +58,11 @@ def read_provenance(seed_dir: str | Path) -> dict[str, Any] | None:
     return None
 
 
+def run_field(seed_dir: str | Path, key: str) -> Any:
+    """One field of the `run` part of a seed's record provenance (None without a record, or without it)."""
+    return ((read_provenance(seed_dir) or {}).get("run") or {}).get(key)
+
+
 def read_commands_log(path: str | Path) -> dict[str, dict[str, Any]]:
     """The training commands of a commands log, by the run name their `--run-name` gives.
 

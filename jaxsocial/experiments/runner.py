@@ -21,8 +21,7 @@ class TrainingFailed(Exception):
 
 def seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
-    run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
-    return [d for _, d in train.seed_runs(cfg, run_dir)]
+    return [d for _, d in train.seed_runs(cfg, train.run_path(cfg))]
 
 
 def condition_seed_dirs(
@@ -77,8 +76,7 @@ def status(cfg: TrainConfig, dirs: list[Path]) -> str:
     directory exists, so training resumes it) or 'missing'."""
     if all(len(logs.read_metrics(d)) >= cfg.iterations for d in dirs):
         return "done"
-    run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
-    return "partial" if (run_dir / logs.CONFIG_FILE).exists() else "missing"
+    return "partial" if (train.run_path(cfg) / logs.CONFIG_FILE).exists() else "missing"
 
 
 def run(
@@ -124,18 +122,16 @@ def run(
                 print("  python -m jaxsocial.train " + shlex.join(flags))
             elif state != "done" and train_missing and cores:
                 resume = ["--resume"] if state == "partial" else []
-                run_dir = Path(cfg.runs_dir) / train.run_name(cfg)
-                jobs.append((cfg.seed, pinned.Job(label, pinned.train_command([*flags, *resume]), run_dir)))
+                job = pinned.Job(label, pinned.train_command([*flags, *resume]), train.run_path(cfg))
+                jobs.append((cfg.seed, job))
             elif state != "done" and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == "partial"))
                 dirs[name][own] = seed_dirs(cfg)
             elif state != "done" and name not in skipped:
                 skipped.append(name)
-    if jobs:  # seed by seed, every condition of a seed before the next seed: a session cut short leaves
-        # whole seeds done, not one condition's
-        jobs = [
-            job for _, job in sorted(jobs, key=lambda pair: pair[0])
-        ]  # stable: conditions keep their order
+    if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves
+        # whole seeds done rather than one condition's
+        jobs = [job for _, job in sorted(jobs, key=lambda pair: pair[0])]
         failed = [job.label for job, rc in zip(jobs, pinned.run(jobs, list(cores)), strict=True) if rc != 0]
         if failed:
             raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")

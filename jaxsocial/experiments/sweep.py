@@ -226,7 +226,7 @@ def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_v
         source = run_dir(setting, seed, runs_dir)
         provenance = pinned.run_provenance(source, device, jax_version)
         target = Path(records.RECORDS_DIR) / RECORDS_SUBDIR / setting.name / rundir.seed_name(seed)
-        records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/s{seed}")
+        records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/{rundir.seed_name(seed)}")
         print(f"recorded {target}")
 
 
@@ -238,7 +238,6 @@ def seed_summary(seed_dir: Path) -> dict[str, Any]:
     prov = records.read_provenance(seed_dir) or {}
     cores = (prov.get("run") or {}).get("cores") or 1
     per_iteration = metrics.steps_per_iteration(config)
-    seconds = metrics.training_seconds(rows, per_iteration)
     windows = max(1, len(rows) * per_iteration // WINDOW_STEPS)
     iterations, returns = metrics.curve(rows, points=windows)
     lift = takeoff.takeoff(iterations, returns, LEARNED_RETURN)
@@ -246,9 +245,11 @@ def seed_summary(seed_dir: Path) -> dict[str, Any]:
         "seed": config["seed"],
         "iterations": len(rows),
         "env_steps": len(rows) * per_iteration,
-        "cpu_minutes": float(seconds[-1] * cores / 60),
+        "cpu_minutes": metrics.cpu_minutes(rows, per_iteration, cores),
         "takeoff_env_steps": None if lift is None else lift * per_iteration,
-        "takeoff_cpu_minutes": None if lift is None else float(seconds[lift - 1] * cores / 60),
+        "takeoff_cpu_minutes": None
+        if lift is None
+        else metrics.cpu_minutes(rows, per_iteration, cores, lift),
         "stopped_early": bool((prov.get("record") or {}).get("stopped_early")),
         "final_return": metrics.final_return(rows),  # the last 10% of its iterations (until its stop)
         "expert_final_return": [metrics.final_return(rows, s) for s in metrics.slots(rows[-1]) if s != 0],
