@@ -2,6 +2,7 @@
 a fresh state (`driver.load_source_learners`), and a branched run."""
 
 import dataclasses
+import shutil
 
 import jax
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 from conftest import TINY
 
 from jaxsocial import checkpoint, config, driver, init_from, logs, loop, train
+from jaxsocial.experiments import records
 
 
 @pytest.fixture(scope="module")
@@ -91,3 +93,30 @@ def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
     loaded = _adam_count(checkpoint.restore(source / "checkpoints", target, TINY.iterations).opt_state)
     after = _adam_count(checkpoint.restore(run_dir / "checkpoints", target, 2).opt_state)
     assert after >= loaded > first_two  # without the source's state: after == first_two
+
+
+def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path):
+    """`records.pack(final_checkpoint=True)` keeps the checkpoint of the final policy's iteration, without
+    orbax's notes naming where it was written, so a later sitting branches from the committed record as from
+    the run; without it a record has no checkpoint to branch from."""
+    run = dict.fromkeys(records.RUN_FIELDS)
+    plain = records.pack(source, tmp_path / "plain", run, "tiny/source")
+    with pytest.raises(FileNotFoundError, match="hold checkpoints"):
+        _check(_branch(tmp_path, str(plain)))
+    record = records.pack(source, tmp_path / "record", run, "tiny/source", final_checkpoint=True)
+    assert checkpoint.all_steps(record / "checkpoints") == [TINY.iterations]
+    assert not list(record.rglob(records.ORBAX_COMMIT_NOTE))
+    packed = logs.read_json(record / records.PROVENANCE_FILE)["record"]
+    assert packed["checkpoint_iteration"] == TINY.iterations
+    cfg = _branch(tmp_path, str(record))
+    _check(cfg)
+    assert init_from.pin(cfg, tmp_path / "branch").init_from == f"{record}@{TINY.iterations}"
+    from_record = driver.source_state(record, TINY.iterations)
+    from_run = driver.source_state(source, TINY.iterations)
+    jax.tree.map(np.testing.assert_array_equal, from_record.params, from_run.params)
+    jax.tree.map(np.testing.assert_array_equal, from_record.opt_state, from_run.opt_state)
+    partial = tmp_path / "partial"
+    shutil.copytree(source, partial)
+    shutil.rmtree(partial / "checkpoints" / str(TINY.iterations))
+    with pytest.raises(FileNotFoundError, match="no checkpoint of its final iteration"):
+        records.pack(partial, tmp_path / "p", run, "tiny/partial", final_checkpoint=True)

@@ -135,6 +135,13 @@ def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, 
     cli.main(argv)
     assert capsys.readouterr().out.count("already recorded, kept") == 4
     assert [p.read_text() for p in packed] == before
+    # The records hold no checkpoints: asking for every seed's final checkpoint fails before any write, and
+    # 'learned' asks only for the seeds past the threshold, which these tiny runs are not.
+    with pytest.raises(SystemExit, match="no checkpoint of its final iteration"):
+        cli.main([*argv, "--overwrite", "--final-checkpoint", "all"])
+    assert [p.read_text() for p in packed] == before
+    cli.main([*argv, "--overwrite", "--final-checkpoint", "learned"])
+    assert not list((tmp_path / "r").rglob("checkpoints"))
     log.write_text(log.read_text().replace("rc=0", "rc=1"))
     with pytest.raises(SystemExit, match="exited with 1"):
         cli.main([*argv, "--overwrite"])

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from jaxsocial import logs
 from jaxsocial.experiments import figures, pinned, prereg, recipes, records, runner
+from jaxsocial.metrics import LEARNED_RETURN, final_return
 
 FIGURES_DIR = "runs/experiments/figures"
 """Where `figure` writes by default (the repository's summaries are written with an explicit --out-dir)."""
@@ -79,6 +80,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.add_argument("--device", required=True, help="the device the runs trained on, in words")
             p.add_argument("--jax", required=True, help="the jax version the runs trained with")
             p.add_argument("--overwrite", action="store_true", help="replace existing records")
+            p.add_argument(
+                "--final-checkpoint",
+                choices=("learned", "all"),
+                default=None,
+                help="also keep the final checkpoint (params and optimiser state) of the seeds that learned "
+                f"(final return > the design's threshold, else {LEARNED_RETURN:g}) or of all, so later "
+                "sittings can branch from the records (default: none)",
+            )
     p = sub.add_parser("power", help="a pre-registered design and its power")
     p.add_argument("recipe", choices=sorted(r.name for r in recipes.RECIPES.values() if r.design))
     args = parser.parse_args(argv)
@@ -108,6 +117,7 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
     --overwrite); everything is checked before the first write."""
     commands = records.read_commands_log(args.commands_log) if args.commands_log else None
     runs_dir = Path(args.runs_dir)
+    threshold = prereg.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
     plan = []
     for condition in recipe.conditions:
         dirs = runner.condition_seed_dirs(
@@ -126,17 +136,23 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
                 run = records.run_provenance(str(run_name), commands, args.device, args.jax)
             if run["rc"] not in (None, 0):
                 raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
-            rows, planned = len(logs.read_metrics(seed_dir)), logs.read_config(seed_dir)["iterations"]
-            if rows < planned:
-                raise ValueError(f"{seed_dir} is unfinished: {rows} of {planned} iterations logged")
-            plan.append((seed_dir, relative, run))
-    for seed_dir, relative, run in plan:
+            rows = records.packable(seed_dir)[1]
+            keep = args.final_checkpoint == "all" or (
+                args.final_checkpoint == "learned" and final_return(rows) > threshold
+            )
+            records.packable(seed_dir, keep)
+            plan.append((seed_dir, relative, run, keep))
+    for seed_dir, relative, run, keep in plan:
         record_dir = Path(args.out_dir) / relative
         if record_dir.exists() and any(record_dir.iterdir()) and not args.overwrite:
             print(f"  {record_dir}: already recorded, kept (--overwrite replaces it)")
             continue
-        records.pack(seed_dir, record_dir, run, str(relative), args.overwrite)
-        print(f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB)")
+        records.pack(seed_dir, record_dir, run, str(relative), args.overwrite, final_checkpoint=keep)
+        with_checkpoint = ", with its final checkpoint" if keep else ""
+        print(
+            f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB"
+            f"{with_checkpoint})"
+        )
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -5,8 +5,10 @@ A record is itself a run directory, so every tool that reads a run reads a recor
 
 * `config.json`, as the run wrote it;
 * `metrics.jsonl.gz`, the metrics gzipped (`logs.read_metrics` reads it);
-* `policy/<iteration>/`, the final policy exactly as `policy_io` exported it (params only: no checkpoints, no
-  optimiser state);
+* `policy/<iteration>/`, the final policy exactly as `policy_io` exported it (params only);
+* `checkpoints/<iteration>/`, only where asked (`final_checkpoint`): the final checkpoint (params, optimiser
+  state and stage), so that a later sitting can branch from the record (`train --init-from RECORD`), e.g.
+  the follow-ups of a design's learners that learned (about 1.5 MB at the laptop scale);
 * `eval/*.json`, the evaluations after training (`logs.EVAL_DIR`);
 * `provenance.json`: how the run was made (`run`: the exact command, git commit, device, jax version, start
   date, exit status, as given to `pack`) and how the record was made (`record`: source, date, packing commit).
@@ -27,7 +29,7 @@ from typing import Any
 
 import jax
 
-from jaxsocial import checkpoint, logs, metrics
+from jaxsocial import checkpoint, logs, metrics, rundir
 from jaxsocial.agents import policy_io
 
 RECORDS_DIR = "benchmarks/results/records"
@@ -108,24 +110,20 @@ def run_provenance(
 
 
 def pack(
-    seed_dir: str | Path, record_dir: str | Path, run: dict[str, Any], source: str, overwrite: bool = False
+    seed_dir: str | Path,
+    record_dir: str | Path,
+    run: dict[str, Any],
+    source: str,
+    overwrite: bool = False,
+    final_checkpoint: bool = False,
 ) -> Path:
     """Pack one seed's run directory into the record `record_dir` (see the module docstring); `run` is the
-    run's provenance (`RUN_FIELDS`), `source` the seed's name under its runs root (e.g. 'cpu/RUN/s0').
-    Checks everything before writing: FileNotFoundError if the run has no config, metrics or policy,
-    ValueError if it is unfinished, FileExistsError if the record exists (unless `overwrite`). Returns it."""
+    run's provenance (`RUN_FIELDS`), `source` the seed's name under its runs root (e.g. 'cpu/RUN/s0'); with
+    `final_checkpoint`, the checkpoint of the final policy's iteration goes in too. Checks everything before
+    writing (`packable`; FileExistsError if the record exists, unless `overwrite`). Returns it."""
     seed_dir, record_dir = Path(seed_dir), Path(record_dir)
-    if not (seed_dir / logs.CONFIG_FILE).is_file() or not logs.has_metrics(seed_dir):
-        raise FileNotFoundError(f"{seed_dir} is not a finished seed run directory (no config or metrics)")
-    policy_dir = seed_dir / policy_io.POLICY_DIR
-    iteration = checkpoint.latest_step(policy_dir)
-    if iteration is None:
-        raise FileNotFoundError(f"{seed_dir} has no exported policy under {policy_dir}")
-    rows = logs.read_metrics(seed_dir)
-    config = logs.read_config(seed_dir)
-    planned = config["iterations"]
-    if len(rows) < planned and not (stopped_early(config, rows) and iteration == len(rows)):
-        raise ValueError(f"{seed_dir} is unfinished: {len(rows)} of {planned} iterations logged")
+    iteration, rows = packable(seed_dir, final_checkpoint)
+    planned = logs.read_config(seed_dir)["iterations"]
     if record_dir.exists() and any(record_dir.iterdir()):
         if not overwrite:
             raise FileExistsError(f"record {record_dir} exists; pass --overwrite to replace it")
@@ -139,11 +137,13 @@ def pack(
         (record_dir / logs.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode(), mtime=0))
     else:  # a record packed again
         shutil.copy2(seed_dir / logs.METRICS_GZ_FILE, record_dir / logs.METRICS_GZ_FILE)
-    shutil.copytree(  # without orbax's commit notes, which name the absolute path it was written to
-        policy_dir / str(iteration),
-        record_dir / policy_io.POLICY_DIR / str(iteration),
-        ignore=shutil.ignore_patterns(ORBAX_COMMIT_NOTE),
-    )
+    kept = [policy_io.POLICY_DIR] + ([rundir.CHECKPOINTS_DIR] if final_checkpoint else [])
+    for directory in kept:  # without orbax's commit notes, which name the absolute path it was written to
+        shutil.copytree(
+            seed_dir / directory / str(iteration),
+            record_dir / directory / str(iteration),
+            ignore=shutil.ignore_patterns(ORBAX_COMMIT_NOTE),
+        )
     if (seed_dir / logs.EVAL_DIR).is_dir():
         shutil.copytree(seed_dir / logs.EVAL_DIR, record_dir / logs.EVAL_DIR)
     provenance = {
@@ -153,6 +153,7 @@ def pack(
             "iterations": len(rows),
             "stopped_early": len(rows) < planned,
             "policy_iteration": iteration,
+            "checkpoint_iteration": iteration if final_checkpoint else None,
             "packed": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "packed_at_commit": head_commit(),
             "packed_with_jax": jax.__version__,
@@ -160,6 +161,26 @@ def pack(
     }
     logs.write_json(record_dir / PROVENANCE_FILE, provenance)
     return record_dir
+
+
+def packable(seed_dir: str | Path, final_checkpoint: bool = False) -> tuple[int, list[dict[str, Any]]]:
+    """The final policy's iteration and the metrics rows of a seed's run directory that `pack` can pack:
+    FileNotFoundError if it has no config, metrics or policy (or, with `final_checkpoint`, no checkpoint of
+    that iteration), ValueError if it is unfinished (neither every iteration logged nor stopped early)."""
+    seed_dir = Path(seed_dir)
+    if not (seed_dir / logs.CONFIG_FILE).is_file() or not logs.has_metrics(seed_dir):
+        raise FileNotFoundError(f"{seed_dir} is not a finished seed run directory (no config or metrics)")
+    policy_dir = seed_dir / policy_io.POLICY_DIR
+    iteration = checkpoint.latest_step(policy_dir)
+    if iteration is None:
+        raise FileNotFoundError(f"{seed_dir} has no exported policy under {policy_dir}")
+    rows = logs.read_metrics(seed_dir)
+    config = logs.read_config(seed_dir)
+    if len(rows) < config["iterations"] and not (stopped_early(config, rows) and iteration == len(rows)):
+        raise ValueError(f"{seed_dir} is unfinished: {len(rows)} of {config['iterations']} iterations logged")
+    if final_checkpoint and iteration not in checkpoint.all_steps(rundir.checkpoints(seed_dir)):
+        raise FileNotFoundError(f"{seed_dir} has no checkpoint of its final iteration {iteration}")
+    return iteration, rows
 
 
 def stopped_early(config: dict[str, Any], rows: list[dict[str, Any]]) -> bool:
