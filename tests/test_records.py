@@ -117,13 +117,19 @@ def test_pack_checks_before_it_writes(tmp_path):
     assert not (tmp_path / "u").exists() and not (tmp_path / "n").exists()
 
 
-def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, tmp_path, capsys):
+def _commands_log(tmp_path: Path) -> Path:
+    """The commands log the committed tiny records were made from, rebuilt from their provenance."""
     log = tmp_path / "commands.log"
     lines = []
     for cond in RECIPE.conditions:
         run = records.read_provenance(next(d for d in _record_dirs() if cond + "-" in str(d)))["run"]
         lines += [f"{run['started']} {run['commit']} {run['command']}", f"{run['ended']} done {cond} rc=0 1s"]
     log.write_text("\n".join(lines) + "\n")
+    return log
+
+
+def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, tmp_path, capsys):
+    log = _commands_log(tmp_path)
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", records.RECORDS_DIR,
             "--commands-log", str(log), "--device", "a CPU", "--jax", "0.1",
             "--out-dir", str(tmp_path / "r")]  # fmt: skip
@@ -152,3 +158,21 @@ def test_figures_go_under_runs_unless_asked():
     assert cli.parse_args(
         ["record", "h1", "--commands-log", "l", "--device", "d", "--jax", "j"]
     ).out_dir.startswith("runs/")
+
+
+def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
+    """A design's records are committed seed by seed while the next seeds train: `record` packs the finished
+    seeds and names the unfinished one, which it leaves for a later call."""
+    runs = tmp_path / "runs"
+    shutil.copytree(REPO / records.RECORDS_DIR / "tiny", runs / "tiny")
+    training = next(d for d in _record_dirs() if "solo_pred" in str(d))
+    training = runs / training.relative_to(REPO / records.RECORDS_DIR)
+    logs.write_config(training, {**logs.read_config(training), "iterations": 1000})
+    argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
+            "--commands-log", str(_commands_log(tmp_path)), "--device", "a CPU", "--jax", "0.1",
+            "--out-dir", str(tmp_path / "r")]  # fmt: skip
+    cli.main(argv)
+    assert f"{training} is unfinished: 4 of 1000 iterations logged; skipped" in capsys.readouterr().out
+    packed = {p.parent.relative_to(tmp_path / "r") for p in (tmp_path / "r").rglob(records.PROVENANCE_FILE)}
+    every = {p.parent.relative_to(runs) for p in runs.rglob(records.PROVENANCE_FILE)}
+    assert len(every) == 4 and packed == every - {training.relative_to(runs)}

@@ -113,8 +113,8 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
 
 
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
-    """Pack every seed of the recipe that has a run directory and no record yet (or every one, with
-    --overwrite); everything is checked before the first write."""
+    """Pack every finished seed of the recipe that has no record yet (or every one, with --overwrite); seeds
+    still training are skipped with a note, and everything is checked before the first write."""
     commands = records.read_commands_log(args.commands_log) if args.commands_log else None
     runs_dir = Path(args.runs_dir)
     threshold = prereg.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
@@ -127,6 +127,11 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             if not seed_dir.is_dir():
                 print(f"  {condition}: no run {seed_dir}, skipped")
                 continue
+            try:
+                rows = records.packable(seed_dir)[1]
+            except (ValueError, FileNotFoundError) as err:  # still training, or stopped: not a result yet
+                print(f"  {condition}: {err}; skipped")
+                continue
             relative = seed_dir.relative_to(runs_dir)
             one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
             run_name = relative.parent if one_of_several else relative
@@ -136,7 +141,6 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
                 run = records.run_provenance(str(run_name), commands, args.device, args.jax)
             if run["rc"] not in (None, 0):
                 raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
-            rows = records.packable(seed_dir)[1]
             keep = args.final_checkpoint == "all" or (
                 args.final_checkpoint == "learned" and final_return(rows) > threshold
             )
