@@ -5,10 +5,14 @@
     python -m jaxsocial.experiments figure h1 --scale cpu --seeds 3   # into runs/experiments/figures/
     python -m jaxsocial.experiments record h1 --scale cpu --seeds 3 --commands-log LOG --device D --jax V
     python -m jaxsocial.experiments power h1_prereg                   # a pre-registered design and its power
+    python -m jaxsocial.experiments.sweep ...                         # the exploratory sample-efficiency sweep
+    python -m jaxsocial.experiments.followup run h1_laptop            # follow-ups of a design's learned seeds
 
 `recipes` names the conditions and scales, `runner` trains and evaluates them, `figures` summarises and
 draws them (`takeoff`: time to learning; `counts`: exact tests of learned-seed counts), `records` packs run
 directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
-`predictions` draws a learner's predicted next frames; `kinds` says, per kind of recipe, how it is
+`predictions` draws a learner's predicted next frames, `sweep` screens settings, `followup` branches,
+transfers and probes a design's learners that learned, `pinned` runs one single-core process per seed; `kinds`
+says, per kind of recipe, how it is
 evaluated after training, summarised and drawn.
 """

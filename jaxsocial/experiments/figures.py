@@ -199,6 +199,17 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     return out
 
 
+def save_png(fig, path: Path, dpi: int = 110) -> None:
+    """Lay out a matplotlib figure, write it to `path` (without the software version, so the bytes depend only
+    on what is drawn) and close it."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, metadata={"Software": None})
+    plt.close(fig)
+
+
 def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
     """The recipe's figure as a PNG (the kind's `draw`)."""
     kinds.kind_of(runs.recipe).draw(runs, summary, path)

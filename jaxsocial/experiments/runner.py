@@ -8,6 +8,7 @@ import dataclasses
 import re
 import shlex
 from pathlib import Path
+from typing import Any
 
 from jaxsocial import evaluate, logs, rundir, train
 from jaxsocial.config import TrainConfig, setup
@@ -69,6 +70,19 @@ def _one_holder(condition: str, seed: int, holders: list[Path], default: Path, p
 def _run_of(seed_dir: Path) -> Path:
     """The run directory of a seed directory (itself for a one-seed run)."""
     return seed_dir.parent if re.fullmatch(r"s\d+", seed_dir.name) else seed_dir
+
+
+def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol: str) -> dict[str, Any]:
+    """Play the final policy of `seed_dir` in the environment `spec` (NAME[:field=value,...]) for `episodes`
+    episodes with the evaluation `protocol` (`jaxsocial.evaluate`); write the result to `out`, return it."""
+    env, _, env_args = spec.partition(":")
+    config = evaluate.EvalConfig(
+        ckpt=(str(seed_dir),), env=env, env_args=env_args, episodes=episodes, protocol=protocol
+    )
+    result = evaluate.evaluate(config)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    logs.write_json(out, result)
+    return result
 
 
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:
@@ -144,21 +158,10 @@ def run(
     specs = evaluation.specs(recipe, scale)
     for name in evaluated if specs and not dry_run else ():
         for spec in specs:
-            env, _, env_args = spec.partition(":")
             for seed_dir in dirs[name]:
                 out = evaluation.path(seed_dir, spec, scale)
                 if out.exists():
                     continue
-                result = evaluate.evaluate(
-                    evaluate.EvalConfig(
-                        ckpt=(str(seed_dir),),
-                        env=env,
-                        env_args=env_args,
-                        episodes=scale.eval_episodes,
-                        protocol=protocol,
-                    )
-                )
-                out.parent.mkdir(parents=True, exist_ok=True)
-                logs.write_json(out, result)
+                result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, protocol)
                 score = evaluation.score(result)
                 print(f"  {name} {seed_dir.name} in {spec} ({protocol}): {score:.3f}")

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import logs, metrics, rundir
-from jaxsocial.experiments import pinned, recipes, records, takeoff
+from jaxsocial.experiments import figures, pinned, recipes, records, takeoff
 from jaxsocial.metrics import LEARNED_RETURN
 
 RUNS_DIR = "runs/sweep"
@@ -307,9 +307,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     for ax in axes:
         ax.legend(fontsize=7)
     fig.suptitle(f"Exploratory sweep (seeds < 100): takeoff = return > {LEARNED_RETURN:g} in a window")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata={"Software": None})
-    plt.close(fig)
+    figures.save_png(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:

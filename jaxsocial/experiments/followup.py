@@ -1,0 +1,432 @@
+"""The follow-ups of a pre-registered design's learners that learned: exploratory measurements made after the
+design's result, on every seed (of any condition) whose final return exceeds the design's threshold.
+
+* **Zero-shot transfer (H2):** the seed's final policy, unchanged, alone in 3-goal Goal Cycle and beside
+  experts in 4-goal Goal Cycle, Four Rooms and Maze (`zero_shot_specs`), `EVAL_EPISODES` episodes each.
+* **Cultural transmission:** the CT score and recall (`evaluate --protocol ct`) in the scale's 3-goal Goal
+  Cycle.
+* **The paper's mixing test, by branching:** two runs from the seed's final checkpoint (params, optimiser
+  state; `train --init-from`), for the same `BRANCH_FRACTION` of the design's iterations and the same seed:
+  one with every episode social, one with `MIXED_SOLO_PROB` of them solo (the paper's Fig. 6). Each is
+  evaluated at its end alone in 3-goal Goal Cycle and beside experts in 4-goal, `EVAL_EPISODES` episodes
+  each.
+
+The branches need the final checkpoint, which records keep only where asked (`experiments record
+--final-checkpoint learned`). Layout under `<runs_dir>/<scale>/followup-<design>/` (records mirror it):
+``<condition>-s<seed>/eval/`` (the evaluations of the design's policy) and the branch runs
+``<condition>-s<seed>-social/``, ``<condition>-s<seed>-mixed/``.
+
+    python -m jaxsocial.experiments.followup run h1_laptop --from benchmarks/results/records --cores 0 1
+    python -m jaxsocial.experiments.followup record h1_laptop --device "AMD EPYC, 2 cores"
+    python -m jaxsocial.experiments.followup figure h1_laptop
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxsocial import checkpoint, logs, metrics, rundir
+from jaxsocial.experiments import figures, kinds, pinned, prereg, recipes, records, runner
+
+RUNS_DIR = "runs/experiments"
+SUMMARY_DIR = "benchmarks/results/science"
+EVAL_EPISODES = 256
+"""Episodes per evaluation (the issue asks for at least 256)."""
+BRANCH_FRACTION = 0.25
+"""The branches' length, as a fraction of the design's iterations (5.0M env-steps at the laptop scale)."""
+MIXED_SOLO_PROB = 0.75
+"""The share of solo episodes in the mixed branch (the paper's 75%)."""
+ARMS = {"social": 0.0, "mixed": MIXED_SOLO_PROB}
+"""Branch name -> its share of solo episodes."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Source:
+    """A design seed that learned: its condition, seed and run (or record) directory."""
+
+    condition: str
+    seed: int
+    seed_dir: Path
+
+    @property
+    def name(self) -> str:
+        return f"{self.condition}-s{self.seed}"
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """A design's follow-ups: the recipe that carries it, the scale it runs at and the design."""
+
+    recipe: recipes.Recipe
+    scale: recipes.Scale
+    design: prereg.Design
+    episodes: int = EVAL_EPISODES
+    """Episodes per evaluation."""
+
+    @classmethod
+    def of(cls, recipe_name: str) -> Plan:
+        """The follow-ups of a recipe's design. ValueError if the recipe carries none."""
+        recipe = recipes.RECIPES[recipe_name]
+        if recipe.design is None:
+            raise ValueError(f"recipe {recipe_name} carries no pre-registered design")
+        design = prereg.load(recipe.design)
+        return cls(recipe, recipes.recipe_scale(recipe, recipes.SCALES[design.scale]), design)
+
+    def root(self, runs_dir: str | Path) -> Path:
+        """Where the follow-ups go under a runs (or records) root."""
+        return Path(runs_dir) / self.scale.name / f"followup-{self.design.name}"
+
+    @property
+    def branch_iterations(self) -> int:
+        return max(1, round(self.design.iterations * BRANCH_FRACTION))
+
+
+def sources(plan: Plan, from_dir: str) -> list[Source]:
+    """Every finished design seed under `from_dir` (runs or records) whose final return exceeds the design's
+    threshold, condition by condition. FileNotFoundError if one of them has no final checkpoint."""
+    scale, design = plan.scale, plan.design
+    out = []
+    for condition in plan.recipe.conditions:
+        dirs = runner.condition_seed_dirs(scale, condition, design.seed, design.seeds, from_dir)
+        for seed, seed_dir in enumerate(dirs, start=design.seed):
+            rows = logs.read_metrics(seed_dir) if logs.has_metrics(seed_dir) else []
+            if len(rows) < design.iterations or metrics.final_return(rows) <= design.learned_threshold:
+                continue
+            final = records.packable(seed_dir)[0]
+            if final not in checkpoint.all_steps(rundir.checkpoints(seed_dir)):
+                raise FileNotFoundError(
+                    f"{seed_dir} learned but has no checkpoint of its final iteration {final} to branch from "
+                    "(record it with `experiments record --final-checkpoint learned`)"
+                )
+            out.append(Source(condition, seed, seed_dir))
+    return out
+
+
+def zero_shot_specs(scale: recipes.Scale) -> list[str]:
+    """The environments a learned policy is played in unchanged: alone in 3-goal Goal Cycle, beside the
+    default experts in 4-goal Goal Cycle, Four Rooms and Maze (Goal Cycle with the scale's grid)."""
+    return [
+        recipes.goalcycle_spec(name, scale) for name in ("goalcycle3-solo", "goalcycle4", "fourrooms", "maze")
+    ]
+
+
+def branch_specs(scale: recipes.Scale) -> list[str]:
+    """The environments a branch is evaluated in at its end (the paper's Fig. 6)."""
+    return zero_shot_specs(scale)[:2]
+
+
+def branch_flags(plan: Plan, source: Source, arm: str, runs_dir: str) -> list[str]:
+    """The `python -m jaxsocial.train` flags of one branch (later flags override the condition's)."""
+    scale = plan.scale
+    env_args = ",".join(
+        a
+        for a in (scale.env_args, recipes.CONDITIONS[source.condition].env_args, f"solo_prob={ARMS[arm]!r}")
+        if a
+    )
+    iterations = plan.branch_iterations
+    return [
+        *recipes.condition_flags(scale, source.condition, source.seed, 1, runs_dir),
+        "--env-args",
+        env_args,
+        "--iterations",
+        str(iterations),
+        "--init-from",
+        str(source.seed_dir),
+        "--eval-envs",
+        *branch_specs(scale),
+        "--eval-every",
+        str(iterations),
+        "--eval-episodes",
+        str(plan.episodes),
+        "--run-name",
+        str(branch_dir(plan, source, arm, "")),
+    ]
+
+
+def branch_dir(plan: Plan, source: Source, arm: str, runs_dir: str | Path) -> Path:
+    """The run directory of one branch of a learned seed."""
+    return plan.root(runs_dir) / f"{source.name}-{arm}"
+
+
+def evaluate_source(plan: Plan, source: Source, out_dir: Path, command: str) -> None:
+    """The zero-shot and cultural-transmission evaluations of a learned seed's final policy, into
+    `out_dir/eval/` (those already there are kept), and how they were made (`write_provenance`: `command`)."""
+    scale, started, written = plan.scale, _now(), False
+    plays = [(spec, "returns", kinds.eval_path(out_dir, spec)) for spec in zero_shot_specs(scale)]
+    plays.append((kinds.ct_spec(scale), "ct", kinds.ct_path(out_dir, scale)))
+    for spec, protocol, path in plays:
+        if path.exists():
+            continue
+        result = runner.evaluate_into(path, source.seed_dir, spec, plan.episodes, protocol)
+        written = True
+        score = result["ct"]["mean"] if protocol == "ct" else result["results"][0]["mean_return"]
+        print(f"  {source.name} in {spec} ({protocol}): {score:.3f}", flush=True)
+    if written:
+        write_provenance(out_dir, command, started)
+
+
+def run(
+    plan: Plan, from_dir: str, runs_dir: str, cores: list[int], command: str, dry_run: bool = False
+) -> list[int]:
+    """Evaluate every learned seed (in this process; `command` is this one, for their provenance) and train
+    its branches (one process per core, seed by seed); what is done already is kept, an interrupted branch
+    resumes. Returns the branches' exit codes."""
+    found = sources(plan, from_dir)
+    names = ", ".join(s.name for s in found) or "none"
+    print(f"[followup {plan.design.name}] {len(found)} learned seeds: {names}")
+    jobs = []
+    for source in found:
+        for arm in ARMS:
+            flags = branch_flags(plan, source, arm, runs_dir)
+            run_dir = branch_dir(plan, source, arm, runs_dir)
+            rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
+            state = "done" if rows >= plan.branch_iterations else "partial" if run_dir.is_dir() else "missing"
+            print(f"  {source.name}-{arm}: {state}")
+            if dry_run:
+                print("    python -m jaxsocial.train " + " ".join(flags))
+            elif state != "done":
+                resume = ["--resume"] if state == "partial" else []
+                jobs.append(
+                    pinned.Job(f"{source.name}-{arm}", pinned.train_command([*flags, *resume]), run_dir)
+                )
+    if dry_run:
+        return []
+    for source in found:
+        evaluate_source(plan, source, plan.root(runs_dir) / source.name, command)
+    return pinned.run(jobs, cores) if jobs else []
+
+
+def write_provenance(out_dir: Path, command: str, started: str) -> None:
+    """What `record` keeps of how a learned seed's evaluations were made (`pinned.RUN_FILE`, as a training
+    run's process has)."""
+    logs.write_json(
+        out_dir / pinned.RUN_FILE,
+        {"command": command, "commit": records.head_commit(), "cores": None, "started": started,
+         "ended": _now(), "rc": 0},
+    )  # fmt: skip
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+
+
+def record(plan: Plan, runs_dir: str, out_dir: str, device: str, jax_version: str) -> list[Path]:
+    """Pack every finished follow-up under `runs_dir` into `out_dir` (the branches with `records.pack`, the
+    evaluations with their provenance); those recorded already are kept. Everything is checked first."""
+    source_root, target_root = plan.root(runs_dir), plan.root(out_dir)
+    packing = []
+    for directory in sorted(p for p in source_root.glob("*") if p.is_dir()):
+        target = target_root / directory.name
+        if target.exists():
+            print(f"  {target}: already recorded, kept")
+            continue
+        run = pinned.run_provenance(directory, device, jax_version)
+        if (directory / logs.CONFIG_FILE).is_file():
+            records.packable(directory)
+        elif not (directory / logs.EVAL_DIR).is_dir():
+            raise FileNotFoundError(f"{directory} is neither a branch run nor a seed's evaluations")
+        packing.append((directory, target, run))
+    for directory, target, run in packing:
+        if (directory / logs.CONFIG_FILE).is_file():
+            records.pack(directory, target, run, str(directory.relative_to(runs_dir)))
+        else:
+            shutil.copytree(directory / logs.EVAL_DIR, target / logs.EVAL_DIR)
+            logs.write_json(target / records.PROVENANCE_FILE, {"run": run})
+        print(f"recorded {directory} -> {target}")
+    return [target for _, target, _ in packing]
+
+
+def _learner_return(result: dict[str, Any]) -> float:
+    return result["results"][0]["mean_return"]
+
+
+def _experts_return(result: dict[str, Any]) -> float | None:
+    others = [r["mean_return"] for r in result["results"][1:] if r.get("episodes")]
+    return float(np.mean(others)) if others else None
+
+
+def _paired(social: list[float], mixed: list[float]) -> dict[str, Any]:
+    """Mixed minus social per seed: mean, 95% t-interval and the exploratory two-sided Wilcoxon signed-rank
+    p (None under 2 pairs or when every difference is 0)."""
+    from scipy import stats as scipy_stats
+
+    diff = np.asarray(mixed, np.float64) - np.asarray(social, np.float64)
+    mean, low, high = metrics.mean_ci95(diff)
+    p = None
+    if len(diff) >= 2 and np.any(diff != 0):
+        p = float(scipy_stats.wilcoxon(diff, alternative="two-sided").pvalue)
+    return {"n": int(len(diff)), "mean": mean, "ci95": [low, high], "wilcoxon_p": p}
+
+
+def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
+    """Each learned seed's follow-ups (zero-shot returns, CT, the branches' evaluations) and, per measure,
+    the mean over seeds; for the branches, the paired mixed-minus-social difference."""
+    scale, base = plan.scale, plan.root(records_dir)
+    seeds: dict[str, Any] = {}
+    for eval_dir in sorted(base.glob(f"*/{logs.EVAL_DIR}")):
+        name, seed_dir = eval_dir.parent.name, eval_dir.parent
+        zero_shot = {}
+        for spec in zero_shot_specs(scale):
+            result = logs.read_json(kinds.eval_path(seed_dir, spec))
+            zero_shot[spec] = {"learner": _learner_return(result), "experts": _experts_return(result)}
+        ct = logs.read_json(kinds.ct_path(seed_dir, scale))
+        branches = {}
+        for arm in ARMS:
+            rows = logs.read_metrics(base / f"{name}-{arm}")
+            branches[arm] = {
+                spec: metrics.final_eval(rows, metrics.eval_key(spec)) for spec in branch_specs(scale)
+            }
+        source = logs.read_json(kinds.eval_path(seed_dir, zero_shot_specs(scale)[0]))["checkpoints"][0]
+        seeds[name] = {
+            "source": source,
+            "zero_shot": zero_shot,
+            "ct": {score: ct[score]["mean"] for score in kinds.CT_SCORES},
+            "branches": branches,
+        }
+    learned = list(seeds.values())
+    summary: dict[str, Any] = {
+        "design": plan.design.name,
+        "scale": scale.name,
+        "exploratory": "follow-ups of the seeds that learned, chosen after the design's runs: no "
+        "confirmatory test",
+        "eval_episodes": plan.episodes,
+        "branch_iterations": plan.branch_iterations,
+        "mixed_solo_prob": MIXED_SOLO_PROB,
+        "seeds": seeds,
+    }
+    if learned:
+        summary["zero_shot"] = {
+            spec: metrics.stats([s["zero_shot"][spec]["learner"] for s in learned])
+            for spec in zero_shot_specs(scale)
+        }
+        summary["ct"] = {score: metrics.stats([s["ct"][score] for s in learned]) for score in kinds.CT_SCORES}
+        summary["mixing"] = {
+            spec: {
+                **{arm: metrics.stats([s["branches"][arm][spec] for s in learned]) for arm in ARMS},
+                "mixed_minus_social": _paired(
+                    [s["branches"]["social"][spec] for s in learned],
+                    [s["branches"]["mixed"][spec] for s in learned],
+                ),
+            }
+            for spec in branch_specs(scale)
+        }
+    return summary
+
+
+def draw(summary: dict[str, Any], path: Path) -> None:
+    """Three panels, one point per learned seed: zero-shot returns per environment (experts' mean as a
+    bar), CT score and recall, and the branches (social against mixed, one line per seed) in each
+    evaluation environment."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    seeds = summary["seeds"]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    specs = list(summary.get("zero_shot", {}))
+    for i, spec in enumerate(specs):
+        learner = [s["zero_shot"][spec]["learner"] for s in seeds.values()]
+        experts = [s["zero_shot"][spec]["experts"] for s in seeds.values() if s["zero_shot"][spec]["experts"]]
+        if experts:
+            axes[0].bar(i, np.mean(experts), color="0.85", label="experts (mean)" if i == 1 else None)
+        axes[0].scatter(
+            np.full(len(learner), i), learner, color="C0", zorder=3, label="learner" if i == 0 else None
+        )
+    axes[0].set_xticks(range(len(specs)), [kinds.env_title(s) for s in specs], fontsize=7, rotation=15)
+    axes[0].set(ylabel=f"mean return ({summary['eval_episodes']} episodes)", title="zero-shot")
+    for i, score in enumerate(kinds.CT_SCORES):
+        values = [s["ct"][score] for s in seeds.values()]
+        axes[1].scatter(np.full(len(values), i), values, color="C1", zorder=3)
+    axes[1].axhline(0, color="grey", lw=0.8)
+    axes[1].set_xticks(range(len(kinds.CT_SCORES)), ["CT score", "recall"])
+    axes[1].set(title="cultural transmission", xlim=(-0.5, len(kinds.CT_SCORES) - 0.5))
+    arms = list(ARMS)
+    for j, spec in enumerate(summary.get("mixing", {})):
+        for s in seeds.values():
+            axes[2].plot(
+                [2 * j, 2 * j + 1],
+                [s["branches"][arm][spec] for arm in arms],
+                color=f"C{j + 2}",
+                marker="o",
+                lw=1,
+            )
+    ticks = [f"{arm}\n{kinds.env_title(spec)}" for spec in summary.get("mixing", {}) for arm in arms]
+    axes[2].set_xticks(range(len(ticks)), ticks, fontsize=7)
+    axes[2].set(
+        title=f"branches: social vs {summary['mixed_solo_prob']:.0%} solo, "
+        f"{summary['branch_iterations']} iterations",
+        ylabel="mean return at the branch's end",
+    )
+    axes[0].legend(fontsize=7)
+    fig.suptitle(
+        f"Follow-ups of {summary['design']}'s {len(seeds)} learned seeds ({summary['scale']} scale; "
+        "exploratory)"
+    )
+    figures.save_png(fig, path)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m jaxsocial.experiments.followup", description=__doc__.split("\n")[0]
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    designed = sorted(r.name for r in recipes.RECIPES.values() if r.design)
+    run_p = sub.add_parser("run", help="evaluate the learned seeds and train their branches")
+    record_p = sub.add_parser("record", help="pack the finished follow-ups into records")
+    figure_p = sub.add_parser("figure", help="the summary JSON and figure, from records")
+    for p in (run_p, record_p, figure_p):
+        p.add_argument("recipe", choices=designed)
+    run_p.add_argument(
+        "--from",
+        dest="from_dir",
+        default=records.RECORDS_DIR,
+        help="where the design's seeds are (records or runs)",
+    )
+    for p in (run_p, record_p):
+        p.add_argument("--runs-dir", default=RUNS_DIR, help="root of the follow-ups' run directories")
+    run_p.add_argument(
+        "--cores", type=int, nargs="+", default=[0], help="cores for the branches, one process a core"
+    )
+    run_p.add_argument(
+        "--dry-run", action="store_true", help="print the learned seeds and the branch commands"
+    )
+    record_p.add_argument("--out-dir", default=records.RECORDS_DIR)
+    record_p.add_argument("--device", required=True, help="the machine the follow-ups ran on, in words")
+    figure_p.add_argument("--records-dir", default=records.RECORDS_DIR)
+    figure_p.add_argument("--out-dir", default=SUMMARY_DIR)
+    args = parser.parse_args(argv)
+    try:
+        plan = Plan.of(args.recipe)
+        if args.command == "run":
+            command = "python -m jaxsocial.experiments.followup " + " ".join(argv or sys.argv[1:])
+            codes = run(plan, args.from_dir, args.runs_dir, args.cores, command, args.dry_run)
+            sys.exit(max(codes, default=0))
+        if args.command == "record":
+            import jax
+
+            record(plan, args.runs_dir, args.out_dir, args.device, jax.__version__)
+            return
+        summary = summarise(plan, args.records_dir)
+        out = Path(args.out_dir) / f"followup-{summary['design']}-{summary['scale']}"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        logs.write_json(out.with_suffix(".json"), summary)
+        draw(summary, out.with_suffix(".png"))
+        print(
+            f"{len(summary['seeds'])} learned seeds; wrote {out.with_suffix('.json')} and "
+            f"{out.with_suffix('.png')}"
+        )
+    except (ValueError, FileNotFoundError) as err:
+        raise SystemExit(f"error: {err}") from err
+
+
+if __name__ == "__main__":
+    main()
