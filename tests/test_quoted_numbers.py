@@ -20,6 +20,7 @@ REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 
 DECLARED = {
+    ("README.md", "jaxsocial"),
     ("README.md", "The headline result"),
     ("docs/experiments.md", "The sample-efficiency sweep (exploratory)"),
     ("docs/experiments.md", "Results"),
