@@ -25,17 +25,20 @@ from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
+from jaxsocial.specs import CheckpointRef
 
 
 @dataclasses.dataclass(frozen=True)
 class TextField:
-    """A field written as text (a flag, config.json) and held parsed: `parse` runs once, where the config is
-    made (the command line, `config_from_dict`, or text given to the constructor); `format` gives the text
-    back (`parse(format(x)) == x`)."""
+    """A field written as text (a flag, config.json) and held parsed, as an instance of `kind`: `parse` runs
+    once, where the config is made (the command line, `config_from_dict`, or text given to the constructor);
+    `format` gives the text back (`parse(format(x)) == x`). A field that may be None is null in
+    config.json."""
 
     parse: Callable[[str], Any]
     format: Callable[[Any], str]
     metavar: str
+    kind: type = tuple
 
     def flag(self) -> tyro.constructors.PrimitiveConstructorSpec:
         """How the command line reads and shows it."""
@@ -43,7 +46,7 @@ class TextField:
             nargs=1,
             metavar=self.metavar,
             instance_from_str=lambda args: self.parse(args[0]),
-            is_instance=lambda value: isinstance(value, tuple),
+            is_instance=lambda value: isinstance(value, self.kind),
             str_from_instance=lambda value: [self.format(value)],
         )
 
@@ -55,12 +58,14 @@ ENV_ARGS = TextField(
 )
 SLOTS = TextField(population.parse_slot_list, population.format_slots, "SLOT,...")
 STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VALUE,...;...")
-TEXT_FIELDS = {"env_args": ENV_ARGS, "slots": SLOTS, "stages": STAGES}
-"""`RunConfig`'s fields written as text."""
+INIT_FROM = TextField(CheckpointRef.parse, str, "RUN_DIR[@ITERATION]", CheckpointRef)
+TEXT_FIELDS = {"env_args": ENV_ARGS, "slots": SLOTS, "stages": STAGES, "init_from": INIT_FROM}
+"""The fields written as text."""
 
 EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
 Slots = Annotated[tuple[population.Slot, ...], SLOTS.flag()]
 Stages = Annotated[tuple[schedule.Stage, ...], STAGES.flag()]
+InitFrom = Annotated[CheckpointRef | None, INIT_FROM.flag()]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +79,7 @@ class RunConfig:
     env_args: EnvArgs = ()
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
     slots: Slots = ()
-    """One entry per agent slot: learner | random | frozen:RUN_DIR[@k] | expert:ckpt=RUN_DIR[@k] (a trained
+    """One entry per agent slot: learner | random | frozen:RUN_DIR[#k] | expert:ckpt=RUN_DIR[#k] (a trained
     expert) | expert:KIND[:epsilon=E,forget=F] (scripted: explorer, oracle, navigator). Default: a learner in
     slot 0, the environment's scripted expert in the next two (explorer in Goal Cycle, navigator in Four
     Rooms and Maze), random distractors in any others."""
@@ -91,7 +96,7 @@ class RunConfig:
 
     def __post_init__(self):
         for name, field in TEXT_FIELDS.items():
-            value = getattr(self, name)
+            value = getattr(self, name, None)  # a TrainConfig has them all
             if isinstance(value, str):  # text given to the constructor: parsed here, once
                 object.__setattr__(self, name, field.parse(value))
 
@@ -172,7 +177,7 @@ class DriverConfig:
     on_nonfinite: str = "stop"
     """What a non-finite loss, gradient norm or parameter does: 'stop' (exit with an error; the last finite
     checkpoint and policy stay the latest) or 'warn' (report it and train on)."""
-    init_from: str | None = None
+    init_from: InitFrom = None
     """Start a new run from another run's learners: RUN_DIR or RUN_DIR@ITERATION (default: its latest
     checkpoint); the source's params and optimiser state, this run's flags and stages."""
 
@@ -381,7 +386,7 @@ def config_dict(cfg: TrainConfig) -> dict[str, Any]:
     values = {}
     for field in dataclasses.fields(cfg):
         value = getattr(cfg, field.name)
-        if field.name in TEXT_FIELDS:
+        if field.name in TEXT_FIELDS and value is not None:
             value = TEXT_FIELDS[field.name].format(value)
         elif dataclasses.is_dataclass(value):
             value = dataclasses.asdict(value)
@@ -402,7 +407,7 @@ def config_from_dict(values: dict[str, Any]) -> TrainConfig:
             default = getattr(defaults, field.name)
             if dataclasses.is_dataclass(default):
                 value = build(type(default), value)
-            elif field.name in TEXT_FIELDS:
+            elif field.name in TEXT_FIELDS and value is not None:
                 value = TEXT_FIELDS[field.name].parse(value)
             elif isinstance(value, list):
                 value = tuple(value)

@@ -6,7 +6,7 @@
 
     python -m jaxsocial.evaluate --ckpt runs/a runs/b runs/c --env goalcycle3 --protocol ct
 
-The saved agent (`--ckpt`: run directories, one per training seed; `RUN_DIR@k` picks its k-th learner) plays
+The saved agent (`--ckpt`: run directories, one per training seed; `RUN_DIR#k` picks its k-th learner) plays
 the `learner` slot; the other slots are scripted experts, frozen policies or random distractors (default:
 the environment's scripted experts, as in training). Every episode runs to its end (no auto-reset). It prints
 a table: each slot's mean episode return with a 95% confidence interval, over training seeds when there are
@@ -46,7 +46,7 @@ class EvalConfig:
     """An evaluation. Every field is a command-line flag."""
 
     ckpt: tuple[str, ...] = ()
-    """Run directories of the agent under test (RUN_DIR or RUN_DIR@k), one per training seed."""
+    """Run directories of the agent under test (RUN_DIR or RUN_DIR#k), one per training seed."""
     env: str = "goalcycle3"
     """Environment preset: goalcycle3, goalcycle4, fourrooms, maze, each also as NAME-solo and
     NAME-distractors."""
@@ -152,17 +152,17 @@ def _setup(cfg: EvalConfig):
     pop = population.Population(population.parse_slots(slots_text, env_params.n_agents, need_learner=False))
     pop.validate(env_params)
     if len(pop.learners) > 1:
-        raise ValueError("evaluate one agent at a time: one 'learner' slot (use frozen:PATH for others)")
+        raise ValueError("evaluate one agent at a time: one 'learner' slot (use frozen:POLICY for others)")
     if bool(pop.learners) != bool(cfg.ckpt):
         raise ValueError(
             "--ckpt fills the 'learner' slot: give both, or neither (then --slots must have no learner)"
         )
-    paths = [pop.slots[i].path for i in pop.frozen]
-    first = (list(cfg.ckpt) + paths)[:1]
+    policies = [pop.slots[i].policy for i in pop.frozen]
+    first = (list(cfg.ckpt) + policies)[:1]
     net = policy_io.saved_net(first[0]) if first else network.NetworkConfig(obs=env_params.observation)
     if first:
         net.check_env(env_params, f"--env {cfg.env} with the policy {first[0]}")
-    frozen = [policy_io.load_policy(p, net) for p in paths]
+    frozen = [policy_io.load_policy(p, net) for p in policies]
     if cfg.protocol == "ct" and (
         pop.learners != (0,) or env_params.n_agents < 2 or env_params.solo_agents != 1
     ):
@@ -211,11 +211,12 @@ def evaluate(cfg: EvalConfig) -> dict[str, Any]:
             slots.append({"slot": i, "kind": slot.kind, "episodes": 0})
             continue
         mean, low, high = mean_ci95(seed_means if over_seeds else all_samples)
+        spec = str(slot.policy) if slot.policy else dataclasses.asdict(slot.expert) if slot.expert else None
         slots.append(
             {
                 "slot": i,
                 "kind": slot.kind,
-                "spec": slot.path or (slot.expert and dataclasses.asdict(slot.expert)) or None,
+                "spec": spec,
                 "mean_return": mean,
                 "ci95": [low, high],
                 "ci_over": "seeds" if over_seeds else "episodes",

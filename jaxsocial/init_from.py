@@ -23,19 +23,12 @@ import jaxsocial
 from jaxsocial import checkpoint, config, logs, rundir
 from jaxsocial.agents import policy_io, population
 from jaxsocial.config import TrainConfig
-
-
-def parse(spec: str) -> tuple[Path, int | None]:
-    """`RUN_DIR[@ITERATION]` -> (RUN_DIR, ITERATION or None); ValueError if ITERATION is not a number."""
-    run_dir, at, iteration = spec.rpartition("@") if "@" in spec else (spec, "", "")
-    if at and not iteration.isdigit():
-        raise ValueError(f"--init-from {spec}: ITERATION after '@' must be a whole number")
-    return Path(run_dir), int(iteration) if at else None
+from jaxsocial.specs import CheckpointRef
 
 
 def source_dirs(cfg: TrainConfig) -> list[Path]:
     """The source seed directory of each of the new run's seeds. FileNotFoundError if there is none."""
-    run_dir, _ = parse(cfg.init_from)
+    run_dir = cfg.init_from.run
     if not run_dir.is_dir():
         raise FileNotFoundError(f"--init-from {cfg.init_from}: no directory {run_dir}")
     if rundir.checkpoints(run_dir).is_dir():
@@ -54,7 +47,7 @@ def source_iteration(cfg: TrainConfig) -> int:
     """The checkpoint iteration the run starts from: the one asked for, or the latest every source has.
     FileNotFoundError if a source lacks it."""
     dirs = source_dirs(cfg)
-    _, iteration = parse(cfg.init_from)
+    iteration = cfg.init_from.iteration
     steps = [set(checkpoint.all_steps(rundir.checkpoints(d))) for d in dirs]
     common = set.intersection(*steps)
     if iteration is None:
@@ -105,12 +98,12 @@ def check(cfg: TrainConfig, learners: tuple[int, ...]) -> None:
 
 
 def pin(cfg: TrainConfig, run_dir: str | Path) -> TrainConfig:
-    """`cfg` with `init_from` as `RUN_DIR@ITERATION` (the iteration it will load), for its config.json.
+    """`cfg` with `init_from` at the iteration it will load (`RUN_DIR@ITERATION` in its config.json).
     ValueError if the new run directory `run_dir` is the source or holds it (--overwrite would delete it)."""
     if not cfg.init_from or cfg.resume:
         return cfg
-    source, _ = parse(cfg.init_from)
+    source = cfg.init_from.run
     new = Path(run_dir).resolve()
     if new == source.resolve() or new in source.resolve().parents:
         raise ValueError(f"--init-from {cfg.init_from}: the new run directory {run_dir} holds the source")
-    return dataclasses.replace(cfg, init_from=f"{source}@{source_iteration(cfg)}")
+    return dataclasses.replace(cfg, init_from=CheckpointRef(source, source_iteration(cfg)))

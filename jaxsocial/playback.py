@@ -16,6 +16,7 @@ from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core, pictures
 from jaxsocial.env.types import EnvParams
 from jaxsocial.envspec import parse_env_spec
+from jaxsocial.specs import PolicyRef
 
 
 class EpisodeSetup(NamedTuple):
@@ -29,14 +30,15 @@ class EpisodeSetup(NamedTuple):
 
 
 def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> EpisodeSetup:
-    """Load the policy saved in `run_dir` (RUN_DIR or RUN_DIR@k) to play in `env_spec`
+    """Load the policy saved in `run_dir` (RUN_DIR or RUN_DIR#k, `specs.PolicyRef`) to play in `env_spec`
     (NAME[:field=value,...]) and validate everything: ValueError, before anything compiles, if it cannot
     act there.
 
-    `slots`: one entry per agent as in training ('learner' slots play the run's learners in order, RUN_DIR@0,
-    @1, ...); default: the learner in slot 0 beside the environment's default companions.
+    `slots`: one entry per agent as in training ('learner' slots play the run's learners in order, RUN_DIR#0,
+    #1, ...); default: the learner in slot 0 beside the environment's default companions.
     """
-    net = policy_io.saved_net(run_dir)
+    policy = PolicyRef.parse(run_dir)
+    net = policy_io.saved_net(policy)
     env_params = parse_env_spec(env_spec)
     net.check_env(env_params, f"env {env_spec!r} with the policy {run_dir}")
     population.require_rgb(env_params, f"env {env_spec!r}")
@@ -45,11 +47,13 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     else:
         pop = population.Population(population.parse_slots(slots, env_params.n_agents))
         pop.validate(env_params)
-    if len(pop.learners) > 1 and "@" in run_dir:
+    if len(pop.learners) > 1 and policy != PolicyRef(policy.run):
         raise ValueError(f"{run_dir} is one learner, but the slots have {len(pop.learners)}")
-    learners = [run_dir] if len(pop.learners) == 1 else [f"{run_dir}@{k}" for k in range(len(pop.learners))]
-    frozen = [pop.slots[i].path for i in pop.frozen]
-    params = population.stack([policy_io.load_policy(path, net) for path in learners + frozen])
+    learners = (
+        [PolicyRef(policy.run, k) for k in range(len(pop.learners))] if len(pop.learners) > 1 else [policy]
+    )
+    frozen = [pop.slots[i].policy for i in pop.frozen]
+    params = population.stack([policy_io.load_policy(p, net) for p in learners + frozen])
     return EpisodeSetup(net, params, env_params, pop)
 
 

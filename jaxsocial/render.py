@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -30,13 +29,14 @@ from jaxsocial import logs, metrics, playback
 from jaxsocial.agents import network, population
 from jaxsocial.env.pictures import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
 from jaxsocial.envspec import parse_env_spec
+from jaxsocial.specs import PolicyRef
 
 
 def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playback.EpisodeSetup, str, bool]:
-    """The episode set-up of `--ckpt RUN_DIR[@k]`, its env spec and whether to draw its decoder's output.
+    """The episode set-up of `--ckpt RUN_DIR[#k]`, its env spec and whether to draw its decoder's output.
     ValueError, before anything compiles, for a directory that is not one seed's run or an env the policy
     cannot act in."""
-    run_dir = Path(ckpt.partition("@")[0])
+    run_dir = PolicyRef.parse(ckpt).run
     dirs = metrics.seed_dirs(run_dir)
     if len(dirs) > 1:
         raise ValueError(f"{run_dir} holds {len(dirs)} seeds: pass one of them, e.g. --ckpt {dirs[0]}")

@@ -11,6 +11,7 @@ from conftest import TINY
 
 from jaxsocial import checkpoint, config, driver, init_from, logs, loop, train
 from jaxsocial.experiments import records
+from jaxsocial.specs import CheckpointRef
 
 
 @pytest.fixture(scope="module")
@@ -50,8 +51,8 @@ def test_bad_sources_are_refused_before_anything_compiles(source, tmp_path):
 
 def test_pin_names_the_iteration_it_loads(source, tmp_path):
     latest = init_from.pin(_branch(tmp_path, str(source)), tmp_path / "branch")
-    assert latest.init_from == f"{source}@{TINY.iterations}"
-    assert init_from.pin(_branch(tmp_path, f"{source}@2"), tmp_path / "b").init_from == f"{source}@2"
+    assert latest.init_from == CheckpointRef(source, TINY.iterations)
+    assert str(init_from.pin(_branch(tmp_path, f"{source}@2"), tmp_path / "b").init_from) == f"{source}@2"
     resumed = _branch(tmp_path, str(tmp_path / "gone"), resume=True)
     assert init_from.pin(resumed, tmp_path / "branch") is resumed  # a resumed run loads its own state
     _check(resumed)  # and does not need the source any more
@@ -86,7 +87,7 @@ def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
     assert logs.read_config(run_dir)["init_from"] == f"{source}@{TINY.iterations}"
     assert [r["iteration"] for r in logs.read_metrics(run_dir)] == [1, 2]
     twig = _branch(tmp_path, str(run_dir), run_name="twig")
-    assert init_from.pin(twig, tmp_path / "twig").init_from == f"{run_dir}@2"  # a branch of the branch
+    assert str(init_from.pin(twig, tmp_path / "twig").init_from) == f"{run_dir}@2"  # a branch of the branch
     _check(twig)
     target = jax.eval_shape(lambda: loop.compiled(TINY).init(np.int32(0)))
     first_two = _adam_count(checkpoint.restore(source / "checkpoints", target, 2).opt_state)
@@ -110,7 +111,7 @@ def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path)
     assert packed["checkpoint_iteration"] == TINY.iterations
     cfg = _branch(tmp_path, str(record))
     _check(cfg)
-    assert init_from.pin(cfg, tmp_path / "branch").init_from == f"{record}@{TINY.iterations}"
+    assert init_from.pin(cfg, tmp_path / "branch").init_from == CheckpointRef(record, TINY.iterations)
     from_record = driver.source_state(record, TINY.iterations)
     from_run = driver.source_state(source, TINY.iterations)
     jax.tree.map(np.testing.assert_array_equal, from_record.params, from_run.params)

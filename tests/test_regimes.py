@@ -5,6 +5,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -17,6 +18,7 @@ from jaxsocial.agents import network, policy_io, population
 from jaxsocial.config import setup
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
+from jaxsocial.specs import PolicyRef
 from jaxsocial.train import run
 
 CURRICULUM = "2:penalty=1.0;return>=-1000:penalty=1.5"  # 1.5 is the preset's: the first program again
@@ -112,9 +114,11 @@ def test_solo_mixture_proportion_and_absent_agents(step_env, observe_fn):
 
 
 def test_slot_parsing_with_expert_arguments():
-    slots = population.parse_slots("learner,expert:explorer:epsilon=0.1,forget=0.02,expert:ckpt=runs/x@1", 3)
+    slots = population.parse_slots("learner,expert:explorer:epsilon=0.1,forget=0.02,expert:ckpt=runs/x#1", 3)
     assert slots[1].kind == "expert" and slots[1].expert.epsilon == 0.1 and slots[1].expert.forget == 0.02
-    assert slots[2] == population.Slot("frozen", "runs/x@1")
+    assert slots[2] == population.Slot("frozen", PolicyRef(Path("runs/x"), 1))
+    with pytest.warns(DeprecationWarning, match=r"runs/x#1; '@' names a checkpoint's iteration"):
+        assert population.parse_slots("learner,random,frozen:runs/x@1", 3)[2] == slots[2]  # the old spelling
     _, params = jaxsocial.make("maze-distractors")
     assert population.default_slots(params) == "learner,expert:navigator,expert:navigator,random,random"
     with pytest.raises(ValueError, match="say which expert"):

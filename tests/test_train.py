@@ -208,7 +208,7 @@ def test_cli_end_to_end(tmp_path):
         ({"env": "goalcycle9"}, "unknown environment"),
         ({"slots": "learner,random"}, "3 agents"),
         ({"slots": "random,random,random"}, "no learner"),
-        ({"slots": "learner,frozen,random"}, "needs a checkpoint path"),
+        ({"slots": "learner,frozen,random"}, "needs a run directory"),
         ({"env_args": "n_agents=8"}, "agent colours"),
         ({"algo": "dqn"}, "unknown --algo"),
         ({"algo": "bc", "slots": "learner,random,random"}, "clones expert or frozen slots"),

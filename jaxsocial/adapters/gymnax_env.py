@@ -4,7 +4,7 @@
     obs, state = env.reset(key, params)               # obs uint8[21, 21, 3]: the learner's view
     obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
 
-The other slots (`slots`, as in training: `expert:KIND`, `frozen:RUN_DIR[@k]`, `random`; default the
+The other slots (`slots`, as in training: `expert:KIND`, `frozen:RUN_DIR[#k]`, `random`; default the
 environment's scripted experts) act inside `step` exactly as in `jaxsocial.train`'s rollout
 (`population.act`). `params` are the world's `EnvParams` (a static, leafless pytree: pass it like gymnax's).
 The learner's episode ends when it is terminated (on a terminal goal) or the world's time limit truncates it;
@@ -80,14 +80,10 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
         companions = list(pop.slots)
         companions[self.slot] = population.Slot("random")  # its random action is replaced by the learner's
         self.companions = population.Population(tuple(companions))
-        frozen_paths = [pop.slots[i].path for i in pop.frozen]
-        self.net = (
-            policy_io.saved_net(frozen_paths[0])
-            if frozen_paths
-            else network.NetworkConfig(obs=params.observation)
-        )
-        if frozen_paths:
-            self.net.check_env(params, f"frozen slot {frozen_paths[0]}")
+        frozen = [pop.slots[i].policy for i in pop.frozen]
+        self.net = policy_io.saved_net(frozen[0]) if frozen else network.NetworkConfig(obs=params.observation)
+        if frozen:
+            self.net.check_env(params, f"frozen slot {frozen[0]}")
         self.frozen_params = policy_io.load_frozen(self.companions, self.net)
         self.env_name = name
         self._params = params

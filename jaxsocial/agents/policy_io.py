@@ -1,6 +1,7 @@
 """Saved policies: the learners' params a training run exports to `RUN_DIR/policy/<iteration>` with the
 network they were trained with, and loading one learner's params back for a frozen slot, evaluation or
-prediction pictures (`RUN_DIR` for its first learner, `RUN_DIR@k` for its k-th).
+prediction pictures (`specs.PolicyRef`: `RUN_DIR` for its first learner, `RUN_DIR#k` for its k-th; each
+function takes one parsed or as text).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import jax
 
 from jaxsocial import checkpoint, logs
 from jaxsocial.agents import network, population
+from jaxsocial.specs import PolicyRef
 
 POLICY_DIR = "policy"
 """Sub-directory of a run directory holding the learners' params (stacked [S_l, ...]) for frozen slots."""
@@ -51,42 +53,42 @@ def export_policy(
     checkpoint.save(directory, step, {"params": params}, metadata=meta, keep=keep)
 
 
-def _policy_dir(path: str) -> tuple[Path, int]:
-    run_dir, _, index = path.partition("@")
-    directory = Path(run_dir) / POLICY_DIR
+def _policy_dir(policy: PolicyRef) -> Path:
+    directory = policy.run / POLICY_DIR
     if checkpoint.latest_step(directory) is None:
-        raise ValueError(f"no saved policy under {directory} (is {run_dir} a training run directory?)")
-    return directory, int(index or 0)
+        raise ValueError(f"no saved policy under {directory} (is {policy.run} a training run directory?)")
+    return directory
 
 
-def policy_iteration(path: str) -> int:
-    """The training iteration of the policy `RUN_DIR[@k]` loads (its latest export)."""
-    return int(checkpoint.latest_step(_policy_dir(path)[0]))
+def policy_iteration(policy: PolicyRef | str | Path) -> int:
+    """The training iteration of the policy `RUN_DIR[#k]` loads (its latest export)."""
+    return int(checkpoint.latest_step(_policy_dir(PolicyRef.of(policy))))
 
 
-def saved_net(path: str) -> network.NetworkConfig:
-    """The network config a policy (`RUN_DIR[@k]`) was trained with (fields added since take defaults)."""
-    return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(path)[0])["net"])
+def saved_net(policy: PolicyRef | str | Path) -> network.NetworkConfig:
+    """The network config a policy (`RUN_DIR[#k]`) was trained with (fields added since take defaults)."""
+    return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(PolicyRef.of(policy)))["net"])
 
 
-def load_policy(path: str, net: network.NetworkConfig):
+def load_policy(policy: PolicyRef | str | Path, net: network.NetworkConfig):
     """Params of one learner from a run directory's `policy/` checkpoints, for a frozen slot.
 
-    `path` is `RUN_DIR` (its first learner) or `RUN_DIR@k` (its k-th learner). Raises ValueError if the
+    `policy` is `RUN_DIR` (its first learner) or `RUN_DIR#k` (its k-th learner). Raises ValueError if the
     saved network's architecture differs from `net` (a checkpoint of another architecture; `SPEED_FIELDS`
-    may differ) or the path has no policy.
+    may differ) or the run has no policy.
     """
-    directory, k = _policy_dir(path)
+    policy = PolicyRef.of(policy)
+    directory, k = _policy_dir(policy), policy.learner
     meta = checkpoint.read_metadata(directory)
     saved = architecture(network.NetworkConfig(**meta["net"]))
     if saved != architecture(net):
         raise ValueError(
-            f"frozen slot {path}: the checkpoint's network {saved} differs from this run's network "
+            f"frozen slot {policy}: the checkpoint's network {saved} differs from this run's network "
             f"{architecture(net)} (a checkpoint of another architecture)"
         )
     n_saved = int(meta["n_learners"])
     if not 0 <= k < n_saved:
-        raise ValueError(f"frozen slot {path}: learner index {k} out of range (the run had {n_saved})")
+        raise ValueError(f"frozen slot {policy}: learner index {k} out of range (the run had {n_saved})")
     template = jax.eval_shape(
         jax.vmap(lambda k: network.init(k, net)), jax.random.split(jax.random.key(0), n_saved)
     )
@@ -98,4 +100,4 @@ def load_frozen(pop: population.Population, net: network.NetworkConfig) -> Any:
     """The frozen slots' params stacked [S_f, ...] in slot order, or None if `pop` has no frozen slot."""
     if not pop.frozen:
         return None
-    return population.stack([load_policy(pop.slots[i].path, net) for i in pop.frozen])
+    return population.stack([load_policy(pop.slots[i].policy, net) for i in pop.frozen])

@@ -16,17 +16,18 @@ import jax.numpy as jnp
 
 from jaxsocial.agents import experts, network
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
+from jaxsocial.specs import PolicyRef
 
 SLOT_KINDS = ("learner", "frozen", "expert", "random")
 
 
 @dataclasses.dataclass(frozen=True)
 class Slot:
-    """One environment slot: `kind` in SLOT_KINDS; `path` the run directory of a frozen policy (`RUN_DIR`
-    or `RUN_DIR@k`); `expert` the scripted expert of an expert slot."""
+    """One environment slot: `kind` in SLOT_KINDS; `policy` the saved policy of a frozen slot (`RUN_DIR` or
+    `RUN_DIR#k`, `specs.PolicyRef`); `expert` the scripted expert of an expert slot."""
 
     kind: str
-    path: str | None = None
+    policy: PolicyRef | None = None
     expert: experts.ExpertSpec | None = None
 
     @property
@@ -39,8 +40,10 @@ class Slot:
         return f"expert:{self.expert.kind}" if self.kind == "expert" else self.kind
 
     def __str__(self) -> str:
-        """The slot as `parse_slot` reads it: 'learner', 'frozen:PATH', 'expert:KIND[:k=v,...]', ..."""
-        return {"frozen": f"frozen:{self.path}", "expert": f"expert:{self.expert}"}.get(self.kind, self.kind)
+        """The slot as `parse_slot` reads it: 'learner', 'frozen:POLICY', 'expert:KIND[:k=v,...]', ..."""
+        if self.kind == "frozen":
+            return f"frozen:{self.policy}"
+        return f"expert:{self.expert}" if self.kind == "expert" else self.kind
 
 
 def _split_entries(text: str) -> list[str]:
@@ -57,8 +60,9 @@ def _split_entries(text: str) -> list[str]:
 
 
 def parse_slot(entry: str) -> Slot:
-    """'learner' | 'random' | 'frozen:PATH' | 'expert:ckpt=PATH' (a trained expert, same as frozen) |
-    'expert:KIND[:k=v,...]' (a scripted expert, see `experts.parse_expert`). Raises ValueError."""
+    """'learner' | 'random' | 'frozen:POLICY' | 'expert:ckpt=POLICY' (a trained expert, same as frozen; POLICY
+    is `RUN_DIR` or `RUN_DIR#k`, `specs.PolicyRef`) | 'expert:KIND[:k=v,...]' (a scripted expert, see
+    `experts.parse_expert`). Raises ValueError."""
     kind, _, arg = entry.partition(":")
     if kind not in SLOT_KINDS:
         raise ValueError(f"unknown slot kind {kind!r} in {entry!r}; choose from {SLOT_KINDS}")
@@ -69,12 +73,12 @@ def parse_slot(entry: str) -> Slot:
             return parse_slot(f"frozen:{arg.removeprefix('ckpt=')}")
         return Slot("expert", expert=experts.parse_expert(arg))
     if (kind == "frozen") != bool(arg):
-        raise ValueError(f"slot {entry!r}: 'frozen:PATH' needs a checkpoint path; {kind} takes none")
-    return Slot(kind, arg or None)
+        raise ValueError(f"slot {entry!r}: 'frozen:POLICY' needs a run directory; {kind} takes none")
+    return Slot(kind, PolicyRef.parse(arg) if arg else None)
 
 
 def parse_slot_list(text: str) -> tuple[Slot, ...]:
-    """Parse 'learner,expert:explorer,random,frozen:PATH' (one entry per agent slot; '' gives ()): the
+    """Parse 'learner,expert:explorer,random,frozen:POLICY' (one entry per agent slot; '' gives ()): the
     syntax only, see `check_slots`. Raises ValueError."""
     return tuple(parse_slot(e) for e in _split_entries(text))
 

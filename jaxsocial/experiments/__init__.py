@@ -5,7 +5,7 @@
     python -m jaxsocial.experiments figure h1 --scale cpu --seeds 3   # into runs/experiments/figures/
     python -m jaxsocial.experiments record h1 --scale cpu --seeds 3 --commands-log LOG --device D --jax V
     python -m jaxsocial.experiments power h1_prereg                   # a pre-registered design and its power
-    python -m jaxsocial.experiments.sweep ...                         # the exploratory sample-efficiency sweep
+    python -m jaxsocial.experiments.sweep list                        # the exploratory sweep of settings
     python -m jaxsocial.experiments.followup run h1_laptop            # follow-ups of a design's learned seeds
 
 `recipes` names the conditions and scales, `runner` trains and evaluates them, `figures` summarises and
