@@ -11,11 +11,9 @@ one of them, so a new field is placed by where it is declared.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
 from typing import Annotated, Any, NamedTuple
 
 import jax
-import tyro
 
 import jaxsocial
 from jaxsocial import envspec, logs, schedule
@@ -25,31 +23,7 @@ from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
-from jaxsocial.specs import CheckpointRef
-
-
-@dataclasses.dataclass(frozen=True)
-class TextField:
-    """A field written as text (a flag, config.json) and held parsed, as an instance of `kind`: `parse` runs
-    once, where the config is made (the command line, `config_from_dict`, or text given to the constructor);
-    `format` gives the text back (`parse(format(x)) == x`). A field that may be None is null in
-    config.json."""
-
-    parse: Callable[[str], Any]
-    format: Callable[[Any], str]
-    metavar: str
-    kind: type = tuple
-
-    def flag(self) -> tyro.constructors.PrimitiveConstructorSpec:
-        """How the command line reads and shows it."""
-        return tyro.constructors.PrimitiveConstructorSpec(
-            nargs=1,
-            metavar=self.metavar,
-            instance_from_str=lambda args: self.parse(args[0]),
-            is_instance=lambda value: isinstance(value, self.kind),
-            str_from_instance=lambda value: [self.format(value)],
-        )
-
+from jaxsocial.specs import CheckpointRef, TextField
 
 ENV_ARGS = TextField(
     lambda text: tuple(schedule.parse_assignments(text).items()),

@@ -39,13 +39,14 @@ from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 from jaxsocial.envspec import check_eval_envs
 from jaxsocial.metrics import mean_ci95
+from jaxsocial.specs import Policy, PolicyRef
 
 
 @dataclasses.dataclass(frozen=True)
 class EvalConfig:
     """An evaluation. Every field is a command-line flag."""
 
-    ckpt: tuple[str, ...] = ()
+    ckpt: tuple[Policy, ...] = ()
     """Run directories of the agent under test (RUN_DIR or RUN_DIR#k), one per training seed."""
     env: str = "goalcycle3"
     """Environment preset: goalcycle3, goalcycle4, fourrooms, maze, each also as NAME-solo and
@@ -65,6 +66,9 @@ class EvalConfig:
     """Replace an existing --out file."""
     protocol: str = "returns"
     """'returns' (each slot's episode return) or 'ct' (the cultural-transmission scores, see above)."""
+
+    def __post_init__(self):  # text or paths given to the constructor are parsed here, once
+        object.__setattr__(self, "ckpt", tuple(PolicyRef.of(c) for c in self.ckpt))
 
 
 PROTOCOLS = ("returns", "ct")
@@ -186,7 +190,7 @@ def evaluate(cfg: EvalConfig) -> dict[str, Any]:
         "env": cfg.env,
         "env_args": cfg.env_args,
         "slots": [s.label for s in pop.slots],
-        "checkpoints": list(cfg.ckpt),
+        "checkpoints": [str(c) for c in cfg.ckpt],
         "policy_iterations": [policy_io.policy_iteration(c) for c in cfg.ckpt],
         "episodes_per_checkpoint": cfg.episodes,
         "seed": cfg.seed,

@@ -59,7 +59,7 @@ ENV_AXES = RunnerState(
 
 Transition = ppo.Batch
 """One rollout step, in `ppo.Batch`'s fields without their time axis and with carry0 None (`ppo_batch` adds
-both). obs, actions and valid are of the recorded slots (learners for PPO, demonstrators for BC), the rest of
+both). obs, actions and valid are of the training slots (learners for PPO, demonstrators for BC), the rest of
 the learners: obs uint8 or int8 [E, S_r, ...] (the environment's observations), resets bool[E], actions
 int32[S_r, E], valid bool[S_r, E], logp, rewards, values, final_values float32[S_l, E], terminated, done
 bool[S_l, E], chunk_carries the LSTM states before the step (Carry of float32[S_l, E, H]) and attention
@@ -150,7 +150,7 @@ def make_program(
     n_learners, n_neural = len(pop.learners), len(pop.neural)
     n_envs, n_steps = cfg.num_envs, cfg.rollout_steps
     bc_mode = cfg.algo == "bc"
-    recorded = jnp.asarray(pop.demonstrators if bc_mode else pop.learners)
+    training_slots = jnp.asarray(pop.demonstrators if bc_mode else pop.learners)
     n_demo_streams = n_envs * len(pop.demonstrators)
     optimizer = bc.make_optimizer(cfg.bc) if bc_mode else ppo.make_optimizer(ppo_cfg)
 
@@ -203,15 +203,15 @@ def make_program(
         stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0))
         agent_done = terminated | done[:, None]
         transition = Transition(
-            obs=state.obs[:, recorded],
+            obs=state.obs[:, training_slots],
             resets=state.resets,
-            actions=actions[:, recorded].T,
+            actions=actions[:, training_slots].T,
             logp=logp[:n_learners],
             rewards=reward[:, learners].T,
             terminated=terminated[:, learners].T,
             done=agent_done[:, learners].T,
             final_values=final_values[:n_learners],
-            valid=alive[:, recorded].T,
+            valid=alive[:, training_slots].T,
             carry0=None,
             attention=attention_targets(state.env_states),
             values=None if bc_mode else values[:n_learners],

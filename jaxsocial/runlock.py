@@ -32,13 +32,13 @@ def lock_path(run_dir: str | Path) -> Path:
 
 
 def _holder(file: TextIO) -> dict[str, Any]:
-    """The holder record in an open lock file ({} if empty or unreadable)."""
+    """The holder in an open lock file ({} if empty or unreadable)."""
     file.seek(0)
     try:
-        record = json.loads(file.read() or "{}")
+        holder = json.loads(file.read() or "{}")
     except json.JSONDecodeError:
         return {}
-    return record if isinstance(record, dict) else {}
+    return holder if isinstance(holder, dict) else {}
 
 
 def _describe(holder: dict[str, Any]) -> str:
@@ -88,8 +88,8 @@ class RunLock:
                   "without releasing it (killed?)", file=sys.stderr)  # fmt: skip
         file.seek(0)
         file.truncate()
-        record = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(), "argv": sys.argv}
-        file.write(json.dumps(record) + "\n")
+        holder = {"pid": os.getpid(), "host": socket.gethostname(), "started": time.time(), "argv": sys.argv}
+        file.write(json.dumps(holder) + "\n")
         file.flush()
         self._file = file
 

@@ -7,14 +7,19 @@
 
 '@' names an iteration and '#' a learner. ``RUN_DIR@k`` for a learner is the old spelling: it still reads,
 with a DeprecationWarning. Each type has one parser (`parse`) and one formatter (`str`), and
-``parse(str(x)) == x``.
+``parse(str(x)) == x``. `TextField` carries such a parser and formatter to the command line (tyro) and to
+config.json (`config.TEXT_FIELDS`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import Annotated, Any
+
+import tyro
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,3 +74,31 @@ class CheckpointRef:
 
     def __str__(self) -> str:
         return str(self.run) if self.iteration is None else f"{self.run}@{self.iteration}"
+
+
+@dataclasses.dataclass(frozen=True)
+class TextField:
+    """A field written as text (a flag, config.json) and held parsed, as an instance of `kind`: `parse` runs
+    once, where the config is made (the command line, `config_from_dict`, or text given to the constructor);
+    `format` gives the text back (`parse(format(x)) == x`). A field that may be None is null in
+    config.json."""
+
+    parse: Callable[[str], Any]
+    format: Callable[[Any], str]
+    metavar: str
+    kind: type = tuple
+
+    def flag(self) -> tyro.constructors.PrimitiveConstructorSpec:
+        """How the command line reads and shows it."""
+        return tyro.constructors.PrimitiveConstructorSpec(
+            nargs=1,
+            metavar=self.metavar,
+            instance_from_str=lambda args: self.parse(args[0]),
+            is_instance=lambda value: isinstance(value, self.kind),
+            str_from_instance=lambda value: [self.format(value)],
+        )
+
+
+POLICY = TextField(PolicyRef.parse, str, "RUN_DIR[#k]", PolicyRef)
+Policy = Annotated[PolicyRef, POLICY.flag()]
+"""A `PolicyRef` flag."""

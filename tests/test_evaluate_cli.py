@@ -2,10 +2,13 @@
 
 import dataclasses
 import json
+from pathlib import Path
 
 import pytest
+import tyro
 
 from jaxsocial import evaluate
+from jaxsocial.specs import PolicyRef
 
 ARGS = [
     "--env",
@@ -60,6 +63,7 @@ RENDER = "next: python -m jaxsocial.render --ckpt runs/a --env goalcycle3 --env-
 
 def test_the_outcome_says_what_the_evaluation_shows():
     cfg = evaluate.EvalConfig(ckpt=("runs/a", "runs/b"), env="goalcycle3", env_args="width=9,height=9")
+    assert cfg.ckpt == (PolicyRef(Path("runs/a")), PolicyRef(Path("runs/b")))  # text is parsed once
     ct = {"protocol": "ct", "ct": _interval(0.125), "recall": _interval(0.0, 0.05)}
     said = evaluate.outcome(ct, cfg)
     assert "follows them rather than having learned the task" in said[0]
@@ -78,3 +82,8 @@ def test_the_outcome_says_what_the_evaluation_shows():
         "the learner scored 3.00 per episode beside experts scoring 31.00",
         RENDER,
     ]
+
+
+def test_the_command_line_gives_parsed_policies():
+    cfg = tyro.cli(evaluate.EvalConfig, args=["--ckpt", "runs/a#1", "runs/b"])
+    assert cfg.ckpt == (PolicyRef(Path("runs/a"), 1), PolicyRef(Path("runs/b")))

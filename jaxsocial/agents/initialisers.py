@@ -1,7 +1,7 @@
 """Parameter initialisers, and a params tree drawn from two random buffers instead of one draw per tensor.
 
-Modules create each parameter with `param` and an `Init` (its distribution), which it records;
-`recorded(module, *args)` collects every parameter's path -> (shape, `Init`) from an abstract
+Modules create each parameter with `param` and an `Init` (its distribution), which it notes;
+`param_inits(module, *args)` collects every parameter's path -> (shape, `Init`) from an abstract
 ``module.init``, and `draw(key, specs)` builds the params tree (float32 arrays) from one standard-normal and
 one U(-1, 1) buffer: a `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time each. Orthogonal
 matrices come from Gram-Schmidt (`_gram_schmidt` says why not ``jnp.linalg.qr``).
@@ -20,7 +20,7 @@ from flax import traverse_util
 from jax import lax
 
 Params = dict[str, Any]
-_INITS = "intermediates"  # collection where `param` records each initialiser (see `recorded`)
+_INITS = "intermediates"  # collection where `param` notes each initialiser (see `param_inits`)
 
 
 @jax.tree_util.register_static
@@ -30,7 +30,7 @@ class Init:
 
     kind: "uniform" (U(-arg, arg)), "normal" (N(0, arg^2)), "orthogonal" (gain arg; `blocks` independent
     orthogonal blocks side by side along the last axis) or "zeros". A static pytree (no leaves), so `param`
-    can record it in a collection that `jax.eval_shape` passes through.
+    can note it in a collection that `jax.eval_shape` passes through.
     """
 
     kind: str
@@ -63,13 +63,13 @@ Specs = dict[tuple[str, ...], tuple[tuple[int, ...], Init]]  # parameter path ->
 
 
 def param(module: nn.Module, name: str, init: Init, shape: tuple[int, ...]) -> jax.Array:
-    """``module.param(name, init, shape)``, recording `init` in the `_INITS` collection when it is mutable
-    (only `recorded` asks: Flax's own ``Module.init`` leaves that collection immutable)."""
+    """``module.param(name, init, shape)``, noting `init` in the `_INITS` collection when it is mutable
+    (only `param_inits` asks: Flax's own ``Module.init`` leaves that collection immutable)."""
     module.sow(_INITS, name, init)
     return module.param(name, init, shape)
 
 
-def recorded(module: nn.Module, *args) -> Specs:
+def param_inits(module: nn.Module, *args) -> Specs:
     """Every parameter's path -> (shape, `Init`) of ``module.init(key, *args)``, from an abstract call."""
     variables = jax.eval_shape(
         lambda key: module.init(key, *args, mutable=["params", _INITS]), jax.random.key(0)

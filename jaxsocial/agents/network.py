@@ -124,7 +124,7 @@ def _initialisers(cfg: NetworkConfig) -> initialisers.Specs:
     """Every parameter's path -> (shape, `Init`) of ``ActorCritic(cfg)``."""
     b = 1
     obs = jnp.zeros((1, b, *cfg.obs_shape), cfg.obs_dtype)
-    return initialisers.recorded(ActorCritic(cfg), initial_carry(cfg, (b,)), obs, jnp.zeros((1, b), bool))
+    return initialisers.param_inits(ActorCritic(cfg), initial_carry(cfg, (b,)), obs, jnp.zeros((1, b), bool))
 
 
 def init(key: jax.Array, cfg: NetworkConfig) -> Params:
