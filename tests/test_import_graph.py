@@ -1,0 +1,83 @@
+"""The package's import graph (module-level imports between jaxsocial modules): it has no cycle, the tools for
+people stand on the data layer only, and the floor count README states is the graph's."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "jaxsocial"
+TOOLS = ("jaxsocial.render", "jaxsocial.playback", "jaxsocial.plot", "jaxsocial.curves")
+"""Tools for people, which stand on metrics, logs, policies and the environment only."""
+ABOVE_TOOLS = (
+    "jaxsocial.train",
+    "jaxsocial.driver",
+    "jaxsocial.loop",
+    "jaxsocial.config",
+    "jaxsocial.experiments",
+)
+
+
+def _module(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _is_module(name: str) -> bool:
+    path = PACKAGE.parent.joinpath(*name.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def import_graph() -> dict[str, set[str]]:
+    """Each module -> the jaxsocial modules its top-level statements import (imports inside functions, made
+    late on purpose, are left out)."""
+    graph = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        deps = set()
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.Import):
+                deps |= {alias.name for alias in node.names if alias.name.startswith("jaxsocial")}
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("jaxsocial"):
+                for alias in node.names:
+                    name = f"{node.module}.{alias.name}"
+                    deps.add(name if _is_module(name) else node.module)
+        graph[_module(path)] = deps - {_module(path)}
+    return graph
+
+
+def floors(graph: dict[str, set[str]]) -> dict[str, int]:
+    """Each module's floor: 0 without jaxsocial imports, else one above the highest module it imports.
+    AssertionError naming the cycle if there is one."""
+    out: dict[str, int] = {}
+
+    def floor(module: str, path: tuple[str, ...]) -> int:
+        assert module not in path, f"import cycle: {' -> '.join((*path, module))}"
+        if module not in out:
+            out[module] = 1 + max((floor(d, (*path, module)) for d in graph[module]), default=-1)
+        return out[module]
+
+    for module in graph:
+        floor(module, ())
+    return out
+
+
+def test_no_cycle_and_readme_states_the_floors():
+    levels = floors(import_graph())
+    stated = re.search(r"Module-level imports form (\d+) floors", (PACKAGE.parent / "README.md").read_text())
+    assert stated, "README's Layout states the number of floors"
+    assert int(stated[1]) == max(levels.values()) + 1
+
+
+def test_tools_for_people_stand_on_the_data_layer():
+    graph = import_graph()
+
+    def reach(module: str, seen: set[str]) -> set[str]:
+        for dep in graph[module] - seen:
+            seen.add(dep)
+            reach(dep, seen)
+        return seen
+
+    for tool in TOOLS:
+        above = sorted(m for m in reach(tool, set()) if m.startswith(ABOVE_TOOLS))
+        assert not above, f"{tool} imports {above}"
