@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import logs
+from jaxsocial import compile_cache, logs
 from jaxsocial.experiments import records
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
@@ -43,8 +43,11 @@ class Job:
 
 
 def train_command(flags: list[str]) -> tuple[str, ...]:
-    """The argv of `python -m jaxsocial.train FLAGS` after the interpreter."""
-    return ("-m", "jaxsocial.train", *flags)
+    """The argv of `python -m jaxsocial.train FLAGS` after the interpreter, with the persistent compilation
+    cache (`compile_cache.DEFAULT_DIR`) unless FLAGS name one: the seeds of a condition are one program, so
+    every process after the first loads it (benchmarks/compile_cache.py measures what that saves)."""
+    cache = [] if "--compile-cache" in flags else ["--compile-cache", str(compile_cache.DEFAULT_DIR)]
+    return ("-m", "jaxsocial.train", *flags, *cache)
 
 
 def run(jobs: list[Job], cores: list[int]) -> list[int]:
