@@ -17,11 +17,17 @@ from pathlib import Path
 
 import jax
 
-__all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "enable", "entries", "main"]
+__all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "default_dir", "enable", "entries", "main"]
 
 DEFAULT_DIR = Path(os.environ.get("XDG_CACHE_HOME") or "~/.cache").expanduser() / "jaxsocial" / "xla"
 """The directory `python -m jaxsocial.compile_cache` looks at by default."""
 MIN_COMPILE_SECONDS = 0.5
+
+
+def default_dir() -> Path:
+    """The cache processes share when nothing names one: $JAX_COMPILATION_CACHE_DIR where it is set (JAX's own
+    variable, which the test suite sets), else `DEFAULT_DIR`."""
+    return Path(os.environ.get("JAX_COMPILATION_CACHE_DIR") or DEFAULT_DIR).expanduser()
 
 
 def enable(directory: str | Path, min_compile_seconds: float = MIN_COMPILE_SECONDS) -> Path:

@@ -102,7 +102,9 @@ def pytest_configure(config):
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_backend_optimization_level" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_optimization_level=0".strip()
-    compile_cache.enable(Path(tempfile.gettempdir()) / "jaxsocial-tests-xla-cache", min_compile_seconds=1.0)
+    cache = Path(tempfile.gettempdir()) / "jaxsocial-tests-xla-cache"
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = str(cache)  # the subprocesses' too (and `experiments` jobs')
+    compile_cache.enable(cache, min_compile_seconds=1.0)
 
 
 SHARED_RUNS = {"test_cli_errors", "test_plot", "test_regimes", "test_render", "test_scale", "test_train"}
