@@ -16,14 +16,14 @@ from typing import Annotated, Any, NamedTuple
 import jax
 
 import jaxsocial
-from jaxsocial import envspec, logs, schedule
+from jaxsocial import logs, schedule, specs
 from jaxsocial.agents import policy_io, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
-from jaxsocial.specs import CheckpointRef, TextField
+from jaxsocial.specs import CheckpointRef, Env, TextField
 
 ENV_ARGS = TextField(
     lambda text: tuple(schedule.parse_assignments(text).items()),
@@ -35,6 +35,8 @@ STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VA
 INIT_FROM = TextField(CheckpointRef.parse, str, "RUN_DIR[@ITERATION]", CheckpointRef)
 TEXT_FIELDS = {"env_args": ENV_ARGS, "slots": SLOTS, "stages": STAGES, "init_from": INIT_FROM}
 """The fields written as text."""
+TEXT_TUPLE_FIELDS = {"eval_envs": specs.ENV}
+"""The fields written as lists of text, one entry per value."""
 
 EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
 Slots = Annotated[tuple[population.Slot, ...], SLOTS.flag()]
@@ -73,6 +75,10 @@ class RunConfig:
             value = getattr(self, name, None)  # a TrainConfig has them all
             if isinstance(value, str):  # text given to the constructor: parsed here, once
                 object.__setattr__(self, name, field.parse(value))
+        for name, field in TEXT_TUPLE_FIELDS.items():
+            if hasattr(self, name):
+                parsed = tuple(field.parse(v) if isinstance(v, str) else v for v in getattr(self, name))
+                object.__setattr__(self, name, parsed)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -140,7 +146,7 @@ class DriverConfig:
     compile_cache: str | None = None
     """Persistent compilation cache directory: a later run of the same program skips compiling (off by
     default; see `python -m jaxsocial.compile_cache`)."""
-    eval_envs: tuple[str, ...] = ()
+    eval_envs: tuple[Env, ...] = ()
     """Environments the first learner is evaluated in during training, each NAME or NAME:field=value,...
     (e.g. goalcycle3-solo goalcycle4), beside that environment's default companions; logged in
     metrics.jsonl as 'eval/<spec>' on every eval_every-th iteration and the last."""
@@ -327,7 +333,7 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     if cfg.eval_envs:
         if cfg.eval_every < 1:
             raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
-        envspec.check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
+        specs.check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
     if cfg.seeds > 1 and any(stage.threshold is not None for stage in stages):
         raise ValueError(
             "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
@@ -362,6 +368,8 @@ def config_dict(cfg: TrainConfig) -> dict[str, Any]:
         value = getattr(cfg, field.name)
         if field.name in TEXT_FIELDS and value is not None:
             value = TEXT_FIELDS[field.name].format(value)
+        elif field.name in TEXT_TUPLE_FIELDS:
+            value = [TEXT_TUPLE_FIELDS[field.name].format(v) for v in value]
         elif dataclasses.is_dataclass(value):
             value = dataclasses.asdict(value)
         values[field.name] = value
@@ -383,6 +391,8 @@ def config_from_dict(values: dict[str, Any]) -> TrainConfig:
                 value = build(type(default), value)
             elif field.name in TEXT_FIELDS and value is not None:
                 value = TEXT_FIELDS[field.name].parse(value)
+            elif field.name in TEXT_TUPLE_FIELDS:
+                value = tuple(TEXT_TUPLE_FIELDS[field.name].parse(v) for v in value)
             elif isinstance(value, list):
                 value = tuple(value)
             kwargs[field.name] = value

@@ -37,9 +37,8 @@ from jaxsocial import logs, schedule
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
-from jaxsocial.envspec import check_eval_envs
 from jaxsocial.metrics import mean_ci95
-from jaxsocial.specs import Policy, PolicyRef
+from jaxsocial.specs import EnvSpec, Policy, PolicyRef, check_eval_envs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,11 +122,11 @@ def episode_returns(
     return Episodes(returns, late, present)
 
 
-def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episodes: int):
+def make_learner_eval(specs: tuple[EnvSpec, ...], net: network.NetworkConfig, episodes: int):
     """Evaluation during training: `fn(key, params) -> {spec: mean return}` plays `episodes` episodes of
-    each environment spec (`envspec.parse_env_spec`) with one learner's `params` (unstacked) in slot 0
-    beside the environment's default companions (scripted experts, distractors), and returns the learner's
-    mean episode return over the episodes it took part in. Validates everything (ValueError) before
+    each environment spec (`specs.EnvSpec`; keys are their text) with one learner's `params` (unstacked) in
+    slot 0 beside the environment's default companions (scripted experts, distractors), and returns the
+    learner's mean episode return over the episodes it took part in. Validates everything (ValueError) before
     compiling."""
     setups = [
         (spec, population.default_population(p), p) for spec, p in check_eval_envs(specs, net, episodes)
@@ -139,7 +138,7 @@ def make_learner_eval(specs: tuple[str, ...], net: network.NetworkConfig, episod
         out = {}
         for (spec, pop, env_params), k in zip(setups, jax.random.split(key, len(setups)), strict=True):
             played = jax.device_get(play(k, pop, net, env_params, stacked, episodes))
-            out[spec] = float(played.returns[played.present[:, 0], 0].mean())
+            out[str(spec)] = float(played.returns[played.present[:, 0], 0].mean())
         return out
 
     return run

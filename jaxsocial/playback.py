@@ -15,8 +15,7 @@ import numpy as np
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core, pictures
 from jaxsocial.env.types import EnvParams
-from jaxsocial.envspec import parse_env_spec
-from jaxsocial.specs import PolicyRef
+from jaxsocial.specs import EnvSpec, PolicyRef
 
 
 class EpisodeSetup(NamedTuple):
@@ -39,7 +38,7 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     """
     policy = PolicyRef.parse(run_dir)
     net = policy_io.saved_net(policy)
-    env_params = parse_env_spec(env_spec)
+    env_params = EnvSpec.parse(env_spec).params()
     net.check_env(env_params, f"env {env_spec!r} with the policy {run_dir}")
     population.require_rgb(env_params, f"env {env_spec!r}")
     if slots is None:

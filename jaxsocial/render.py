@@ -28,8 +28,7 @@ import jaxsocial
 from jaxsocial import logs, metrics, playback
 from jaxsocial.agents import network, population
 from jaxsocial.env.pictures import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
-from jaxsocial.envspec import parse_env_spec
-from jaxsocial.specs import PolicyRef
+from jaxsocial.specs import EnvSpec, PolicyRef
 
 
 def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playback.EpisodeSetup, str, bool]:
@@ -44,7 +43,7 @@ def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playba
     spec = env or f"{config['env']}:{config.get('env_args', '')}"
     if slots is None and config.get("slots"):  # else the environment's default companions, as in training
         try:
-            population.parse_slots(config["slots"], parse_env_spec(spec).n_agents)
+            population.parse_slots(config["slots"], EnvSpec.parse(spec).params().n_agents)
         except ValueError as err:
             raise ValueError(f"the run's slots do not fit {spec}: {err}; choose them with --slots") from None
         slots = config["slots"]
@@ -105,7 +104,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     try:
         check_video_path(args.out)
         if args.ckpt is None:
-            args.params = parse_env_spec(args.env)
+            args.params = EnvSpec.parse(args.env).params()
         else:
             args.setup, args.env, args.decoder = learner_setup(args.ckpt, args.env, args.slots)
             args.params = args.setup.env_params
@@ -150,9 +149,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.ckpt is None:
         print("next: watch a trained learner instead: --ckpt RUN_DIR (one seed's run directory)")
     else:
-        env_args = f" --env-args {args.env.partition(':')[2]}" if args.env.partition(":")[2] else ""
+        env = EnvSpec.parse(args.env)
+        env_args = f" --env-args {env.env_args}" if env.args else ""
         print(f"next: its return over many episodes: python -m jaxsocial.evaluate --ckpt {args.ckpt} "
-              f"--env {args.env.partition(':')[0]}{env_args}")  # fmt: skip
+              f"--env {env.name}{env_args}")  # fmt: skip
     return 0
 
 

@@ -1,5 +1,7 @@
-"""References to saved state, written as text on command lines and in config.json and held parsed:
+"""Values written as text on command lines and in config.json and held parsed:
 
+* `EnvSpec`: an environment, ``NAME`` or ``NAME:field=value,...`` (evaluation environments, `--env` of the
+  tools); `check_eval_envs` checks a training run's;
 * `PolicyRef`: a learner's exported policy, ``RUN_DIR`` (its first learner) or ``RUN_DIR#k`` (its k-th), for
   frozen slots, trained experts (`expert:ckpt=`), `evaluate --ckpt` and `render --ckpt`;
 * `CheckpointRef`: a training checkpoint, ``RUN_DIR`` (its latest) or ``RUN_DIR@ITERATION``, for
@@ -20,6 +22,50 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import tyro
+
+import jaxsocial
+from jaxsocial import schedule
+from jaxsocial.env.types import EnvParams
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSpec:
+    """The registered environment `name` with the EnvParams overrides `args` ((field, value) pairs)."""
+
+    name: str
+    args: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def parse(cls, text: str) -> EnvSpec:
+        """``NAME`` or ``NAME:field=value,...`` (the syntax only: `params` checks the name and the fields).
+        ValueError on an override without '='."""
+        name, _, args = text.partition(":")
+        return cls(name.strip(), tuple(schedule.parse_assignments(args).items()))
+
+    def params(self) -> EnvParams:
+        """The environment's parameters; ValueError for an unknown name or field."""
+        return jaxsocial.make(self.name, **dict(self.args))[1]
+
+    @property
+    def env_args(self) -> str:
+        """The overrides as `--env-args` text."""
+        return schedule.format_assignments(dict(self.args))
+
+    def __str__(self) -> str:
+        return f"{self.name}:{self.env_args}" if self.args else self.name
+
+
+def check_eval_envs(specs: tuple[EnvSpec, ...], net, episodes: int) -> list[tuple[EnvSpec, EnvParams]]:
+    """(spec, parameters) of each evaluation environment of a training run (`TrainConfig.eval_envs`), checked
+    for a network `net` (`NetworkConfig`) to act in and `episodes` >= 1: ValueError otherwise."""
+    if episodes < 1:
+        raise ValueError(f"eval_episodes={episodes} must be >= 1")
+    parsed = []
+    for spec in specs:
+        env_params = spec.params()
+        net.check_env(env_params, f"eval env {str(spec)!r}")
+        parsed.append((spec, env_params))
+    return parsed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -102,3 +148,6 @@ class TextField:
 POLICY = TextField(PolicyRef.parse, str, "RUN_DIR[#k]", PolicyRef)
 Policy = Annotated[PolicyRef, POLICY.flag()]
 """A `PolicyRef` flag."""
+ENV = TextField(EnvSpec.parse, str, "NAME[:FIELD=VALUE,...]", EnvSpec)
+Env = Annotated[EnvSpec, ENV.flag()]
+"""An `EnvSpec` flag."""

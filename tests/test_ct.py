@@ -10,9 +10,10 @@ from conftest import TINY
 from test_regimes import save_policy
 
 import jaxsocial
-from jaxsocial import envspec, evaluate
+from jaxsocial import evaluate
 from jaxsocial.agents import policy_io, population
 from jaxsocial.evaluate import Episodes, EvalConfig
+from jaxsocial.specs import EnvSpec
 
 
 def test_ct_cases_set_presence_only():
@@ -69,7 +70,7 @@ def saved_learner(tmp_path_factory):
 
 def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     net = TINY.net
-    env_params = envspec.parse_env_spec(f"{CT_ENV}:{CT_ARGS}")
+    env_params = EnvSpec.parse(f"{CT_ENV}:{CT_ARGS}").params()
     pop = population.Population(population.parse_slots(CT_SLOTS, 3))
     params = population.stack([policy_io.load_policy(saved_learner, net)])
     play = jax.jit(evaluate.episode_returns, static_argnums=(1, 2, 3, 5))

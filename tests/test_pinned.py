@@ -88,7 +88,8 @@ def test_run_with_cores_trains_seed_by_seed(tmp_path, monkeypatch):
 
 
 def test_seed_processes_share_the_compilation_cache(monkeypatch, tmp_path):
-    """Every seed of a condition is one program: the processes share a persistent cache unless told another."""
+    """Every seed of a condition is one program: the processes share a persistent cache unless told
+    another."""
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path))
     assert pinned.train_command(["--seed", "1"])[-2:] == ("--compile-cache", str(tmp_path))
     own = pinned.train_command(["--compile-cache", "elsewhere"])

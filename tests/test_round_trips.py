@@ -9,9 +9,10 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+import jaxsocial
 from jaxsocial import schedule
 from jaxsocial.agents import experts, population
-from jaxsocial.specs import CheckpointRef, PolicyRef
+from jaxsocial.specs import CheckpointRef, EnvSpec, PolicyRef
 
 probabilities = st.floats(0.0, 1.0, allow_nan=False)
 experts_ = st.builds(experts.ExpertSpec, st.sampled_from(experts.KINDS), probabilities, probabilities)
@@ -49,6 +50,12 @@ def test_slots_round_trip(drawn):
 @given(policies, checkpoints)
 def test_references_round_trip(policy, checkpoint):
     assert PolicyRef.parse(str(policy)) == policy and CheckpointRef.parse(str(checkpoint)) == checkpoint
+
+
+@given(st.sampled_from(jaxsocial.registered_envs()), st.one_of(st.just({}), overrides))
+def test_env_specs_round_trip(name, args):
+    spec = EnvSpec(name, tuple(args.items()))
+    assert EnvSpec.parse(str(spec)) == spec
 
 
 def test_references_say_what_they_mean():

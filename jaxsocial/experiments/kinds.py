@@ -27,6 +27,7 @@ from jaxsocial.curves import band
 from jaxsocial.experiments import counts, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.metrics import LEARNED_RETURN, curve, eval_curve, final_return, metric_curve, stats
+from jaxsocial.specs import EnvSpec
 
 LOSS_PANEL = {"aux_loss": "auxiliary loss (MAE)", "bc_loss": "behaviour-cloning loss (cross-entropy)"}
 """The learner's (slot 0) loss drawn beside the returns: each condition's first of these metrics."""
@@ -289,9 +290,9 @@ VARIANTS = {"solo": "alone", "distractors": "with distractors"}
 def env_title(spec: str) -> str:
     """A reader's name for an environment spec: 'goalcycle4:width=9,height=9' -> '4-goal Goal Cycle, 9x9',
     'goalcycle3-solo:penalty=0' -> '3-goal Goal Cycle alone, penalty 0'."""
-    name, _, args = spec.partition(":")
-    base, _, variant = name.partition("-")
-    fields = dict(a.split("=", 1) for a in args.split(",") if a)
+    env = EnvSpec.parse(spec)
+    base, _, variant = env.name.partition("-")
+    fields = {k: str(v) for k, v in env.args}
     title = " ".join(t for t in (ENV_NAMES.get(base, base), VARIANTS.get(variant, variant)) if t)
     size = [f"{fields.pop('width')}x{fields.pop('height')}"] if {"width", "height"} <= set(fields) else []
     return ", ".join([title, *size, *(f"{k.replace('_', ' ')} {v}" for k, v in fields.items())])

@@ -14,6 +14,7 @@ from jaxsocial import evaluate, logs, rundir, train
 from jaxsocial.config import TrainConfig, setup
 from jaxsocial.experiments import kinds, pinned, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
+from jaxsocial.specs import EnvSpec
 
 
 class TrainingFailed(Exception):
@@ -75,9 +76,9 @@ def _run_of(seed_dir: Path) -> Path:
 def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol: str) -> dict[str, Any]:
     """Play the final policy of `seed_dir` in the environment `spec` (NAME[:field=value,...]) for `episodes`
     episodes with the evaluation `protocol` (`jaxsocial.evaluate`); write the result to `out`, return it."""
-    env, _, env_args = spec.partition(":")
+    env = EnvSpec.parse(spec)
     config = evaluate.EvalConfig(
-        ckpt=(str(seed_dir),), env=env, env_args=env_args, episodes=episodes, protocol=protocol
+        ckpt=(str(seed_dir),), env=env.name, env_args=env.env_args, episodes=episodes, protocol=protocol
     )
     result = evaluate.evaluate(config)
     out.parent.mkdir(parents=True, exist_ok=True)
