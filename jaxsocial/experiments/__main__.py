@@ -128,7 +128,7 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
                 print(f"  {condition}: no run {seed_dir}, skipped")
                 continue
             try:
-                rows = records.packable(seed_dir)[1]
+                iteration, rows = records.packable(seed_dir)
             except (ValueError, FileNotFoundError) as err:  # still training, or stopped: not a result yet
                 print(f"  {condition}: {err}; skipped")
                 continue
@@ -144,7 +144,8 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             keep = args.final_checkpoint == "all" or (
                 args.final_checkpoint == "learned" and final_return(rows) > threshold
             )
-            records.packable(seed_dir, keep)
+            if keep:
+                records.require_checkpoint(seed_dir, iteration)
             plan.append((seed_dir, relative, run, keep))
     for seed_dir, relative, run, keep in plan:
         record_dir = Path(args.out_dir) / relative

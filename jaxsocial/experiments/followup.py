@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
 import shutil
 import sys
 from pathlib import Path
@@ -33,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial import checkpoint, logs, metrics, rundir
+from jaxsocial import logs, metrics
 from jaxsocial.experiments import figures, kinds, pinned, prereg, recipes, records, runner
 
 RUNS_DIR = "runs/experiments"
@@ -100,12 +99,13 @@ def sources(plan: Plan, from_dir: str) -> list[Source]:
             rows = logs.read_metrics(seed_dir) if logs.has_metrics(seed_dir) else []
             if len(rows) < design.iterations or metrics.final_return(rows) <= design.learned_threshold:
                 continue
-            final = records.packable(seed_dir)[0]
-            if final not in checkpoint.all_steps(rundir.checkpoints(seed_dir)):
+            try:
+                records.packable(seed_dir, final_checkpoint=True)
+            except FileNotFoundError as err:
                 raise FileNotFoundError(
-                    f"{seed_dir} learned but has no checkpoint of its final iteration {final} to branch from "
-                    "(record it with `experiments record --final-checkpoint learned`)"
-                )
+                    f"{err}: the seed learned and its branches start there (record it with `experiments "
+                    "record --final-checkpoint learned`)"
+                ) from err
             out.append(Source(condition, seed, seed_dir))
     return out
 
@@ -158,19 +158,20 @@ def branch_dir(plan: Plan, source: Source, arm: str, runs_dir: str | Path) -> Pa
 
 def evaluate_source(plan: Plan, source: Source, out_dir: Path, command: str) -> None:
     """The zero-shot and cultural-transmission evaluations of a learned seed's final policy, into
-    `out_dir/eval/` (those already there are kept), and how they were made (`write_provenance`: `command`)."""
-    scale, started, written = plan.scale, _now(), False
-    plays = [(spec, "returns", kinds.eval_path(out_dir, spec)) for spec in zero_shot_specs(scale)]
-    plays.append((kinds.ct_spec(scale), "ct", kinds.ct_path(out_dir, scale)))
-    for spec, protocol, path in plays:
+    `out_dir/eval/` (those already there are kept), and how they were made (`pinned.RUN_FILE`: `command`)."""
+    scale, started, written = plan.scale, pinned.now(), False
+    plays = [(spec, kinds.RETURNS) for spec in zero_shot_specs(scale)] + [(kinds.ct_spec(scale), kinds.CT)]
+    for spec, evaluation in plays:
+        path = evaluation.path(out_dir, spec, scale)
         if path.exists():
             continue
-        result = runner.evaluate_into(path, source.seed_dir, spec, plan.episodes, protocol)
+        result = runner.evaluate_into(path, source.seed_dir, spec, plan.episodes, evaluation.protocol)
         written = True
-        score = result["ct"]["mean"] if protocol == "ct" else result["results"][0]["mean_return"]
-        print(f"  {source.name} in {spec} ({protocol}): {score:.3f}", flush=True)
-    if written:
-        write_provenance(out_dir, command, started)
+        print(
+            f"  {source.name} in {spec} ({evaluation.protocol}): {evaluation.score(result):.3f}", flush=True
+        )
+    if written:  # how they were made, as a training run's process records it
+        pinned.write_run_file(out_dir, command, records.head_commit(), None, started, 0)
 
 
 def run(
@@ -204,20 +205,6 @@ def run(
     return pinned.run(jobs, cores) if jobs else []
 
 
-def write_provenance(out_dir: Path, command: str, started: str) -> None:
-    """What `record` keeps of how a learned seed's evaluations were made (`pinned.RUN_FILE`, as a training
-    run's process has)."""
-    logs.write_json(
-        out_dir / pinned.RUN_FILE,
-        {"command": command, "commit": records.head_commit(), "cores": None, "started": started,
-         "ended": _now(), "rc": 0},
-    )  # fmt: skip
-
-
-def _now() -> str:
-    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
-
-
 def record(plan: Plan, runs_dir: str, out_dir: str, device: str, jax_version: str) -> list[Path]:
     """Pack every finished follow-up under `runs_dir` into `out_dir` (the branches with `records.pack`, the
     evaluations with their provenance); those recorded already are kept. Everything is checked first."""
@@ -242,10 +229,6 @@ def record(plan: Plan, runs_dir: str, out_dir: str, device: str, jax_version: st
             logs.write_json(target / records.PROVENANCE_FILE, {"run": run})
         print(f"recorded {directory} -> {target}")
     return [target for _, target, _ in packing]
-
-
-def _learner_return(result: dict[str, Any]) -> float:
-    return result["results"][0]["mean_return"]
 
 
 def _experts_return(result: dict[str, Any]) -> float | None:
@@ -273,10 +256,11 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
     seeds: dict[str, Any] = {}
     for eval_dir in sorted(base.glob(f"*/{logs.EVAL_DIR}")):
         name, seed_dir = eval_dir.parent.name, eval_dir.parent
-        zero_shot = {}
-        for spec in zero_shot_specs(scale):
-            result = logs.read_json(kinds.eval_path(seed_dir, spec))
-            zero_shot[spec] = {"learner": _learner_return(result), "experts": _experts_return(result)}
+        results = {spec: logs.read_json(kinds.eval_path(seed_dir, spec)) for spec in zero_shot_specs(scale)}
+        zero_shot = {
+            spec: {"learner": kinds.RETURNS.score(r), "experts": _experts_return(r)}
+            for spec, r in results.items()
+        }
         ct = logs.read_json(kinds.ct_path(seed_dir, scale))
         branches = {}
         for arm in ARMS:
@@ -284,9 +268,8 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
             branches[arm] = {
                 spec: metrics.final_eval(rows, metrics.eval_key(spec)) for spec in branch_specs(scale)
             }
-        source = logs.read_json(kinds.eval_path(seed_dir, zero_shot_specs(scale)[0]))["checkpoints"][0]
         seeds[name] = {
-            "source": source,
+            "source": next(iter(results.values()))["checkpoints"][0],
             "zero_shot": zero_shot,
             "ct": {score: ct[score]["mean"] for score in kinds.CT_SCORES},
             "branches": branches,

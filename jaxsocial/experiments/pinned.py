@@ -70,7 +70,7 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
                 stderr=subprocess.STDOUT,
                 env={**os.environ, "XLA_FLAGS": SINGLE_CORE_XLA_FLAGS},
             )
-            active[i] = (proc, core, _now())
+            active[i] = (proc, core, now())
             print(f"{job.label}: core {core}, log {job.log}", flush=True)
         time.sleep(POLL_SECONDS)
         for i, (proc, core, started) in list(active.items()):
@@ -80,18 +80,27 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
             free.append(core)
             codes[i] = proc.returncode
             job = jobs[i]
-            info = {
-                "command": shlex.join(["python", *job.argv]),
-                "commit": commit,
-                "cores": 1,
-                "started": started,
-                "ended": _now(),
-                "rc": proc.returncode,
-            }
             if (job.run_dir / logs.CONFIG_FILE).is_file():
-                logs.write_json(job.run_dir / RUN_FILE, info)
+                command = shlex.join(["python", *job.argv])
+                write_run_file(job.run_dir, command, commit, 1, started, proc.returncode)
             print(f"{job.label}: exit {proc.returncode}", flush=True)
     return [codes[i] for i in range(len(jobs))]
+
+
+def write_run_file(
+    run_dir: Path, command: str, commit: str | None, cores: int | None, started: str, rc: int
+) -> None:
+    """Write `RUN_FILE` into `run_dir`: what made it (command, commit, cores), when (start, and now as its
+    end) and its exit status."""
+    info = {
+        "command": command,
+        "commit": commit,
+        "cores": cores,
+        "started": started,
+        "ended": now(),
+        "rc": rc,
+    }
+    logs.write_json(Path(run_dir) / RUN_FILE, info)
 
 
 def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, Any]:
@@ -108,5 +117,6 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     }
 
 
-def _now() -> str:
+def now() -> str:
+    """The current UTC time, ISO 8601 to the second (what `RUN_FILE` records)."""
     return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")

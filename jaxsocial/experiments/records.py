@@ -178,9 +178,15 @@ def packable(seed_dir: str | Path, final_checkpoint: bool = False) -> tuple[int,
     config = logs.read_config(seed_dir)
     if len(rows) < config["iterations"] and not (stopped_early(config, rows) and iteration == len(rows)):
         raise ValueError(f"{seed_dir} is unfinished: {len(rows)} of {config['iterations']} iterations logged")
-    if final_checkpoint and iteration not in checkpoint.all_steps(rundir.checkpoints(seed_dir)):
-        raise FileNotFoundError(f"{seed_dir} has no checkpoint of its final iteration {iteration}")
+    if final_checkpoint:
+        require_checkpoint(seed_dir, iteration)
     return iteration, rows
+
+
+def require_checkpoint(seed_dir: str | Path, iteration: int) -> None:
+    """FileNotFoundError unless the seed's run directory (or record) holds the checkpoint of `iteration`."""
+    if iteration not in checkpoint.all_steps(rundir.checkpoints(seed_dir)):
+        raise FileNotFoundError(f"{seed_dir} has no checkpoint of its final iteration {iteration}")
 
 
 def stopped_early(config: dict[str, Any], rows: list[dict[str, Any]]) -> bool:
