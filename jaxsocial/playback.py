@@ -46,7 +46,7 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     else:
         pop = population.Population(population.parse_slots(slots, env_params.n_agents))
         pop.validate(env_params)
-    if len(pop.learners) > 1 and policy != PolicyRef(policy.run):
+    if len(pop.learners) > 1 and policy.learner:
         raise ValueError(f"{run_dir} is one learner, but the slots have {len(pop.learners)}")
     learners = (
         [PolicyRef(policy.run, k) for k in range(len(pop.learners))] if len(pop.learners) > 1 else [policy]
