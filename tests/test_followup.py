@@ -39,6 +39,7 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
         branch = plan.root(out) / f"{CONDITION}-s0-{arm}"
         config = logs.read_config(branch)
         assert config["init_from"] == f"{source}@{recipes.TINY.iterations}" and config["seed"] == 0
+        assert config["env"] == followup.BRANCH_ENV  # beside the experts, whatever the source's condition
         assert dict(pair.split("=") for pair in config["env_args"].split(","))["solo_prob"] == repr(solo_prob)
         rows = logs.read_metrics(branch)
         assert len(rows) == plan.branch_iterations == 1

@@ -6,8 +6,9 @@ design's result, on every seed (of any condition) whose final return exceeds the
 * **Cultural transmission:** the CT score and recall (`evaluate --protocol ct`) in the scale's 3-goal Goal
   Cycle.
 * **The paper's mixing test, by branching:** two runs from the seed's final checkpoint (params, optimiser
-  state; `train --init-from`), for the same `BRANCH_FRACTION` of the design's iterations and the same seed:
-  one with every episode social, one with `MIXED_SOLO_PROB` of them solo (the paper's Fig. 6). Each is
+  state; `train --init-from`), for the same `BRANCH_FRACTION` of the design's iterations and the same seed,
+  in 3-goal Goal Cycle beside the experts (`BRANCH_ENV`, a solo-trained seed too): one with every episode
+  social, one with `MIXED_SOLO_PROB` of them solo (the paper's Fig. 6). Each is
   evaluated at its end alone in 3-goal Goal Cycle and beside experts in 4-goal, `EVAL_EPISODES` episodes
   each.
 
@@ -45,6 +46,9 @@ MIXED_SOLO_PROB = 0.75
 """The share of solo episodes in the mixed branch (the paper's 75%)."""
 ARMS = {"social": 0.0, "mixed": MIXED_SOLO_PROB}
 """Branch name -> its share of solo episodes."""
+BRANCH_ENV = recipes.LEARNERS["social"]
+"""Every branch trains beside the experts, whatever the source's condition: a seed that learned alone
+(solo PPO + aux pred) meets them there for the first time."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,6 +138,8 @@ def branch_flags(plan: Plan, source: Source, arm: str, runs_dir: str) -> list[st
     iterations = plan.branch_iterations
     return [
         *recipes.condition_flags(scale, source.condition, source.seed, 1, runs_dir),
+        "--env",
+        BRANCH_ENV,
         "--env-args",
         env_args,
         "--iterations",
