@@ -369,7 +369,7 @@ def test_figures_name_environments_and_scales_for_people():
     )
 
 
-def test_time_to_learning_in_cpu_minutes_where_the_record_says_the_cores(tmp_path):
+def test_time_to_learning_and_run_in_cpu_minutes_where_the_record_says_the_cores(tmp_path):
     """A seed's CPU-minutes to takeoff: its training seconds (from the logged env-steps/s) to the takeoff
     times its recorded cores; None for a seed whose record does not say them."""
     seed_rows = [
@@ -390,3 +390,4 @@ def test_time_to_learning_in_cpu_minutes_where_the_record_says_the_cores(tmp_pat
     assert lift > 50 and entry["takeoff_env_steps"][0] == lift * 10
     assert entry["takeoff_cpu_minutes"] == [pytest.approx(lift * 2.0 * 2 / 60, abs=0.01), None]
     assert entry["cores"] == [2, None]
+    assert entry["cpu_minutes"] == [pytest.approx(100 * 2.0 * 2 / 60, abs=0.01), None]  # the whole run

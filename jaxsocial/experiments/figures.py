@@ -4,7 +4,8 @@ Every number comes from the runs' metrics and post-training evaluations; nothing
 condition's *final return* is, per seed, the learner's episode-weighted mean return over the last 10% of
 training iterations (the issue's measure); the 95% confidence interval is Student t over seeds. A seed has
 *learned* if its final return exceeds `LEARNED_RETURN`; learned counts are compared with one-sided exact
-tests (`counts`), and each seed's takeoff (`takeoff`) gives the time-to-learning curve. Every summary says
+tests (`counts`), and each seed's takeoff (`takeoff`) gives the time-to-learning curve (`time_to_learning`,
+with each seed's CPU-minutes of training and their sum where every record names its cores). Every summary says
 how it was made (`provenance`: the command that re-creates it, and each seed's recorded training command,
 commit, device and jax version; seeds without a record are listed) and, for a recipe with a design, what was
 pre-registered (`prereg`). What a summary and figure hold besides depends on the recipe's kind
@@ -178,7 +179,13 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     `kinds.KINDS`); `command` re-creates it (default: `runs.command()`)."""
     out = runs.header(runs.command() if command is None else command)
     out.update(kinds.kind_of(runs.recipe).summarise(runs))
-    out["time_to_learning"] = {"learned_return": LEARNED_RETURN, "conditions": takeoffs(runs)}
+    conditions = takeoffs(runs)
+    minutes = [m for c in conditions.values() for m in c["cpu_minutes"]]
+    out["time_to_learning"] = {
+        "learned_return": LEARNED_RETURN,
+        "conditions": conditions,
+        "cpu_minutes": None if None in minutes else round(sum(minutes), 1),
+    }
     if runs.recipe.design is not None:
         design = prereg.load(runs.recipe.design)
         learned = {

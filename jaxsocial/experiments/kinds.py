@@ -169,7 +169,8 @@ def _seeds(condition: dict[str, Any]) -> int:
 def takeoffs(runs) -> dict[str, dict[str, Any]]:
     """Each condition's time to learning (`takeoff`): every seed's takeoff iteration, env-step and CPU-minutes
     (training seconds to the takeoff times the cores its record says it had; None where it has no record of
-    them), and how many seeds took off by the end."""
+    them), how many seeds took off by the end, and every seed's CPU-minutes of training in all (compilation
+    excluded)."""
     out = {}
     for c, seed_rows in runs.rows.items():
         cfg = runs.configs[c]
@@ -180,6 +181,10 @@ def takeoffs(runs) -> dict[str, dict[str, Any]]:
             None if i is None or k is None else round(metrics.cpu_minutes(rows, per_iteration, k, i), 2)
             for i, k, rows in zip(iterations, cores, seed_rows, strict=True)
         ]
+        run_minutes = [
+            None if k is None else round(metrics.cpu_minutes(rows, per_iteration, k), 2)
+            for k, rows in zip(cores, seed_rows, strict=True)
+        ]
         out[c] = {
             "takeoff_iterations": iterations,
             "takeoff_env_steps": [None if i is None else i * per_iteration for i in iterations],
@@ -187,6 +192,7 @@ def takeoffs(runs) -> dict[str, dict[str, Any]]:
             "cores": cores,
             "took_off": sum(i is not None for i in iterations),
             "seeds": len(iterations),
+            "cpu_minutes": run_minutes,
         }
     return out
 

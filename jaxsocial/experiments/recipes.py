@@ -212,6 +212,7 @@ CONDITIONS = {
     "solo_pred": Condition("solo PPO + aux pred", env="goalcycle3-solo", flags=("--net.aux", "pred")),
     "social_none": Condition("social PPO (vanilla)", flags=("--net.aux", "none")),
     "social_rec": Condition("social PPO + aux rec", flags=("--net.aux", "rec")),
+    "solo_rec": Condition("solo PPO + aux rec", env="goalcycle3-solo", flags=("--net.aux", "rec")),
     "social_pred": Condition("social PPO + aux pred", flags=("--net.aux", "pred"), eval_during_training=True),
     "social_pred_mixed": Condition(
         "social PPO + aux pred, then 75% solo",
@@ -297,6 +298,9 @@ RECIPES = {
         Recipe("h1_laptop", "H1 on two CPU cores, pre-registered: auxiliary-loss learners against baselines",
                ("solo_pred", "social_none", "social_rec", "social_pred"), "curves",
                hypotheses=AUX_OVER_BASELINES, design="h1_laptop"),
+        Recipe("h1_early", "H1 early, pre-registered: PPO + aux rec beside the experts and alone",
+               ("solo_rec", "social_rec"), "curves", hypotheses=(("social_rec", "solo_rec"),),
+               design="h1_early"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves",
                hypotheses=(("social_pred", "solo_pred"), ("social_pred_imperfect", "solo_pred"))),
