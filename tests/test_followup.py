@@ -78,6 +78,9 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
     }
     paired = summary["mixing"][followup.branch_specs(plan.scale)[0]]["mixed_minus_social"]
     assert paired["n"] == 1 and paired["wilcoxon_p"] is None
+    assert seed["condition"] == CONDITION
+    assert summary["conditions"] == {CONDITION: {"seeds": 1, **followup.measures([seed], plan.scale)}}
+    assert summary["zero_shot"] == summary["conditions"][CONDITION]["zero_shot"]  # one condition: the same
     followup.draw(summary, tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 1000
 

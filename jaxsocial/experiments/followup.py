@@ -257,7 +257,8 @@ def _paired(social: list[float], mixed: list[float]) -> dict[str, Any]:
 
 def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
     """Each learned seed's follow-ups (zero-shot returns, CT, the branches' evaluations) and, per measure,
-    the mean over seeds; for the branches, the paired mixed-minus-social difference."""
+    the mean over seeds (`measures`): over every learned seed, and over each condition's apart
+    (`conditions`), since learners trained alone and beside the experts differ."""
     scale, base = plan.scale, plan.root(records_dir)
     seeds: dict[str, Any] = {}
     for eval_dir in sorted(base.glob(f"*/{logs.EVAL_DIR}")):
@@ -275,6 +276,7 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
                 spec: metrics.final_eval(rows, metrics.eval_key(spec)) for spec in branch_specs(scale)
             }
         seeds[name] = {
+            "condition": name.rsplit("-s", 1)[0],
             "source": next(iter(results.values()))["checkpoints"][0],
             "zero_shot": zero_shot,
             "ct": {score: ct[score]["mean"] for score in kinds.CT_SCORES},
@@ -292,12 +294,27 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
         "seeds": seeds,
     }
     if learned:
-        summary["zero_shot"] = {
+        summary.update(measures(learned, scale))
+        conditions = [c for c in plan.recipe.conditions if any(s["condition"] == c for s in learned)]
+        summary["conditions"] = {
+            c: {"seeds": len(group), **measures(group, scale)}
+            for c in conditions
+            for group in [[s for s in learned if s["condition"] == c]]
+        }
+    return summary
+
+
+def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, Any]:
+    """Over some learned seeds (`summarise`'s entries): each zero-shot return's and CT score's mean and
+    interval (`metrics.stats`), and each branch evaluation's, with the paired mixed-minus-social
+    difference."""
+    return {
+        "zero_shot": {
             spec: metrics.stats([s["zero_shot"][spec]["learner"] for s in learned])
             for spec in zero_shot_specs(scale)
-        }
-        summary["ct"] = {score: metrics.stats([s["ct"][score] for s in learned]) for score in kinds.CT_SCORES}
-        summary["mixing"] = {
+        },
+        "ct": {score: metrics.stats([s["ct"][score] for s in learned]) for score in kinds.CT_SCORES},
+        "mixing": {
             spec: {
                 **{arm: metrics.stats([s["branches"][arm][spec] for s in learned]) for arm in ARMS},
                 "mixed_minus_social": _paired(
@@ -306,49 +323,49 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
                 ),
             }
             for spec in branch_specs(scale)
-        }
-    return summary
+        },
+    }
 
 
 def draw(summary: dict[str, Any], path: Path) -> None:
-    """Three panels, one point per learned seed: zero-shot returns per environment (experts' mean as a
-    bar), CT score and recall, and the branches (social against mixed, one line per seed) in each
-    evaluation environment."""
+    """Three panels, one point per learned seed, coloured by its condition: zero-shot returns per
+    environment (experts' mean as a bar), CT score and recall, and the branches (social against mixed, one
+    line per seed) in each evaluation environment."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     seeds = summary["seeds"]
+    colours = {c: f"C{i}" for i, c in enumerate(summary.get("conditions", {}))}
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
     specs = list(summary.get("zero_shot", {}))
     for i, spec in enumerate(specs):
-        learner = [s["zero_shot"][spec]["learner"] for s in seeds.values()]
         experts = [s["zero_shot"][spec]["experts"] for s in seeds.values() if s["zero_shot"][spec]["experts"]]
         if experts:
             axes[0].bar(i, np.mean(experts), color="0.85", label="experts (mean)" if i == 1 else None)
-        axes[0].scatter(
-            np.full(len(learner), i), learner, color="C0", zorder=3, label="learner" if i == 0 else None
-        )
+    for k, (condition, colour) in enumerate(colours.items()):
+        group = [s for s in seeds.values() if s["condition"] == condition]
+        offset = (k - (len(colours) - 1) / 2) * 0.12  # conditions side by side in each column
+        for i, spec in enumerate(specs):
+            learner = [s["zero_shot"][spec]["learner"] for s in group]
+            label = f"{recipes.CONDITIONS[condition].label} ({len(group)})" if i == 0 else None
+            axes[0].scatter(
+                np.full(len(learner), i + offset), learner, color=colour, s=14, zorder=3, label=label
+            )
+        for i, score in enumerate(kinds.CT_SCORES):
+            values = [s["ct"][score] for s in group]
+            axes[1].scatter(np.full(len(values), i + offset), values, color=colour, s=14, zorder=3)
+        for j, spec in enumerate(summary.get("mixing", {})):
+            for s in group:
+                values = [s["branches"][arm][spec] for arm in ARMS]
+                axes[2].plot([2 * j, 2 * j + 1], values, color=colour, marker="o", ms=3, lw=0.8, alpha=0.8)
     axes[0].set_xticks(range(len(specs)), [kinds.env_title(s) for s in specs], fontsize=7, rotation=15)
     axes[0].set(ylabel=f"mean return ({summary['eval_episodes']} episodes)", title="zero-shot")
-    for i, score in enumerate(kinds.CT_SCORES):
-        values = [s["ct"][score] for s in seeds.values()]
-        axes[1].scatter(np.full(len(values), i), values, color="C1", zorder=3)
     axes[1].axhline(0, color="grey", lw=0.8)
     axes[1].set_xticks(range(len(kinds.CT_SCORES)), ["CT score", "recall"])
     axes[1].set(title="cultural transmission", xlim=(-0.5, len(kinds.CT_SCORES) - 0.5))
-    arms = list(ARMS)
-    for j, spec in enumerate(summary.get("mixing", {})):
-        for s in seeds.values():
-            axes[2].plot(
-                [2 * j, 2 * j + 1],
-                [s["branches"][arm][spec] for arm in arms],
-                color=f"C{j + 2}",
-                marker="o",
-                lw=1,
-            )
-    ticks = [f"{arm}\n{kinds.env_title(spec)}" for spec in summary.get("mixing", {}) for arm in arms]
+    ticks = [f"{arm}\n{kinds.env_title(spec)}" for spec in summary.get("mixing", {}) for arm in ARMS]
     axes[2].set_xticks(range(len(ticks)), ticks, fontsize=7)
     axes[2].set(
         title=f"branches: social vs {summary['mixed_solo_prob']:.0%} solo, "
