@@ -111,7 +111,7 @@ def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConf
     """Start-up on process 0: `logs.prepare_run_dir` (a resumed run's config may differ only in
     `DriverConfig`'s fields), each seed's checkpoint and policy directories, and a new run's configs."""
     logs.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite)
-    if cfg.resume and (run_dir / "config.json").exists():
+    if cfg.resume and (run_dir / logs.CONFIG_FILE).exists():
         diff = config.resume_conflicts(logs.read_config(run_dir), config_dict(cfg))
         if diff:
             raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
