@@ -24,7 +24,8 @@ from pathlib import Path
 
 from run_info import REPO, metadata, write_results
 
-from jaxsocial import logs, metrics, plot
+from jaxsocial import plot
+from jaxsocial.run import logs, metrics
 
 CONDITIONS = ("social_pred_nopenalty", "social_pred")
 """The cpu-scale conditions compared (issue 28: the h1 social PPO + pred, and the no-penalty social one)."""

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import run_info
 
-from jaxsocial import logs, metrics
 from jaxsocial.experiments import recipes
+from jaxsocial.run import logs, metrics
 
 
 def seed_flags(scale: recipes.Scale, condition: str, seed: int, runs_dir: str, iterations: int) -> list[str]:

@@ -1,4 +1,4 @@
-"""What the per-iteration non-finite check (`jaxsocial.nonfinite.check`) costs on the paper preset.
+"""What the per-iteration non-finite check (`jaxsocial.run.nonfinite.check`) costs on the paper preset.
 
 Times the check alone, jitted, on the paper learner's parameters, optimiser state and losses (the values it
 reduces every iteration), and one training iteration of the paper preset (a compiled 1-iteration chunk,
@@ -19,7 +19,7 @@ import jax
 import numpy as np
 from run_info import REPO, metadata, write_results
 
-from jaxsocial import config, loop, nonfinite
+from jaxsocial.run import config, loop, nonfinite
 
 
 def time_calls(fn, repeats: int) -> list[float]:

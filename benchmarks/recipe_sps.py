@@ -56,9 +56,10 @@ def worker(recipe: str) -> None:
     """Compile the recipe's variants, print one JSON line, then time a variant per line read from stdin."""
     import jax
 
-    from jaxsocial import config, loop, train
+    from jaxsocial import train
     from jaxsocial.agents import ppo
     from jaxsocial.experiments import recipes
+    from jaxsocial.run import config, loop
 
     scale, condition, extra = RECIPES[recipe]
     flags = [*recipes.condition_flags(recipes.SCALES[scale], condition, 0, 1, "/tmp/unused"), *extra]

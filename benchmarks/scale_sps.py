@@ -44,7 +44,7 @@ def worker(spec: dict) -> dict:
     import jax
     import numpy as np
 
-    from jaxsocial import compile_cache, config, loop
+    from jaxsocial.run import compile_cache, config, loop
 
     if spec.get("compile_cache"):
         compile_cache.enable(spec["compile_cache"])

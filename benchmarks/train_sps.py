@@ -343,7 +343,7 @@ TRAIN_RUNS = ("small", "small-random", "paper", "symbolic")
 def train_run(name: str):
     """(TrainConfig, iterations per timed call) of one of `TRAIN_RUNS`."""
     from jaxsocial import train
-    from jaxsocial.config import PRESETS
+    from jaxsocial.run.config import PRESETS
 
     return {
         "small": lambda: (PRESETS["small"], 10),
@@ -356,8 +356,8 @@ def train_run(name: str):
 def section_train(args: argparse.Namespace) -> dict:
     """End-to-end training throughput of `TRAIN_RUNS` (``--presets``) in each of ``--dtypes``: one compiled
     chunk of iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
-    from jaxsocial.config import setup
-    from jaxsocial.loop import make_train
+    from jaxsocial.run.config import setup
+    from jaxsocial.run.loop import make_train
 
     rows = []
     for preset, dtype in itertools.product(args.presets, args.dtypes):

@@ -33,11 +33,11 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsocial
-from jaxsocial import logs, schedule
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
-from jaxsocial.metrics import mean_ci95
+from jaxsocial.run import logs, schedule
+from jaxsocial.run.metrics import mean_ci95
 from jaxsocial.specs import EnvSpec, Policy, PolicyRef, check_eval_envs
 
 

@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Any
 
 import jaxsocial
-from jaxsocial import logs, metrics, schedule
 from jaxsocial.agents import population
 from jaxsocial.axes import steps_axis
 from jaxsocial.curves import band
+from jaxsocial.run import logs, metrics, schedule
 
 PANELS = {
     "return": "episode return",

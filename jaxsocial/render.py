@@ -25,9 +25,10 @@ import jax
 import numpy as np
 
 import jaxsocial
-from jaxsocial import logs, metrics, playback
+from jaxsocial import playback
 from jaxsocial.agents import network, population
 from jaxsocial.env.pictures import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
+from jaxsocial.run import logs, metrics
 from jaxsocial.specs import EnvSpec, PolicyRef
 
 

@@ -24,8 +24,8 @@ from typing import Annotated, Any
 import tyro
 
 import jaxsocial
-from jaxsocial import schedule
 from jaxsocial.env.types import EnvParams
+from jaxsocial.run import schedule
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,6 +1,6 @@
-"""Training runs: `run` (start-up, then `train_chunks`, the loop over the steps of `jaxsocial.driver` and of
-`Outputs`, what process 0 writes: metrics rows, evaluations, progress) and the CLI. The configuration and its
-validation are in `jaxsocial.config`, the compiled loop in `jaxsocial.loop`.
+"""Training runs: `run` (start-up, then `train_chunks`, the loop over the steps of `jaxsocial.run.driver` and
+of `Outputs`, what process 0 writes: metrics rows, evaluations, progress) and the CLI. The configuration and
+its validation are in `jaxsocial.run.config`, the compiled loop in `jaxsocial.run.loop`.
 
     python -m jaxsocial.train --env goalcycle3            # small default, a few minutes on 2 CPU cores
     python -m jaxsocial.train --preset paper --env goalcycle3
@@ -19,11 +19,12 @@ import jax
 import numpy as np
 
 import jaxsocial
-from jaxsocial import (
+from jaxsocial import evaluate
+from jaxsocial.agents import policy_io, population
+from jaxsocial.run import (
     compile_cache,
     config,
     distributed,
-    evaluate,
     init_from,
     logs,
     loop,
@@ -33,9 +34,8 @@ from jaxsocial import (
     runlock,
     schedule,
 )
-from jaxsocial.agents import policy_io, population
-from jaxsocial.config import PRESETS, TrainConfig, config_dict, config_from_dict
-from jaxsocial.driver import (
+from jaxsocial.run.config import PRESETS, TrainConfig, config_dict, config_from_dict
+from jaxsocial.run.driver import (
     Check,
     Chunk,
     Driver,

@@ -8,12 +8,13 @@ from pathlib import Path
 import jax
 import pytest
 
-from jaxsocial import compile_cache, logs, train
+from jaxsocial import train
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.config import TrainConfig
 from jaxsocial.env import core
 from jaxsocial.env.observe import observe
+from jaxsocial.run import compile_cache, logs
+from jaxsocial.run.config import TrainConfig
 
 TINY_ENV_ARGS = "max_steps=6,width=7,height=7"  # an episode ends in every 8-step rollout
 TINY_SLOTS = (

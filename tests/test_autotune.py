@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from float_bounds import assert_trees_within, gamma, network_error
 
-from jaxsocial import config
 from jaxsocial.agents import network as net
 from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network_config import CONV_LAYERS
+from jaxsocial.run import config
 
 TINY = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
 BATCH = 4  # frames per call (tiny shapes: every candidate compiles and runs in milliseconds)
@@ -275,7 +275,8 @@ def test_a_training_run_records_what_auto_chose(tmp_path, monkeypatch):
     """The trainer resolves "auto" at start-up (`config.resolve_network`): config.json names every layer."""
     from conftest import TINY as TINY_RUN
 
-    from jaxsocial import logs, train
+    from jaxsocial import train
+    from jaxsocial.run import logs
 
     monkeypatch.setenv("JAXSOCIAL_CACHE", str(tmp_path / "cache"))
     auto = dataclasses.replace(TINY_RUN.net, conv_impl="auto", dtype="auto")

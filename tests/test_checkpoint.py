@@ -1,4 +1,4 @@
-"""Tests of jaxsocial.checkpoint: round trips, step bookkeeping, mismatch errors, metadata."""
+"""Tests of jaxsocial.run.checkpoint: round trips, step bookkeeping, mismatch errors, metadata."""
 
 from typing import NamedTuple
 
@@ -9,8 +9,8 @@ import numpy as np
 import optax
 import pytest
 
-from jaxsocial import checkpoint as ckpt
-from jaxsocial import logs
+from jaxsocial.run import checkpoint as ckpt
+from jaxsocial.run import logs
 
 
 class Rollout(NamedTuple):

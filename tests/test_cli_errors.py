@@ -12,8 +12,9 @@ import pytest
 from conftest import TINY, TINY_FLAGS
 
 import jaxsocial
-from jaxsocial import checkpoint, logs, loop, schedule, train
+from jaxsocial import train
 from jaxsocial.agents import policy_io
+from jaxsocial.run import checkpoint, logs, loop, schedule
 
 
 @pytest.fixture

@@ -171,7 +171,7 @@ def test_commit_order():
 
 def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
     """At another scale than the design's the block is still written, and says that the scale differs."""
-    from jaxsocial import logs
+    from jaxsocial.run import logs
 
     for condition in recipes.RECIPES["h1_prereg"].conditions:
         seed_dir = tmp_path / "runs" / "tiny" / f"{condition}-s0-0"

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from jaxsocial import config, logs, metrics, schedule
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import counts, figures, kinds, recipes, runner
+from jaxsocial.run import config, logs, metrics, schedule
 
 
 @pytest.mark.parametrize("scale", sorted(recipes.SCALES))

@@ -7,8 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from jaxsocial import checkpoint, logs, metrics, train
+from jaxsocial import train
 from jaxsocial.experiments import followup, kinds, pinned, prereg, recipes, records
+from jaxsocial.run import checkpoint, logs, metrics
 
 pytestmark = pytest.mark.slow
 

@@ -12,9 +12,9 @@ TOOLS = ("jaxsocial.render", "jaxsocial.playback", "jaxsocial.plot", "jaxsocial.
 """Tools for people, which stand on metrics, logs, policies and the environment only."""
 ABOVE_TOOLS = (
     "jaxsocial.train",
-    "jaxsocial.driver",
-    "jaxsocial.loop",
-    "jaxsocial.config",
+    "jaxsocial.run.driver",
+    "jaxsocial.run.loop",
+    "jaxsocial.run.config",
     "jaxsocial.experiments",
 )
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial import checkpoint, config, driver, init_from, logs, loop, train
+from jaxsocial import train
 from jaxsocial.experiments import records
+from jaxsocial.run import checkpoint, config, driver, init_from, logs, loop
 from jaxsocial.specs import CheckpointRef
 
 

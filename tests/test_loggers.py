@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from conftest import TINY, TINY_ENV_ARGS
 
-from jaxsocial import logs, train
+from jaxsocial import train
+from jaxsocial.run import logs
 
 event_pb2 = pytest.importorskip("tensorboardX.proto.event_pb2")
 wandb = pytest.importorskip("wandb")

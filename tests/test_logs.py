@@ -1,4 +1,4 @@
-"""Tests of jaxsocial.logs: run dir policies, config, JSONL metrics, progress line, optional loggers."""
+"""Tests of jaxsocial.run.logs: run dir policies, config, JSONL metrics, progress line, optional loggers."""
 
 import io
 import json
@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsocial import logs
+from jaxsocial.run import logs
 
 
 def test_run_dir_policies(tmp_path):

@@ -1,4 +1,4 @@
-"""The metrics format (`jaxsocial.metrics`): rows written from a chunk's metrics read back as the right
+"""The metrics format (`jaxsocial.run.metrics`): rows written from a chunk's metrics read back as the right
 curves, final returns and keys; the tools that read runs import no training or experiment code."""
 
 import dataclasses
@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from jaxsocial import logs, metrics, rundir
+from jaxsocial.run import logs, metrics, rundir
 
 
 def fake_pop(labels=("learner", "expert:explorer", "expert:explorer"), learners=(0,)):
@@ -101,7 +101,7 @@ def test_progress_fields_and_learner_return():
 
 def test_seed_dirs_as_training_writes_them(tmp_path):
     from jaxsocial import train
-    from jaxsocial.config import TrainConfig
+    from jaxsocial.run.config import TrainConfig
 
     for seed, seeds in ((0, 1), (3, 2)):
         cfg = dataclasses.replace(TrainConfig(), seed=seed, seeds=seeds)
@@ -114,7 +114,7 @@ def test_seed_dirs_as_training_writes_them(tmp_path):
 
 def test_plot_groups_seeds_over_the_driver_fields():
     from jaxsocial import plot
-    from jaxsocial.config import DriverConfig
+    from jaxsocial.run.config import DriverConfig
 
     driver = {f.name for f in dataclasses.fields(DriverConfig)}
     assert driver | {"seed", "seeds", "seed_batching"} == plot.NOT_GROUPED
@@ -129,11 +129,11 @@ def test_every_recipe_kind_is_registered():
         kinds.kind_of(dataclasses.replace(recipes.RECIPES["h1"], kind="nope"))
 
 
-@pytest.mark.parametrize("module", ["jaxsocial.render", "jaxsocial.plot", "jaxsocial.metrics"])
+@pytest.mark.parametrize("module", ["jaxsocial.render", "jaxsocial.plot", "jaxsocial.run.metrics"])
 def test_tools_import_no_training_or_experiments(module):
     code = (
         f"import {module}, sys; bad = [m for m in sys.modules if m.startswith(('jaxsocial.experiments', "
-        "'jaxsocial.train', 'jaxsocial.config', 'jaxsocial.loop', 'jaxsocial.evaluate'))]; "
+        "'jaxsocial.train', 'jaxsocial.run.config', 'jaxsocial.run.loop', 'jaxsocial.evaluate'))]; "
         "assert not bad, bad"
     )
     root = Path(__file__).resolve().parents[1]
@@ -141,6 +141,6 @@ def test_tools_import_no_training_or_experiments(module):
 
 
 def test_config_imports_no_evaluation_code():
-    code = "import jaxsocial.config, sys; assert 'jaxsocial.evaluate' not in sys.modules"
+    code = "import jaxsocial.run.config, sys; assert 'jaxsocial.evaluate' not in sys.modules"
     root = Path(__file__).resolve().parents[1]
     subprocess.run([sys.executable, "-c", code], check=True, cwd=root, timeout=120)

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial import checkpoint, logs, loop, nonfinite, train
+from jaxsocial import train
 from jaxsocial.agents import policy_io
+from jaxsocial.run import checkpoint, logs, loop, nonfinite
 
 HUGE_LR = 1e30  # one Adam step moves every param by ~1e30: the next minibatch's logits overflow
 

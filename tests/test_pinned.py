@@ -5,9 +5,9 @@ import json
 
 import pytest
 
-from jaxsocial import logs
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import pinned
+from jaxsocial.run import logs
 
 
 def _job(tmp_path, name: str, code: str) -> pinned.Job:

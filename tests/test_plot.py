@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from conftest import TINY_ENV_ARGS
 
-from jaxsocial import axes, logs, metrics, plot
+from jaxsocial import axes, plot
+from jaxsocial.run import logs, metrics
 
 
 @pytest.fixture

@@ -298,7 +298,7 @@ def test_trainer_records_the_targets_its_recompute_would_compute(monkeypatch):
     on the targets the rollout recorded, and with them recomputed: the same losses up to float rounding."""
     from conftest import TINY
 
-    from jaxsocial import loop
+    from jaxsocial.run import loop
 
     def first_iteration():
         init, run_chunk, _ = loop.make_train(TINY)

@@ -13,11 +13,11 @@ import pytest
 from conftest import TINY
 
 import jaxsocial
-from jaxsocial import logs, loop, schedule
 from jaxsocial.agents import network, policy_io, population
-from jaxsocial.config import setup
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
+from jaxsocial.run import logs, loop, schedule
+from jaxsocial.run.config import setup
 from jaxsocial.specs import PolicyRef
 from jaxsocial.train import run
 

@@ -10,8 +10,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxsocial
-from jaxsocial import schedule
 from jaxsocial.agents import experts, population
+from jaxsocial.run import schedule
 from jaxsocial.specs import CheckpointRef, EnvSpec, PolicyRef
 
 probabilities = st.floats(0.0, 1.0, allow_nan=False)

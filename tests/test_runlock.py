@@ -14,8 +14,9 @@ from pathlib import Path
 import pytest
 from conftest import TINY_RUN_FLAGS
 
-from jaxsocial import checkpoint, logs, train
-from jaxsocial.runlock import RunLock, RunLockedError, lock_path
+from jaxsocial import train
+from jaxsocial.run import checkpoint, logs
+from jaxsocial.run.runlock import RunLock, RunLockedError, lock_path
 
 HOLDER = f"process {os.getpid()} on host {socket.gethostname()}"
 

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from conftest import TINY, TINY_RUN_FLAGS, metrics_without_speed
 
-from jaxsocial import checkpoint, compile_cache, distributed
 from jaxsocial.agents import policy_io
+from jaxsocial.run import checkpoint, compile_cache, distributed
 from jaxsocial.train import run
 
 REPO = Path(__file__).resolve().parent.parent
@@ -111,7 +111,7 @@ def test_devices_and_processes_match_one_device(tmp_path, single_runs):
     assert checkpoint.all_steps(tmp_path / "p2" / "checkpoints") == [2, 4]
     assert compile_cache.entries(tmp_path / "cache")
     done = subprocess.run(
-        [sys.executable, "-m", "jaxsocial.compile_cache", str(tmp_path / "cache"), "--clear"],
+        [sys.executable, "-m", "jaxsocial.run.compile_cache", str(tmp_path / "cache"), "--clear"],
         env=env_with(),
         capture_output=True,
         text=True,

@@ -7,9 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from jaxsocial import logs, train
+from jaxsocial import train
 from jaxsocial.experiments import recipes, sweep
-from jaxsocial.metrics import LEARNED_RETURN
+from jaxsocial.run import logs
+from jaxsocial.run.metrics import LEARNED_RETURN
 
 
 @pytest.mark.parametrize("name", sorted(sweep.SETTINGS))

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from conftest import TINY, TINY_FLAGS, metrics_without_speed
 
-from jaxsocial import checkpoint, config, logs
 from jaxsocial.agents import policy_io
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.config import PRESETS
-from jaxsocial.loop import make_train
+from jaxsocial.run import checkpoint, config, logs
+from jaxsocial.run.config import PRESETS
+from jaxsocial.run.loop import make_train
 from jaxsocial.train import parse_args, run
 
 

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial import config, logs, metrics, nonfinite, schedule, train
-from jaxsocial.driver import (
+from jaxsocial import train
+from jaxsocial.run import config, logs, metrics, nonfinite, schedule
+from jaxsocial.run.driver import (
     Check,
     Chunk,
     Driver,

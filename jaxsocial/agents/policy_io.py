@@ -12,8 +12,8 @@ from typing import Any
 
 import jax
 
-from jaxsocial import checkpoint, logs
 from jaxsocial.agents import network, population
+from jaxsocial.run import checkpoint, logs
 from jaxsocial.specs import PolicyRef
 
 POLICY_DIR = "policy"

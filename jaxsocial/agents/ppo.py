@@ -3,7 +3,7 @@ entropy bonus and the auxiliary observation loss; minibatches of trajectory chun
 states; hidden states and advantages recomputed every few minibatches; KL early stop and hard-limit revert.
 
 Everything here is for a single learner; the trainer maps it over learner slots. With data parallelism
-(`dp`, a `jaxsocial.distributed.DataParallel`) the environments of the rollout and the chunks of each
+(`dp`, a `jaxsocial.run.distributed.DataParallel`) the environments of the rollout and the chunks of each
 minibatch are split over devices: the network runs on each device's share, the losses' means and the
 gradient are taken over the whole batch, so the result is that of one device.
 Shapes: T rollout steps, E environments, L chunk length, C = T / L chunks per environment.

@@ -7,9 +7,9 @@ import re
 import sys
 from pathlib import Path
 
-from jaxsocial import logs
 from jaxsocial.experiments import figures, pinned, prereg, recipes, records, runner
-from jaxsocial.metrics import LEARNED_RETURN, final_return
+from jaxsocial.run import logs
+from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
 FIGURES_DIR = "runs/experiments/figures"
 """Where `figure` writes by default (the repository's summaries are written with an explicit --out-dir)."""

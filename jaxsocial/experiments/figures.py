@@ -9,7 +9,7 @@ with each seed's CPU-minutes of training and their sum where every record names 
 how it was made (`provenance`: the command that re-creates it, and each seed's recorded training command,
 commit, device and jax version; seeds without a record are listed) and, for a recipe with a design, what was
 pre-registered (`prereg`). What a summary and figure hold besides depends on the recipe's kind
-(`kinds.KINDS`); the metrics rows are read through `jaxsocial.metrics`.
+(`kinds.KINDS`); the metrics rows are read through `jaxsocial.run.metrics`.
 """
 
 from __future__ import annotations
@@ -20,11 +20,11 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import config, logs, metrics
 from jaxsocial.experiments import kinds, prereg, recipes, records, runner
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.metrics import LEARNED_RETURN, final_return
+from jaxsocial.run import config, logs, metrics
+from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
 
 class RecipeRuns:

@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial import logs, metrics
 from jaxsocial.experiments import figures, kinds, pinned, prereg, recipes, records, runner
+from jaxsocial.run import logs, metrics
 
 RUNS_DIR = "runs/experiments"
 SUMMARY_DIR = "benchmarks/results/science"

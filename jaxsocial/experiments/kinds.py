@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial import logs, metrics
 from jaxsocial.axes import format_steps, steps_axis
 from jaxsocial.curves import band
 from jaxsocial.experiments import counts, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.metrics import LEARNED_RETURN, curve, eval_curve, final_return, metric_curve, stats
+from jaxsocial.run import logs, metrics
+from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, final_return, metric_curve, stats
 from jaxsocial.specs import EnvSpec
 
 LOSS_PANEL = {"aux_loss": "auxiliary loss (MAE)", "bc_loss": "behaviour-cloning loss (cross-entropy)"}

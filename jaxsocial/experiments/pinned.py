@@ -21,8 +21,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import compile_cache, logs
 from jaxsocial.experiments import records
+from jaxsocial.run import compile_cache, logs
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 RUN_FILE = "process.json"

@@ -18,8 +18,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import logs
 from jaxsocial.experiments import counts, records
+from jaxsocial.run import logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
 

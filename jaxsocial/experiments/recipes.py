@@ -21,7 +21,7 @@ import dataclasses
 import shlex
 
 from jaxsocial import train
-from jaxsocial.config import PRESETS, TrainConfig
+from jaxsocial.run.config import PRESETS, TrainConfig
 
 
 def _flags(text: str) -> tuple[str, ...]:

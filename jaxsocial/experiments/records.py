@@ -29,8 +29,8 @@ from typing import Any
 
 import jax
 
-from jaxsocial import checkpoint, logs, metrics, rundir
 from jaxsocial.agents import policy_io
+from jaxsocial.run import checkpoint, logs, metrics, rundir
 
 RECORDS_DIR = "benchmarks/results/records"
 """Where the repository keeps its records."""

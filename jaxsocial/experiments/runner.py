@@ -10,10 +10,11 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import evaluate, logs, rundir, train
-from jaxsocial.config import TrainConfig, setup
+from jaxsocial import evaluate, train
 from jaxsocial.experiments import kinds, pinned, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
+from jaxsocial.run import logs, rundir
+from jaxsocial.run.config import TrainConfig, setup
 from jaxsocial.specs import EnvSpec
 
 

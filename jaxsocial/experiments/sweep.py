@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial import logs, metrics, rundir
 from jaxsocial.experiments import figures, pinned, recipes, records, takeoff
-from jaxsocial.metrics import LEARNED_RETURN
+from jaxsocial.run import logs, metrics, rundir
+from jaxsocial.run.metrics import LEARNED_RETURN
 
 RUNS_DIR = "runs/sweep"
 RECORDS_SUBDIR = "sweep"

@@ -307,7 +307,7 @@ def cache_path() -> Path:
     cache directory (``${XDG_CACHE_HOME:-~/.cache}/jaxsocial``)."""
     if directory := os.environ.get("JAXSOCIAL_CACHE"):
         return Path(directory).expanduser() / "autotune.json"
-    from jaxsocial import compile_cache
+    from jaxsocial.run import compile_cache
 
     return compile_cache.DEFAULT_DIR.parent / "autotune.json"
 

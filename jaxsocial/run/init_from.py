@@ -20,9 +20,9 @@ import dataclasses
 from pathlib import Path
 
 import jaxsocial
-from jaxsocial import checkpoint, config, logs, rundir
 from jaxsocial.agents import policy_io, population
-from jaxsocial.config import TrainConfig
+from jaxsocial.run import checkpoint, config, logs, rundir
+from jaxsocial.run.config import TrainConfig
 from jaxsocial.specs import CheckpointRef
 
 

@@ -5,9 +5,9 @@
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
 neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
 (`lax.map` over learners), whose losses, parameters and optimiser state are checked for non-finite values
-(`jaxsocial.nonfinite`). A chunk of iterations is one `lax.scan` inside one `jit`; the driver
-(`jaxsocial.train.train_chunks` over the steps of `jaxsocial.driver`) loops over chunks to log, checkpoint and
-draw progress.
+(`jaxsocial.run.nonfinite`). A chunk of iterations is one `lax.scan` inside one `jit`; the driver
+(`jaxsocial.train.train_chunks` over the steps of `jaxsocial.run.driver`) loops over chunks to log,
+checkpoint and draw progress.
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial import config, distributed, nonfinite
 from jaxsocial.agents import bc, network, policy_io, population, ppo
-from jaxsocial.config import ProgramConfig, TrainConfig
 from jaxsocial.env import core, observe
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import EnvParams, EnvState
+from jaxsocial.run import config, distributed, nonfinite
+from jaxsocial.run.config import ProgramConfig, TrainConfig
 
 
 class RunnerState(NamedTuple):

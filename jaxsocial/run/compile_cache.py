@@ -1,8 +1,8 @@
 """JAX's persistent compilation cache: a later run of the same program loads it instead of compiling it.
 
     python -m jaxsocial.train --compile-cache ~/.cache/jaxsocial/xla ...   # use (and fill) a cache
-    python -m jaxsocial.compile_cache                # where the default cache is, its entries and size
-    python -m jaxsocial.compile_cache --clear        # delete its entries
+    python -m jaxsocial.run.compile_cache                # where the default cache is, its entries and size
+    python -m jaxsocial.run.compile_cache --clear        # delete its entries
 
 The cache is keyed by the program, the JAX/XLA versions and the devices, so one directory serves every
 configuration. Programs that compile in under `MIN_COMPILE_SECONDS` are not stored (JAX runs many tiny ones).
@@ -20,7 +20,7 @@ import jax
 __all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "default_dir", "enable", "entries", "main"]
 
 DEFAULT_DIR = Path(os.environ.get("XDG_CACHE_HOME") or "~/.cache").expanduser() / "jaxsocial" / "xla"
-"""The directory `python -m jaxsocial.compile_cache` looks at by default."""
+"""The directory `python -m jaxsocial.run.compile_cache` looks at by default."""
 MIN_COMPILE_SECONDS = 0.5
 
 
@@ -57,7 +57,8 @@ def entries(directory: str | Path) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
-        prog="python -m jaxsocial.compile_cache", description="Show or clear the persistent compile cache."
+        prog="python -m jaxsocial.run.compile_cache",
+        description="Show or clear the persistent compile cache.",
     )
     parser.add_argument("directory", nargs="?", default=str(DEFAULT_DIR), help=f"default: {DEFAULT_DIR}")
     parser.add_argument("--clear", action="store_true", help="delete the cached programs")

@@ -1,7 +1,7 @@
 """Run directories, config files, JSONL metrics, a terminal progress line and optional external loggers.
 
 A run directory ``root/name`` holds ``config.json`` (``write_config``), ``metrics.jsonl`` (``MetricsLog``;
-what its rows hold is ``jaxsocial.metrics``) and whatever else the caller puts there (e.g. checkpoints,
+what its rows hold is ``jaxsocial.run.metrics``) and whatever else the caller puts there (e.g. checkpoints,
 ``eval/``). Dependency-free except the optional loggers.
 """
 

@@ -16,13 +16,14 @@ from typing import Annotated, Any, NamedTuple
 import jax
 
 import jaxsocial
-from jaxsocial import logs, schedule, specs
+from jaxsocial import specs
 from jaxsocial.agents import policy_io, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
+from jaxsocial.run import logs, schedule
 from jaxsocial.specs import CheckpointRef, Env, TextField
 
 ENV_ARGS = TextField(
@@ -62,7 +63,7 @@ class RunConfig:
     stages: Stages = ()
     """Environment changes during training, e.g. the penalty curriculum
     '0:penalty=0.5;return>=20:penalty=1.0;return>=20:penalty=1.5' or the switch to mixed solo/social
-    training '5000:solo_prob=0.75' (see jaxsocial.schedule)."""
+    training '5000:solo_prob=0.75' (see jaxsocial.run.schedule)."""
     seed: int = 0
     """PRNG seed."""
     chunk_iterations: int = 10
@@ -145,7 +146,7 @@ class DriverConfig:
     """Multi-host: this process's index, 0 to num_processes - 1 (default $JAX_PROCESS_ID)."""
     compile_cache: str | None = None
     """Persistent compilation cache directory: a later run of the same program skips compiling (off by
-    default; see `python -m jaxsocial.compile_cache`)."""
+    default; see `python -m jaxsocial.run.compile_cache`)."""
     eval_envs: tuple[Env, ...] = ()
     """Environments the first learner is evaluated in during training, each NAME or NAME:field=value,...
     (e.g. goalcycle3-solo goalcycle4), beside that environment's default companions; logged in

@@ -11,7 +11,7 @@ A row is one training iteration::
      "compile_s": 12.3, "nonfinite": [...]}                                   # where they apply
 
 Keys are built and taken apart only here (`key`, `eval_key`, `split_key`). The file itself (append,
-truncate, the gzipped copy of a record) is `jaxsocial.logs` (`MetricsLog`, `read_metrics`). The statistics
+truncate, the gzipped copy of a record) is `jaxsocial.run.logs` (`MetricsLog`, `read_metrics`). The statistics
 over seeds are here too (`stats`: the t interval of the mean, the bootstrap interval of the IQM). This module
 needs numpy, scipy and `logs` only: tools that read runs (`plot`, `render`, `experiments.figures`) import it
 without the training stack.
@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from scipy import stats as scipy_stats
 
-from jaxsocial import logs, rundir
+from jaxsocial.run import logs, rundir
 
 ITERATION = "iteration"
 SPEED = "env_steps_per_s"

@@ -16,10 +16,10 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from jaxsocial import checkpoint, config, distributed, init_from, loop, nonfinite, rundir, schedule
 from jaxsocial.agents import policy_io, population
-from jaxsocial.config import TrainConfig, config_dict
-from jaxsocial.loop import Program, RunnerState
+from jaxsocial.run import checkpoint, config, distributed, init_from, loop, nonfinite, rundir, schedule
+from jaxsocial.run.config import TrainConfig, config_dict
+from jaxsocial.run.loop import Program, RunnerState
 
 
 def plan_chunk(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], stage: int, it: int) -> int:
@@ -107,8 +107,9 @@ def source_state(seed_dir: Path, iteration: int) -> RunnerState:
 
 def load_source_learners(cfg: TrainConfig, state: RunnerState, program: Program) -> RunnerState:
     """The freshly initialised `state` ([K, ...] for K seeds) with the learners' params and optimiser state
-    of `cfg.init_from` (`jaxsocial.init_from`), placed as `program` places its state; `state` itself without
-    `init_from`. Called only for a state at iteration 0 (a resumed run with a checkpoint keeps its own)."""
+    of `cfg.init_from` (`jaxsocial.run.init_from`), placed as `program` places its state; `state` itself
+    without `init_from`. Called only for a state at iteration 0 (a resumed run with a checkpoint keeps its
+    own)."""
     if not cfg.init_from:
         return state
     iteration = init_from.source_iteration(cfg)
