@@ -365,8 +365,13 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     axes[1].axhline(0, color="grey", lw=0.8)
     axes[1].set_xticks(range(len(kinds.CT_SCORES)), ["CT score", "recall"])
     axes[1].set(title="cultural transmission", xlim=(-0.5, len(kinds.CT_SCORES) - 0.5))
-    ticks = [f"{arm}\n{kinds.env_title(spec)}" for spec in summary.get("mixing", {}) for arm in ARMS]
-    axes[2].set_xticks(range(len(ticks)), ticks, fontsize=7)
+    mixing = list(summary.get("mixing", {}))
+    axes[2].set_xticks(range(2 * len(mixing)), [arm for _ in mixing for arm in ARMS], fontsize=7)
+    for j, spec in enumerate(mixing):  # each pair's environment, once, under its two ticks
+        axes[2].annotate(
+            kinds.env_title(spec), (2 * j + 0.5, 0), xycoords=("data", "axes fraction"), xytext=(0, -24),
+            textcoords="offset points", ha="center", fontsize=7,
+        )  # fmt: skip
     axes[2].set(
         title=f"branches: social vs {summary['mixed_solo_prob']:.0%} solo, "
         f"{summary['branch_iterations']} iterations",
