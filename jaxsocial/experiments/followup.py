@@ -61,7 +61,13 @@ class Source:
 
     @property
     def name(self) -> str:
+        """`<condition>-s<seed>`: the follow-ups' directory of this seed (`condition_of` reads it back)."""
         return f"{self.condition}-s{self.seed}"
+
+    @staticmethod
+    def condition_of(name: str) -> str:
+        """The condition in a `name`."""
+        return name.rsplit("-s", 1)[0]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -276,7 +282,7 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
                 spec: metrics.final_eval(rows, metrics.eval_key(spec)) for spec in branch_specs(scale)
             }
         seeds[name] = {
-            "condition": name.rsplit("-s", 1)[0],
+            "condition": Source.condition_of(name),
             "source": next(iter(results.values()))["checkpoints"][0],
             "zero_shot": zero_shot,
             "ct": {score: ct[score]["mean"] for score in kinds.CT_SCORES},
@@ -295,12 +301,11 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
     }
     if learned:
         summary.update(measures(learned, scale))
-        conditions = [c for c in plan.recipe.conditions if any(s["condition"] == c for s in learned)]
-        summary["conditions"] = {
-            c: {"seeds": len(group), **measures(group, scale)}
-            for c in conditions
-            for group in [[s for s in learned if s["condition"] == c]]
-        }
+        summary["conditions"] = {}
+        for condition in plan.recipe.conditions:
+            group = [s for s in learned if s["condition"] == condition]
+            if group:
+                summary["conditions"][condition] = {"seeds": len(group), **measures(group, scale)}
     return summary
 
 
