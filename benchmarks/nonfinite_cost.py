@@ -19,7 +19,8 @@ import jax
 import numpy as np
 from run_info import REPO, metadata, write_results
 
-from jaxsocial.run import config, loop, nonfinite
+from jaxsocial import train
+from jaxsocial.run import config, nonfinite
 
 
 def time_calls(fn, repeats: int) -> list[float]:
@@ -43,7 +44,7 @@ def main() -> None:
     meta = metadata(args)
 
     cfg = config.with_env_observation(dataclasses.replace(config.PRESETS["paper"], env=args.env))
-    program = loop.compiled(cfg)
+    program = train.compiled_program(cfg)
     state = program.init(np.int32(0))
     shapes = jax.eval_shape(program.run_chunk, state, None, 1)[1]
     shapes.pop(nonfinite.KEY)

@@ -44,7 +44,8 @@ def worker(spec: dict) -> dict:
     import jax
     import numpy as np
 
-    from jaxsocial.run import compile_cache, config, loop
+    from jaxsocial import train
+    from jaxsocial.run import compile_cache, config
 
     if spec.get("compile_cache"):
         compile_cache.enable(spec["compile_cache"])
@@ -54,7 +55,7 @@ def worker(spec: dict) -> dict:
         seed_batching=spec["batching"],
         devices=spec["devices"],
     )
-    program = loop.compiled(cfg)
+    program = train.compiled_program(cfg)
     seeds = np.arange(cfg.seeds, dtype=np.int32) if cfg.seeds > 1 else np.int32(0)
     state = program.init(seeds)
     n = spec["iterations"]

@@ -357,7 +357,7 @@ def section_train(args: argparse.Namespace) -> dict:
     """End-to-end training throughput of `TRAIN_RUNS` (``--presets``) in each of ``--dtypes``: one compiled
     chunk of iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
     from jaxsocial.run.config import setup
-    from jaxsocial.run.loop import make_train
+    from jaxsocial.train import make_train
 
     rows = []
     for preset, dtype in itertools.product(args.presets, args.dtypes):

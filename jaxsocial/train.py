@@ -1,6 +1,9 @@
-"""Training runs: `run` (start-up, then `train_chunks`, the loop over the steps of `jaxsocial.run.driver` and
-of `Outputs`, what process 0 writes: metrics rows, evaluations, progress) and the CLI. The configuration and
-its validation are in `jaxsocial.run.config`, the compiled loop in `jaxsocial.run.loop`.
+"""Training runs from a `TrainConfig`: `run` (start-up, then `train_chunks`, the loop over the steps of
+`jaxsocial.run.driver` and of `Outputs`, what process 0 writes: metrics rows, evaluations, progress),
+`make_train` (a whole run as one pure function), `compiled_program` and the CLI. This is the one place a
+whole `TrainConfig` is taken apart: the compiled loop (`jaxsocial.run.loop`) gets its `ProgramConfig`, the
+driver its `ProgramConfig` and `DriverConfig`. The configuration and its validation are in
+`jaxsocial.run.config`.
 
     python -m jaxsocial.train --env goalcycle3            # small default, a few minutes on 2 CPU cores
     python -m jaxsocial.train --preset paper --env goalcycle3
@@ -39,6 +42,7 @@ from jaxsocial.run.driver import (
     Check,
     Chunk,
     Driver,
+    SeedRun,
     check_chunk,
     checkpoint_due,
     evaluates,
@@ -61,16 +65,48 @@ def run_name(cfg: TrainConfig) -> str:
     return f"{cfg.env}-s{cfg.seed}{last}"
 
 
-def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[tuple[TrainConfig, Path]]:
-    """(config, directory) of each seed: the run itself for one seed; for several, `run_dir/s<seed>/` with
-    the config of a one-seed run of that seed (so it reads like one, e.g. for `frozen:RUN_DIR/s1`)."""
+def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[SeedRun]:
+    """Each seed's number, directory and config: the run itself for one seed; for several,
+    `run_dir/s<seed>/` with the config of a one-seed run of that seed (so it reads like one, e.g. for
+    `frozen:RUN_DIR/s1`)."""
     if cfg.seeds == 1:
-        return [(cfg, run_dir)]
+        return [SeedRun(cfg.seed, run_dir, config_dict(cfg))]
     seeds = range(cfg.seed, cfg.seed + cfg.seeds)
     return [
-        (dataclasses.replace(cfg, seed=seed, seeds=1, run_name=f"{run_name(cfg)}/{name}"), run_dir / name)
+        SeedRun(
+            seed,
+            run_dir / name,
+            config_dict(dataclasses.replace(cfg, seed=seed, seeds=1, run_name=f"{run_name(cfg)}/{name}")),
+        )
         for seed, name in zip(seeds, rundir.seed_dir_names(cfg.seed, cfg.seeds), strict=True)
     ]
+
+
+def make_train(cfg: TrainConfig):
+    """The pure training functions of `cfg`, a config without stages (a run's driver switches them),
+    validated first (`config.setup`).
+
+    Returns `(init, run_chunk, train)`: `init` and `run_chunk` as `loop.make_program` builds them for
+    `cfg.program`; `train(key) -> (state, metrics)` is the whole run of `cfg.iterations` (it loads frozen
+    policies when traced).
+    """
+    if cfg.stages:
+        raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
+    static = config.setup(cfg, load_frozen=False)
+    init, run_chunk = loop.make_program(cfg.program, static.env_params, static.pop)
+
+    def train(key: jax.Array):
+        return run_chunk(init(key), policy_io.load_frozen(static.pop, cfg.net), cfg.iterations)
+
+    return init, run_chunk, train
+
+
+def compiled_program(cfg: TrainConfig, stage: int = -1) -> loop.Program:
+    """The compiled `Program` of `cfg` in `stage` (-1: before the first) on its devices, validated first
+    (`config.setup`; frozen policies are not loaded), as a run's driver compiles it."""
+    static = config.setup(cfg, load_frozen=False)
+    mesh = loop.data_mesh(cfg.program, cfg.devices)
+    return loop.compiled(cfg.program, mesh, static.stage(stage), static.pop)
 
 
 def run(cfg: TrainConfig) -> Path:
@@ -88,10 +124,14 @@ def run(cfg: TrainConfig) -> Path:
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
     static = config.setup(cfg)  # validate before touching the disk or compiling; once per run
-    init_from.check(cfg, static.pop.learners)
-    mesh = loop.data_mesh(cfg)
+    branching = cfg.init_from is not None and not cfg.resume  # a resumed run loads its own state
+    numbers = list(range(cfg.seed, cfg.seed + cfg.seeds))
+    if branching:
+        init_from.check(cfg.init_from, numbers, cfg.net, static.pop.learners)
+    mesh = loop.data_mesh(cfg.program, cfg.devices)
     run_dir = run_path(cfg)
-    cfg = init_from.pin(cfg, run_dir)  # RUN_DIR@ITERATION in config.json
+    if branching:  # RUN_DIR@ITERATION in config.json
+        cfg = dataclasses.replace(cfg, init_from=init_from.pin(cfg.init_from, numbers, run_dir))
     cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)
@@ -107,7 +147,7 @@ def run(cfg: TrainConfig) -> Path:
     return run_dir
 
 
-def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConfig, Path]]) -> None:
+def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> None:
     """Start-up on process 0: `logs.prepare_run_dir` (a resumed run's config may differ only in
     `DriverConfig`'s fields), each seed's checkpoint and policy directories, and a new run's configs."""
     logs.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite)
@@ -115,19 +155,19 @@ def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConf
         diff = config.resume_conflicts(logs.read_config(run_dir), config_dict(cfg))
         if diff:
             raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
-    for _, seed_dir in seeds:
+    for seed in seeds:
         for sub in (rundir.CHECKPOINTS_DIR, policy_io.POLICY_DIR):  # made here, before any process looks
-            (seed_dir / sub).mkdir(parents=True, exist_ok=True)
+            (seed.dir / sub).mkdir(parents=True, exist_ok=True)
     if not cfg.resume:
         write_configs(cfg, run_dir, seeds)
 
 
-def write_configs(cfg: TrainConfig, run_dir: Path, seeds: list[tuple[TrainConfig, Path]]) -> None:
+def write_configs(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> None:
     """The run's config.json and, with several seeds, each seed's (that of its one-seed run)."""
     logs.write_config(run_dir, config_dict(cfg))
-    for seed_cfg, seed_dir in seeds:
-        if seed_cfg is not cfg:
-            logs.write_config(seed_dir, config_dict(seed_cfg))
+    for seed in seeds:
+        if seed.dir != run_dir:
+            logs.write_config(seed.dir, seed.config)
 
 
 def train_chunks(
@@ -135,13 +175,13 @@ def train_chunks(
     static: config.Setup,
     mesh: jax.sharding.Mesh,
     run_dir: Path,
-    seeds: list[tuple[TrainConfig, Path]],
+    seeds: list[SeedRun],
 ) -> None:
     """The training loop of `run` in its prepared (and locked) run directory, over the steps of `Driver`
     and `Outputs`: chunk after chunk, plan, compile, run, record, switch stage, save and show progress.
     Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
     nothing non-finite is ever saved."""
-    driver = Driver.start(cfg, static, mesh, seeds)
+    driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
     if driver.it >= cfg.iterations:
         if distributed.is_main():
             print(nothing_to_train(driver.it, cfg.iterations))
@@ -149,7 +189,7 @@ def train_chunks(
     out = Outputs.open(cfg, static, mesh, seeds, driver.it)
     try:
         while driver.it < cfg.iterations:
-            n = plan_chunk(cfg, static.stages, driver.stage, driver.it)
+            n = plan_chunk(cfg.driver, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
             compile_s = driver.compile(n, announce=out.compiling)
             out.start_progress(driver.it, compile_s)
             chunk = driver.run_chunk(n)
@@ -162,7 +202,7 @@ def train_chunks(
             learner_return = metrics.learner_return(pooled, static.pop)
             driver.switch_stage(learner_return)
             stop = reached(cfg.stop_at_return, learner_return)
-            if stop or checkpoint_due(cfg, driver.it, driver.last_saved):
+            if stop or checkpoint_due(cfg.driver, driver.it, driver.last_saved):
                 driver.save(check.healthy_end)
             out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
             if stop:
@@ -187,7 +227,7 @@ class Outputs:
 
     cfg: TrainConfig
     static: config.Setup
-    seeds: list[tuple[TrainConfig, Path]]
+    seeds: list[SeedRun]
     desc: str  # the run, as progress lines name it
     metrics_logs: list[logs.MetricsLog]  # each seed's
     extras: list[logs.Logger]  # each seed's `cfg.logger`
@@ -202,7 +242,7 @@ class Outputs:
         cfg: TrainConfig,
         static: config.Setup,
         mesh: jax.sharding.Mesh,
-        seeds: list[tuple[TrainConfig, Path]],
+        seeds: list[SeedRun],
         start: int,
     ) -> Outputs:
         """The outputs of a run that continues after iteration `start` (later metrics rows are dropped)."""
@@ -212,10 +252,10 @@ class Outputs:
         desc = f"{name} ({', '.join(parts)})" if parts else name
         if not distributed.is_main():
             return cls(cfg, static, seeds, desc, [], [], None)
-        metrics_logs = [logs.MetricsLog(d) for _, d in seeds]
+        metrics_logs = [logs.MetricsLog(s.dir) for s in seeds]
         for metrics_log in metrics_logs:
             metrics_log.truncate_after(start)
-        extras = [logs.make_logger(cfg.logger, d, config_dict(c)) for c, d in seeds]
+        extras = [logs.make_logger(cfg.logger, s.dir, s.config) for s in seeds]
         learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes)
         return cls(cfg, static, seeds, desc, metrics_logs, extras, learner_eval)
 
@@ -244,7 +284,7 @@ class Outputs:
         first_nonfinite = not self.nonfinite_iterations
         self.nonfinite_iterations += [chunk.first + 1 + i for i in check.failed]
         end = chunk.first + chunk.n
-        evaluating = evaluates(self.cfg, end) and check.healthy_end and not check.stop
+        evaluating = evaluates(self.cfg.driver, end) and check.healthy_end and not check.stop
         for k, (metrics_log, extra) in enumerate(zip(self.metrics_logs, self.extras, strict=True)):
             seed_metrics, seed_finite = seed_part((chunk.metrics, chunk.finite), k, self.cfg.seeds)
             rows = chunk_rows(
@@ -270,7 +310,7 @@ class Outputs:
         """{'eval/<spec>': mean return} of seed k's first learner in `params` after iteration `end`."""
         host_params = jax.device_get(seed_part(params, k, self.cfg.seeds))  # replicated: local
         first = jax.tree.map(lambda x: x[0], host_params)
-        key = jax.random.fold_in(jax.random.key(self.seeds[k][0].seed), end)
+        key = jax.random.fold_in(jax.random.key(self.seeds[k].seed), end)
         return metrics.eval_fields(self.learner_eval(key, first))
 
     def show_progress(self, it: int, stage: int, pooled: dict[str, np.ndarray], sps: float) -> None:
@@ -296,10 +336,10 @@ class Outputs:
             return
         where = f" ({len(self.seeds)} seeds: s{self.cfg.seed}/ ...)" if len(self.seeds) > 1 else ""
         print(f"wrote {run_dir}{where} ({it} iterations)")
-        rows = metrics.read_rows(self.seeds[0][1])
+        rows = metrics.read_rows(self.seeds[0].dir)
         env_steps = len(rows) * self.cfg.num_envs * self.cfg.rollout_steps
         print(outcome(rows, self.static, env_steps, stopped_at))
-        first = self.seeds[0][1]
+        first = self.seeds[0].dir
         grid = {k: v for k, v in self.cfg.env_overrides.items() if k in ("width", "height")}
         grid_args = f" --env-args {config.ENV_ARGS.format(tuple(grid.items()))}" if grid else ""
         print(f"next: python -m jaxsocial.plot {first} --out curves.png\n"

@@ -27,8 +27,16 @@ def _branch(tmp_path, spec, **changes):
     return dataclasses.replace(TINY, **changes)
 
 
+def _seeds(cfg):
+    return list(range(cfg.seed, cfg.seed + cfg.seeds))
+
+
 def _check(cfg):
-    init_from.check(cfg, config.setup(cfg).pop.learners)
+    init_from.check(cfg.init_from, _seeds(cfg), cfg.net, config.setup(cfg).pop.learners)
+
+
+def _pin(cfg, run_dir):
+    return init_from.pin(cfg.init_from, _seeds(cfg), run_dir)
 
 
 def test_bad_sources_are_refused_before_anything_compiles(source, tmp_path):
@@ -46,32 +54,41 @@ def test_bad_sources_are_refused_before_anything_compiles(source, tmp_path):
     with pytest.raises(ValueError, match="learners are in slots"):
         _check(_branch(tmp_path, str(source), slots="random,learner,random"))
     with pytest.raises(ValueError, match="holds the source"):
-        init_from.pin(_branch(tmp_path, str(source)), source.parent)
+        _pin(_branch(tmp_path, str(source)), source.parent)
     assert not any(tmp_path.iterdir())  # nothing written
 
 
 def test_pin_names_the_iteration_it_loads(source, tmp_path):
-    latest = init_from.pin(_branch(tmp_path, str(source)), tmp_path / "branch")
-    assert latest.init_from == CheckpointRef(source, TINY.iterations)
-    assert str(init_from.pin(_branch(tmp_path, f"{source}@2"), tmp_path / "b").init_from) == f"{source}@2"
-    resumed = _branch(tmp_path, str(tmp_path / "gone"), resume=True)
-    assert init_from.pin(resumed, tmp_path / "branch") is resumed  # a resumed run loads its own state
-    _check(resumed)  # and does not need the source any more
+    latest = _pin(_branch(tmp_path, str(source)), tmp_path / "branch")
+    assert latest == CheckpointRef(source, TINY.iterations)
+    assert str(_pin(_branch(tmp_path, f"{source}@2"), tmp_path / "b")) == f"{source}@2"
+
+
+def test_a_resumed_branch_loads_its_own_state_without_the_source(source, tmp_path):
+    branch = train.run(_branch(tmp_path, str(source), iterations=2))
+    moved = tmp_path / "moved-source"
+    source.rename(moved)
+    try:
+        again = _branch(tmp_path, str(source), iterations=3, resume=True)
+        assert train.run(again) == branch  # the source is gone: only a resumed run can go on
+    finally:
+        moved.rename(source)
+    assert [r["iteration"] for r in logs.read_metrics(branch)] == [1, 2, 3]
 
 
 def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
     cfg = _branch(tmp_path, f"{source}@2", seed=7)
     static = config.setup(cfg)
-    program = loop.compiled(cfg, env_params=static.stage(-1), pop=static.pop)
+    program = loop.compiled(cfg.program, loop.data_mesh(cfg.program, 0), static.stage(-1), static.pop)
     fresh = program.init(np.int32(cfg.seed))
-    state = driver.load_source_learners(cfg, fresh, program)
+    state = driver.load_source_learners(cfg.init_from, [cfg.seed], fresh, program)
     template = jax.eval_shape(lambda: fresh)
     saved = checkpoint.restore(source / "checkpoints", template, 2)
     for got, want in ((state.params, saved.params), (state.opt_state, saved.opt_state)):
         jax.tree.map(np.testing.assert_array_equal, got, want)
     jax.tree.map(np.testing.assert_array_equal, state.env_states, fresh.env_states)  # the new seed's own
     assert int(state.iteration) == 0
-    assert driver.load_source_learners(dataclasses.replace(cfg, init_from=None), fresh, program) is fresh
+    assert driver.load_source_learners(None, [cfg.seed], fresh, program) is fresh
 
 
 def _adam_count(opt_state) -> int:
@@ -88,9 +105,9 @@ def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
     assert logs.read_config(run_dir)["init_from"] == f"{source}@{TINY.iterations}"
     assert [r["iteration"] for r in logs.read_metrics(run_dir)] == [1, 2]
     twig = _branch(tmp_path, str(run_dir), run_name="twig")
-    assert str(init_from.pin(twig, tmp_path / "twig").init_from) == f"{run_dir}@2"  # a branch of the branch
+    assert str(_pin(twig, tmp_path / "twig")) == f"{run_dir}@2"  # a branch of the branch
     _check(twig)
-    target = jax.eval_shape(lambda: loop.compiled(TINY).init(np.int32(0)))
+    target = jax.eval_shape(lambda: train.compiled_program(TINY).init(np.int32(0)))
     first_two = _adam_count(checkpoint.restore(source / "checkpoints", target, 2).opt_state)
     loaded = _adam_count(checkpoint.restore(source / "checkpoints", target, TINY.iterations).opt_state)
     after = _adam_count(checkpoint.restore(run_dir / "checkpoints", target, 2).opt_state)
@@ -112,7 +129,7 @@ def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path)
     assert packed["checkpoint_iteration"] == TINY.iterations
     cfg = _branch(tmp_path, str(record))
     _check(cfg)
-    assert init_from.pin(cfg, tmp_path / "branch").init_from == CheckpointRef(record, TINY.iterations)
+    assert _pin(cfg, tmp_path / "branch") == CheckpointRef(record, TINY.iterations)
     from_record = driver.source_state(record, TINY.iterations)
     from_run = driver.source_state(source, TINY.iterations)
     jax.tree.map(np.testing.assert_array_equal, from_record.params, from_run.params)

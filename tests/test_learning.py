@@ -8,7 +8,7 @@ from conftest import SOLO_LEARNING, mean_return
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.run.config import TrainConfig
-from jaxsocial.run.loop import make_train
+from jaxsocial.train import make_train
 
 
 @pytest.mark.slow

@@ -13,7 +13,7 @@ from conftest import TINY
 
 from jaxsocial import train
 from jaxsocial.agents import policy_io
-from jaxsocial.run import checkpoint, logs, loop, nonfinite
+from jaxsocial.run import checkpoint, logs, nonfinite
 
 HUGE_LR = 1e30  # one Adam step moves every param by ~1e30: the next minibatch's logits overflow
 
@@ -55,7 +55,7 @@ def with_lr(run_dir, lr):
 
 
 def checkpoint_is_finite(run_dir, step):
-    template = jax.eval_shape(loop.compiled(TINY).init, np.int32(0))
+    template = jax.eval_shape(train.compiled_program(TINY).init, np.int32(0))
     state = checkpoint.restore(run_dir / "checkpoints", template, step)
     return all(np.isfinite(x).all() for x in jax.tree.leaves(state) if jnp.issubdtype(x.dtype, jnp.inexact))
 
@@ -93,7 +93,7 @@ def test_warn_trains_on_and_saves_nothing_non_finite(healthy, tmp_path, capsys):
     run_dir = tmp_path / "warned"
     shutil.copytree(healthy, run_dir)
     ckpt = run_dir / "checkpoints"
-    state = checkpoint.restore(ckpt, jax.eval_shape(loop.compiled(TINY).init, np.int32(0)), 2)
+    state = checkpoint.restore(ckpt, jax.eval_shape(train.compiled_program(TINY).init, np.int32(0)), 2)
     metadata = checkpoint.read_metadata(ckpt, 2)
     shutil.rmtree(ckpt / "2")
     huge = state._replace(params=jax.tree.map(lambda x: x * np.float32(1e30), state.params))

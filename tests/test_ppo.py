@@ -298,10 +298,11 @@ def test_trainer_records_the_targets_its_recompute_would_compute(monkeypatch):
     on the targets the rollout recorded, and with them recomputed: the same losses up to float rounding."""
     from conftest import TINY
 
+    from jaxsocial import train
     from jaxsocial.run import loop
 
     def first_iteration():
-        init, run_chunk, _ = loop.make_train(TINY)
+        init, run_chunk, _ = train.make_train(TINY)
         _, metrics = jax.jit(run_chunk, static_argnums=2)(jax.jit(init)(jax.random.key(0)), None, 1)
         return {name: float(metrics[name][0, 0]) for name in ("policy_loss", "value_loss", "entropy", "kl")}
 

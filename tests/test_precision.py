@@ -23,7 +23,7 @@ from jaxsocial import train
 from jaxsocial.agents import network as net
 from jaxsocial.agents import policy_io
 from jaxsocial.agents.fast import precision
-from jaxsocial.run.loop import make_train
+from jaxsocial.train import make_train
 
 T, B = 5, 3
 RGB = net.NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=16, aux="pred+attention")

@@ -13,10 +13,11 @@ import pytest
 from conftest import TINY
 
 import jaxsocial
+from jaxsocial import train
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
-from jaxsocial.run import logs, loop, schedule
+from jaxsocial.run import logs, schedule
 from jaxsocial.run.config import setup
 from jaxsocial.specs import PolicyRef
 from jaxsocial.train import run
@@ -80,7 +81,7 @@ def test_penalty_curriculum_switches_at_the_configured_points(tmp_path):
     ]
     static = setup(cfg)
     assert [static.stage(i).penalty for i in (-1, 0, 1)] == [1.5, 1.0, 1.5]
-    program = [loop.compiled(cfg, env_params=static.stage(i), pop=static.pop) for i in (-1, 0, 1)]
+    program = [train.compiled_program(cfg, stage=i) for i in (-1, 0, 1)]
     assert program[2] is program[0] and program[1] is not program[0]  # stage 1 reuses the first program
 
 

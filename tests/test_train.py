@@ -15,8 +15,7 @@ from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.run import checkpoint, config, logs
 from jaxsocial.run.config import PRESETS
-from jaxsocial.run.loop import make_train
-from jaxsocial.train import parse_args, run
+from jaxsocial.train import make_train, parse_args, run
 
 
 def test_every_field_is_a_run_program_or_driver_field():

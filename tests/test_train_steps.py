@@ -25,7 +25,7 @@ def planned(cfg, stages=()):
     """(first iteration, iterations, stage) of each chunk the loop plans, no stage triggered by a return."""
     it, stage, chunks = 0, schedule.initial_index(stages), []
     while it < cfg.iterations:
-        n = plan_chunk(cfg, stages, stage, it)
+        n = plan_chunk(cfg.driver, cfg.chunk_iterations, stages, stage, it)
         chunks.append((it, n, stage))
         it += n
         stage = schedule.advance(stages, stage, it, None)
@@ -49,8 +49,9 @@ def test_chunks_end_where_iteration_stages_start():
         (11, 1, 0),
     ]
     returns = schedule.parse_stages("return>=5:penalty=1.0")  # no iteration to land on
-    assert plan_chunk(cfg, returns, -1, 0) == 4
-    assert plan_chunk(cfg, schedule.parse_stages("3:penalty=1.0"), -1, 5) == 4  # a start already passed
+    assert plan_chunk(cfg.driver, cfg.chunk_iterations, returns, -1, 0) == 4
+    passed = schedule.parse_stages("3:penalty=1.0")  # a start already passed
+    assert plan_chunk(cfg.driver, cfg.chunk_iterations, passed, -1, 5) == 4
 
 
 def test_chunks_end_on_evaluation_iterations():
@@ -58,25 +59,25 @@ def test_chunks_end_on_evaluation_iterations():
         TINY, iterations=10, chunk_iterations=3, eval_envs=("goalcycle3",), eval_every=4
     )
     assert [(it, n) for it, n, _ in planned(cfg)] == [(0, 3), (3, 1), (4, 3), (7, 1), (8, 2)]
-    assert [evaluates(cfg, end) for end in (3, 4, 7, 8, 10)] == [
+    assert [evaluates(cfg.driver, end) for end in (3, 4, 7, 8, 10)] == [
         False,
         True,
         False,
         True,
         True,
     ]  # and the last
-    assert not evaluates(dataclasses.replace(cfg, eval_envs=()), 8)
+    assert not evaluates(dataclasses.replace(cfg, eval_envs=()).driver, 8)
 
 
 def test_checkpoints_every_checkpoint_every_iterations_and_at_the_end():
     cfg = dataclasses.replace(TINY, iterations=10, checkpoint_every=4)
     last_saved, saved = 0, []
     for it in (3, 6, 9, 10):  # the ends of 3-iteration chunks
-        if checkpoint_due(cfg, it, last_saved):
+        if checkpoint_due(cfg.driver, it, last_saved):
             saved.append(it)
             last_saved = it
     assert saved == [6, 10]
-    assert checkpoint_due(cfg, 9, 4)  # an iteration that was not saved (non-finite): the next chunk's is
+    assert checkpoint_due(cfg.driver, 9, 4)  # an iteration not saved (non-finite): the next chunk's is
 
 
 def flags(*iterations):
@@ -122,7 +123,7 @@ def chunk_metrics(returns, episodes):
 def test_a_stage_starts_at_its_iteration_or_once_the_learners_return_reaches_it():
     cfg = dataclasses.replace(TINY, iterations=8, stages="2:penalty=0.5;return>=5:penalty=1.0")
     static = config.setup(cfg)
-    driver = Driver(cfg, static, None, [], None, stage=-1, frozen=None, it=2, last_saved=0)
+    driver = Driver(cfg.program, cfg.driver, static, None, [], "", None, stage=-1, frozen=None, it=2)
     driver.switch_stage(None)  # iteration 2, whatever the return
     assert driver.stage == 0
     low = chunk_metrics([4.0, 9.0], [1, 0])  # the second episode did not finish
@@ -147,7 +148,13 @@ def test_record_writes_kept_rows_and_warns_at_the_first_non_finite_iteration(tmp
     static = config.setup(cfg)
     metrics_log = logs.MetricsLog(tmp_path)
     out = train.Outputs(
-        cfg, static, [(cfg, tmp_path)], "x", [metrics_log], [logs.make_logger(None, tmp_path, {})], None
+        cfg,
+        static,
+        train.seed_runs(cfg, tmp_path),
+        "x",
+        [metrics_log],
+        [logs.make_logger(None, tmp_path, {})],
+        None,
     )
     losses = {"policy_loss": np.zeros((3, 1))}
     for first, finite, compile_s in [

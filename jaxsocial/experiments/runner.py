@@ -24,7 +24,7 @@ class TrainingFailed(Exception):
 
 def seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
-    return [d for _, d in train.seed_runs(cfg, train.run_path(cfg))]
+    return [s.dir for s in train.seed_runs(cfg, train.run_path(cfg))]
 
 
 def condition_seed_dirs(

@@ -174,6 +174,11 @@ class TrainConfig(DriverConfig, ProgramConfig, RunConfig):
         return ProgramConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(ProgramConfig)})
 
     @property
+    def driver(self) -> DriverConfig:
+        """The fields the driver runs the program by."""
+        return DriverConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(DriverConfig)})
+
+    @property
     def env_overrides(self) -> dict[str, Any]:
         """`env_args` as a dict."""
         return dict(self.env_args)

@@ -18,15 +18,27 @@ import numpy as np
 
 from jaxsocial.agents import policy_io, population
 from jaxsocial.run import checkpoint, config, distributed, init_from, loop, nonfinite, rundir, schedule
-from jaxsocial.run.config import TrainConfig, config_dict
+from jaxsocial.run.config import DriverConfig, ProgramConfig
 from jaxsocial.run.loop import Program, RunnerState
+from jaxsocial.specs import CheckpointRef
 
 
-def plan_chunk(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], stage: int, it: int) -> int:
-    """The iterations of the chunk after iteration `it` in `stage`: `cfg.chunk_iterations`, or fewer so that
-    it ends on the run's last iteration, the iteration before the next iteration-triggered stage and (with
+class SeedRun(NamedTuple):
+    """One seed of a run: its PRNG seed, its directory and its config.json values (which its checkpoints
+    carry as metadata)."""
+
+    seed: int
+    dir: Path
+    config: dict[str, Any]
+
+
+def plan_chunk(
+    cfg: DriverConfig, chunk_iterations: int, stages: tuple[schedule.Stage, ...], stage: int, it: int
+) -> int:
+    """The iterations of the chunk after iteration `it` in `stage`: `chunk_iterations`, or fewer so that it
+    ends on the run's last iteration, the iteration before the next iteration-triggered stage and (with
     `cfg.eval_envs`) an evaluation iteration."""
-    n = min(cfg.chunk_iterations, cfg.iterations - it)
+    n = min(chunk_iterations, cfg.iterations - it)
     switch = schedule.next_start(stages, stage)
     if switch is not None and switch > it:
         n = min(n, switch - it)  # land exactly on the next stage's first iteration
@@ -35,12 +47,12 @@ def plan_chunk(cfg: TrainConfig, stages: tuple[schedule.Stage, ...], stage: int,
     return n
 
 
-def evaluates(cfg: TrainConfig, end: int) -> bool:
+def evaluates(cfg: DriverConfig, end: int) -> bool:
     """Whether the learner is evaluated after iteration `end`: every `cfg.eval_every`-th and the last."""
     return bool(cfg.eval_envs) and (end % cfg.eval_every == 0 or end == cfg.iterations)
 
 
-def checkpoint_due(cfg: TrainConfig, it: int, last_saved: int) -> bool:
+def checkpoint_due(cfg: DriverConfig, it: int, last_saved: int) -> bool:
     """Whether iteration `it` is saved: `cfg.checkpoint_every` after the last save, and the run's last."""
     return it - last_saved >= cfg.checkpoint_every or it == cfg.iterations
 
@@ -90,10 +102,12 @@ def seed_part(tree: Any, k: int, seeds: int) -> Any:
     return tree if seeds == 1 else jax.tree.map(lambda x: x[k], tree)
 
 
-def stage_program(cfg: TrainConfig, static: config.Setup, mesh: jax.sharding.Mesh, stage: int) -> Program:
-    """The compiled program of `cfg` in `stage` (-1: before the first), cached by `loop.compiled` (stages
-    with the same environment share one)."""
-    return loop.compiled(cfg, mesh, env_params=static.stage(stage), pop=static.pop)
+def stage_program(
+    program_cfg: ProgramConfig, static: config.Setup, mesh: jax.sharding.Mesh, stage: int
+) -> Program:
+    """The compiled program of `program_cfg` in `stage` (-1: before the first), cached by `loop.compiled`
+    (stages with the same environment share one)."""
+    return loop.compiled(program_cfg, mesh, static.stage(stage), static.pop)
 
 
 def source_state(seed_dir: Path, iteration: int) -> RunnerState:
@@ -105,23 +119,23 @@ def source_state(seed_dir: Path, iteration: int) -> RunnerState:
     return checkpoint.restore(rundir.checkpoints(seed_dir), template, iteration)
 
 
-def load_source_learners(cfg: TrainConfig, state: RunnerState, program: Program) -> RunnerState:
-    """The freshly initialised `state` ([K, ...] for K seeds) with the learners' params and optimiser state
-    of `cfg.init_from` (`jaxsocial.run.init_from`), placed as `program` places its state; `state` itself
-    without `init_from`. Called only for a state at iteration 0 (a resumed run with a checkpoint keeps its
-    own)."""
-    if not cfg.init_from:
+def load_source_learners(
+    source: CheckpointRef | None, seeds: list[int], state: RunnerState, program: Program
+) -> RunnerState:
+    """The freshly initialised `state` of the run's `seeds` ([K, ...] for K > 1 seeds) with the learners'
+    params and optimiser state of `source` (`--init-from`, `jaxsocial.run.init_from`), placed as `program`
+    places its state; `state` itself without a source. Called only for a state at iteration 0 (a resumed
+    run with a checkpoint keeps its own)."""
+    if not source:
         return state
-    iteration = init_from.source_iteration(cfg)
-    loaded = [source_state(d, iteration) for d in init_from.source_dirs(cfg)]
+    iteration = init_from.source_iteration(source, seeds)
+    loaded = [source_state(d, iteration) for d in init_from.source_dirs(source, seeds)]
     learned: Any = [(s.params, s.opt_state) for s in loaded]
-    params, opt_state = learned[0] if cfg.seeds == 1 else population.stack(learned)
+    params, opt_state = learned[0] if len(seeds) == 1 else population.stack(learned)
     ours = jax.tree.map(lambda x: (x.shape, x.dtype), (state.params, state.opt_state))
     theirs = jax.tree.map(lambda x: (x.shape, x.dtype), (params, opt_state))
     if ours != theirs:
-        raise ValueError(
-            f"--init-from {cfg.init_from}: the learners' params or optimiser state differ in shape"
-        )
+        raise ValueError(f"--init-from {source}: the learners' params or optimiser state differ in shape")
     placed = distributed.put((params, opt_state), (program.shardings.params, program.shardings.opt_state))
     return state._replace(params=placed[0], opt_state=placed[1])
 
@@ -129,44 +143,49 @@ def load_source_learners(cfg: TrainConfig, state: RunnerState, program: Program)
 @dataclasses.dataclass
 class Driver:
     """The training state between chunks, which every process holds and steps alike: the runner state and
-    stage, the iterations done (`it`), the latest saved iteration and the chunks compiled so far."""
+    stage, the iterations done (`it`), the latest saved iteration and the chunks compiled so far; built
+    from the run's parts (`TrainConfig.program` and `.driver`) by `start`."""
 
-    cfg: TrainConfig
+    program: ProgramConfig
+    settings: DriverConfig
     static: config.Setup
     mesh: jax.sharding.Mesh
-    seeds: list[tuple[TrainConfig, Path]]  # (config, directory) of each seed (`train.seed_runs`)
+    seeds: list[SeedRun]
+    slots: str  # the run's slots as text (`population.format_slots`), in every exported policy
     state: RunnerState
     stage: int
     frozen: Any  # the frozen slots' params on the mesh, or None
-    it: int
-    last_saved: int  # the latest checkpoint's iteration (the start when none was saved since)
+    it: int = 0
+    last_saved: int = 0  # the latest checkpoint's iteration (the start when none was saved since)
     executables: dict[tuple[int, int], Any] = dataclasses.field(default_factory=dict)  # (stage, n) -> chunk
 
     @classmethod
     def start(
         cls,
-        cfg: TrainConfig,
+        program: ProgramConfig,
+        settings: DriverConfig,
         static: config.Setup,
         mesh: jax.sharding.Mesh,
-        seeds: list[tuple[TrainConfig, Path]],
+        seeds: list[SeedRun],
+        slots: str,
     ) -> Driver:
-        """Start-up: every seed's initial state in the stage a new run starts in or, with `cfg.resume`,
-        the state and stage of the latest checkpoint (`restore_seeds`); at iteration 0, `--init-from`'s
-        learners."""
+        """Start-up: every seed's initial state in the stage a new run starts in or, with
+        `settings.resume`, the state and stage of the latest checkpoint (`restore`); at iteration 0, the
+        learners of `settings.init_from`."""
         stage = schedule.initial_index(static.stages)
-        program = stage_program(cfg, static, mesh, stage)
-        state = program.init(np.asarray([c.seed for c, _ in seeds] if cfg.seeds > 1 else cfg.seed, np.int32))
+        compiled = stage_program(program, static, mesh, stage)
+        numbers = [s.seed for s in seeds]
+        state = compiled.init(np.asarray(numbers if program.seeds > 1 else numbers[0], np.int32))
         frozen = static.frozen_params
         if frozen is not None:
             frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
-        if cfg.resume:
-            state, stage = restore_seeds(
-                cfg, [rundir.checkpoints(d) for _, d in seeds], state, program, stage
-            )
-        it = int(np.asarray(state.iteration).reshape(-1)[0])
-        if it == 0:  # a new run, or a resumed one that saved nothing yet: from the source's learners
-            state = load_source_learners(cfg, state, program)
-        return cls(cfg, static, mesh, seeds, state, stage, frozen, it, last_saved=it)
+        driver = cls(program, settings, static, mesh, seeds, slots, state, stage, frozen)
+        if settings.resume:
+            driver.restore(compiled)
+        driver.it = driver.last_saved = int(np.asarray(driver.state.iteration).reshape(-1)[0])
+        if driver.it == 0:  # a new run, or a resumed one that saved nothing yet: from the source's learners
+            driver.state = load_source_learners(settings.init_from, numbers, driver.state, compiled)
+        return driver
 
     def compile(self, n: int, announce: Callable[[int, int], None]) -> float | None:
         """Compile step: the chunk of `n` iterations in the current stage, ahead of time (so that its speed
@@ -175,7 +194,7 @@ class Driver:
             return None
         announce(n, self.stage)
         t0 = time.perf_counter()
-        program = stage_program(self.cfg, self.static, self.mesh, self.stage)
+        program = stage_program(self.program, self.static, self.mesh, self.stage)
         self.executables[self.stage, n] = program.run_chunk.lower(self.state, self.frozen, n).compile()
         return time.perf_counter() - t0
 
@@ -185,7 +204,7 @@ class Driver:
         t0 = time.perf_counter()
         self.state, metrics = self.executables[self.stage, n](self.state, self.frozen)
         metrics = jax.device_get(metrics)
-        sps = n * self.cfg.num_envs * self.cfg.rollout_steps / (time.perf_counter() - t0)  # per seed
+        sps = n * self.program.num_envs * self.program.rollout_steps / (time.perf_counter() - t0)  # per seed
         finite = metrics.pop(nonfinite.KEY)
         return Chunk(self.it, n, self.stage, metrics, finite, sps)
 
@@ -198,64 +217,62 @@ class Driver:
         """Save step: every seed's policy and checkpoint at iteration `it` (`save_seeds`) if the chunk that
         ended there was `healthy` (its last iteration finite); otherwise a warning that it is not saved."""
         if healthy:
-            save_seeds(self.cfg, self.seeds, self.it, self.state, self.stage)
+            self.save_seeds()
             self.last_saved = self.it
         elif distributed.is_main():
             print(f"warning: iteration {self.it} is not finite: not saved as a checkpoint or policy",
                   file=sys.stderr)  # fmt: skip
 
+    def save_seeds(self) -> None:
+        """Policy, then checkpoint (with the stage to resume in), of every seed at iteration `it` (every
+        process takes part). The policy goes first, so a checkpoint always has its policy: an interruption
+        between the two leaves a policy ahead of the checkpoints, which the resumed run reaches again (and
+        skips)."""
+        host = distributed.to_host(self.state)
+        for k, seed in enumerate(self.seeds):
+            seed_state = seed_part(host, k, self.program.seeds)
+            self.export_policy(seed.dir, self.it, seed_state.params)
+            ckpt_dir = rundir.checkpoints(seed.dir)
+            if self.it not in checkpoint.all_steps(ckpt_dir):  # else saved before an interruption: the same
+                metadata = {**seed.config, "stage": self.stage}
+                keep = self.settings.keep_checkpoints
+                checkpoint.save(ckpt_dir, self.it, seed_state, metadata=metadata, keep=keep)
 
-def save_seeds(
-    cfg: TrainConfig, seeds: list[tuple[TrainConfig, Path]], it: int, state: RunnerState, stage: int
-) -> None:
-    """Policy, then checkpoint (with the stage to resume in), of every seed at iteration `it` (every process
-    takes part). The policy goes first, so a checkpoint always has its policy: an interruption between the
-    two leaves a policy ahead of the checkpoints, which the resumed run reaches again (and skips)."""
-    host = distributed.to_host(state)
-    for k, (seed_cfg, seed_dir) in enumerate(seeds):
-        seed_state = seed_part(host, k, cfg.seeds)
-        export_policy(cfg, seed_dir, it, seed_state.params)
-        ckpt_dir = rundir.checkpoints(seed_dir)
-        if it not in checkpoint.all_steps(ckpt_dir):  # else saved before an interruption: the same state
-            metadata = {**config_dict(seed_cfg), "stage": stage}
-            checkpoint.save(ckpt_dir, it, seed_state, metadata=metadata, keep=cfg.keep_checkpoints)
+    def export_policy(self, seed_dir: Path, it: int, params: Any) -> None:
+        """Write the learners' params (stacked [S_l, ...]) to `seed_dir/policy/<it>` unless that step
+        exists."""
+        keep = self.settings.keep_checkpoints
+        policy_io.export_policy(seed_dir, it, params, self.program.net, slots=self.slots, keep=keep)
 
-
-def export_policy(cfg: TrainConfig, seed_dir: Path, it: int, params: Any) -> None:
-    """Write the learners' params (stacked [S_l, ...]) to `seed_dir/policy/<it>` unless that step exists."""
-    policy_io.export_policy(
-        seed_dir, it, params, cfg.net, slots=population.format_slots(cfg.slots), keep=cfg.keep_checkpoints
-    )
-
-
-def restore_seeds(
-    cfg: TrainConfig, ckpt_dirs: list[Path], state: RunnerState, program: Program, stage: int
-) -> tuple[RunnerState, int]:
-    """The state and stage from the latest checkpoint that every seed has and can read (unchanged if none
-    has one). An unreadable checkpoint (a truncated or emptied file) is skipped with a warning naming it, for
-    the one before; a checkpoint of another config raises. A seed whose policy export is missing at that
-    step (an interruption between the two writes of an older version) gets it re-exported."""
-    steps = [checkpoint.all_steps(d) for d in ckpt_dirs]
-    if not any(steps):
-        return state, stage
-    if not all(steps):
-        missing = [str(d.parent) for d, s in zip(ckpt_dirs, steps, strict=True) if not s]
-        raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
-    lead = int(cfg.seeds > 1)
-    template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), state)
-    for step in sorted(set.intersection(*map(set, steps)), reverse=True):
-        try:
-            restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
-            stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", stage))
-        except checkpoint.CheckpointMismatchError:
-            raise
-        except Exception as err:  # noqa: BLE001 - orbax, json and OS errors of a damaged checkpoint
-            where = [str(d / str(step)) for d in ckpt_dirs]
-            print(f"warning: {where} unreadable ({type(err).__name__}: {err}); trying the checkpoint before",
-                  file=sys.stderr)  # fmt: skip
-            continue
-        for restored_state, ckpt_dir in zip(restored, ckpt_dirs, strict=True):
-            export_policy(cfg, ckpt_dir.parent, step, restored_state.params)
-        host = restored[0] if cfg.seeds == 1 else population.stack(restored)
-        return distributed.put(host, program.shardings), stage
-    raise ValueError(f"cannot resume: no readable checkpoint in {[str(d) for d in ckpt_dirs]}")
+    def restore(self, program: Program) -> None:
+        """The state and stage from the latest checkpoint that every seed has and can read (unchanged if
+        none has one), placed as `program` places its state. An unreadable checkpoint (a truncated or
+        emptied file) is skipped with a warning naming it, for the one before; a checkpoint of another
+        config raises. A seed whose policy export is missing at that step (an interruption between the two
+        writes of an older version) gets it re-exported."""
+        ckpt_dirs = [rundir.checkpoints(s.dir) for s in self.seeds]
+        steps = [checkpoint.all_steps(d) for d in ckpt_dirs]
+        if not any(steps):
+            return
+        if not all(steps):
+            missing = [str(d.parent) for d, s in zip(ckpt_dirs, steps, strict=True) if not s]
+            raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
+        lead = int(self.program.seeds > 1)
+        template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), self.state)
+        for step in sorted(set.intersection(*map(set, steps)), reverse=True):
+            try:
+                restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
+                stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", self.stage))
+            except checkpoint.CheckpointMismatchError:
+                raise
+            except Exception as err:  # noqa: BLE001 - orbax, json and OS errors of a damaged checkpoint
+                where = [str(d / str(step)) for d in ckpt_dirs]
+                print(f"warning: {where} unreadable ({type(err).__name__}: {err}); trying the checkpoint "
+                      "before", file=sys.stderr)  # fmt: skip
+                continue
+            for restored_state, ckpt_dir in zip(restored, ckpt_dirs, strict=True):
+                self.export_policy(ckpt_dir.parent, step, restored_state.params)
+            host = restored[0] if self.program.seeds == 1 else population.stack(restored)
+            self.state, self.stage = distributed.put(host, program.shardings), stage
+            return
+        raise ValueError(f"cannot resume: no readable checkpoint in {[str(d) for d in ckpt_dirs]}")

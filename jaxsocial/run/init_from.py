@@ -9,9 +9,9 @@ total training a learner has had is the source's ITERATION plus the new run's.
 
 RUN_DIR is one seed's run directory (every seed of the new run starts from it) or a several-seed run
 directory holding `s<seed>/` for each of the new run's seeds (each starts from its own). The network
-architecture and the learner slots must be the source's (`check`, called by the driver before anything is
-written or compiled). A resumed run continues from its own checkpoints; `init_from` then does nothing. This
-module validates and names the source; the driver loads its learners (`driver.load_source_learners`).
+architecture and the learner slots must be the source's (`check`, called by `jaxsocial.train.run` before
+anything is written or compiled). A resumed run continues from its own checkpoints and ignores the source.
+This module validates and names the source; the driver loads its learners (`driver.load_source_learners`).
 """
 
 from __future__ import annotations
@@ -21,45 +21,46 @@ from pathlib import Path
 
 import jaxsocial
 from jaxsocial.agents import policy_io, population
+from jaxsocial.agents.network_config import NetworkConfig
 from jaxsocial.run import checkpoint, config, logs, rundir
-from jaxsocial.run.config import TrainConfig
+from jaxsocial.run.config import RunConfig, TrainConfig
 from jaxsocial.specs import CheckpointRef
 
 
-def source_dirs(cfg: TrainConfig) -> list[Path]:
-    """The source seed directory of each of the new run's seeds. FileNotFoundError if there is none."""
-    run_dir = cfg.init_from.run
+def source_dirs(source: CheckpointRef, seeds: list[int]) -> list[Path]:
+    """The seed directory of `source` each of the run's `seeds` starts from. FileNotFoundError if there is
+    none."""
+    run_dir = source.run
     if not run_dir.is_dir():
-        raise FileNotFoundError(f"--init-from {cfg.init_from}: no directory {run_dir}")
+        raise FileNotFoundError(f"--init-from {source}: no directory {run_dir}")
     if rundir.checkpoints(run_dir).is_dir():
-        return [run_dir] * cfg.seeds
-    dirs = [run_dir / rundir.seed_name(seed) for seed in range(cfg.seed, cfg.seed + cfg.seeds)]
+        return [run_dir] * len(seeds)
+    dirs = [run_dir / rundir.seed_name(seed) for seed in seeds]
     missing = [str(d) for d in dirs if not rundir.checkpoints(d).is_dir()]
     if missing:
         raise FileNotFoundError(
-            f"--init-from {cfg.init_from}: neither {run_dir} nor {missing} hold checkpoints; pass one seed's "
+            f"--init-from {source}: neither {run_dir} nor {missing} hold checkpoints; pass one seed's "
             "run directory (e.g. RUN_DIR/s0) or a run holding every seed of this one"
         )
     return dirs
 
 
-def source_iteration(cfg: TrainConfig) -> int:
-    """The checkpoint iteration the run starts from: the one asked for, or the latest every source has.
-    FileNotFoundError if a source lacks it."""
-    dirs = source_dirs(cfg)
-    iteration = cfg.init_from.iteration
+def source_iteration(source: CheckpointRef, seeds: list[int]) -> int:
+    """The checkpoint iteration the run of `seeds` starts from: `source.iteration`, or the latest every
+    source seed has. FileNotFoundError if a source lacks it."""
+    dirs = source_dirs(source, seeds)
     steps = [set(checkpoint.all_steps(rundir.checkpoints(d))) for d in dirs]
     common = set.intersection(*steps)
-    if iteration is None:
+    if source.iteration is None:
         if not common:
-            raise FileNotFoundError(f"--init-from {cfg.init_from}: no checkpoint that every source seed has")
+            raise FileNotFoundError(f"--init-from {source}: no checkpoint that every source seed has")
         return max(common)
-    if iteration not in common:
+    if source.iteration not in common:
         raise FileNotFoundError(
-            f"--init-from {cfg.init_from}: no checkpoint of iteration {iteration} (checkpoints: "
+            f"--init-from {source}: no checkpoint of iteration {source.iteration} (checkpoints: "
             f"{sorted(common)})"
         )
-    return iteration
+    return source.iteration
 
 
 def source_config(seed_dir: Path) -> TrainConfig:
@@ -67,43 +68,37 @@ def source_config(seed_dir: Path) -> TrainConfig:
     return dataclasses.replace(config.config_from_dict(logs.read_config(seed_dir)), init_from=None)
 
 
-def _learners(cfg: TrainConfig) -> tuple[int, ...]:
-    """The learner slots of a run's config."""
-    _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
-    return population.Population(population.run_slots(cfg.slots, env_params)).learners
+def _learners(run: RunConfig) -> tuple[int, ...]:
+    """The learner slots of a run."""
+    _, env_params = jaxsocial.make(run.env, **dict(run.env_args))
+    return population.Population(population.run_slots(run.slots, env_params)).learners
 
 
-def check(cfg: TrainConfig, learners: tuple[int, ...]) -> None:
-    """Validate `cfg.init_from` for a run whose learners are in slots `learners` (nothing to check without
-    it, or when the run resumes: it then loads its own state): the source exists, has the checkpoint, and
-    has this run's network architecture and learner slots. ValueError or FileNotFoundError naming the
-    difference; nothing is compiled."""
-    if not cfg.init_from or cfg.resume:
-        return
-    source_iteration(cfg)
-    for seed_dir in sorted(set(source_dirs(cfg))):
-        source = source_config(seed_dir)
-        theirs, ours = policy_io.architecture(source.net), policy_io.architecture(cfg.net)
+def check(source: CheckpointRef, seeds: list[int], net: NetworkConfig, learners: tuple[int, ...]) -> None:
+    """Validate `source` for a new run of `seeds` with the network `net` and its learners in slots
+    `learners`: the source exists, has the checkpoint, and has this run's network architecture and learner
+    slots. ValueError or FileNotFoundError naming the difference; nothing is compiled."""
+    source_iteration(source, seeds)
+    for seed_dir in sorted(set(source_dirs(source, seeds))):
+        theirs_cfg = source_config(seed_dir)
+        theirs, ours = policy_io.architecture(theirs_cfg.net), policy_io.architecture(net)
         diff = sorted(k for k in ours if theirs.get(k) != ours[k])
         if diff:
             raise ValueError(
                 f"--init-from {seed_dir}: its network differs in {diff} "
                 f"({ {k: theirs.get(k) for k in diff} } there, { {k: ours[k] for k in diff} } here)"
             )
-        if _learners(source) != learners:
+        if _learners(theirs_cfg) != learners:
             raise ValueError(
-                f"--init-from {seed_dir}: its learners are in slots {_learners(source)}, this run's in "
+                f"--init-from {seed_dir}: its learners are in slots {_learners(theirs_cfg)}, this run's in "
                 f"{learners}; the population layouts must match"
             )
 
 
-def pin(cfg: TrainConfig, run_dir: str | Path) -> TrainConfig:
-    """`cfg` with `init_from` at the iteration it will load (`RUN_DIR@ITERATION` in its config.json).
-    ValueError if the new run directory `run_dir` is the source or holds it (--overwrite would delete it)."""
-    if not cfg.init_from or cfg.resume:
-        return cfg
-    source = cfg.init_from.run
+def pin(source: CheckpointRef, seeds: list[int], run_dir: str | Path) -> CheckpointRef:
+    """`source` at the iteration the new run of `seeds` in `run_dir` will load (`RUN_DIR@ITERATION` in its
+    config.json). ValueError if `run_dir` is the source or holds it (--overwrite would delete it)."""
     new = Path(run_dir).resolve()
-    if new == source.resolve() or new in source.resolve().parents:
-        raise ValueError(f"--init-from {cfg.init_from}: the new run directory {run_dir} holds the source")
-    return dataclasses.replace(cfg, init_from=CheckpointRef(source, source_iteration(cfg)))
+    if new == source.run.resolve() or new in source.run.resolve().parents:
+        raise ValueError(f"--init-from {source}: the new run directory {run_dir} holds the source")
+    return CheckpointRef(source.run, source_iteration(source, seeds))

@@ -1,6 +1,7 @@
-"""The compiled training loop: `make_program(cfg.program, env, slots) -> (init, run_chunk)` (and
-`make_train(cfg)`, which adds the whole run), the `RunnerState` it carries, and `compiled(cfg)`, its jitted
-`Program` placed on a device mesh (several seeds in one program), cached per program.
+"""The compiled training loop: `make_program(program_cfg, env, slots) -> (init, run_chunk)`, the
+`RunnerState` it carries, and `compiled(program_cfg, mesh, env, slots)`, its jitted `Program` placed on a
+device mesh (several seeds in one program), cached per program. `jaxsocial.train.make_train(cfg)` builds
+the whole run of a `TrainConfig` as one function.
 
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments (`lax.scan`; every slot acts,
 neural slots through a `vmap` over their stacked params) followed by one PPO update of every learner
@@ -19,12 +20,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.agents import bc, network, policy_io, population, ppo
+from jaxsocial.agents import bc, network, population, ppo
 from jaxsocial.env import core, observe
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import EnvParams, EnvState
-from jaxsocial.run import config, distributed, nonfinite
-from jaxsocial.run.config import ProgramConfig, TrainConfig
+from jaxsocial.run import distributed, nonfinite
+from jaxsocial.run.config import ProgramConfig
 
 
 class RunnerState(NamedTuple):
@@ -90,42 +91,6 @@ def ppo_batch(
         chunk_carries=jax.tree.map(lambda c: c[:, ::chunk_length], batch.chunk_carries),
         carry0=carry0,
     )
-
-
-def make_train(
-    cfg: TrainConfig,
-    mesh: jax.sharding.Mesh | None = None,
-    *,
-    env_params: EnvParams | None = None,
-    pop: population.Population | None = None,
-):
-    """Build the pure training functions for `cfg`, a config without stages (a run's driver switches them);
-    validated first (`config.setup`) unless its validated environment and population are given.
-
-    Returns `(init, run_chunk, train)`: `init` and `run_chunk` as `make_program` builds them for
-    `cfg.program`; `train(key) -> (state, metrics)` is the whole run of `cfg.iterations` (it loads frozen
-    policies when traced).
-    """
-    if cfg.stages:
-        raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
-    env_params, pop = _validated(cfg, env_params, pop)
-    init, run_chunk = make_program(cfg.program, env_params, pop, mesh)
-
-    def train(key: jax.Array):
-        return run_chunk(init(key), policy_io.load_frozen(pop, cfg.net), cfg.iterations)
-
-    return init, run_chunk, train
-
-
-def _validated(
-    cfg: TrainConfig, env_params: EnvParams | None, pop: population.Population | None
-) -> tuple[EnvParams, population.Population]:
-    """`env_params` and `pop` as given, or `cfg`'s validated ones (`config.setup`: the environment before
-    the first stage) when either is missing."""
-    if env_params is None or pop is None:
-        static = config.setup(cfg, load_frozen=False)
-        return static.env_params, static.pop
-    return env_params, pop
 
 
 def make_program(
@@ -289,7 +254,7 @@ def make_program(
 
 
 def over_seeds(run_chunk, batching: str = "vmap"):
-    """`run_chunk` of `make_train` over a leading seed axis of the state and the metrics (the frozen params
+    """`run_chunk` of `make_program` over a leading seed axis of the state and the metrics (the frozen params
     are shared): 'vmap' batches the seeds, 'map' runs them one after another (`lax.map`); both give every
     seed the result of a run of its own (vmap up to floating-point summation order)."""
 
@@ -316,12 +281,15 @@ class Program(NamedTuple):
 
 
 @functools.lru_cache(maxsize=8)
-def _compiled(
+def compiled(
     program_cfg: ProgramConfig,
     mesh: jax.sharding.Mesh,
     env_params: EnvParams,
     pop: population.Population,
 ) -> Program:
+    """The `Program` of `program_cfg` in the validated environment `env_params` with the slots `pop`
+    (`config.Setup`) on `mesh` (`data_mesh`), shared between runs whose programs are the same (tests,
+    notebooks, sweeps and a run's stages of one environment compile once)."""
     init, run_chunk = make_program(program_cfg, env_params, pop, mesh)
     replicated = distributed.replicated(mesh)
 
@@ -358,25 +326,10 @@ def _compiled(
     )
 
 
-def data_mesh(cfg: TrainConfig) -> jax.sharding.Mesh:
-    """The devices `cfg` splits its environments over (ValueError, before compiling, if they do not split)."""
-    sizes = {"num_envs": cfg.num_envs}
-    if cfg.algo == "ppo":
-        sizes["minibatch_chunks"] = cfg.ppo.minibatch_chunks
-    return distributed.data_mesh(cfg.devices, **sizes)
-
-
-def compiled(
-    cfg: TrainConfig,
-    mesh: jax.sharding.Mesh | None = None,
-    *,
-    env_params: EnvParams | None = None,
-    pop: population.Population | None = None,
-) -> Program:
-    """The `Program` of `cfg` on `mesh` (default: `data_mesh(cfg)`), shared between runs whose programs are
-    the same (`cfg.program`, environment and slots: tests, notebooks and sweeps in one process compile
-    once). `env_params`, `pop`: the validated environment of the stage to run and the slots
-    (`config.Setup`); default: validated here, the environment before the first stage."""
-    if mesh is None:
-        mesh = data_mesh(cfg)
-    return _compiled(cfg.program, mesh, *_validated(cfg, env_params, pop))
+def data_mesh(program_cfg: ProgramConfig, devices: int) -> jax.sharding.Mesh:
+    """The `devices` (0: all) the environments of `program_cfg` are split over (ValueError, before
+    compiling, if they do not split)."""
+    sizes = {"num_envs": program_cfg.num_envs}
+    if program_cfg.algo == "ppo":
+        sizes["minibatch_chunks"] = program_cfg.ppo.minibatch_chunks
+    return distributed.data_mesh(devices, **sizes)
