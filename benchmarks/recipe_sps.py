@@ -45,6 +45,8 @@ RECIPES = {
     "cpu_rec_mb8k8": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "8")),
     "cpu_rec_mb8k2": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "2")),
     "cpu_rec_k4": ("cpu", "social_rec", ("--ppo.recompute-every", "4")),
+    "laptop_rec": ("laptop", "social_rec", ()),
+    "laptop_solo_rec": ("laptop", "solo_rec", ()),
 }
 """name -> (scale, condition, extra train flags): the recipe's conditions and the levers that change
 learning (measured for speed only)."""

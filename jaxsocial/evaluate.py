@@ -113,7 +113,7 @@ def episode_returns(
         returns = returns + reward
         late = late + jnp.where(states.time[:, None] > env_params.max_steps // 2, reward, 0.0)
         done = done | jnp.all(terminated, -1) | truncated
-        slots = population.record_rewards(slots, reward)
+        slots = population.with_rewards(slots, reward)
         return (obs, states, slots, jnp.zeros_like(first), done, returns, late), None
 
     zeros = jnp.zeros((n_episodes, env_params.n_agents), jnp.float32)

@@ -94,7 +94,7 @@ def _play(key, pop, net, env_params, params, steps: int) -> dict[str, Any]:
             key, pop, net, env_params, params, slots, obs[None], batched, first
         )
         new_obs, new_state, reward, terminated, truncated = core.step_env(state, actions[0], env_params)
-        slots = population.record_rewards(slots, reward[None])
+        slots = population.with_rewards(slots, reward[None])
         out = {
             "states": state,
             "obs": obs,

@@ -178,7 +178,7 @@ def train_chunks(
     seeds: list[SeedRun],
 ) -> None:
     """The training loop of `run` in its prepared (and locked) run directory, over the steps of `Driver`
-    and `Outputs`: chunk after chunk, plan, compile, run, record, switch stage, save and show progress.
+    and `Outputs`: chunk after chunk, plan, compile, run, write rows, switch stage, save and show progress.
     Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
     nothing non-finite is ever saved."""
     driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
@@ -194,7 +194,7 @@ def train_chunks(
             out.start_progress(driver.it, compile_s)
             chunk = driver.run_chunk(n)
             check = check_chunk(chunk.finite, static.pop.learners, cfg.seeds, cfg.on_nonfinite)
-            out.record(chunk, check, compile_s, driver.state.params)
+            out.write_rows(chunk, check, compile_s, driver.state.params)
             if check.stop:
                 raise nonfinite.NonFiniteError(stop_message(cfg, driver.it, check.failure, driver.last_saved))
             driver.it += n
@@ -276,8 +276,8 @@ class Outputs:
         elif self.progress is not None and compile_s is not None:
             self.progress.exclude(compile_s)
 
-    def record(self, chunk: Chunk, check: Check, compile_s: float | None, params: Any) -> None:
-        """Record step: each seed's metrics rows of `chunk` (`chunk_rows`, those `check` keeps) with the
+    def write_rows(self, chunk: Chunk, check: Check, compile_s: float | None, params: Any) -> None:
+        """Write step: each seed's metrics rows of `chunk` (`chunk_rows`, those `check` keeps) with the
         compile time on the first and, after an evaluation iteration that is finite, the evaluation of the
         seed's first learner (`params`: the state's after the chunk) on the last; then a warning at the
         run's first non-finite iteration unless the run stops there."""

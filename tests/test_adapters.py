@@ -108,7 +108,7 @@ def test_gymnax_step_is_the_native_world_step_with_the_experts_acting(gymnax_rol
         actions, slot_state, _, _ = population.act(
             jax.random.key(0), pop, net, params, None, slot_state, views, world, starts
         )
-        return population.record_rewards(slot_state, reward), actions
+        return population.with_rewards(slot_state, reward), actions
 
     _, expert_actions = jax.jit(
         lambda: jax.lax.scan(

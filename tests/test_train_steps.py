@@ -1,5 +1,5 @@
 """The training driver's steps on their own, without compiling: chunk planning, checkpoint and evaluation
-cadence, the non-finite checks of a chunk, the stage switch on the seeds' returns, and the record step."""
+cadence, the non-finite checks of a chunk, the stage switch on the seeds' returns, and the write-rows step."""
 
 import dataclasses
 
@@ -143,7 +143,7 @@ def test_pooled_seeds_read_as_one_seeds_iterations():
     assert pool_seeds(metrics, 1) is metrics
 
 
-def test_record_writes_kept_rows_and_warns_at_the_first_non_finite_iteration(tmp_path, capsys):
+def test_write_rows_keeps_rows_and_warns_at_the_first_non_finite_iteration(tmp_path, capsys):
     cfg = dataclasses.replace(TINY, iterations=6, on_nonfinite="warn")
     static = config.setup(cfg)
     metrics_log = logs.MetricsLog(tmp_path)
@@ -162,7 +162,7 @@ def test_record_writes_kept_rows_and_warns_at_the_first_non_finite_iteration(tmp
         (3, flags(False, True, True), None),
     ]:
         chunk = Chunk(first, 3, 0, {**chunk_metrics([1.0] * 3, [1] * 3), **losses}, {"params": finite}, 99.6)
-        out.record(chunk, check_chunk(chunk.finite, static.pop.learners, 1, "warn"), compile_s, None)
+        out.write_rows(chunk, check_chunk(chunk.finite, static.pop.learners, 1, "warn"), compile_s, None)
     rows = metrics_log.read()
     assert [row["iteration"] for row in rows] == [1, 2, 3, 4, 5, 6]
     assert [row.get(nonfinite.ROW_KEY) for row in rows] == [
@@ -180,6 +180,6 @@ def test_record_writes_kept_rows_and_warns_at_the_first_non_finite_iteration(tmp
     assert "2 iterations had non-finite values (the first: 2)" in capsys.readouterr().err
 
     stopping = check_chunk({"params": flags(True, False, True)}, static.pop.learners, 1, "stop")
-    out.record(chunk._replace(first=6, finite={"params": flags(True, False, True)}), stopping, None, None)
+    out.write_rows(chunk._replace(first=6, finite={"params": flags(True, False, True)}), stopping, None, None)
     assert [row["iteration"] for row in metrics_log.read()[6:]] == [7, 8]  # none after the stop
     assert capsys.readouterr().err == ""  # the stop's message is the error's

@@ -134,7 +134,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
             time=world.time,
             world=world,
             views=views,
-            companions=population.record_rewards(companions, reward[None]),
+            companions=population.with_rewards(companions, reward[None]),
             starts=jnp.zeros((), bool),
         )
         info = {"actions": actions, "rewards": reward}

@@ -229,7 +229,7 @@ def act(
         experts' memory).
     Returns:
         actions int32[E, N]; the new slot state (rewards still those of the previous step, see
-        `record_rewards`); log-probabilities and values float32[S, E] of the neural slots.
+        `with_rewards`); log-probabilities and values float32[S, E] of the neural slots.
     """
     n_envs, n_agents = obs.shape[:2]
     k_neural, k_random, k_experts = jax.random.split(key, 3)
@@ -259,7 +259,7 @@ def act(
     return actions, SlotState(carry, tuple(memory), slot_state.reward), logp, value
 
 
-def record_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:
+def with_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:
     """Keep float32[E, N] this step's rewards for the scripted experts' next decision."""
     return slot_state._replace(reward=reward)
 

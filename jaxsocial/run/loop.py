@@ -186,7 +186,7 @@ def make_program(
             env_states=env_states,
             obs=obs,
             resets=done,
-            slots=population.record_rewards(slots, reward),
+            slots=population.with_rewards(slots, reward),
             episode_return=jnp.where(done[:, None], 0.0, episode_return),
         )
         return (new_state, params), (transition, stats)
