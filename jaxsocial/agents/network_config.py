@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Literal, get_args
 
 import jax.numpy as jnp
 
@@ -23,9 +24,13 @@ from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_SHAPE
 
 OBS_SHAPE = (21, 21, 3)  # 7x7 grid cells of 3x3 pixels (marlgrid tile size 3)
-OBS_KINDS = ("rgb", "symbolic")  # `NetworkConfig.obs`: the environment's `EnvParams.observation`
+Obs = Literal["rgb", "symbolic"]
+"""`NetworkConfig.obs`: the environment's `EnvParams.observation`."""
+OBS_KINDS = get_args(Obs)
 STRIDES = (3, 1, 1)  # encoder strides; the decoder mirrors them in reverse order
-AUX_KINDS = ("none", "rec", "pred", "attention", "rec+attention", "pred+attention")
+Aux = Literal["none", "rec", "pred", "attention", "rec+attention", "pred+attention"]
+"""`NetworkConfig.aux`: a frame loss ("rec", "pred"), the attention head, both, or neither."""
+AUX_KINDS = get_args(Aux)
 ATTENTION_CLASSES = (OBS_SHAPE[0] // KERNEL) ** 2 + 1  # the 7x7 view cells, then "not in view"
 CONV_IMPLS = conv.IMPLS
 """The concrete convolution implementations (`NetworkConfig.conv_impl`, for all layers or per layer)."""
@@ -53,7 +58,7 @@ class NetworkConfig:
     """Width of the FC layer and the LSTM."""
     mlp: int = 64
     """Hidden width of the value and policy MLPs."""
-    aux: str = "pred"
+    aux: Aux = "pred"
     """Auxiliary loss: "none", "rec" (reconstruct the current frame), "pred" (predict the next frame),
     "attention" (locate the other agents in the view), "rec+attention" or "pred+attention"."""
     n_actions: int = 7
@@ -69,7 +74,7 @@ class NetworkConfig:
     """Frames processed at a time by the conv encoder and decoder (speed and memory only)."""
     n_others: int = 2
     """Other agents the attention auxiliary head locates (the environment's agents - 1)."""
-    obs: str = "rgb"
+    obs: Obs = "rgb"
     """Observations the network takes: "rgb" frames or "symbolic" views (set from the environment)."""
     dtype: str = "float32"
     """Input dtype of matrix products and convolutions: "float32", or "bfloat16" (float32 accumulation;
