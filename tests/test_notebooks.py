@@ -58,12 +58,13 @@ def test_social_learning_notebook_shows_committed_results_without_training(
     assert ns["committed"]["h1-gpu"] == h1
     mean, (low, high) = h1["conditions"]["social_rec"]["mean"], h1["conditions"]["social_rec"]["ci95"]
     assert f"{mean:6.2f} [{low:6.2f}, {high:6.2f}]" in printed
-    laptop = json.loads((REPO / "benchmarks/results/science/h1_laptop-laptop.json").read_text())
-    result = laptop["preregistered"]["result"]  # the design's test, as the summary carries it
-    assert (
-        f"treatment {result['treatment_learned']}/{result['treatment_seeds']} learned, control "
-        f"{result['control_learned']}/{result['control_seeds']}, p = {result['p']:.4f}; valid"
-    ) in printed
+    for design in ("h1_laptop", "h1_early"):
+        laptop = json.loads((REPO / f"benchmarks/results/science/{design}-laptop.json").read_text())
+        result = laptop["preregistered"]["result"]  # the design's test, as the summary carries it
+        assert (
+            f"treatment {result['treatment_learned']}/{result['treatment_seeds']} learned, control "
+            f"{result['control_learned']}/{result['control_seeds']}, p = {result['p']:.4f}; valid"
+        ) in printed
     assert f"No committed learner at {tmp_path / 'no-record'}" in printed and ns["record_episode"] is None
     assert "No cpu-scale runs under" in printed and ns["runs"] is None and not (tmp_path / "runs").exists()
 
