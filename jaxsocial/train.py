@@ -49,6 +49,7 @@ from jaxsocial.run.driver import (
     plan_chunk,
     pool_seeds,
     seed_part,
+    stage_program,
 )
 
 
@@ -105,8 +106,7 @@ def compiled_program(cfg: TrainConfig, stage: int = -1) -> loop.Program:
     """The compiled `Program` of `cfg` in `stage` (-1: before the first) on its devices, validated first
     (`config.setup`; frozen policies are not loaded), as a run's driver compiles it."""
     static = config.setup(cfg, load_frozen=False)
-    mesh = loop.data_mesh(cfg.program, cfg.devices)
-    return loop.compiled(cfg.program, mesh, static.stage(stage), static.pop)
+    return stage_program(cfg.program, static, loop.data_mesh(cfg.program, cfg.devices), stage)
 
 
 def run(cfg: TrainConfig) -> Path:
@@ -189,7 +189,7 @@ def train_chunks(
     out = Outputs.open(cfg, static, mesh, seeds, driver.it)
     try:
         while driver.it < cfg.iterations:
-            n = plan_chunk(cfg.driver, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
+            n = plan_chunk(driver.settings, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
             compile_s = driver.compile(n, announce=out.compiling)
             out.start_progress(driver.it, compile_s)
             chunk = driver.run_chunk(n)
@@ -202,7 +202,7 @@ def train_chunks(
             learner_return = metrics.learner_return(pooled, static.pop)
             driver.switch_stage(learner_return)
             stop = reached(cfg.stop_at_return, learner_return)
-            if stop or checkpoint_due(cfg.driver, driver.it, driver.last_saved):
+            if stop or checkpoint_due(driver.settings, driver.it, driver.last_saved):
                 driver.save(check.healthy_end)
             out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
             if stop:
