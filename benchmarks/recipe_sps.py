@@ -47,6 +47,7 @@ RECIPES = {
     "cpu_rec_k4": ("cpu", "social_rec", ("--ppo.recompute-every", "4")),
     "laptop_rec": ("laptop", "social_rec", ()),
     "laptop_solo_rec": ("laptop", "solo_rec", ()),
+    "laptop_none": ("laptop", "social_none", ()),  # no decoder: laptop_rec less this is the decoder's share
 }
 """name -> (scale, condition, extra train flags): the recipe's conditions and the levers that change
 learning (measured for speed only)."""

@@ -36,9 +36,9 @@ import jaxsocial
 from jaxsocial.agents import network, policy_io, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
-from jaxsocial.run import logs, schedule
+from jaxsocial.run import logs
 from jaxsocial.run.metrics import mean_ci95
-from jaxsocial.specs import EnvSpec, Policy, PolicyRef, check_eval_envs
+from jaxsocial.specs import ENV_ARGS, EnvArgs, EnvSpec, Policy, PolicyRef, check_eval_envs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,9 +50,9 @@ class EvalConfig:
     env: str = "goalcycle3"
     """Environment preset: goalcycle3, goalcycle4, fourrooms, maze, each also as NAME-solo and
     NAME-distractors."""
-    env_args: str = ""
+    env_args: EnvArgs = ()
     """EnvParams overrides, e.g. 'penalty=0.5,solo_prob=1.0'."""
-    slots: str = ""
+    slots: population.Slots = ()
     """Slots as in training; 'learner' is the agent under test (default: the learner in slot 0 and the
     environment's scripted experts and distractors)."""
     episodes: int = 100
@@ -68,6 +68,9 @@ class EvalConfig:
 
     def __post_init__(self):  # text or paths given to the constructor are parsed here, once
         object.__setattr__(self, "ckpt", tuple(PolicyRef.of(c) for c in self.ckpt))
+        for name, field in (("env_args", ENV_ARGS), ("slots", population.SLOTS)):
+            if isinstance(getattr(self, name), str):
+                object.__setattr__(self, name, field.parse(getattr(self, name)))
 
 
 PROTOCOLS = ("returns", "ct")
@@ -150,9 +153,9 @@ def _setup(cfg: EvalConfig):
         raise ValueError(f"--episodes {cfg.episodes} must be >= 1")
     if cfg.protocol not in PROTOCOLS:
         raise ValueError(f"unknown --protocol {cfg.protocol!r}; choose one of {PROTOCOLS}")
-    _, env_params = jaxsocial.make(cfg.env, **schedule.parse_assignments(cfg.env_args))
-    slots_text = cfg.slots or population.default_slots(env_params)
-    pop = population.Population(population.parse_slots(slots_text, env_params.n_agents, need_learner=False))
+    _, env_params = jaxsocial.make(cfg.env, **dict(cfg.env_args))
+    slots = cfg.slots or population.parse_slot_list(population.default_slots(env_params))
+    pop = population.Population(population.check_slots(slots, env_params.n_agents, need_learner=False))
     pop.validate(env_params)
     if len(pop.learners) > 1:
         raise ValueError("evaluate one agent at a time: one 'learner' slot (use frozen:POLICY for others)")
@@ -187,7 +190,7 @@ def evaluate(cfg: EvalConfig) -> dict[str, Any]:
     key = jax.random.key(cfg.seed)
     header = {
         "env": cfg.env,
-        "env_args": cfg.env_args,
+        "env_args": ENV_ARGS.format(cfg.env_args),
         "slots": [s.label for s in pop.slots],
         "checkpoints": [str(c) for c in cfg.ckpt],
         "policy_iterations": [policy_io.policy_iteration(c) for c in cfg.ckpt],
@@ -359,7 +362,7 @@ def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
             experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
     if cfg.ckpt:
-        env = f"--env {cfg.env}" + (f" --env-args {cfg.env_args}" if cfg.env_args else "")
+        env = f"--env {cfg.env}" + (f" --env-args {ENV_ARGS.format(cfg.env_args)}" if cfg.env_args else "")
         lines.append(f"next: python -m jaxsocial.render --ckpt {cfg.ckpt[0]} {env} --out learner.gif")
     if not cfg.out:
         lines.append("      add --out FILE to keep every number above (and the per-seed values) as JSON")

@@ -151,3 +151,10 @@ Policy = Annotated[PolicyRef, POLICY.flag()]
 ENV = TextField(EnvSpec.parse, str, "NAME[:FIELD=VALUE,...]", EnvSpec)
 Env = Annotated[EnvSpec, ENV.flag()]
 """An `EnvSpec` flag."""
+ENV_ARGS = TextField(
+    lambda text: tuple(schedule.parse_assignments(text).items()),
+    lambda pairs: schedule.format_assignments(dict(pairs)),
+    "FIELD=VALUE,...",
+)
+EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
+"""EnvParams overrides, held as (field, value) pairs, written 'field=value,...' (`--env-args`)."""

@@ -22,7 +22,7 @@ import jax
 import numpy as np
 
 import jaxsocial
-from jaxsocial import evaluate
+from jaxsocial import evaluate, specs
 from jaxsocial.agents import policy_io, population
 from jaxsocial.run import (
     compile_cache,
@@ -341,7 +341,7 @@ class Outputs:
         print(outcome(rows, self.static, env_steps, stopped_at))
         first = self.seeds[0].dir
         grid = {k: v for k, v in self.cfg.env_overrides.items() if k in ("width", "height")}
-        grid_args = f" --env-args {config.ENV_ARGS.format(tuple(grid.items()))}" if grid else ""
+        grid_args = f" --env-args {specs.ENV_ARGS.format(tuple(grid.items()))}" if grid else ""
         print(f"next: python -m jaxsocial.plot {first} --out curves.png\n"
               f"      python -m jaxsocial.render --ckpt {first} --out learner.gif\n"
               f"      python -m jaxsocial.evaluate --ckpt {first} --env goalcycle4{grid_args}")  # fmt: skip

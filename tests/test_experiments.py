@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import counts, figures, kinds, recipes, runner
 from jaxsocial.run import config, logs, metrics, schedule
@@ -25,6 +26,8 @@ def test_every_condition_is_a_valid_run(scale):
             assert cfg.run_name == f"{scale}/{name}-s{cfg.seed}-{cfg.seed + cfg.seeds - 1}"
             assert cfg.env == cond.env
             assert bool(cfg.eval_envs) == cond.eval_during_training
+            flags = recipes.condition_flags(recipes.SCALES[scale], name, cfg.seed, cfg.seeds, "r")
+            assert train.parse_args(flags) == cfg  # the command line a run is launched with gives it back
     for recipe in recipes.RECIPES.values():
         assert set(recipe.conditions) <= set(recipes.CONDITIONS)
 
@@ -43,7 +46,10 @@ def test_learned_mixing_switches_each_seed_on_its_own_return(tmp_path, capsys):
     for seed in (0, 1):
         assert f"[mixing/gpu] social_pred_mixed_learned s{seed}: missing" in out
         run_name = f"gpu/social_pred_mixed_learned-s{seed}-{seed}"
-        assert f"--seed {seed} --seeds 1 --runs-dir {tmp_path} --run-name {run_name}" in out
+        command = next(line for line in out.splitlines() if f"--run-name {run_name}" in line)
+        assert (
+            f"--seed {seed} " in command and "--seeds 1 " in command and f"--runs-dir {tmp_path}" in command
+        )
     assert not any(tmp_path.iterdir())  # a dry run writes nothing
     dirs = runner.condition_seed_dirs(recipes.GPU, "social_pred_mixed_learned", 0, 2, str(tmp_path))
     assert dirs == [tmp_path / f"gpu/social_pred_mixed_learned-s{s}-{s}" for s in (0, 1)]

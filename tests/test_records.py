@@ -62,7 +62,8 @@ def test_a_record_reads_like_a_run_directory():
             f"--run-name {provenance['record']['source'].rsplit('/', 1)[0]}" in provenance["run"]["command"]
         )
     # what `render --ckpt` and `evaluate --ckpt` load: the policy with the network it was trained with
-    setup = playback.episode_setup(str(record_dirs[0]), recipes.goalcycle_spec("goalcycle3", recipes.TINY))
+    spec = str(recipes.goalcycle_spec("goalcycle3", recipes.TINY))
+    setup = playback.episode_setup(str(record_dirs[0]), spec)
     assert setup.net == policy_io.saved_net(str(record_dirs[0]))
 
 

@@ -1,6 +1,6 @@
 """The command-line mini-languages (slots, experts, stages, assignments, policy and checkpoint references)
 each have one parser and one formatter, and formatting then parsing gives back what was parsed
-(hypothesis)."""
+(hypothesis); a whole TrainConfig's derived command line gives the config back."""
 
 import string
 from pathlib import Path
@@ -10,8 +10,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxsocial
+from jaxsocial import train
 from jaxsocial.agents import experts, population
-from jaxsocial.run import schedule
+from jaxsocial.run import config, schedule
+from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec, PolicyRef
 
 probabilities = st.floats(0.0, 1.0, allow_nan=False)
@@ -90,3 +92,65 @@ def test_formatting_is_the_syntax_users_write():
     assert population.format_slots(population.parse_slots(text, 4)) == text
     curriculum = "0:penalty=0.5;return>=10.0:penalty=1.0"
     assert schedule.format_stages(schedule.parse_stages(curriculum)) == curriculum
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        *(["--preset", name] for name in config.PRESETS),
+        [
+            "--preset",
+            "laptop",
+            "--env",
+            "goalcycle3-solo",
+            "--env-args",
+            "penalty=0,max_steps=40",
+            "--seed",
+            "7",
+        ],
+        [
+            "--slots",
+            "learner,expert:explorer:epsilon=0.2,forget=0.01,random",
+            "--stages",
+            "0:penalty=0.5;return>=2.5:solo_prob=0.75",
+        ],
+        [
+            "--stop-at-return",
+            "5",
+            "--no-progress",
+            "--resume",
+            "--init-from",
+            "runs/x@30",
+            "--logger",
+            "tensorboard",
+        ],
+        [
+            "--eval-envs",
+            "goalcycle4:width=7,height=7",
+            "goalcycle3-solo",
+            "--eval-every",
+            "3",
+            "--eval-episodes",
+            "2",
+        ],
+        ["--env-args", "observation='symbolic'", "--net.obs", "rgb"],  # a view other than the environment's
+        ["--env-args", "observation='symbolic'"],  # the parser derives net.obs from the environment
+        [
+            "--net.conv-channels",
+            "4",
+            "4",
+            "4",
+            "--net.aux",
+            "pred+attention",
+            "--ppo.lr",
+            "1e-05",
+            "--algo",
+            "bc",
+        ],
+    ],
+)
+def test_a_configs_command_line_gives_it_back(argv):
+    cfg = train.parse_args(argv)
+    flags = config_flags(cfg)
+    assert train.parse_args(flags) == cfg
+    assert flags[:2] == ["--preset", cfg.preset]

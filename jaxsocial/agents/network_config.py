@@ -98,7 +98,7 @@ class NetworkConfig:
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
         if self.aux not in AUX_KINDS:
             raise ValueError(f"unknown aux {self.aux!r}; choose from {AUX_KINDS}")
-        parse_conv_impl(self.conv_impl)  # raises ValueError
+        object.__setattr__(self, "_impls", parse_conv_impl(self.conv_impl))  # parsed once; raises ValueError
         if self.obs not in OBS_KINDS:
             raise ValueError(f"unknown obs {self.obs!r}; choose from {OBS_KINDS}")
         if self.dtype not in (*DTYPES, AUTO):
@@ -118,14 +118,18 @@ class NetworkConfig:
         return layers
 
     @property
+    def impls(self) -> dict[str, str]:
+        """Every layer of `CONV_LAYERS` -> its `conv_impl` entry (`parse_conv_impl`, parsed once)."""
+        return dict(self._impls)
+
+    @property
     def layer_impls(self) -> dict[str, str]:
         """`conv_layers` -> their `conv_impl` entry (a `CONV_IMPLS` value or "auto")."""
-        impls = parse_conv_impl(self.conv_impl)
-        return {layer: impls[layer] for layer in self.conv_layers}
+        return {layer: self._impls[layer] for layer in self.conv_layers}
 
     def impl_for(self, layer: str) -> str:
         """The implementation `layer` computes with (`UNRESOLVED_IMPL` for one still "auto")."""
-        impl = parse_conv_impl(self.conv_impl)[layer]
+        impl = self._impls[layer]
         return UNRESOLVED_IMPL if impl == AUTO else impl
 
     @property

@@ -9,14 +9,14 @@ This module is the slot mini-language (`parse_slot_list`, `format_slots`, `check
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Annotated, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
 from jaxsocial.agents import experts, network
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
-from jaxsocial.specs import PolicyRef
+from jaxsocial.specs import PolicyRef, TextField
 
 SLOT_KINDS = ("learner", "frozen", "expert", "random")
 
@@ -104,6 +104,10 @@ def format_slots(slots: tuple[Slot, ...]) -> str:
     """The inverse of `parse_slot_list`: 'learner,expert:explorer,random'."""
     return ",".join(map(str, slots))
 
+
+SLOTS = TextField(parse_slot_list, format_slots, "SLOT,...")
+Slots = Annotated[tuple[Slot, ...], SLOTS.flag()]
+"""Agent slots, held parsed, written 'SLOT,...' (`--slots`)."""
 
 DEFAULT_EXPERT = {"goalcycle": "explorer", "fourrooms": "navigator", "maze": "navigator"}
 """The scripted expert of each layout."""

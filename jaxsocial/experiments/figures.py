@@ -24,6 +24,7 @@ from jaxsocial.experiments import kinds, prereg, recipes, records, runner
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import config, logs, metrics
+from jaxsocial.run.flags import config_flags
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
 
@@ -61,8 +62,8 @@ class RecipeRuns:
         self.seed, self.seeds, self.runs_dir = seed, seeds, runs_dir
 
     def flags(self, condition: str) -> list[str]:
-        cfg = self.configs[condition]
-        return recipes.condition_flags(self.scale, condition, cfg.seed, cfg.seeds, cfg.runs_dir)
+        """The training command line of a condition's (first) program."""
+        return config_flags(self.configs[condition])
 
     def command(self, out_dir: str | None = None) -> str:
         """The `figure` command that re-creates this summary (written into `out_dir`, default the CLI's)."""

@@ -35,6 +35,9 @@ import numpy as np
 
 from jaxsocial.experiments import figures, kinds, pinned, prereg, recipes, records, runner
 from jaxsocial.run import logs, metrics
+from jaxsocial.run.config import TrainConfig
+from jaxsocial.run.flags import config_flags
+from jaxsocial.specs import CheckpointRef, EnvSpec
 
 RUNS_DIR = "runs/experiments"
 SUMMARY_DIR = "benchmarks/results/science"
@@ -123,9 +126,8 @@ def sources(plan: Plan, from_dir: str) -> list[Source]:
 def zero_shot_specs(scale: recipes.Scale) -> list[str]:
     """The environments a learned policy is played in unchanged: alone in 3-goal Goal Cycle, beside the
     default experts in 4-goal Goal Cycle, Four Rooms and Maze (Goal Cycle with the scale's grid)."""
-    return [
-        recipes.goalcycle_spec(name, scale) for name in ("goalcycle3-solo", "goalcycle4", "fourrooms", "maze")
-    ]
+    names = ("goalcycle3-solo", "goalcycle4", "fourrooms", "maze")
+    return [str(recipes.goalcycle_spec(name, scale)) for name in names]
 
 
 def branch_specs(scale: recipes.Scale) -> list[str]:
@@ -133,34 +135,22 @@ def branch_specs(scale: recipes.Scale) -> list[str]:
     return zero_shot_specs(scale)[:2]
 
 
-def branch_flags(plan: Plan, source: Source, arm: str, runs_dir: str) -> list[str]:
-    """The `python -m jaxsocial.train` flags of one branch (later flags override the condition's)."""
-    scale = plan.scale
-    env_args = ",".join(
-        a
-        for a in (scale.env_args, recipes.CONDITIONS[source.condition].env_args, f"solo_prob={ARMS[arm]!r}")
-        if a
+def branch_config(plan: Plan, source: Source, arm: str, runs_dir: str) -> TrainConfig:
+    """The training config of one branch: the source's condition, beside the experts (`BRANCH_ENV`) with the
+    arm's share of solo episodes, from the source's final checkpoint, evaluated at its end."""
+    scale, iterations = plan.scale, plan.branch_iterations
+    cfg = recipes.condition_config(scale, source.condition, source.seed, 1, runs_dir)
+    return dataclasses.replace(
+        cfg,
+        env=BRANCH_ENV,
+        env_args=recipes.with_env_args(cfg.env_args, (("solo_prob", ARMS[arm]),)),
+        iterations=iterations,
+        init_from=CheckpointRef(source.seed_dir),
+        eval_envs=tuple(EnvSpec.parse(spec) for spec in branch_specs(scale)),
+        eval_every=iterations,
+        eval_episodes=plan.episodes,
+        run_name=str(branch_dir(plan, source, arm, "")),
     )
-    iterations = plan.branch_iterations
-    return [
-        *recipes.condition_flags(scale, source.condition, source.seed, 1, runs_dir),
-        "--env",
-        BRANCH_ENV,
-        "--env-args",
-        env_args,
-        "--iterations",
-        str(iterations),
-        "--init-from",
-        str(source.seed_dir),
-        "--eval-envs",
-        *branch_specs(scale),
-        "--eval-every",
-        str(iterations),
-        "--eval-episodes",
-        str(plan.episodes),
-        "--run-name",
-        str(branch_dir(plan, source, arm, "")),
-    ]
 
 
 def branch_dir(plan: Plan, source: Source, arm: str, runs_dir: str | Path) -> Path:
@@ -198,7 +188,7 @@ def run(
     jobs = []
     for source in found:
         for arm in ARMS:
-            flags = branch_flags(plan, source, arm, runs_dir)
+            flags = config_flags(branch_config(plan, source, arm, runs_dir))
             run_dir = branch_dir(plan, source, arm, runs_dir)
             rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
             state = "done" if rows >= plan.branch_iterations else "partial" if run_dir.is_dir() else "missing"

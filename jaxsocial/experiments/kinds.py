@@ -48,12 +48,12 @@ def eval_path(seed_dir: Path, spec: str) -> Path:
 
 
 def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
-    return [recipes.goalcycle_spec(name, scale) for name in recipe.transfer_envs]
+    return [str(recipes.goalcycle_spec(name, scale)) for name in recipe.transfer_envs]
 
 
 def ct_spec(scale: Scale) -> str:
     """The environment of the cultural-transmission evaluation: the scale's 3-goal Goal Cycle."""
-    return recipes.goalcycle_spec("goalcycle3", scale)
+    return str(recipes.goalcycle_spec("goalcycle3", scale))
 
 
 def ct_path(seed_dir: Path, scale: Scale) -> Path:
@@ -423,7 +423,7 @@ def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
 
 def draw_predictions(runs, summary: dict[str, Any], path: Path) -> None:
     """A trained learner's predicted next frames in the scale's 3-goal Goal Cycle (`predictions.draw`)."""
-    predictions.draw(runs, path, recipes.goalcycle_spec("goalcycle3", runs.scale))
+    predictions.draw(runs, path, ct_spec(runs.scale))
 
 
 def draw_takeoffs(ax, runs, summary: dict[str, Any], colors) -> None:

@@ -1,9 +1,11 @@
-"""The paper's experiments as named recipes: conditions (training flags) x seeds x scale.
+"""The paper's experiments as named recipes: conditions x seeds x scale.
 
-A *condition* is a training run described by `python -m jaxsocial.train` flags on top of its scale's base
-flags; a *recipe* names the conditions one figure compares, what is evaluated after training, and how the
-figure is drawn. Conditions are shared between recipes (`mixing` reuses `h1`'s social PPO + pred runs), so
-each is trained once per scale and seed range.
+A *scale* holds the `TrainConfig` every condition starts from; a *condition* says, as typed values, what it
+changes (the auxiliary loss, the environment, slots, stages, ...), and `condition_config` applies that with
+`dataclasses.replace`; its command line is derived from the result (`flags.config_flags`). A *recipe* names
+the conditions one figure compares, what is evaluated after training, and how the figure is drawn.
+Conditions are shared between recipes (`mixing` reuses `h1`'s social PPO + pred runs), so each is trained once
+per scale and seed range.
 
 Scales:
   * `cpu`: the paper's mechanism sized for 2 CPU cores, every condition's seeds within a session (see
@@ -18,29 +20,26 @@ Scales:
 from __future__ import annotations
 
 import dataclasses
-import shlex
 
-from jaxsocial import train
+from jaxsocial.agents.experts import ExpertSpec
+from jaxsocial.agents.network_config import Aux
+from jaxsocial.agents.population import Slot
+from jaxsocial.run import config, schedule
 from jaxsocial.run.config import PRESETS, TrainConfig
-
-
-def _flags(text: str) -> tuple[str, ...]:
-    return tuple(shlex.split(text))
+from jaxsocial.run.flags import config_flags
+from jaxsocial.specs import EnvArgs, EnvSpec
 
 
 @dataclasses.dataclass(frozen=True)
 class Scale:
-    """A size of every recipe: base training flags and the evaluation budget."""
+    """A size of every recipe: the training config every condition starts from and the evaluation budget."""
 
     name: str
-    flags: tuple[str, ...]
-    """`python -m jaxsocial.train` flags every condition starts from."""
-    env_args: str
-    """Goal Cycle overrides shared by training and the Goal Cycle evaluation environments (e.g. the grid)."""
-    iterations: int
-    """Training iterations of every condition."""
+    config: TrainConfig
+    """What every condition starts from: its network, PPO, rollout, iterations and `env_args` (which also
+    size the Goal Cycle evaluation environments, e.g. the grid)."""
     eval_every: int
-    """Iterations between evaluations during training (conditions with `eval_envs`)."""
+    """Iterations between evaluations during training (conditions with `eval_during_training`)."""
     eval_episodes: int
     """Episodes per seed of every evaluation (during and after training)."""
     note: str = ""
@@ -51,21 +50,31 @@ class Scale:
     so that no ordinary recipe run can share their directories)."""
 
     @property
+    def iterations(self) -> int:
+        """Training iterations of every condition."""
+        return self.config.iterations
+
+    @property
     def runs_root(self) -> str:
         """Where this scale's runs go under the runs root: '<name>' or '<name>/<runs_subdir>'."""
         return f"{self.name}/{self.runs_subdir}" if self.runs_subdir else self.name
 
 
+SMALL = PRESETS["small"]
+
 CPU = Scale(
     name="cpu",
-    flags=_flags(
-        "--num-envs 128 --rollout-steps 64 --net.conv-channels 16 32 32 --net.hidden 64 --net.mlp 64 "
-        "--net.n-actions 3 --ppo.lr 1e-3 --ppo.entropy-coef 0.01 --ppo.num-minibatches 16 "
-        "--ppo.minibatch-chunks 64 --ppo.kl-target 0.02 --ppo.kl-hard-limit 0.05 --chunk-iterations 10 "
-        "--checkpoint-every 100"
+    config=dataclasses.replace(
+        SMALL,
+        env_args=(("width", 9), ("height", 9)),
+        iterations=200,
+        num_envs=128,
+        rollout_steps=64,
+        chunk_iterations=10,
+        checkpoint_every=100,
+        net=config.CPU_NETWORK,
+        ppo=config.CPU_PPO,
     ),
-    env_args="width=9,height=9",
-    iterations=200,
     eval_every=50,
     eval_episodes=64,
     note=(
@@ -82,14 +91,13 @@ CPU = Scale(
 
 GPU = Scale(
     name="gpu",
-    flags=_flags(
-        "--num-envs 1024 --rollout-steps 64 --net.conv-channels 16 32 32 --net.hidden 64 --net.mlp 64 "
-        "--net.n-actions 3 --net.chunk 16384 --ppo.lr 1e-3 --ppo.entropy-coef 0.01 --ppo.num-minibatches 16 "
-        "--ppo.minibatch-chunks 512 --ppo.kl-target 0.02 --ppo.kl-hard-limit 0.05 --chunk-iterations 10 "
-        "--checkpoint-every 100"
+    config=dataclasses.replace(
+        CPU.config,
+        iterations=600,
+        num_envs=1024,
+        net=dataclasses.replace(CPU.config.net, chunk=16384),
+        ppo=dataclasses.replace(CPU.config.ppo, minibatch_chunks=512),
     ),
-    env_args="width=9,height=9",
-    iterations=600,
     eval_every=100,
     eval_episodes=64,
     note=(
@@ -102,9 +110,7 @@ GPU = Scale(
 
 LAPTOP = Scale(
     name="laptop",
-    flags=("--preset", "laptop"),
-    env_args="width=7,height=7",
-    iterations=PRESETS["laptop"].iterations,
+    config=PRESETS["laptop"],
     eval_every=250,
     eval_episodes=64,
     note=(
@@ -124,9 +130,7 @@ LAPTOP = Scale(
 
 PAPER = Scale(
     name="paper",
-    flags=("--preset", "paper"),
-    env_args="",
-    iterations=PRESETS["paper"].iterations,
+    config=PRESETS["paper"],
     eval_every=200,
     eval_episodes=100,
     note="The paper's settings (13x13 Goal Cycle, paper network and PPO, 375M env-steps per run).",
@@ -134,12 +138,17 @@ PAPER = Scale(
 
 TINY = Scale(
     name="tiny",
-    flags=_flags(
-        "--num-envs 4 --rollout-steps 16 --net.conv-channels 4 4 4 --net.hidden 8 --net.mlp 8 "
-        "--ppo.num-minibatches 1 --ppo.minibatch-chunks 4 --chunk-iterations 2 --checkpoint-every 2"
+    config=dataclasses.replace(
+        SMALL,
+        env_args=(("width", 7), ("height", 7), ("max_steps", 20)),
+        iterations=4,
+        num_envs=4,
+        rollout_steps=16,
+        chunk_iterations=2,
+        checkpoint_every=2,
+        net=dataclasses.replace(SMALL.net, conv_channels=(4, 4, 4), hidden=8, mlp=8),
+        ppo=dataclasses.replace(SMALL.ppo, num_minibatches=1, minibatch_chunks=4),
     ),
-    env_args="width=7,height=7,max_steps=20",
-    iterations=4,
     eval_every=2,
     eval_episodes=2,
     note="Plumbing only: seconds per run, learns nothing.",
@@ -151,12 +160,18 @@ SCALES = {s.name: s for s in (CPU, LAPTOP, GPU, PAPER, TINY)}
 
 @dataclasses.dataclass(frozen=True)
 class Condition:
-    """One training condition: a label for figures and its flags on top of the scale's."""
+    """One training condition: a label for figures and what it changes in the scale's config."""
 
     label: str
+    aux: Aux
+    """The learner's auxiliary loss (`NetworkConfig.aux`)."""
     env: str = "goalcycle3"
-    flags: tuple[str, ...] = ()
-    env_args: str = ""
+    algo: str = "ppo"
+    n_actions: int | None = None
+    """The learner's actions (None: the scale's)."""
+    slots: tuple[Slot, ...] = ()
+    """The agent slots (empty: the environment's default, a learner beside its experts)."""
+    env_args: EnvArgs = ()
     """Extra EnvParams overrides (after the scale's)."""
     eval_during_training: bool = False
     """Evaluate in solo 3-goal and in 4-goal with experts during training (the mixing figure)."""
@@ -180,13 +195,13 @@ MIXING_RETURN = 10.0
 """The return at which `social_pred_mixed_learned` switches to mixed episodes: far above the one-tile
 plateau (about 1; `metrics.LEARNED_RETURN` is 2) and below the experts' 26-39, so the learner has learned
 from them, as the paper's social agent had when it was switched (its Fig. 6)."""
-IMPERFECT_EXPERT = "expert:explorer:epsilon=0.2,forget=0.01"
-EXPERT_DROPOUT = "dropout_prob=0.5,dropin_prob=0.25"
+IMPERFECT_EXPERT = Slot("expert", expert=ExpertSpec("explorer", epsilon=0.2, forget=0.01))
+EXPERT_DROPOUT = (("dropout_prob", 0.5), ("dropin_prob", 0.25))
 """Cultural-transmission training (not in the paper): each expert leaves half the episodes and joins a quarter
 of them, at a uniform random step (`EnvParams.dropout_prob`, `dropin_prob`)."""
 
-PENALTIES = {"nopenalty": ("no penalty", "0"), "halfpenalty": ("penalty 0.5", "0.5")}
-"""Exploration penalties other than the environment's 1.5: condition-name suffix -> (label, `penalty=`)."""
+PENALTIES = {"nopenalty": ("no penalty", 0), "halfpenalty": ("penalty 0.5", 0.5)}
+"""Exploration penalties other than the environment's 1.5: condition-name suffix -> (label, `penalty`)."""
 LEARNERS = {"social": "goalcycle3", "solo": "goalcycle3-solo"}
 """Learners beside the experts and alone: condition-name prefix -> environment."""
 
@@ -196,10 +211,7 @@ def penalty_conditions() -> dict[str, Condition]:
     '<social|solo>_pred_<suffix>', e.g. 'solo_pred_halfpenalty'."""
     return {
         f"{who}_pred_{suffix}": Condition(
-            f"{who} PPO + aux pred, {label}",
-            env=env,
-            flags=("--net.aux", "pred"),
-            env_args=f"penalty={value}",
+            f"{who} PPO + aux pred, {label}", "pred", env=env, env_args=(("penalty", value),)
         )
         for suffix, (label, value) in PENALTIES.items()
         for who, env in LEARNERS.items()
@@ -209,52 +221,41 @@ def penalty_conditions() -> dict[str, Condition]:
 PENALTY_CONDITIONS = penalty_conditions()
 
 CONDITIONS = {
-    "solo_pred": Condition("solo PPO + aux pred", env="goalcycle3-solo", flags=("--net.aux", "pred")),
-    "social_none": Condition("social PPO (vanilla)", flags=("--net.aux", "none")),
-    "social_rec": Condition("social PPO + aux rec", flags=("--net.aux", "rec")),
-    "solo_rec": Condition("solo PPO + aux rec", env="goalcycle3-solo", flags=("--net.aux", "rec")),
-    "social_pred": Condition("social PPO + aux pred", flags=("--net.aux", "pred"), eval_during_training=True),
+    "solo_pred": Condition("solo PPO + aux pred", "pred", env="goalcycle3-solo"),
+    "social_none": Condition("social PPO (vanilla)", "none"),
+    "social_rec": Condition("social PPO + aux rec", "rec"),
+    "solo_rec": Condition("solo PPO + aux rec", "rec", env="goalcycle3-solo"),
+    "social_pred": Condition("social PPO + aux pred", "pred", eval_during_training=True),
     "social_pred_mixed": Condition(
-        "social PPO + aux pred, then 75% solo",
-        flags=("--net.aux", "pred"),
-        eval_during_training=True,
-        mixed_from=1 / 3,
+        "social PPO + aux pred, then 75% solo", "pred", eval_during_training=True, mixed_from=1 / 3
     ),
     "social_pred_mixed_learned": Condition(
         f"social PPO + aux pred, 75% solo once its return reaches {MIXING_RETURN:g}",
-        flags=("--net.aux", "pred"),
+        "pred",
         eval_during_training=True,
         mixed_at_return=MIXING_RETURN,
     ),
     "social_pred_imperfect": Condition(
         "social PPO + aux pred, imperfect experts",
-        flags=("--net.aux", "pred", "--slots", f"learner,{IMPERFECT_EXPERT},{IMPERFECT_EXPERT}"),
+        "pred",
+        slots=(Slot("learner"), IMPERFECT_EXPERT, IMPERFECT_EXPERT),
     ),
-    "bc": Condition(  # the experts' 7 actions (they idle with 'done')
-        "behaviour cloning", flags=("--algo", "bc", "--net.aux", "none", "--net.n-actions", "7")
-    ),
+    "bc": Condition("behaviour cloning", "none", algo="bc", n_actions=7),  # the experts' 7 (they idle)
     **PENALTY_CONDITIONS,
     "expert_curriculum": Condition(
-        "solo PPO + aux pred, penalty curriculum",
-        env="goalcycle3-solo",
-        flags=("--net.aux", "pred"),
-        penalty_curriculum=True,
+        "solo PPO + aux pred, penalty curriculum", "pred", env="goalcycle3-solo", penalty_curriculum=True
     ),
     "social_pred_dropout": Condition(
-        "social PPO + aux pred, expert dropout", flags=("--net.aux", "pred"), env_args=EXPERT_DROPOUT
+        "social PPO + aux pred, expert dropout", "pred", env_args=EXPERT_DROPOUT
     ),
-    "social_pred_attention": Condition(
-        "social PPO + aux pred + attention", flags=("--net.aux", "pred+attention")
-    ),
+    "social_pred_attention": Condition("social PPO + aux pred + attention", "pred+attention"),
     "social_medal": Condition(
         "social PPO + aux pred + attention, expert dropout (MEDAL without ADR)",
-        flags=("--net.aux", "pred+attention"),
+        "pred+attention",
         env_args=EXPERT_DROPOUT,
     ),
     "social_pred_distractors": Condition(
-        "social PPO + aux pred, 2 random distractors",
-        env="goalcycle3-distractors",
-        flags=("--net.aux", "pred"),
+        "social PPO + aux pred, 2 random distractors", "pred", env="goalcycle3-distractors"
     ),
 }
 
@@ -339,14 +340,23 @@ def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
     design = prereg.load(recipe.design)
     if design.scale != scale.name:
         return scale
-    return dataclasses.replace(scale, iterations=design.iterations, runs_subdir=f"prereg-{design.name}")
+    return dataclasses.replace(
+        scale,
+        config=dataclasses.replace(scale.config, iterations=design.iterations),
+        runs_subdir=f"prereg-{design.name}",
+    )
 
 
-def goalcycle_spec(name: str, scale: Scale, extra: str = "") -> str:
-    """An environment spec NAME[:field=value,...] with the scale's Goal Cycle overrides (other layouts keep
-    their own grids)."""
-    args = ",".join(a for a in (scale.env_args if name.startswith("goalcycle") else "", extra) if a)
-    return f"{name}:{args}" if args else name
+def goalcycle_spec(name: str, scale: Scale, extra: EnvArgs = ()) -> EnvSpec:
+    """The environment `name` with the scale's Goal Cycle overrides (other layouts keep their own grids) and
+    `extra` ones after them."""
+    args = {**dict(scale.config.env_args if name.startswith("goalcycle") else ()), **dict(extra)}
+    return EnvSpec(name, tuple(args.items()))
+
+
+def with_env_args(base: EnvArgs, extra: EnvArgs) -> EnvArgs:
+    """EnvParams overrides `base`, then `extra` (which wins where both set a field)."""
+    return tuple({**dict(base), **dict(extra)}.items())
 
 
 def mixing_switch(scale: Scale, cond: Condition) -> int:
@@ -360,30 +370,53 @@ def run_name(scale: Scale, condition: str, seed: int, seeds: int) -> str:
     return f"{scale.runs_root}/{condition}-s{seed}-{seed + seeds - 1}"
 
 
-def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[str]:
-    """The full `python -m jaxsocial.train` command line of a condition at a scale."""
-    cond = CONDITIONS[condition]
-    flags = [*scale.flags, "--env", cond.env, *cond.flags, "--iterations", str(scale.iterations)]
-    env_args = ",".join(a for a in (scale.env_args, cond.env_args) if a)
-    if env_args:
-        flags += ["--env-args", env_args]
-    if cond.eval_during_training:
-        flags += [
-            "--eval-envs",
-            goalcycle_spec("goalcycle3-solo", scale),
-            goalcycle_spec("goalcycle4", scale),
-        ]
-        flags += ["--eval-every", str(scale.eval_every), "--eval-episodes", str(scale.eval_episodes)]
+def _stages(scale: Scale, cond: Condition) -> tuple[schedule.Stage, ...]:
+    solo = (("solo_prob", 0.75),)
     if cond.penalty_curriculum:
         third = max(1, scale.iterations // 3)
-        flags += ["--stages", f"0:penalty=0.5;{third}:penalty=1.0;{2 * third}:penalty=1.5"]
+        return tuple(
+            schedule.Stage((("penalty", penalty),), start=start)
+            for start, penalty in ((0, 0.5), (third, 1.0), (2 * third, 1.5))
+        )
     if cond.mixed_from is not None:
-        flags += ["--stages", f"{mixing_switch(scale, cond)}:solo_prob=0.75"]
+        return (schedule.Stage(solo, start=mixing_switch(scale, cond)),)
     if cond.mixed_at_return is not None:
-        flags += ["--stages", f"return>={cond.mixed_at_return:g}:solo_prob=0.75"]
-    flags += ["--seed", str(seed), "--seeds", str(seeds), "--runs-dir", runs_dir]
-    flags += ["--run-name", run_name(scale, condition, seed, seeds)]
-    return flags
+        return (schedule.Stage(solo, threshold=float(cond.mixed_at_return)),)
+    return ()
+
+
+def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> TrainConfig:
+    """The `TrainConfig` of a condition: the scale's with the condition's changes (validated by
+    `config.setup` when it runs)."""
+    cond, base = CONDITIONS[condition], scale.config
+    net = dataclasses.replace(base.net, aux=cond.aux, n_actions=cond.n_actions or base.net.n_actions)
+    evaluation = {}
+    if cond.eval_during_training:
+        evaluation = {
+            "eval_envs": (goalcycle_spec("goalcycle3-solo", scale), goalcycle_spec("goalcycle4", scale)),
+            "eval_every": scale.eval_every,
+            "eval_episodes": scale.eval_episodes,
+        }
+    cfg = dataclasses.replace(
+        base,
+        env=cond.env,
+        env_args=with_env_args(base.env_args, cond.env_args),
+        slots=cond.slots,
+        stages=_stages(scale, cond),
+        algo=cond.algo,
+        net=net,
+        seed=seed,
+        seeds=seeds,
+        runs_dir=runs_dir,
+        run_name=run_name(scale, condition, seed, seeds),
+        **evaluation,
+    )
+    return config.with_env_observation(cfg)
+
+
+def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[str]:
+    """The `python -m jaxsocial.train` command line of a condition at a scale (`flags.config_flags`)."""
+    return config_flags(condition_config(scale, condition, seed, seeds, runs_dir))
 
 
 def condition_programs(
@@ -394,9 +427,3 @@ def condition_programs(
     if not CONDITIONS[condition].program_per_seed:
         return [condition_config(scale, condition, seed, seeds, runs_dir)]
     return [condition_config(scale, condition, s, 1, runs_dir) for s in range(seed, seed + seeds)]
-
-
-def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> TrainConfig:
-    """The `TrainConfig` of a condition (validated by the training CLI's parser, not yet by
-    `config.setup`)."""
-    return train.parse_args(condition_flags(scale, condition, seed, seeds, runs_dir))

@@ -15,6 +15,7 @@ from jaxsocial.experiments import kinds, pinned, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import logs, rundir
 from jaxsocial.run.config import TrainConfig, setup
+from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import EnvSpec
 
 
@@ -79,7 +80,7 @@ def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol:
     episodes with the evaluation `protocol` (`jaxsocial.evaluate`); write the result to `out`, return it."""
     env = EnvSpec.parse(spec)
     config = evaluate.EvalConfig(
-        ckpt=(str(seed_dir),), env=env.name, env_args=env.env_args, episodes=episodes, protocol=protocol
+        ckpt=(str(seed_dir),), env=env.name, env_args=env.args, episodes=episodes, protocol=protocol
     )
     result = evaluate.evaluate(config)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -133,7 +134,7 @@ def run(
             state = status(cfg, dirs[name][own])
             label = name if len(cfgs) == 1 else f"{name} s{cfg.seed}"
             print(f"[{recipe.name}/{scale.name}] {label}: {state}")
-            flags = recipes.condition_flags(scale, name, cfg.seed, cfg.seeds, runs_dir)
+            flags = config_flags(cfg)
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
             elif state != "done" and train_missing and cores:

@@ -26,21 +26,18 @@ from jaxsocial.env.types import NUM_ACTIONS, EnvParams
 from jaxsocial.run import logs, schedule
 from jaxsocial.specs import CheckpointRef, Env, TextField
 
-ENV_ARGS = TextField(
-    lambda text: tuple(schedule.parse_assignments(text).items()),
-    lambda pairs: schedule.format_assignments(dict(pairs)),
-    "FIELD=VALUE,...",
-)
-SLOTS = TextField(population.parse_slot_list, population.format_slots, "SLOT,...")
 STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VALUE,...;...")
 INIT_FROM = TextField(CheckpointRef.parse, str, "RUN_DIR[@ITERATION]", CheckpointRef)
-TEXT_FIELDS = {"env_args": ENV_ARGS, "slots": SLOTS, "stages": STAGES, "init_from": INIT_FROM}
+TEXT_FIELDS = {
+    "env_args": specs.ENV_ARGS,
+    "slots": population.SLOTS,
+    "stages": STAGES,
+    "init_from": INIT_FROM,
+}
 """The fields written as text."""
 TEXT_TUPLE_FIELDS = {"eval_envs": specs.ENV}
 """The fields written as lists of text, one entry per value."""
 
-EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
-Slots = Annotated[tuple[population.Slot, ...], SLOTS.flag()]
 Stages = Annotated[tuple[schedule.Stage, ...], STAGES.flag()]
 InitFrom = Annotated[CheckpointRef | None, INIT_FROM.flag()]
 
@@ -53,9 +50,9 @@ class RunConfig:
 
     env: str = "goalcycle3"
     """Environment preset (see `jaxsocial.registered_envs()`)."""
-    env_args: EnvArgs = ()
+    env_args: specs.EnvArgs = ()
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
-    slots: Slots = ()
+    slots: population.Slots = ()
     """One entry per agent slot: learner | random | frozen:RUN_DIR[#k] | expert:ckpt=RUN_DIR[#k] (a trained
     expert) | expert:KIND[:epsilon=E,forget=F] (scripted: explorer, oracle, navigator). Default: a learner in
     slot 0, the environment's scripted expert in the next two (explorer in Goal Cycle, navigator in Four
@@ -201,6 +198,22 @@ PRESETS = {
         ppo=PPOConfig(),
     ),
 }
+CPU_NETWORK = dataclasses.replace(
+    PRESETS["small"].net, conv_channels=(16, 32, 32), hidden=64, mlp=64, n_actions=3
+)
+"""The small network of the CPU science (the `cpu` and `laptop` recipe scales): a 16-32-32 conv, a 64-unit
+LSTM, the 3 movement actions."""
+CPU_PPO = dataclasses.replace(
+    PRESETS["small"].ppo,
+    lr=1e-3,
+    entropy_coef=0.01,
+    num_minibatches=16,
+    minibatch_chunks=64,
+    kl_target=0.02,
+    kl_hard_limit=0.05,
+)
+"""The PPO of the CPU science: learning rate 1e-3, entropy bonus 0.01, 16 minibatches of 64 chunks, the KL
+stop at 0.02 (hard limit 0.05)."""
 PRESETS["laptop"] = dataclasses.replace(
     PRESETS["small"],
     preset="laptop",
@@ -210,19 +223,8 @@ PRESETS["laptop"] = dataclasses.replace(
     rollout_steps=64,
     chunk_iterations=10,
     checkpoint_every=100,
-    net=dataclasses.replace(
-        PRESETS["small"].net, conv_channels=(16, 32, 32), hidden=64, mlp=64, n_actions=3, aux="rec"
-    ),
-    ppo=dataclasses.replace(
-        PRESETS["small"].ppo,
-        lr=1e-3,
-        entropy_coef=0.01,
-        num_minibatches=8,
-        minibatch_chunks=64,
-        recompute_every=8,
-        kl_target=0.02,
-        kl_hard_limit=0.05,
-    ),
+    net=dataclasses.replace(CPU_NETWORK, aux="rec"),
+    ppo=dataclasses.replace(CPU_PPO, num_minibatches=8, recompute_every=8),
 )
 """Social learning on a laptop (the `laptop` recipe scale): a learner with the reconstruction loss beside two
 experts in a 7x7 Goal Cycle, the cpu scale's small network, one gradient sample per env-step, 20.0M

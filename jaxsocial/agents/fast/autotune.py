@@ -466,7 +466,7 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
             ", ".join(f"{c} {times[layer][c] * 1e3:.2f} ms" for c in candidates),
         )  # fmt: skip
 
-    impls = parse_conv_impl(net.conv_impl) | dict.fromkeys(auto, CONV_IMPLS[0])
+    impls = net.impls | dict.fromkeys(auto, CONV_IMPLS[0])
     step_s: dict[str, float] = {}
     for layer in auto:
         if alone[layer] == CONV_IMPLS[0]:
@@ -513,7 +513,7 @@ def resolve(
     tuning = tune(net, batch, path=path, reps=reps)
     if not tuning.choices:
         return net
-    impls = parse_conv_impl(net.conv_impl) | tuning.impls
+    impls = net.impls | tuning.impls
     return dataclasses.replace(
         net, conv_impl=format_conv_impl({layer: impls[layer] for layer in net.conv_layers})
     )
