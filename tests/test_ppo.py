@@ -120,6 +120,25 @@ def test_replay_from_stored_states_equals_step_by_step_and_ratio_is_one(setup):
     np.testing.assert_allclose(logp, mb["logp"], atol=NET_REORDERED)
 
 
+def test_a_minibatch_holds_exactly_its_chunks_steps(recorded):
+    """Chunk c * E + e is steps c * L .. c * L + L - 1 of environment e (the next frames one step later), and
+    the chunk-start state the targets stored for it."""
+    params, batch = recorded
+    targets = ppo.rollout_targets(CFG, batch)
+    idx = jax.random.permutation(jax.random.key(3), T // L * E)[:5]
+    mb = ppo.minibatch(batch, targets, idx, L)
+    for m, chunk in enumerate(np.asarray(idx)):
+        c, e = divmod(int(chunk), E)
+        steps = slice(c * L, c * L + L)
+        np.testing.assert_array_equal(mb["obs"][:, m], batch.obs[steps, e])
+        np.testing.assert_array_equal(mb["next_obs"][:, m], batch.obs[c * L + 1 : c * L + L + 1, e])
+        for name in ("actions", "valid", "logp"):
+            np.testing.assert_array_equal(mb[name][:, m], getattr(batch, name)[steps, e])
+        np.testing.assert_array_equal(mb["advantages"][:, m], targets.advantages[steps, e])
+        for got, stored in zip(jax.tree.leaves(mb["carry"]), jax.tree.leaves(targets.carries), strict=True):
+            np.testing.assert_array_equal(got[m], stored[c, e])
+
+
 def test_rollout_targets_equal_the_recompute_with_the_rollout_params(recorded):
     params, batch = recorded
     expected = recompute(params, NET, CFG, batch)

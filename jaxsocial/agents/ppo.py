@@ -182,24 +182,20 @@ def _targets(cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.A
     return Targets(carries, advantages, returns)
 
 
-def _chunked(x: jax.Array, length: int) -> jax.Array:
-    """[T, E, ...] -> [C * E, L, ...] with chunk index c * E + e."""
-    n_steps, n_envs = x.shape[:2]
-    x = x.reshape(n_steps // length, length, n_envs, *x.shape[2:])
-    return jnp.swapaxes(x, 1, 2).reshape(-1, length, *x.shape[3:])
-
-
 def minibatch(batch: Batch, targets: Targets, idx: jax.Array, length: int) -> dict[str, jax.Array]:
-    """Gather chunks `idx` (int32[M], chunk index c * E + e) into time-major arrays [L, M, ...]."""
+    """Gather chunks `idx` (int32[M]; chunk c * E + e is steps c * L .. c * L + L - 1 of environment e) into
+    time-major arrays [L, M, ...], reading only those steps (no copy of the whole batch)."""
+    n_envs = batch.actions.shape[1]
+    steps = (idx // n_envs)[None, :] * length + jnp.arange(length)[:, None]  # int32[L, M]
+    envs = (idx % n_envs)[None, :]  # int32[1, M]
 
-    def take(x):
-        return jnp.swapaxes(_chunked(x, length)[idx], 0, 1)
+    def take(x, shift=0):
+        return x[steps + shift, envs]
 
-    n_steps = batch.actions.shape[0]
     return {
-        "obs": take(batch.obs[:n_steps]),
-        "next_obs": take(batch.obs[1:]),
-        "resets": take(batch.resets[:n_steps]),
+        "obs": take(batch.obs),
+        "next_obs": take(batch.obs, 1),
+        "resets": take(batch.resets),
         "actions": take(batch.actions),
         "logp": take(batch.logp),
         "done": take(batch.done),
