@@ -170,6 +170,25 @@ SETTINGS = {
             "social learner too, so a pre-registered H1 can pool both auxiliary losses as the paper does.",
         ),
         Setting(
+            "mb8k8_rec_8x8",
+            "social_rec",
+            (*ONE_SAMPLE, "--env-args", "width=8,height=8"),
+            TWENTY_M,
+            "After h1_early and h1_sooner: in the 7x7 grid a solo learner with the reconstruction loss "
+            "leaves the plateau nearly as often and as soon as a social one (6 of 10 against 8 of 10 by "
+            "8.0M; 3 of 15 against 5 of 15 by 6.0M), and in the 9x9 grid the social one stayed on it for "
+            "20M (mb8k8_rec). Between them, an 8x8 grid (6x6 interior) may make individual exploration "
+            "slow enough that following the experts pays: the grid at which to test whether they matter.",
+        ),
+        Setting(
+            "mb8k8_solo_rec_8x8",
+            "solo_rec",
+            (*ONE_SAMPLE, "--env-args", "width=8,height=8"),
+            TWENTY_M,
+            "Baseline for mb8k8_rec_8x8: the same learner alone in the 8x8 grid. The setting is worth a "
+            "pre-registered test only if this one stays on the plateau far more often than the social one.",
+        ),
+        Setting(
             "mb8k8_pred",
             "social_pred",
             ONE_SAMPLE,
