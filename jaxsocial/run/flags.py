@@ -37,6 +37,8 @@ def flag_values(name: str, value: Any) -> list[str]:
 
 
 def _field_flags(path: str, name: str, value: Any, default: Any, always: bool) -> list[str]:
+    """The flags of the field at `path` (a nested config: its own fields'), where `value` differs from
+    `default` or `always`."""
     if dataclasses.is_dataclass(value) and name not in config.TEXT_FIELDS:
         out = []
         for field in dataclasses.fields(value):
@@ -47,7 +49,7 @@ def _field_flags(path: str, name: str, value: Any, default: Any, always: bool) -
         return []
     if isinstance(value, bool):
         return [flag_name(path if value else _negated(path))]
-    return [flag_name(path), *flag_values(name, value)] if value != () else [flag_name(path)]
+    return [flag_name(path), *flag_values(name, value)]
 
 
 def _negated(path: str) -> str:
