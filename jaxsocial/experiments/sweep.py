@@ -304,18 +304,19 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (name, s) in enumerate(summary["settings"].items()):
-        color = colors[i % len(colors)]
+        color, ls = colors[i % len(colors)], ("-", "--", ":")[i // len(colors) % 3]  # a style per setting
         for ax, unit, scale in ((axes[0], "env_steps", 1e6), (axes[1], "cpu_minutes", 1.0)):
             lifts = [
                 None if x[f"takeoff_{unit}"] is None else x[f"takeoff_{unit}"] / scale for x in s["seeds"]
             ]
             end = max(x[unit] for x in s["seeds"]) / scale
-            takeoff.draw(ax, lifts, end, name, color)
+            takeoff.draw(ax, lifts, end, name, color, ls)
         for j, seed in enumerate(s["seeds"]):
             axes[2].plot(
                 np.array(seed["curve"]["env_steps"]) / 1e6,
                 seed["curve"]["return"],
                 color=color,
+                ls=ls,
                 lw=1,
                 label=name if j == 0 else None,
             )

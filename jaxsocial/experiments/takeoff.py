@@ -24,8 +24,9 @@ def fraction_learned(takeoffs: list[int | None], at: np.ndarray) -> np.ndarray:
     return np.array([(times <= x).sum() / len(takeoffs) for x in np.asarray(at)], np.float64)
 
 
-def draw(ax, takeoffs: list[int | None], end: float, label: str, color) -> None:
-    """The survival-style step curve of one condition on `ax`, from 0 to `end` (same units as takeoffs)."""
+def draw(ax, takeoffs: list[int | None], end: float, label: str, color, ls: str = "-") -> None:
+    """The survival-style step curve of one condition on `ax`, from 0 to `end` (same units as takeoffs), in
+    `color` and line style `ls`."""
     times = sorted(t for t in takeoffs if t is not None)
     x = np.array([0.0, *times, end], np.float64)
     ax.step(
@@ -33,6 +34,7 @@ def draw(ax, takeoffs: list[int | None], end: float, label: str, color) -> None:
         fraction_learned(takeoffs, x),
         where="post",
         color=color,
+        ls=ls,
         lw=2,
         label=f"{label} (n={len(takeoffs)})",
     )
