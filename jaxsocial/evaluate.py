@@ -68,9 +68,8 @@ class EvalConfig:
 
     def __post_init__(self):  # text or paths given to the constructor are parsed here, once
         object.__setattr__(self, "ckpt", tuple(PolicyRef.of(c) for c in self.ckpt))
-        for name, field in (("env_args", ENV_ARGS), ("slots", population.SLOTS)):
-            if isinstance(getattr(self, name), str):
-                object.__setattr__(self, name, field.parse(getattr(self, name)))
+        ENV_ARGS.parse_in(self, "env_args")
+        population.SLOTS.parse_in(self, "slots")
 
 
 PROTOCOLS = ("returns", "ct")

@@ -40,7 +40,7 @@ class EnvSpec:
         """``NAME`` or ``NAME:field=value,...`` (the syntax only: `params` checks the name and the fields).
         ValueError on an override without '='."""
         name, _, args = text.partition(":")
-        return cls(name.strip(), tuple(schedule.parse_assignments(args).items()))
+        return cls(name.strip(), ENV_ARGS.parse(args))
 
     def params(self) -> EnvParams:
         """The environment's parameters; ValueError for an unknown name or field."""
@@ -49,7 +49,7 @@ class EnvSpec:
     @property
     def env_args(self) -> str:
         """The overrides as `--env-args` text."""
-        return schedule.format_assignments(dict(self.args))
+        return ENV_ARGS.format(self.args)
 
     def __str__(self) -> str:
         return f"{self.name}:{self.env_args}" if self.args else self.name
@@ -133,6 +133,11 @@ class TextField:
     format: Callable[[Any], str]
     metavar: str
     kind: type = tuple
+
+    def parse_in(self, obj: Any, name: str) -> None:
+        """Parse `obj.name` (a frozen dataclass's field) in place where it was given as text."""
+        if isinstance(value := getattr(obj, name), str):
+            object.__setattr__(obj, name, self.parse(value))
 
     def flag(self) -> tyro.constructors.PrimitiveConstructorSpec:
         """How the command line reads and shows it."""

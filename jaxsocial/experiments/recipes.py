@@ -347,11 +347,9 @@ def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
     )
 
 
-def goalcycle_spec(name: str, scale: Scale, extra: EnvArgs = ()) -> EnvSpec:
-    """The environment `name` with the scale's Goal Cycle overrides (other layouts keep their own grids) and
-    `extra` ones after them."""
-    args = {**dict(scale.config.env_args if name.startswith("goalcycle") else ()), **dict(extra)}
-    return EnvSpec(name, tuple(args.items()))
+def goalcycle_spec(name: str, scale: Scale) -> EnvSpec:
+    """The environment `name` with the scale's Goal Cycle overrides (other layouts keep their own grids)."""
+    return EnvSpec(name, scale.config.env_args if name.startswith("goalcycle") else ())
 
 
 def with_env_args(base: EnvArgs, extra: EnvArgs) -> EnvArgs:

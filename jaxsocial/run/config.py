@@ -70,9 +70,8 @@ class RunConfig:
 
     def __post_init__(self):
         for name, field in TEXT_FIELDS.items():
-            value = getattr(self, name, None)  # a TrainConfig has them all
-            if isinstance(value, str):  # text given to the constructor: parsed here, once
-                object.__setattr__(self, name, field.parse(value))
+            if hasattr(self, name):  # a TrainConfig has them all
+                field.parse_in(self, name)  # text given to the constructor: parsed here, once
         for name, field in TEXT_TUPLE_FIELDS.items():
             if hasattr(self, name):
                 parsed = tuple(field.parse(v) if isinstance(v, str) else v for v in getattr(self, name))
