@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import sys
 import time
 from pathlib import Path
@@ -378,6 +379,12 @@ def outcome(
     text = f"final return (last 10% of the iterations): {finals}"
     learner = static.pop.learners[0]
     ret, env = metrics.final_return(rows, learner), static.env_params
+    if math.isnan(ret):
+        return text + (
+            f"\nno episode of the learner ended in the last 10% of the iterations ({env_steps:,} env-steps in "
+            f"all; an episode lasts {env.max_steps} steps), so there is no final return to judge: train more "
+            "iterations"
+        )
     if env.layout != "goalcycle" or env.penalty == 0 or not static.pop.experts:
         return text
     if ret > metrics.LEARNED_RETURN:

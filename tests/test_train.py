@@ -97,6 +97,9 @@ def test_the_run_ends_with_its_outcome():
     long = outcome(rows(0.9), social, 20_000_000)
     assert "expected" not in long and long.endswith("after 20,000,000 env-steps under the 1.5 penalty")
     assert "left the one-tile plateau" in outcome(rows(12.0), social, 512_000)
+    unfinished = outcome([{**rows(0.0)[0], "episodes/0": 0}], social, 5_120)  # no learner episode ended
+    assert "learner nan" in unfinished and "plateau" not in unfinished
+    assert "no episode of the learner ended in the last 10% of the iterations (5,120 env-steps" in unfinished
     no_penalty = config.setup(dataclasses.replace(PRESETS["small"], env_args="penalty=0"), load_frozen=False)
     assert "plateau" not in outcome(rows(0.9), no_penalty, 512_000)
     # a run stopped by --stop-at-return: its last chunk, not the diluted final window, says what happened
