@@ -381,9 +381,9 @@ def outcome(
     ret, env = metrics.final_return(rows, learner), static.env_params
     if math.isnan(ret):
         return text + (
-            f"\nno episode of the learner ended in the last 10% of the iterations ({env_steps:,} env-steps in "
-            f"all; an episode lasts {env.max_steps} steps), so there is no final return to judge: train more "
-            "iterations"
+            f"\nno episode of the learner ended in the last 10% of the iterations ({env_steps:,} env-steps "
+            f"in all; an episode lasts {env.max_steps} steps), so there is no final return to judge: train "
+            "more iterations"
         )
     if env.layout != "goalcycle" or env.penalty == 0 or not static.pop.experts:
         return text
