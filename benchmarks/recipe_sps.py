@@ -13,7 +13,8 @@ so recompute = (full - once) / (R - R0), gradient minibatch = (once - one) / (M 
 recompute - gradient. The parent asks the workers for one timed iteration of each program in turn, so the
 trees' timings interleave (only one worker computes at a time), and reports each tree's best of
 ``--repeats``, its joint env-steps/s, the breakdown and the ratio to the first tree. ``--against REV``
-checks REV out in a temporary git worktree and imports jaxsocial from there.
+checks REV out in a temporary git worktree and imports jaxsocial from there. ``--xla-flags FLAGS``
+(repeatable) also times this tree with ``$XLA_FLAGS`` set to FLAGS, side by side the same way.
 
 ``--single-core`` also measures the throughput of two seeds as two processes pinned to one core each
 (XLA:CPU single-threaded), both timing the full program at once, against one process on all cores.
@@ -173,6 +174,10 @@ def main() -> None:
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--recipes", default="cpu_rec,gpu_rec", help=f"of {', '.join(RECIPES)}")
     parser.add_argument("--against", help="a git revision to time side by side")
+    parser.add_argument(
+        "--xla-flags", action="append", default=[], metavar="FLAGS",
+        help="also time this tree with $XLA_FLAGS=FLAGS (repeatable)",
+    )  # fmt: skip
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--single-core", action="store_true", help="also two single-core processes")
     parser.add_argument("--out", help="JSON results path")
@@ -189,10 +194,13 @@ def main() -> None:
     trees = {"HEAD": REPO}
     if args.against:
         trees[args.against] = worktree(args.against, tmp)
+    envs: dict[str, dict[str, str] | None] = dict.fromkeys(trees)
+    for flags in args.xla_flags:
+        trees[f"HEAD {flags}"], envs[f"HEAD {flags}"] = REPO, {"XLA_FLAGS": flags}
     rows = []
     try:
         for name in names:
-            workers = {label: Worker(name, tree) for label, tree in trees.items()}
+            workers = {label: Worker(name, tree, envs[label]) for label, tree in trees.items()}
             times = {label: {v: [] for v in VARIANTS} for label in trees}
             for _ in range(args.repeats):
                 for variant in VARIANTS:
