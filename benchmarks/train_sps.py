@@ -105,7 +105,7 @@ def forward_flops(cfg: network.NetworkConfig) -> dict[str, int]:
     computes them (per layer): the "matmul" implementation's stride-1 layers (Winograd in float32, see
     jaxsocial.agents.fast.conv) count their channel products under the layer's name and their pixel transforms
     (products with constant matrices) under "<layer>.transforms"; the others count direct convolutions. The
-    Winograd kernel transforms (once per chunk, not per sample) are left out."""
+    Winograd kernel transforms (once per frame batch, not per sample) are left out."""
     c1, c2, c3 = cfg.conv_channels
     hid, mlp, k2 = cfg.hidden, cfg.mlp, network.KERNEL**2
     s1, s2, s3 = 7 * 7, 5 * 5, 3 * 3  # output positions of conv1..3 (and input positions of the deconvs)
@@ -205,7 +205,7 @@ def bench_network(name: str, cfg: network.NetworkConfig, seq: int, batch: int, r
         "samples": samples,
         "seq": seq,
         "batch": batch,
-        "chunk": cfg.chunk,
+        "frame_batch": cfg.frame_batch,
         "dtype": cfg.dtype,
     }
     flops = {"grad": grad_flops(cfg), "forward": sum(forward_flops(cfg).values())}
@@ -284,8 +284,10 @@ def section_network(args: argparse.Namespace) -> dict:
             f"{xla_forward_flops(cfg) / 1e6:.2f} by XLA cost_analysis (incl. elementwise)",
             flush=True,
         )
-        for dtype, impl, chunk in itertools.product(args.dtypes, args.impls, args.chunks or [cfg.chunk]):
-            cfg_impl = dataclasses.replace(cfg, conv_impl=impl, chunk=chunk, dtype=dtype)
+        for dtype, impl, frames in itertools.product(
+            args.dtypes, args.impls, args.frame_batches or [cfg.frame_batch]
+        ):
+            cfg_impl = dataclasses.replace(cfg, conv_impl=impl, frame_batch=frames, dtype=dtype)
             cfg_impl, tuned = resolved(cfg_impl, args.seq * args.batch, args.autotune_cache)
             repeats = args.repeats if impl != "xla" else max(2, args.repeats // 3)  # xla: ~13 s per call
             row = bench_network(name, cfg_impl, args.seq, args.batch, repeats)
@@ -296,7 +298,7 @@ def section_network(args: argparse.Namespace) -> dict:
             rows.append(row)
             g, f = row["grad"], row["forward"]
             print(
-                f"  {dtype:8s} {impl:6s} chunk {chunk:5d} grad {g['best_samples_per_s']:8,.0f} samples/s "
+                f"  {dtype:8s} {impl:6s} frames {frames:5d} grad {g['best_samples_per_s']:8,.0f} samples/s "
                 f"({g['best_gflops_per_s']:.0f} GFLOP/s, compile {g['compile_s']:.1f}s) | "
                 f"forward {f['best_samples_per_s']:8,.0f} samples/s "
                 f"({f['best_gflops_per_s']:.0f} GFLOP/s, compile {f['compile_s']:.1f}s), "
@@ -323,7 +325,7 @@ def section_network_hugepages(args: argparse.Namespace) -> dict:
         cmd += ["--configs", ",".join(args.configs), "--impls", ",".join(args.impls)]
         cmd += ["--dtypes", ",".join(args.dtypes)]
         cmd += ["--autotune-cache", args.autotune_cache] if args.autotune_cache else []
-        cmd += ["--chunks", ",".join(map(str, args.chunks))] if args.chunks else []
+        cmd += ["--frame-batches", ",".join(map(str, args.frame_batches))] if args.frame_batches else []
         cmd += ["--seq", str(args.seq), "--batch", str(args.batch), "--repeats", str(args.repeats)]
         subprocess.run(cmd, check=True, timeout=3600)
         return json.loads(out.read_text())["sections"]["network"]
@@ -331,7 +333,7 @@ def section_network_hugepages(args: argparse.Namespace) -> dict:
 
 SYMBOLIC_FLAGS = [
     "--env", "goalcycle3", "--env-args", "observation=symbolic", "--num-envs", "1024",
-    "--rollout-steps", "64", "--ppo.num-minibatches", "4", "--ppo.minibatch-chunks", "1024",
+    "--rollout-steps", "64", "--ppo.num-minibatches", "4", "--ppo.minibatch-segments", "1024",
     "--net.hidden", "64", "--net.mlp", "64",
 ]  # fmt: skip
 """The README's symbolic-views training command (`python -m jaxsocial.train` flags but its iterations)."""
@@ -362,7 +364,7 @@ def section_train(args: argparse.Namespace) -> dict:
     rows = []
     for preset, dtype in itertools.product(args.presets, args.dtypes):
         cfg, n_iter = train_run(preset)
-        minibatch = cfg.ppo.minibatch_chunks * cfg.ppo.chunk_length
+        minibatch = cfg.ppo.minibatch_segments * cfg.ppo.segment_length
         net, tuned = resolved(dataclasses.replace(cfg.net, dtype=dtype), minibatch, args.autotune_cache)
         cfg = dataclasses.replace(cfg, net=net)
         init, run_chunk, _ = make_train(cfg)
@@ -394,8 +396,8 @@ def section_train(args: argparse.Namespace) -> dict:
             "env_steps_per_call": steps,
             "grad_samples_per_call": n_iter
             * cfg.ppo.num_minibatches
-            * cfg.ppo.minibatch_chunks
-            * cfg.ppo.chunk_length,
+            * cfg.ppo.minibatch_segments
+            * cfg.ppo.segment_length,
             "times_s": times,
             "compile_s": compile_s,
             "best_env_steps_per_s": best,
@@ -438,7 +440,7 @@ def synthetic_rollout(cfg: network.NetworkConfig, steps: int, envs: int, seed: i
 
 
 def section_kl_stop(args: argparse.Namespace) -> dict:
-    """Seconds per PPO update (the paper's PPOConfig: 20 minibatches of 512 chunks x 16 steps) on a
+    """Seconds per PPO update (the paper's PPOConfig: 20 minibatches of 512 segments x 16 steps) on a
     256-step x 128-env rollout (the paper preset's), when every minibatch runs, when the KL early stop fires
     at minibatch 1, and the latter with the stopped minibatches still computed (the code before they were
     skipped, by replacing `ppo.any_in_batch` with a constant True)."""
@@ -530,7 +532,7 @@ def print_table(net: dict) -> None:
     peak = net["matmul_peak"]["best_gflops_per_s"]
     print(f"\nsamples/s (best of repeats); GFLOP/s vs matmul peak {peak:.0f}")
     header = (
-        f"{'config':>6} {'dtype':>8} {'impl':>6} {'chunk':>5} | {'grad/s':>8} {'GFLOP/s':>7} "
+        f"{'config':>6} {'dtype':>8} {'impl':>6} {'frames':>6} | {'grad/s':>8} {'GFLOP/s':>7} "
         f"{'compile':>7} | {'fwd/s':>8} {'GFLOP/s':>7} {'compile':>7}"
     )
     print(header)
@@ -538,16 +540,16 @@ def print_table(net: dict) -> None:
     for r in net["rows"]:
         g, f = r["grad"], r["forward"]
         print(
-            f"{r['config']:>6} {r.get('dtype', 'float32'):>8} {r['conv_impl']:>6} {r['chunk']:>5} | "
+            f"{r['config']:>6} {r.get('dtype', 'float32'):>8} {r['conv_impl']:>6} {r['frame_batch']:>6} | "
             f"{g['best_samples_per_s']:>8,.0f} {g['best_gflops_per_s']:>7.0f} {g['compile_s']:>6.1f}s | "
             f"{f['best_samples_per_s']:>8,.0f} {f['best_gflops_per_s']:>7.0f} {f['compile_s']:>6.1f}s"
         )
         if "autotune" in r:
-            print(f"{'':>6} {'':>8} {'':>6} {'':>5} | {r['network_config']['conv_impl']}")
+            print(f"{'':>6} {'':>8} {'':>6} {'':>6} | {r['network_config']['conv_impl']}")
     for t in net.get("torch", []):
         if "error" not in t:
             print(
-                f"{'paper':>6} {t['dtype']:>8} {'torch':>6} {'':>5} | {t['grad_samples_per_s']:>8,.0f} "
+                f"{'paper':>6} {t['dtype']:>8} {'torch':>6} {'':>6} | {t['grad_samples_per_s']:>8,.0f} "
                 f"{t['grad_gflops_per_s']:>7.0f} {'':>7} | {t['forward_samples_per_s']:>8,.0f} "
                 f"{t['forward_gflops_per_s']:>7.0f}"
                 f"   ({t['framework']}, {t['threads']} threads)"
@@ -572,7 +574,9 @@ def main() -> None:
         "--presets", default="small,small-random,paper", help=f"section train: {', '.join(TRAIN_RUNS)}"
     )
     parser.add_argument(
-        "--chunks", default="", help="comma-separated NetworkConfig.chunk values (default: the config's)"
+        "--frame-batches",
+        default="",
+        help="comma-separated NetworkConfig.frame_batch values (default: the config's)",
     )
     parser.add_argument("--seq", type=int, default=16, help="steps per sequence (paper: 16)")
     parser.add_argument("--batch", type=int, default=512, help="sequences per minibatch (paper: 512)")
@@ -588,7 +592,7 @@ def main() -> None:
     args.impls = [i.strip() for i in args.impls.split(",") if i.strip()]
     args.dtypes = [d.strip() for d in args.dtypes.split(",") if d.strip()]
     args.presets = [p.strip() for p in args.presets.split(",") if p.strip()]
-    args.chunks = [int(c) for c in args.chunks.split(",") if c.strip()]
+    args.frame_batches = [int(c) for c in args.frame_batches.split(",") if c.strip()]
     for kind, values, known in [
         ("section", args.sections, SECTIONS),
         ("config", args.configs, CONFIGS),

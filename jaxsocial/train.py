@@ -29,6 +29,7 @@ from jaxsocial.run import (
     compile_cache,
     config,
     distributed,
+    flags,
     init_from,
     logs,
     loop,
@@ -485,10 +486,11 @@ def _resume_from(argv: list[str]) -> tuple[TrainConfig | None, list[str]]:
 
 def parse_args(argv: list[str]) -> TrainConfig:
     """Parse the CLI: `--preset NAME` picks the defaults, every TrainConfig field is a flag; `--resume
-    RUN_DIR` starts from the run's saved config instead (flags given with it still apply)."""
+    RUN_DIR` starts from the run's saved config instead (flags given with it still apply). The old flags of
+    renamed fields (`flags.LEGACY_FLAGS`) still work, with a deprecation message."""
     import tyro
 
-    saved, argv = _resume_from(argv)
+    saved, argv = _resume_from(flags.modern_flags(argv))
     default = saved
     if saved is None:
         preset = "small"

@@ -31,7 +31,7 @@ TINY = TrainConfig(
     checkpoint_every=2,
     progress=False,
     net=NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8),
-    ppo=PPOConfig(chunk_length=4, minibatch_chunks=4, num_minibatches=2, lr=3e-3),
+    ppo=PPOConfig(segment_length=4, minibatch_segments=4, num_minibatches=2, lr=3e-3),
 )
 """The tiny training run the test files share (one compiled program, in the persistent cache below)."""
 
@@ -42,7 +42,7 @@ SOLO_LEARNING = TrainConfig(
     rollout_steps=32,
     iterations=200,
     net=NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32),
-    ppo=PPOConfig(lr=1e-3, entropy_coef=0.01, num_minibatches=4, minibatch_chunks=32, chunk_length=8,
+    ppo=PPOConfig(lr=1e-3, entropy_coef=0.01, num_minibatches=4, minibatch_segments=32, segment_length=8,
                   kl_target=0.02, kl_hard_limit=0.05),
 )  # fmt: skip
 """A run whose return rises clearly: solo, 7x7, two tiles, no penalty, 32-step episodes (a random policy
@@ -56,7 +56,7 @@ def mean_return(returns, episodes) -> float:
 
 _TINY_NET_PPO_FLAGS = [
     "--net.conv-channels", "4", "8", "8", "--net.hidden", "16", "--net.mlp", "8",
-    "--ppo.chunk-length", "4", "--ppo.minibatch-chunks", "4", "--ppo.num-minibatches", "2",
+    "--ppo.segment-length", "4", "--ppo.minibatch-segments", "4", "--ppo.num-minibatches", "2",
 ]  # fmt: skip
 TINY_FLAGS = [
     "--env-args", TINY_ENV_ARGS, "--num-envs", "4", "--rollout-steps", "8", "--iterations", "2",

@@ -90,12 +90,12 @@ def test_auto_resolves_every_layer_and_caches(tmp_path, counted):
     partial = dataclasses.replace(TINY, conv_impl="xla,conv2=auto,conv3=auto", aux="none")
     assert autotune.resolve(partial, BATCH, path=path).conv_impl == "conv1=xla,conv2=matmul,conv3=matmul"
     assert not counted  # conv2's and conv3's choices alone are "matmul": nothing to confirm
-    # another batch (frame count) is another key; frames are min(batch, chunk)
+    # another batch (frame count) is another key; frames are min(batch, frame_batch)
     assert autotune.resolve(partial, BATCH + 1, path=path).conv_impl == "conv1=xla,conv2=matmul,conv3=matmul"
     assert counted == ["conv2", "conv3"]
     counted.clear()
-    chunked = dataclasses.replace(cfg, chunk=BATCH)
-    assert autotune.resolve(chunked, 1000, path=path) == dataclasses.replace(resolved, chunk=BATCH)
+    batched = dataclasses.replace(cfg, frame_batch=BATCH)
+    assert autotune.resolve(batched, 1000, path=path) == dataclasses.replace(resolved, frame_batch=BATCH)
     assert not counted
 
 

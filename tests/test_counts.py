@@ -9,6 +9,7 @@ import pytest
 
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import counts, prereg, recipes, records, takeoff
+from jaxsocial.run import config
 
 
 def test_boschloo_most_extreme_table_has_a_closed_form():
@@ -158,6 +159,29 @@ def test_design_seeds_that_do_not_count_are_named():
         f"solo_pred seed {s1}: trained with other settings (num_envs)",
     ]
     assert prereg.seed_problems(design, {c: [good, good] for c in conditions}, expected) == []
+
+
+def test_a_config_with_the_old_field_names_counts_as_the_design_expects():
+    """A seed whose config.json was written before `ppo.chunk_length`, `ppo.minibatch_chunks` and
+    `net.chunk` were renamed (committed records hold such files) compares equal to the design's expected
+    config of today's names, and differs where the old-named values differ."""
+    design = dataclasses.replace(prereg.load("h1_prereg"), seeds=1, training_commit=None)
+    scale = recipes.recipe_scale(recipes.RECIPES["h1_prereg"], recipes.SCALES[design.scale])
+    expected, conditions = {}, {}
+    for c in (*design.treatment, *design.control):
+        values = config.config_dict(recipes.condition_config(scale, c, design.seed, 1, "runs"))
+        expected[c] = {k: values[k] for k in ("net", "ppo", "num_envs")}
+        old = {**values, "net": dict(values["net"]), "ppo": dict(values["ppo"])}
+        old["net"]["chunk"] = old["net"].pop("frame_batch")
+        old["ppo"]["chunk_length"] = old["ppo"].pop("segment_length")
+        old["ppo"]["minibatch_chunks"] = old["ppo"].pop("minibatch_segments")
+        conditions[c] = [{"config": old, "rows": design.iterations, "commit": None}]
+    assert prereg.seed_problems(design, conditions, expected) == []
+    first = design.treatment[0]
+    conditions[first][0]["config"]["ppo"]["minibatch_chunks"] += 1
+    assert prereg.seed_problems(design, conditions, expected) == [
+        f"{first} seed {design.seed}: trained with other settings (ppo)"
+    ]
 
 
 def test_commit_order():

@@ -129,15 +129,15 @@ def test_output_shapes_and_decode(small_params):
 def test_matmul_equals_xla_conv(small_params):
     """Both conv implementations compute the same function of the same params, and the same gradients.
 
-    The matmul side also runs the encoder and decoder in chunks of 4 of the T * B = 15 frames (padded to 16,
-    with the checkpointing of `chunks.map_chunks`); the xla side in one piece. Tolerances: the two
-    computations' float32 error bounds (`float_bounds.network_error`, dominated by Winograd's), plus the
-    loss's sum over every pixel and, for gradients, the path back and a weight gradient's sum over frames and
-    pixels.
+    The matmul side also runs the encoder and decoder in frame batches of 4 of the T * B = 15 frames (padded
+    to 16, with the checkpointing of `frame_batches.map_frame_batches`); the xla side in one piece.
+    Tolerances: the two computations' float32 error bounds (`float_bounds.network_error`, dominated by
+    Winograd's), plus the loss's sum over every pixel and, for gradients, the path back and a weight
+    gradient's sum over frames and pixels.
     """
-    cfg_mm = dataclasses.replace(SMALL, chunk=4)
+    cfg_mm = dataclasses.replace(SMALL, frame_batch=4)
     cfg_xla = dataclasses.replace(SMALL, conv_impl="xla")
-    assert cfg_mm.chunk < T * B <= cfg_xla.chunk and (T * B) % cfg_mm.chunk
+    assert cfg_mm.frame_batch < T * B <= cfg_xla.frame_batch and (T * B) % cfg_mm.frame_batch
     rng = np.random.default_rng(2)
     obs = _obs(3, (T, B, *net.OBS_SHAPE))
     actions = jnp.asarray(rng.integers(0, SMALL.n_actions, (T, B)), jnp.int32)
@@ -218,12 +218,12 @@ def test_vmap_over_agents():
 
 
 def test_aux_loss_equals_decode_error(small_params):
-    """`aux_loss` (decoder backward in its forward pass, by chunks) has the value and the gradients (params,
-    hidden, weight) of the weighted error written with `decode`, with and without differentiation; 15 frames
-    in chunks of 4 (padded) and weights with zeros. Tolerances: two float32 computations of the decoder
-    (`float_bounds.decoder_error`) and of the sums over a frame's pixels and the frames; gradients also the
-    path back and the sum over frames and pixels."""
-    cfg = dataclasses.replace(SMALL, chunk=4)
+    """`aux_loss` (decoder backward in its forward pass, by frame batches) has the value and the gradients
+    (params, hidden, weight) of the weighted error written with `decode`, with and without differentiation;
+    15 frames in frame batches of 4 (padded) and weights with zeros. Tolerances: two float32 computations of
+    the decoder (`float_bounds.decoder_error`) and of the sums over a frame's pixels and the frames; gradients
+    also the path back and the sum over frames and pixels."""
+    cfg = dataclasses.replace(SMALL, frame_batch=4)
     rng = np.random.default_rng(7)
     params = _normal(8, small_params, 0.3)
     hidden = jnp.asarray(rng.normal(size=(T, B, cfg.hidden)), jnp.float32)
@@ -282,7 +282,7 @@ def test_decode_without_aux_raises():
         ({"n_actions": 0}, "n_actions"),
         ({"conv_channels": (32, 0, 64)}, "conv_channels"),
         ({"conv_channels": (32, 64)}, "conv_channels"),
-        ({"chunk": 0}, "chunk"),
+        ({"frame_batch": 0}, "frame_batch"),
         ({"hidden": 1.5}, "hidden"),
         ({"aux": "attention+pred"}, "aux"),
         ({"n_others": 0}, "n_others"),
@@ -294,10 +294,10 @@ def test_bad_config_raises(kwargs, match):
 
 
 def test_flax_modules_are_the_functional_network(small_params):
-    """``ActorCritic(cfg).init`` builds the tree `init` builds (also with more frames than a chunk: chunked
-    layers under ``nn.scan``), and ``.apply`` is `unroll` (within two float32 computations' error bound: the
-    chunks differ)."""
-    cfg = dataclasses.replace(SMALL, chunk=4)
+    """``ActorCritic(cfg).init`` builds the tree `init` builds (also with more frames than a frame batch:
+    batched layers under ``nn.scan``), and ``.apply`` is `unroll` (within two float32 computations' error
+    bound: the frame batches differ)."""
+    cfg = dataclasses.replace(SMALL, frame_batch=4)
     args = (net.initial_carry(cfg, (B,)), _obs(10, (T, B, *net.OBS_SHAPE)), jnp.zeros((T, B), bool))
     variables = jax.eval_shape(lambda k: net.ActorCritic(cfg).init(k, *args), jax.random.key(0))
     assert set(variables) == {"params"}

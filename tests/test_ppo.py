@@ -12,7 +12,7 @@ from jaxsocial.agents.network import NetworkConfig
 
 NET = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8)
 T, E, L = 32, 6, 8
-CFG = ppo.PPOConfig(chunk_length=L, minibatch_chunks=8, num_minibatches=4, lr=1e-3)
+CFG = ppo.PPOConfig(segment_length=L, minibatch_segments=8, num_minibatches=4, lr=1e-3)
 # Rollout and replay evaluate NET in other orders: its widest dot products have 72 terms (conv 3, FC), and a
 # log-probability passes 3 convolutions, the FC layer, L LSTM steps and 3 MLP layers.
 NET_REORDERED = reordered_tolerance(terms=72, depth=3 + 1 + L + 3)
@@ -88,13 +88,13 @@ def synthetic_rollout(key, params, net=NET):
         valid=jnp.ones((T, E), bool),
         carry0=carry0,
         values=jnp.concatenate([values, last.value[None]]),
-        chunk_carries=jax.tree.map(lambda c: c[::L], carries),
+        segment_carries=jax.tree.map(lambda c: c[::L], carries),
     )
 
 
 @pytest.fixture(scope="module")
 def recorded():
-    """Params and a rollout that recorded its values and chunk-start states (as the trainer's does)."""
+    """Params and a rollout that recorded its values and segment-start states (as the trainer's does)."""
     params = init(jax.random.key(0), NET)
     return params, jax.jit(synthetic_rollout, static_argnums=2)(jax.random.key(1), params)
 
@@ -103,32 +103,32 @@ def recorded():
 def setup(recorded):
     """Params and the rollout without its recorded values: minibatch 0 recomputes its targets."""
     params, batch = recorded
-    return params, batch._replace(values=None, chunk_carries=None)
+    return params, batch._replace(values=None, segment_carries=None)
 
 
 def test_replay_from_stored_states_equals_step_by_step_and_ratio_is_one(setup):
     params, batch = setup
     targets = recompute(params, NET, CFG, batch)
-    idx = jnp.arange(T // L * E)  # every chunk, across episode boundaries
+    idx = jnp.arange(T // L * E)  # every segment, across episode boundaries
     mb = ppo.minibatch(batch, targets, idx, L)
     _, metrics = loss(params, NET, CFG, mb)
     np.testing.assert_allclose(metrics["ratio_mean"], 1.0, atol=NET_REORDERED)  # exp(d) - 1 ~ d
     assert float(metrics["kl"]) < 1e-9
-    # The stored chunk-start states reproduce the step-by-step rollout's log-probabilities exactly.
+    # The stored segment-start states reproduce the step-by-step rollout's log-probabilities exactly.
     _, out = unroll(params, NET, mb["carry"], mb["obs"], mb["resets"])
     logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), mb["actions"][..., None], -1)[..., 0]
     np.testing.assert_allclose(logp, mb["logp"], atol=NET_REORDERED)
 
 
-def test_a_minibatch_holds_exactly_its_chunks_steps(recorded):
-    """Chunk c * E + e is steps c * L .. c * L + L - 1 of environment e (the next frames one step later), and
-    the chunk-start state the targets stored for it."""
+def test_a_minibatch_holds_exactly_its_segments_steps(recorded):
+    """Segment c * E + e is steps c * L .. c * L + L - 1 of environment e (the next frames one step later),
+    and the segment-start state the targets stored for it."""
     params, batch = recorded
     targets = ppo.rollout_targets(CFG, batch)
     idx = jax.random.permutation(jax.random.key(3), T // L * E)[:5]
     mb = ppo.minibatch(batch, targets, idx, L)
-    for m, chunk in enumerate(np.asarray(idx)):
-        c, e = divmod(int(chunk), E)
+    for m, segment in enumerate(np.asarray(idx)):
+        c, e = divmod(int(segment), E)
         steps = slice(c * L, c * L + L)
         np.testing.assert_array_equal(mb["obs"][:, m], batch.obs[steps, e])
         np.testing.assert_array_equal(mb["next_obs"][:, m], batch.obs[c * L + 1 : c * L + L + 1, e])
@@ -171,7 +171,7 @@ def test_update_from_rollout_targets_has_the_recomputed_update_losses(aux):
         names = ("policy_loss", "value_loss", "entropy", "kl", *(("aux_loss",) if aux != "none" else ()))
         return np.array([float(metrics[name]) for name in names])
 
-    recomputed = losses(batch._replace(values=None, chunk_carries=None))
+    recomputed = losses(batch._replace(values=None, segment_carries=None))
     np.testing.assert_allclose(losses(batch), recomputed, rtol=1e-5, atol=1e-7)
     late = losses(batch._replace(values=jnp.roll(batch.values, 1, axis=0)))
     assert not np.allclose(late, recomputed, rtol=1e-5, atol=1e-7)
@@ -180,7 +180,7 @@ def test_update_from_rollout_targets_has_the_recomputed_update_losses(aux):
 def test_minibatch_next_obs_is_the_following_step(setup):
     params, batch = setup
     targets = recompute(params, NET, CFG, batch)
-    idx = jnp.array([0, E + 3, 3 * E - 1])  # chunk c * E + e
+    idx = jnp.array([0, E + 3, 3 * E - 1])  # segment c * E + e
     mb = ppo.minibatch(batch, targets, idx, L)
     for j, (c, e) in enumerate([(0, 0), (1, 3), (2, E - 1)]):
         np.testing.assert_array_equal(mb["obs"][:, j], batch.obs[c * L : (c + 1) * L, e])
@@ -302,9 +302,9 @@ def test_vmapped_learners_stopping_at_different_minibatches_equal_their_own_upda
 @pytest.mark.parametrize(
     ("changes", "steps", "envs", "message"),
     [
-        ({"chunk_length": 16}, 40, 8, "must divide"),
-        ({"minibatch_chunks": 512}, 64, 8, "larger than the batch"),
-        ({"kl_target": 0.1, "kl_hard_limit": 0.03, "minibatch_chunks": 8}, 64, 8, "kl_target"),
+        ({"segment_length": 16}, 40, 8, "must divide"),
+        ({"minibatch_segments": 512}, 64, 8, "larger than the batch"),
+        ({"kl_target": 0.1, "kl_hard_limit": 0.03, "minibatch_segments": 8}, 64, 8, "kl_target"),
     ],
 )
 def test_impossible_configs_are_rejected(changes, steps, envs, message):
@@ -327,7 +327,7 @@ def test_trainer_records_the_targets_its_recompute_would_compute(monkeypatch):
 
     recorded = first_iteration()
     record = loop.ppo_batch
-    monkeypatch.setattr(loop, "ppo_batch", lambda *a: record(*a)._replace(values=None, chunk_carries=None))
+    monkeypatch.setattr(loop, "ppo_batch", lambda *a: record(*a)._replace(values=None, segment_carries=None))
     recomputed = first_iteration()
     for name, value in recorded.items():
         np.testing.assert_allclose(value, recomputed[name], rtol=1e-5, atol=1e-7, err_msg=name)

@@ -2,6 +2,7 @@
 each have one parser and one formatter, and formatting then parsing gives back what was parsed
 (hypothesis); a whole TrainConfig's derived command line gives the config back."""
 
+import json
 import string
 from pathlib import Path
 
@@ -12,7 +13,7 @@ from hypothesis import strategies as st
 import jaxsocial
 from jaxsocial import train
 from jaxsocial.agents import experts, population
-from jaxsocial.run import config, schedule
+from jaxsocial.run import config, flags, logs, schedule
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec, PolicyRef
 
@@ -32,6 +33,7 @@ values = st.one_of(
 keys = st.text(string.ascii_lowercase + "_", min_size=1, max_size=10)
 overrides = st.dictionaries(keys, values, min_size=1, max_size=4)
 thresholds = st.floats(-1e6, 1e6, allow_nan=False)
+REPO = Path(__file__).resolve().parents[1]
 
 
 @st.composite
@@ -154,3 +156,47 @@ def test_a_configs_command_line_gives_it_back(argv):
     flags = config_flags(cfg)
     assert train.parse_args(flags) == cfg
     assert flags[:2] == ["--preset", cfg.preset]
+
+
+OLD_FLAGS = ["--net.chunk", "64", "--ppo.chunk-length=8", "--ppo.minibatch-chunks", "32"]
+NEW_FLAGS = ["--net.frame-batch", "64", "--ppo.segment-length=8", "--ppo.minibatch-segments", "32"]
+
+
+def test_the_old_flags_of_renamed_fields_still_parse(capsys):
+    """`--net.chunk`, `--ppo.chunk-length` and `--ppo.minibatch-chunks` (also as --flag=value, as committed
+    summaries and scripts write them) give the config of today's flags, each with a deprecation message."""
+    new = train.parse_args(NEW_FLAGS)
+    assert "deprecated" not in capsys.readouterr().err
+    assert (new.net.frame_batch, new.ppo.segment_length, new.ppo.minibatch_segments) == (64, 8, 32)
+    assert train.parse_args(OLD_FLAGS) == new
+    err = capsys.readouterr().err
+    for old, today in flags.LEGACY_FLAGS.items():
+        assert f"{old} is deprecated" in err and f"use {today}" in err
+    assert config_flags(new)[-6:] == ["--net.frame-batch", "64", "--ppo.minibatch-segments", "32",
+                                      "--ppo.segment-length", "8"]  # fmt: skip
+
+
+def test_a_config_json_with_the_old_field_names_reads_as_today():
+    """config.json written before the renames (`ppo.chunk_length`, `ppo.minibatch_chunks`, `net.chunk`:
+    committed records, older run directories) gives the TrainConfig of today's names, and `--resume` finds no
+    conflict between it and today's; config.json is written with today's names."""
+    cfg = train.parse_args(NEW_FLAGS)
+    new = config.config_dict(cfg)
+    assert {"segment_length", "minibatch_segments"} <= set(new["ppo"]) and "frame_batch" in new["net"]
+    old = json.loads(json.dumps(new))
+    old["net"]["chunk"] = old["net"].pop("frame_batch")
+    old["ppo"]["chunk_length"] = old["ppo"].pop("segment_length")
+    old["ppo"]["minibatch_chunks"] = old["ppo"].pop("minibatch_segments")
+    assert config.modern_keys(old) == new
+    assert config.config_from_dict(old) == config.config_from_dict(new) == cfg
+    assert config.resume_conflicts(old, new) == []
+    old["ppo"]["chunk_length"] = 16
+    assert config.resume_conflicts(old, new) == ["ppo.segment_length"]  # named as today
+    record = logs.read_config(REPO / "benchmarks/results/records/tiny/social_pred_nopenalty-s0-1/s0")
+    assert "chunk" in record["net"] and "chunk_length" in record["ppo"]  # written before the renames
+    read = config.config_from_dict(record)
+    assert read.net.frame_batch == record["net"]["chunk"]
+    assert (read.ppo.segment_length, read.ppo.minibatch_segments) == (
+        record["ppo"]["chunk_length"],
+        record["ppo"]["minibatch_chunks"],
+    )

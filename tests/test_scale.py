@@ -144,10 +144,10 @@ def test_bad_scale_input_fails_before_compiling(tmp_path, changes, message):
 
 def test_batch_must_split_over_devices():
     with pytest.raises(ValueError, match="num_envs=6 does not split evenly over 4 devices"):
-        distributed.check_batch(4, num_envs=6, minibatch_chunks=8)
-    with pytest.raises(ValueError, match="minibatch_chunks=3"):
-        distributed.check_batch(2, num_envs=4, minibatch_chunks=3)
-    distributed.check_batch(2, num_envs=4, minibatch_chunks=4)
+        distributed.check_batch(4, num_envs=6, minibatch_segments=8)
+    with pytest.raises(ValueError, match="minibatch_segments=3"):
+        distributed.check_batch(2, num_envs=4, minibatch_segments=3)
+    distributed.check_batch(2, num_envs=4, minibatch_segments=4)
 
 
 def test_compile_cache_command(tmp_path, capsys):

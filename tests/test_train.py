@@ -4,6 +4,7 @@ import dataclasses
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -12,6 +13,7 @@ from conftest import TINY, TINY_FLAGS, metrics_without_speed
 
 from jaxsocial.agents import policy_io
 from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents.network import init as init_params
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.run import checkpoint, config, logs
 from jaxsocial.run.config import PRESETS
@@ -164,17 +166,40 @@ def test_frozen_checkpoint_of_another_architecture_is_refused(tiny_runs):
 
 
 def test_load_policy_ignores_how_the_network_is_computed(tiny_runs):
-    """Only the architecture must match: `chunk`, `conv_impl` and `dtype` (policy_io.SPEED_FIELDS) may
+    """Only the architecture must match: `frame_batch`, `conv_impl` and `dtype` (policy_io.SPEED_FIELDS) may
     differ."""
     full = str(tiny_runs["full"])
-    other_speed = dataclasses.replace(TINY.net, chunk=64, conv_impl="xla", dtype="bfloat16")
-    assert set(policy_io.SPEED_FIELDS) == {"chunk", "conv_impl", "dtype"}
+    other_speed = dataclasses.replace(TINY.net, frame_batch=64, conv_impl="xla", dtype="bfloat16")
+    assert set(policy_io.SPEED_FIELDS) == {"frame_batch", "conv_impl", "dtype"}
     for a, b in zip(
         jax.tree.leaves(policy_io.load_policy(full, TINY.net)),
         jax.tree.leaves(policy_io.load_policy(full, other_speed)),
         strict=True,
     ):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_policy_saved_with_the_old_field_name_loads(tmp_path):
+    """Policies exported before `NetworkConfig.chunk` became `frame_batch` (metadata 'chunk') load: one
+    written so here, and a committed record's."""
+    net = dataclasses.replace(TINY.net, frame_batch=64)
+    params = jax.vmap(lambda k: init_params(k, net))(jax.random.split(jax.random.key(0), 1))
+    meta = policy_io.json_net(net)
+    meta["chunk"] = meta.pop("frame_batch")
+    checkpoint.save(
+        tmp_path / policy_io.POLICY_DIR, 3, {"params": params}, metadata={"net": meta, "n_learners": 1}
+    )
+    assert policy_io.saved_net(tmp_path) == net
+    for a, b in zip(
+        jax.tree.leaves(policy_io.load_policy(tmp_path, net)), jax.tree.leaves(params), strict=True
+    ):
+        np.testing.assert_array_equal(a, b[0])
+    record = (
+        Path(__file__).resolve().parents[1] / "benchmarks/results/records/tiny/social_pred_nopenalty-s0-1/s0"
+    )
+    assert "chunk" in checkpoint.read_metadata(record / policy_io.POLICY_DIR)["net"]
+    saved = policy_io.saved_net(record)
+    assert saved.frame_batch == 512 and jax.tree.leaves(policy_io.load_policy(record, saved))
 
 
 @pytest.mark.slow  # a subprocess compiling the default slots' program (scripted experts)
@@ -205,8 +230,8 @@ def test_cli_end_to_end(tmp_path):
 @pytest.mark.parametrize(
     ("changes", "message"),
     [
-        ({"ppo": PPOConfig(minibatch_chunks=512, chunk_length=4)}, "larger than the batch"),
-        ({"ppo": PPOConfig(chunk_length=3)}, "must divide"),
+        ({"ppo": PPOConfig(minibatch_segments=512, segment_length=4)}, "larger than the batch"),
+        ({"ppo": PPOConfig(segment_length=3)}, "must divide"),
         ({"env": "goalcycle9"}, "unknown environment"),
         ({"slots": "learner,random"}, "3 agents"),
         ({"slots": "random,random,random"}, "no learner"),

@@ -1,7 +1,9 @@
 """The learner's auxiliary frame loss, fused with its gradient: `aux_loss`, the weighted error of the
-`modules.Decoder`'s predictions, whose forward pass runs the decoder's backward pass too, chunk by chunk.
+`modules.Decoder`'s predictions, whose forward pass runs the decoder's backward pass too, frame batch by frame
+batch.
 
-Measurements (10-20% faster than chunked layers with every decoder activation saved): docs/performance.md.
+Measurements (10-20% faster than layers run in frame batches with every decoder activation saved):
+docs/performance.md.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
-from jaxsocial.agents.fast.chunks import split_chunks
+from jaxsocial.agents.fast.frame_batches import split_frame_batches
 from jaxsocial.agents.initialisers import Params
 from jaxsocial.agents.modules import Decoder
 from jaxsocial.agents.network_config import NetworkConfig
@@ -41,9 +43,9 @@ def aux_loss(
 
     Differentiable in params, hidden and weight, with the value and gradients of writing it with `decode`,
     but faster: as only a scalar leaves the decoder, the forward pass of a differentiated call runs the
-    decoder's backward pass too, chunk by chunk (`NetworkConfig.chunk` frames) while each chunk's
-    activations are in cache. It keeps the gradients (of the decoder params, and f32[N, H] of hidden) rather
-    than every frame's activations; the backward pass only scales them by the incoming cotangent.
+    decoder's backward pass too, frame batch by frame batch (`NetworkConfig.frame_batch` frames) while each
+    batch's activations are in cache. It keeps the gradients (of the decoder params, and f32[N, H] of hidden)
+    rather than every frame's activations; the backward pass only scales them by the incoming cotangent.
     """
     cfg.check_decoder()
     batch = hidden.shape[:-1]
@@ -73,22 +75,23 @@ def _fused_aux_loss(cfg: NetworkConfig, decoder: Params, hidden, action, target,
 
 
 def _fused_aux_loss_fwd(cfg: NetworkConfig, decoder: Params, hidden, action, target, weight):
-    """The loss and its gradients, chunk by chunk: a `lax.scan` over chunks of rows (padded with weight 0)
-    that sums the decoder params' gradients and stacks those of hidden and weight (= the frame errors)."""
+    """The loss and its gradients, frame batch by frame batch: a `lax.scan` over batches of rows (padded with
+    weight 0) that sums the decoder params' gradients and stacks those of hidden and weight (= the frame
+    errors)."""
     n = hidden.shape[0]
-    rows = split_chunks((hidden, action, target, weight), min(cfg.chunk, n))
+    rows = split_frame_batches((hidden, action, target, weight), min(cfg.frame_batch, n))
 
-    def chunk_grads(d_decoder, inputs):
+    def batch_grads(d_decoder, inputs):
         hidden, action, target, weight = inputs
 
         def weighted_error(decoder, hidden):
             errors = _decoder_apply(cfg, decoder, Decoder.frame_errors, hidden, action, target)
             return jnp.sum(weight * errors), errors
 
-        (d_chunk, d_hidden), errors = jax.grad(weighted_error, argnums=(0, 1), has_aux=True)(decoder, hidden)
-        return jax.tree.map(jnp.add, d_decoder, d_chunk), (d_hidden, errors)
+        (d_batch, d_hidden), errors = jax.grad(weighted_error, argnums=(0, 1), has_aux=True)(decoder, hidden)
+        return jax.tree.map(jnp.add, d_decoder, d_batch), (d_hidden, errors)
 
-    d_decoder, (d_hidden, errors) = lax.scan(chunk_grads, jax.tree.map(jnp.zeros_like, decoder), rows)
+    d_decoder, (d_hidden, errors) = lax.scan(batch_grads, jax.tree.map(jnp.zeros_like, decoder), rows)
     d_hidden, errors = d_hidden.reshape(-1, hidden.shape[-1])[:n], errors.reshape(-1)[:n]
     return jnp.sum(weight * errors), (d_decoder, d_hidden, errors)
 

@@ -24,8 +24,8 @@ from jax import lax
 from jax.ad_checkpoint import checkpoint_name
 
 from jaxsocial.agents.fast import conv
-from jaxsocial.agents.fast.chunks import SAVED, leaky_relu, leaky_relu_unsaved, map_chunks
 from jaxsocial.agents.fast.conv import KERNEL
+from jaxsocial.agents.fast.frame_batches import SAVED, leaky_relu, leaky_relu_unsaved, map_frame_batches
 from jaxsocial.agents.fast.precision import matmul
 from jaxsocial.agents.initialisers import Init, param
 from jaxsocial.agents.network_config import ATTENTION_CLASSES, OBS_SHAPE, STRIDES, NetworkConfig
@@ -114,7 +114,7 @@ class Encoder(nn.Module):
     views int8[N, 7, 7, 4] (`NetworkConfig.obs`): an `Embed` per cell in place of conv1 (7x7 cells either
     way).
 
-    The convolutions run in chunks of `NetworkConfig.chunk` frames (`map_chunks`), up to conv3's
+    The convolutions run in batches of `NetworkConfig.frame_batch` frames (`map_frame_batches`), up to conv3's
     pre-activation; its activation and the FC layer run on all N frames at once, as large matrix products.
     """
 
@@ -133,7 +133,7 @@ class Encoder(nn.Module):
     def __call__(self, obs: jax.Array) -> jax.Array:
         chex.assert_shape(obs, (None, *self.cfg.obs_shape))
         chex.assert_type(obs, self.cfg.obs_dtype)
-        x = leaky_relu(map_chunks(Encoder.conv_features, self, (obs,), self.cfg.chunk))
+        x = leaky_relu(map_frame_batches(Encoder.conv_features, self, (obs,), self.cfg.frame_batch))
         return jnp.tanh(self.fc(x))
 
     def conv_features(self, obs: jax.Array) -> jax.Array:
@@ -182,9 +182,9 @@ class LSTM(nn.Module):
 class Decoder(nn.Module):
     """The auxiliary frame head: LSTM outputs f32[..., H] and actions int[...] -> frames f32[..., 21, 21, 3].
 
-    Unbounded (linear output layer); the learner compares it with obs / 255 (`aux_loss`). Runs in chunks of
-    `NetworkConfig.chunk` frames (`map_chunks`). Symbolic views: ``cell_logits``, a dense layer per view
-    cell, in place of deconv3 gives logits f32[..., 7, 7, PREDICTED_VOCAB] (`symbolic_errors`).
+    Unbounded (linear output layer); the learner compares it with obs / 255 (`aux_loss`). Runs in batches of
+    `NetworkConfig.frame_batch` frames (`map_frame_batches`). Symbolic views: ``cell_logits``, a dense layer
+    per view cell, in place of deconv3 gives logits f32[..., 7, 7, PREDICTED_VOCAB] (`symbolic_errors`).
     """
 
     cfg: NetworkConfig
@@ -204,8 +204,8 @@ class Decoder(nn.Module):
         chex.assert_shape(hidden, (*batch, self.cfg.hidden))
         chex.assert_shape(action, batch)
         rows = (hidden.reshape(-1, hidden.shape[-1]), jnp.asarray(action).reshape(-1))
-        frames = map_chunks(
-            lambda mdl, *rows: conv.to_nhwc(mdl.frames_hwnc(*rows)), self, rows, self.cfg.chunk
+        frames = map_frame_batches(
+            lambda mdl, *rows: conv.to_nhwc(mdl.frames_hwnc(*rows)), self, rows, self.cfg.frame_batch
         )
         return frames.reshape(*batch, *self.cfg.decoded_shape)
 
@@ -235,8 +235,8 @@ class Decoder(nn.Module):
 
     def errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
         """`frame_errors` of rows f32[N, H], int[N], uint8[N, 21, 21, 3] (or int8[N, 7, 7, 4]) -> f32[N], in
-        chunks."""
-        return map_chunks(Decoder.frame_errors, self, (hidden, action, target), self.cfg.chunk)
+        frame batches."""
+        return map_frame_batches(Decoder.frame_errors, self, (hidden, action, target), self.cfg.frame_batch)
 
 
 class ActorCritic(nn.Module):

@@ -15,8 +15,8 @@ The parts, one job each:
 * `initialisers`: each parameter's distribution, and the params drawn from two random buffers.
 * `aux_loss`: the auxiliary frame loss, fused with its gradient.
 * `symbolic`: the symbolic views' vocabulary and their masked cross-entropy.
-* `fast`: how it runs fast on CPUs, not what it computes (conv kernels, chunks of frames, bfloat16
-  products, the machine's own choice among them), selected by `conv_impl`, `chunk` and `dtype`.
+* `fast`: how it runs fast on CPUs, not what it computes (conv kernels, batches of frames, bfloat16
+  products, the machine's own choice among them), selected by `conv_impl`, `frame_batch` and `dtype`.
 
 The params tree is flat: ``conv1, conv2, conv3, fc`` (`Encoder`), ``lstm`` (``wi, wh, b``), ``policy`` and
 ``value`` (``dense0, dense1, out``), ``attention`` and ``aux_fc, deconv1, deconv2, deconv3`` (`Decoder`);
@@ -49,8 +49,8 @@ Parameter count: 667,787 for the paper configuration. The PyTorch reference
 bias vectors (``b_ih`` and ``b_hh``, 4 * 192 each) of which only the sum matters; here the LSTM has one.
 Without the auxiliary decoder (aux="none"): 496,328. The attention head adds 193 * 50 * n_others.
 
-Conventions (kernel layouts, LSTM gate order, initialisation): `modules`. `NetworkConfig.conv_impl`, `chunk`
-and `dtype` change how, not what, the network computes (`network_config`; docs/performance.md).
+Conventions (kernel layouts, LSTM gate order, initialisation): `modules`. `NetworkConfig.conv_impl`,
+`frame_batch` and `dtype` change how, not what, the network computes (`network_config`; docs/performance.md).
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """`NetworkConfig`, the network's widths and options, and the shapes that follow from them.
 
-`conv_impl`, `chunk` and `dtype` change how, not what, the network computes: the conv kernels (`conv.IMPLS`),
-the frames per chunk in which the conv encoder and the decoder run (`chunks.map_chunks`), and the input
-dtype of every matrix product and convolution (`precision.matmul`; params, LSTM state and outputs stay
-float32). Why and how fast: docs/performance.md.
+`conv_impl`, `frame_batch` and `dtype` change how, not what, the network computes: the conv kernels
+(`conv.IMPLS`), the frames at a time the conv encoder and the decoder run on
+(`frame_batches.map_frame_batches`), and the input dtype of every matrix product and convolution
+(`precision.matmul`; params, LSTM state and outputs stay float32). Why and how fast: docs/performance.md.
 
 `conv_impl` names one implementation for every conv layer ("matmul"), or one per layer
 ("conv1=xla,conv2=matmul,..."; `CONV_LAYERS`, `parse_conv_impl`). "auto" (for every layer, or for some:
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal, get_args
+from typing import Any, Literal, get_args
 
 import jax.numpy as jnp
 
@@ -46,6 +46,21 @@ UNRESOLVED_IMPL = "matmul"
 """What a layer still set to "auto" computes with when the network is built unresolved (the formulation
 measured fastest on CPU and GPU for the paper network; the same function as every other)."""
 DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")  # the `Decoder`'s entries of the params tree
+LEGACY_KEYS = {"chunk": "frame_batch"}
+"""Fields of saved network configs (a policy's metadata, config.json's "net") renamed since: old -> new
+(`modern_keys`)."""
+
+
+def renamed_keys(values: dict[str, Any], renames: dict[str, str]) -> dict[str, Any]:
+    """`values` (a copy, in its order) with each key of `renames` under its new name; where both names are
+    present, the new one's value."""
+    return {renames.get(k, k): v for k, v in values.items() if not (k in renames and renames[k] in values)}
+
+
+def modern_keys(net: dict[str, Any]) -> dict[str, Any]:
+    """A saved network config's fields (JSON) under today's names (`LEGACY_KEYS`): what `NetworkConfig(**...)`
+    takes, also for policies and runs written before the renames."""
+    return renamed_keys(net, LEGACY_KEYS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,7 +85,7 @@ class NetworkConfig:
     entries of `CONV_LAYERS` ("conv1=xla,conv2=matmul"), with at most one bare impl as the default of the
     layers not named (without one: "matmul"). "auto", for all layers or as a layer's impl: measured on this
     machine at start-up (`autotune.resolve`, which writes the per-layer choice here)."""
-    chunk: int = 512
+    frame_batch: int = 512
     """Frames processed at a time by the conv encoder and decoder (speed and memory only)."""
     n_others: int = 2
     """Other agents the attention auxiliary head locates (the environment's agents - 1)."""
@@ -93,7 +108,7 @@ class NetworkConfig:
 
         if not all(positive_int(c) for c in channels):
             raise ValueError(f"conv_channels must be positive integers, got {self.conv_channels!r}")
-        for name in ("hidden", "mlp", "n_actions", "chunk", "n_others"):
+        for name in ("hidden", "mlp", "n_actions", "frame_batch", "n_others"):
             if not positive_int(getattr(self, name)):
                 raise ValueError(f"{name} must be a positive integer, got {getattr(self, name)!r}")
         if self.aux not in AUX_KINDS:

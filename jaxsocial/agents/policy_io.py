@@ -12,14 +12,14 @@ from typing import Any
 
 import jax
 
-from jaxsocial.agents import network, population
+from jaxsocial.agents import network, network_config, population
 from jaxsocial.run import checkpoint, logs
 from jaxsocial.specs import PolicyRef
 
 POLICY_DIR = "policy"
 """Sub-directory of a run directory holding the learners' params (stacked [S_l, ...]) for frozen slots."""
 
-SPEED_FIELDS = ("conv_impl", "chunk", "dtype")
+SPEED_FIELDS = ("conv_impl", "frame_batch", "dtype")
 """NetworkConfig fields that change how the network is computed, not what it computes (params are float32
 whatever `dtype` computes them: a bfloat16 run's policy plays in a float32 run, and the other way round)."""
 
@@ -67,7 +67,12 @@ def policy_iteration(policy: PolicyRef | str | Path) -> int:
 
 def saved_net(policy: PolicyRef | str | Path) -> network.NetworkConfig:
     """The network config a policy (`RUN_DIR[#k]`) was trained with (fields added since take defaults)."""
-    return network.NetworkConfig(**checkpoint.read_metadata(_policy_dir(PolicyRef.of(policy)))["net"])
+    return _meta_net(checkpoint.read_metadata(_policy_dir(PolicyRef.of(policy))))
+
+
+def _meta_net(meta: dict[str, Any]) -> network.NetworkConfig:
+    """The `NetworkConfig` of a policy's metadata (old field names read as today's: `modern_keys`)."""
+    return network.NetworkConfig(**network_config.modern_keys(meta["net"]))
 
 
 def load_policy(policy: PolicyRef | str | Path, net: network.NetworkConfig):
@@ -80,7 +85,7 @@ def load_policy(policy: PolicyRef | str | Path, net: network.NetworkConfig):
     policy = PolicyRef.of(policy)
     directory, k = _policy_dir(policy), policy.learner
     meta = checkpoint.read_metadata(directory)
-    saved = architecture(network.NetworkConfig(**meta["net"]))
+    saved = architecture(_meta_net(meta))
     if saved != architecture(net):
         raise ValueError(
             f"frozen slot {policy}: the checkpoint's network {saved} differs from this run's network "

@@ -1,12 +1,12 @@
 """PPO for one recurrent learner, with the paper's details (appendix): GAE, clipped policy loss, value MSE,
-entropy bonus and the auxiliary observation loss; minibatches of trajectory chunks seeded with stored LSTM
+entropy bonus and the auxiliary observation loss; minibatches of trajectory segments seeded with stored LSTM
 states; hidden states and advantages recomputed every few minibatches; KL early stop and hard-limit revert.
 
 Everything here is for a single learner; the trainer maps it over learner slots. With data parallelism
-(`dp`, a `jaxsocial.run.distributed.DataParallel`) the environments of the rollout and the chunks of each
+(`dp`, a `jaxsocial.run.distributed.DataParallel`) the environments of the rollout and the segments of each
 minibatch are split over devices: the network runs on each device's share, the losses' means and the
 gradient are taken over the whole batch, so the result is that of one device.
-Shapes: T rollout steps, E environments, L chunk length, C = T / L chunks per environment.
+Shapes: T rollout steps, E environments, L segment length, C = T / L segments per environment.
 """
 
 from __future__ import annotations
@@ -47,10 +47,10 @@ class PPOConfig:
     """Global gradient-norm clip."""
     num_minibatches: int = 20
     """Sequential minibatch updates per rollout batch."""
-    minibatch_chunks: int = 512
-    """Trajectory chunks per minibatch, sampled uniformly without replacement."""
-    chunk_length: int = 16
-    """Steps per trajectory chunk."""
+    minibatch_segments: int = 512
+    """Trajectory segments per minibatch, sampled uniformly without replacement."""
+    segment_length: int = 16
+    """Steps per trajectory segment."""
     recompute_every: int = 2
     """Recompute hidden states and advantages every this many minibatches."""
     kl_target: float = 0.01
@@ -72,12 +72,12 @@ class Batch(NamedTuple):
     truncated (bootstrap through the time limit); valid: bool[T, E] the agent was acting (not done earlier);
     carry0: the LSTM state before step 0 (network.Carry of float32[E, H]); attention: int32[T, E, K] each
     other slot's cell in the learner's view (`observe.attention_targets`), None without an attention head.
-    values: float32[T+1, E] the rollout policy's values (the last of the bootstrap step) and chunk_carries:
-    its LSTM states before each chunk's first step (Carry of float32[C, E, H]); both given, they are the
+    values: float32[T+1, E] the rollout policy's values (the last of the bootstrap step) and segment_carries:
+    its LSTM states before each segment's first step (Carry of float32[C, E, H]); both given, they are the
     targets of minibatch 0 (`rollout_targets`: what its recompute would compute, without the unroll), both
     None, minibatch 0 recomputes them.
     The rollout records its steps in the same fields (`loop.Transition`: no time axis, carry0 None,
-    chunk_carries every step's LSTM state).
+    segment_carries every step's LSTM state).
     """
 
     obs: jax.Array
@@ -92,7 +92,7 @@ class Batch(NamedTuple):
     carry0: network.Carry
     attention: jax.Array | None = None
     values: jax.Array | None = None
-    chunk_carries: network.Carry | None = None
+    segment_carries: network.Carry | None = None
 
 
 def gae(
@@ -122,7 +122,7 @@ def gae(
 
 
 class Targets(NamedTuple):
-    """Recomputed per rollout: chunk-start LSTM states (Carry of float32[C, E, H]), advantages and returns
+    """Recomputed per rollout: segment-start LSTM states (Carry of float32[C, E, H]), advantages and returns
     float32[T, E]."""
 
     carries: network.Carry
@@ -136,7 +136,7 @@ TARGETS_ENV_AXES = Targets(carries=1, advantages=1, returns=1)
 
 
 def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Any = None) -> Targets:
-    """Unroll the current network over the whole rollout: new chunk-start hidden states, values and GAE.
+    """Unroll the current network over the whole rollout: new segment-start hidden states, values and GAE.
 
     Every environment on its own, so with `dp` each device computes its environments' targets. The bootstrap
     values of truncated episodes (`batch.final_values`) stay those of the rollout policy: they need the
@@ -148,31 +148,31 @@ def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Any 
             lambda p, b: recompute(p, net, cfg, b), in_axes=(None, BATCH_ENV_AXES), out_axes=TARGETS_ENV_AXES
         )
         return local(params, batch)
-    length = cfg.chunk_length
+    length = cfg.segment_length
     n_steps = batch.actions.shape[0]
 
-    def unroll_chunk(carry, chunk):
-        obs, resets = chunk
+    def unroll_segment(carry, segment):
+        obs, resets = segment
         new_carry, out = network.unroll(params, net, carry, obs, resets)
         return new_carry, (carry, out.value)
 
-    chunks = jax.tree.map(
+    segments = jax.tree.map(
         lambda x: x[:n_steps].reshape(n_steps // length, length, *x.shape[1:]), (batch.obs, batch.resets)
     )
-    last_carry, (carries, values) = jax.lax.scan(unroll_chunk, batch.carry0, chunks)
+    last_carry, (carries, values) = jax.lax.scan(unroll_segment, batch.carry0, segments)
     values = values.reshape(n_steps, *values.shape[2:])
     _, last = network.unroll(params, net, last_carry, batch.obs[-1:], batch.resets[-1:])
     return _targets(cfg, batch, carries, jnp.concatenate([values, last.value], axis=0))
 
 
 def rollout_targets(cfg: PPOConfig, batch: Batch) -> Targets:
-    """The targets of the rollout policy from the values and chunk-start states the rollout recorded
-    (`batch.values`, `batch.chunk_carries`): `recompute` with the rollout's params, up to float rounding."""
-    return _targets(cfg, batch, batch.chunk_carries, batch.values)
+    """The targets of the rollout policy from the values and segment-start states the rollout recorded
+    (`batch.values`, `batch.segment_carries`): `recompute` with the rollout's params, up to float rounding."""
+    return _targets(cfg, batch, batch.segment_carries, batch.values)
 
 
 def _targets(cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.Array) -> Targets:
-    """Targets from chunk-start states and values float32[T+1, E] (the last bootstraps): GAE, where a
+    """Targets from segment-start states and values float32[T+1, E] (the last bootstraps): GAE, where a
     truncated episode bootstraps from the value of its final observation (`batch.final_values`)."""
     truncated = batch.done & ~batch.terminated
     next_values = jnp.where(truncated, batch.final_values, values[1:])
@@ -183,8 +183,8 @@ def _targets(cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.A
 
 
 def minibatch(batch: Batch, targets: Targets, idx: jax.Array, length: int) -> dict[str, jax.Array]:
-    """Gather chunks `idx` (int32[M]; chunk c * E + e is steps c * L .. c * L + L - 1 of environment e) into
-    time-major arrays [L, M, ...], reading only those steps (no copy of the whole batch)."""
+    """Gather segments `idx` (int32[M]; segment c * E + e is steps c * L .. c * L + L - 1 of environment e)
+    into time-major arrays [L, M, ...], reading only those steps (no copy of the whole batch)."""
     n_envs = batch.actions.shape[1]
     steps = (idx // n_envs)[None, :] * length + jnp.arange(length)[:, None]  # int32[L, M]
     envs = (idx % n_envs)[None, :]  # int32[1, M]
@@ -217,7 +217,7 @@ def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]
     the attention head).
 
     Returns (loss, metrics dict with 'kl' = estimated KL(rollout || current) on valid steps). With `dp` the
-    network runs on each device's chunks of the minibatch ([L, M] arrays split along M).
+    network runs on each device's segments of the minibatch ([L, M] arrays split along M).
     """
 
     def unroll(params, carry, obs, resets):
@@ -295,7 +295,7 @@ def update(
 ) -> tuple[dict, optax.OptState, dict[str, jax.Array]]:
     """One PPO update of one learner on its rollout (the paper's minibatch loop).
 
-    Minibatch m draws `minibatch_chunks` chunks uniformly; before minibatches 0, k, 2k, ... the hidden
+    Minibatch m draws `minibatch_segments` segments uniformly; before minibatches 0, k, 2k, ... the hidden
     states and advantages are recomputed with the current params (before minibatch 0 they are the rollout
     policy's: `rollout_targets` where the batch carries the rollout's values). Each minibatch measures the
     KL to the rollout policy with the current params: above `kl_hard_limit` every change of this update is
@@ -307,7 +307,7 @@ def update(
     optimizer = make_optimizer(cfg)
     if dp is not None:
         batch = dp.shard(batch, BATCH_ENV_AXES)
-    n_chunks = batch.actions.shape[0] // cfg.chunk_length * batch.actions.shape[1]
+    n_segments = batch.actions.shape[0] // cfg.segment_length * batch.actions.shape[1]
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
     from_rollout = batch.values is not None
@@ -319,9 +319,9 @@ def update(
             lambda: recompute(state.params, net, cfg, batch, dp),
             lambda: state.targets,
         )
-        idx = jax.random.choice(k, n_chunks, (cfg.minibatch_chunks,), replace=False)
-        mb = minibatch(batch, targets, idx, cfg.chunk_length)
-        if dp is not None:  # chunks split over devices: [L, M, ...] along M, the carry [M, H] along M
+        idx = jax.random.choice(k, n_segments, (cfg.minibatch_segments,), replace=False)
+        mb = minibatch(batch, targets, idx, cfg.segment_length)
+        if dp is not None:  # segments split over devices: [L, M, ...] along M, the carry [M, H] along M
             mb = dp.shard(mb, {name: int(name != "carry") for name in mb})
         (_, metrics), grads = grad_fn(state.params, net, cfg, mb, dp)
         kl = metrics["kl"]
@@ -365,16 +365,16 @@ def update(
 
 def validate(cfg: PPOConfig, rollout_steps: int, num_envs: int) -> None:
     """Raise ValueError for an impossible configuration (before anything compiles)."""
-    if rollout_steps % cfg.chunk_length:
+    if rollout_steps % cfg.segment_length:
         raise ValueError(
-            f"chunk_length={cfg.chunk_length} must divide rollout_steps={rollout_steps} "
-            "(trajectories are cut into whole chunks)"
+            f"segment_length={cfg.segment_length} must divide rollout_steps={rollout_steps} "
+            "(trajectories are cut into whole segments)"
         )
-    n_chunks = rollout_steps // cfg.chunk_length * num_envs
-    if cfg.minibatch_chunks > n_chunks:
+    n_segments = rollout_steps // cfg.segment_length * num_envs
+    if cfg.minibatch_segments > n_segments:
         raise ValueError(
-            f"minibatch_chunks={cfg.minibatch_chunks} is larger than the batch: {num_envs} envs x "
-            f"{rollout_steps // cfg.chunk_length} chunks = {n_chunks} chunks"
+            f"minibatch_segments={cfg.minibatch_segments} is larger than the batch: {num_envs} envs x "
+            f"{rollout_steps // cfg.segment_length} segments = {n_segments} segments"
         )
     if cfg.num_minibatches < 1 or cfg.recompute_every < 1:
         raise ValueError("num_minibatches and recompute_every must be >= 1")

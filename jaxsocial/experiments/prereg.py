@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.experiments import counts, records
-from jaxsocial.run import logs
+from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
 
@@ -155,7 +155,8 @@ def seed_problems(
     command), or at another commit than `design.training_commit`.
 
     conditions: per condition the seeds design.seed.. in order, each None (no run holds it) or
-    {'config': its config.json, 'rows': metrics rows logged, 'commit': its record's commit or None}."""
+    {'config': its config.json, 'rows': metrics rows logged, 'commit': its record's commit or None}; a
+    config.json with fields renamed since is read under today's names (`config.modern_keys`)."""
     problems = []
     for c in (*design.treatment, *design.control):
         seeds = conditions.get(c, [])
@@ -168,7 +169,8 @@ def seed_problems(
                 problems.append(f"{c} seed {s}: unfinished ({run['rows']} of {design.iterations} iterations)")
             if run["config"].get("iterations") != design.iterations:
                 problems.append(f"{c} seed {s}: trained for {run['config'].get('iterations')} iterations")
-            differ = sorted(k for k, v in expected[c].items() if run["config"].get(k) != v)
+            saved = config.modern_keys(run["config"])
+            differ = sorted(k for k, v in expected[c].items() if saved.get(k) != v)
             if differ:
                 problems.append(f"{c} seed {s}: trained with other settings ({', '.join(differ)})")
             if design.training_commit and run["commit"] != design.training_commit:

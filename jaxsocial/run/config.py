@@ -17,7 +17,7 @@ import jax
 
 import jaxsocial
 from jaxsocial import specs
-from jaxsocial.agents import policy_io, population, ppo
+from jaxsocial.agents import network_config, policy_io, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network import NetworkConfig
@@ -88,11 +88,11 @@ class ProgramConfig:
     num_envs: int = 32
     """Parallel environments per rollout."""
     rollout_steps: int = 32
-    """Steps per rollout (a multiple of ppo.chunk_length)."""
+    """Steps per rollout (a multiple of ppo.segment_length)."""
     net: NetworkConfig = NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32)
     """Network (the paper's is conv (32, 64, 64), hidden 192, mlp 64)."""
     ppo: PPOConfig = PPOConfig(
-        lr=5e-4, num_minibatches=8, minibatch_chunks=64, kl_target=0.02, kl_hard_limit=0.05
+        lr=5e-4, num_minibatches=8, minibatch_segments=64, kl_target=0.02, kl_hard_limit=0.05
     )
     """PPO hyperparameters."""
     bc: BCConfig = BCConfig()
@@ -207,11 +207,11 @@ CPU_PPO = dataclasses.replace(
     lr=1e-3,
     entropy_coef=0.01,
     num_minibatches=16,
-    minibatch_chunks=64,
+    minibatch_segments=64,
     kl_target=0.02,
     kl_hard_limit=0.05,
 )
-"""The PPO of the CPU science: learning rate 1e-3, entropy bonus 0.01, 16 minibatches of 64 chunks, the KL
+"""The PPO of the CPU science: learning rate 1e-3, entropy bonus 0.01, 16 minibatches of 64 segments, the KL
 stop at 0.02 (hard limit 0.05)."""
 PRESETS["laptop"] = dataclasses.replace(
     PRESETS["small"],
@@ -361,7 +361,7 @@ def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig
     if jax.process_count() > 1:
         raise ValueError("--net.dtype/--net.conv-impl 'auto' are chosen per machine: give them concretely")
     frames = (
-        cfg.ppo.minibatch_chunks * cfg.ppo.chunk_length
+        cfg.ppo.minibatch_segments * cfg.ppo.segment_length
         if cfg.algo == "ppo"
         else cfg.num_envs * cfg.rollout_steps * len(pop.demonstrators)
     )
@@ -383,9 +383,29 @@ def config_dict(cfg: TrainConfig) -> dict[str, Any]:
     return logs.to_json(values)
 
 
+LEGACY_KEYS = {
+    "ppo": {"chunk_length": "segment_length", "minibatch_chunks": "minibatch_segments"},
+    "net": network_config.LEGACY_KEYS,
+}
+"""config.json's fields renamed since, per section: {section: {old: new}}. Runs, records and policies written
+before the renames hold the old names, which every reader maps (`modern_keys`); `flags.LEGACY_FLAGS` are the
+same renames as command-line flags."""
+
+
+def modern_keys(values: dict[str, Any]) -> dict[str, Any]:
+    """A config.json's values (a copy) with the fields renamed since (`LEGACY_KEYS`) under today's names."""
+    values = dict(values)
+    for section, renames in LEGACY_KEYS.items():
+        if isinstance(values.get(section), dict):
+            values[section] = network_config.renamed_keys(values[section], renames)
+    return values
+
+
 def config_from_dict(values: dict[str, Any]) -> TrainConfig:
     """A TrainConfig from `config_dict` output (config.json): nested configs rebuilt, lists made tuples,
-    fields added since the run was written take their defaults."""
+    fields added since the run was written take their defaults, fields renamed since read under their new
+    names (`modern_keys`)."""
+    values = modern_keys(values)
 
     def build(cls, raw: dict[str, Any]):
         kwargs, defaults = {}, cls()

@@ -5,11 +5,15 @@ they build with `dataclasses.replace`.
 The line is `--preset P --env E --iterations N --seed S --seeds K`, then every other field that differs
 from the preset, in the config's field order (nested ones as `--net.hidden 64`); `net.obs` only where
 it differs from the observations of the run's environment, which the parser derives.
+
+The flags of fields renamed since (`LEGACY_FLAGS`, e.g. `--net.chunk` for `--net.frame-batch`) still work,
+deprecated: `modern_flags` rewrites them before parsing.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import sys
 from typing import Any
 
 from jaxsocial.run import config
@@ -22,6 +26,28 @@ ALWAYS = ("preset", "env", "iterations", "seed", "seeds")
 def flag_name(path: str) -> str:
     """'net.conv_channels' -> '--net.conv-channels'."""
     return "--" + path.replace("_", "-")
+
+
+LEGACY_FLAGS = {
+    flag_name(f"{section}.{old}"): flag_name(f"{section}.{new}")
+    for section, renames in config.LEGACY_KEYS.items()
+    for old, new in renames.items()
+}
+"""The old flags of fields renamed since (`config.LEGACY_KEYS`) -> today's, e.g. '--ppo.chunk-length' ->
+'--ppo.segment-length': still accepted (command lines in older summaries and scripts), deprecated."""
+
+
+def modern_flags(argv: list[str]) -> list[str]:
+    """`argv` with each old flag of `LEGACY_FLAGS` (also as '--flag=value', or with underscores) under its
+    name now, and a deprecation message on stderr for each."""
+    out = []
+    for arg in argv:
+        name, eq, value = arg.partition("=")
+        new = LEGACY_FLAGS.get(name.replace("_", "-")) if name.startswith("--") else None
+        if new is not None:
+            print(f"warning: {name} is deprecated (a renamed field); use {new}", file=sys.stderr)
+        out.append(arg if new is None else new + eq + value)
+    return out
 
 
 def flag_values(name: str, value: Any) -> list[str]:

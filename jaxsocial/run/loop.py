@@ -63,7 +63,7 @@ Transition = ppo.Batch
 both). obs, actions and valid are of the training slots (learners for PPO, demonstrators for BC), the rest of
 the learners: obs uint8 or int8 [E, S_r, ...] (the environment's observations), resets bool[E], actions
 int32[S_r, E], valid bool[S_r, E], logp, rewards, values, final_values float32[S_l, E], terminated, done
-bool[S_l, E], chunk_carries the LSTM states before the step (Carry of float32[S_l, E, H]) and attention
+bool[S_l, E], segment_carries the LSTM states before the step (Carry of float32[S_l, E, H]) and attention
 int32[S_l, E, N-1] with an attention head (`observe.attention_targets`), else None."""
 
 
@@ -73,12 +73,12 @@ def ppo_batch(
     last_resets: jax.Array,
     last_values: jax.Array,
     carry0: network.Carry,
-    chunk_length: int,
+    segment_length: int,
 ) -> ppo.Batch:
     """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (scan-stacked
-    Transitions, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...],
-    `last_resets` bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the
-    learners' LSTM states `carry0`; the chunk-start states are those before every `chunk_length`-th step."""
+    Transitions, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...], `last_resets`
+    bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the learners' LSTM
+    states `carry0`; the segment-start states are those before every `segment_length`-th step."""
     obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
     resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
     n_learners = last_obs.shape[1]
@@ -88,7 +88,7 @@ def ppo_batch(
         obs=jnp.moveaxis(obs, 2, 0),
         resets=jnp.broadcast_to(resets, (n_learners, *resets.shape)),
         values=jnp.concatenate([batch.values, last_values[:, None]], 1),
-        chunk_carries=jax.tree.map(lambda c: c[:, ::chunk_length], batch.chunk_carries),
+        segment_carries=jax.tree.map(lambda c: c[:, ::segment_length], batch.segment_carries),
         carry0=carry0,
     )
 
@@ -180,7 +180,7 @@ def make_program(
             carry0=None,
             attention=attention_targets(state.env_states),
             values=None if bc_mode else values[:n_learners],
-            chunk_carries=None if bc_mode else jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
+            segment_carries=None if bc_mode else jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
         )
         new_state = state._replace(
             env_states=env_states,
@@ -194,11 +194,11 @@ def make_program(
     def ppo_update(state: RunnerState, params, traj: Transition, carry0, k_update):
         bootstrap = population.values(pop, net, params, state.slots.carry, state.obs, state.resets)
         batch = ppo_batch(  # [S_l, T(+1), E, ...]
-            traj, state.obs[:, learners], state.resets, bootstrap[:n_learners], carry0, ppo_cfg.chunk_length
+            traj, state.obs[:, learners], state.resets, bootstrap[:n_learners], carry0, ppo_cfg.segment_length
         )
 
         # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
-        # vmapped paper-size network, whose chunked convolutions are themselves a `lax.map`.
+        # vmapped paper-size network, whose convolutions in frame batches are themselves a `lax.map`.
         def update(args):
             key, params, opt_state, learner_batch = args
             return ppo.update(key, params, opt_state, net, ppo_cfg, learner_batch, dp)
@@ -331,5 +331,5 @@ def data_mesh(program_cfg: ProgramConfig, devices: int) -> jax.sharding.Mesh:
     compiling, if they do not split)."""
     sizes = {"num_envs": program_cfg.num_envs}
     if program_cfg.algo == "ppo":
-        sizes["minibatch_chunks"] = program_cfg.ppo.minibatch_chunks
+        sizes["minibatch_segments"] = program_cfg.ppo.minibatch_segments
     return distributed.data_mesh(devices, **sizes)

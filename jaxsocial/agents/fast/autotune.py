@@ -7,14 +7,14 @@
 * ``conv_impl="auto"`` (for every layer, or ``layer=auto`` for some; `network_config.parse_conv_impl`): per
   conv layer and deconv layer, the fastest of the implementations (`conv.IMPLS`) on this machine, measured in
   the config's (resolved) dtype for the layer's real shapes: its input ``[h, w, frames, c_in]`` with
-  ``frames = min(batch, net.chunk)`` (the conv layers run in chunks of `net.chunk` frames), the forward pass
-  and the gradients the network needs (conv1: no input gradient), jitted, best of `REPS` calls after a
-  warm-up, the candidates interleaved call by call (so the machine's drift affects them alike); "matmul"
-  unless another is clearly faster (`choose`, `PREFER`). Candidates that compute alike (`conv.formulation`:
-  "matmul" and "im2col" at stride 3, or at stride 1 in bfloat16) are measured once, as the first of them in
-  `conv.IMPLS`. A layer timed alone misses what XLA does across layers, so each layer whose choice alone is
-  not "matmul" is then confirmed in the whole gradient step (`measure_step`; `tune`) and kept only if the
-  step is faster with it.
+  ``frames = min(batch, net.frame_batch)`` (the conv layers run on `net.frame_batch` frames at a time), the
+  forward pass and the gradients the network needs (conv1: no input gradient), jitted, best of `REPS` calls
+  after a warm-up, the candidates interleaved call by call (so the machine's drift affects them alike);
+  "matmul" unless another is clearly faster (`choose`, `PREFER`). Candidates that compute alike
+  (`conv.formulation`: "matmul" and "im2col" at stride 3, or at stride 1 in bfloat16) are measured once, as
+  the first of them in `conv.IMPLS`. A layer timed alone misses what XLA does across layers, so each layer
+  whose choice alone is not "matmul" is then confirmed in the whole gradient step (`measure_step`; `tune`) and
+  kept only if the step is faster with it.
 
 Measurements are cached in a JSON file (`cache_path`: ``$JAXSOCIAL_CACHE/autotune.json``, by default
 ``~/.cache/jaxsocial/autotune.json`` beside the compilation cache's ``xla`` directory): each layer's timings
@@ -190,10 +190,11 @@ class LayerSpec:
 
 
 def layer_specs(net: NetworkConfig, batch: int) -> dict[str, LayerSpec]:
-    """`net.conv_layers` -> their `LayerSpec` for calls of `batch` frames (in chunks of `net.chunk`)."""
+    """`net.conv_layers` -> their `LayerSpec` for calls of `batch` frames (in batches of
+    `net.frame_batch`)."""
     if not (isinstance(batch, int) and not isinstance(batch, bool) and batch > 0):
         raise ValueError(f"batch must be a positive integer (frames per network call), got {batch!r}")
-    frames = min(batch, net.chunk)
+    frames = min(batch, net.frame_batch)
     c1, c2, c3 = net.conv_channels
     size = OBS_SHAPE[0]
     sizes = [size // STRIDES[0]]  # 7: conv2's input (conv1's output, or the symbolic view's cells)
@@ -386,7 +387,9 @@ class Tuning:
 
 def _network_key(net: NetworkConfig, frames: int, machine: str) -> str:
     """The cache key of a network's choices: `machine`, dtype, frames, the architecture and `conv_impl`."""
-    fields = {k: v for k, v in dataclasses.asdict(net).items() if k not in ("chunk", "dtype", "conv_impl")}
+    fields = {
+        k: v for k, v in dataclasses.asdict(net).items() if k not in ("frame_batch", "dtype", "conv_impl")
+    }
     arch = ",".join(f"{k}={v}" for k, v in sorted(fields.items())).replace(" ", "")
     return f"{machine}|{net.dtype}|network {arch} frames {frames} conv_impl {net.conv_impl}"
 
@@ -418,7 +421,7 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
     net = dataclasses.replace(net, dtype=auto_dtype()) if net.dtype == AUTO else net
     specs = layer_specs(net, batch)
     auto = [layer for layer, impl in net.layer_impls.items() if impl == AUTO]
-    frames = min(batch, net.chunk)
+    frames = min(batch, net.frame_batch)
     machine = machine_id()
     key = _network_key(net, frames, machine)
     if not auto:
@@ -502,9 +505,9 @@ def resolve(
     nothing is "auto".
 
     `batch`: frames per call of the network in the step that matters for speed, the gradient step (PPO: a
-    minibatch, ``minibatch_chunks * chunk_length`` samples); the layers are measured at
-    ``min(batch, net.chunk)`` frames, the chunk the conv layers run in. `path`: the cache file (default
-    `cache_path()`).
+    minibatch, ``minibatch_segments * segment_length`` samples); the layers are measured at
+    ``min(batch, net.frame_batch)`` frames, the frame batch the conv layers run on. `path`: the cache file
+    (default `cache_path()`).
     """
     if not net.unresolved:
         return net
