@@ -43,6 +43,7 @@ RECIPES = {
     "cpu_rec_symbolic": ("cpu", "social_rec", ("--net.obs", "symbolic")),
     "gpu_rec": ("gpu", "social_rec", ()),
     "gpu_pred": ("gpu", "social_pred", ()),
+    "gpu_solo_pred": ("gpu", "solo_pred", ()),  # no experts: gpu_pred less this is the experts' share
     "cpu_rec_mb8k8": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "8")),
     "cpu_rec_mb8k2": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "2")),
     "cpu_rec_k4": ("cpu", "social_rec", ("--ppo.recompute-every", "4")),
