@@ -207,12 +207,12 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     return out
 
 
-def save_png(fig, path: Path, dpi: int = 110) -> None:
-    """Lay out a matplotlib figure, write it to `path` (without the software version, so the bytes depend only
-    on what is drawn) and close it."""
+def save_png(fig, path: Path, dpi: int = 110, rect: tuple[float, float, float, float] = (0, 0, 1, 1)) -> None:
+    """Lay out a matplotlib figure within `rect` (of the figure; the rest is left to a figure legend), write
+    it to `path` (without the software version, so the bytes depend only on what is drawn) and close it."""
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()
+    fig.tight_layout(rect=rect)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, metadata={"Software": None})
     plt.close(fig)

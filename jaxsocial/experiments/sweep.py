@@ -301,7 +301,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5.2))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (name, s) in enumerate(summary["settings"].items()):
         color, ls = colors[i % len(colors)], ("-", "--", ":")[i // len(colors) % 3]  # a style per setting
@@ -324,10 +324,10 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     axes[1].set(xlabel="CPU-minutes (1 core per seed)", ylim=(-0.02, 1.02))
     axes[2].axhline(LEARNED_RETURN, color="grey", ls=":", lw=1)
     axes[2].set(xlabel="env-steps (M)", ylabel="learner return (per 200k-step window)")
-    for ax in axes:
-        ax.legend(fontsize=7)
+    handles, labels = axes[0].get_legend_handles_labels()  # one legend for the three panels, below them
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(f"Exploratory sweep (seeds < 100): takeoff = return > {LEARNED_RETURN:g} in a window")
-    figures.save_png(fig, path)
+    figures.save_png(fig, path, rect=(0, 0.12, 1, 1))
 
 
 def main(argv: list[str] | None = None) -> None:
