@@ -13,8 +13,9 @@ so recompute = (full - once) / (R - R0), gradient minibatch = (once - one) / (M 
 recompute - gradient. The parent asks the workers for one timed iteration of each program in turn, so the
 trees' timings interleave (only one worker computes at a time), and reports each tree's best of
 ``--repeats``, its joint env-steps/s, the breakdown and the ratio to the first tree. ``--against REV``
-checks REV out in a temporary git worktree and imports jaxsocial from there. ``--xla-flags FLAGS``
-(repeatable) also times this tree with ``$XLA_FLAGS`` set to FLAGS, side by side the same way.
+checks REV out in a temporary git worktree and imports jaxsocial from there. ``--xla-flags=FLAGS``
+(repeatable; written with "=", as FLAGS begin with "--") also times this tree with ``$XLA_FLAGS`` set to
+FLAGS, side by side the same way.
 
 ``--single-core`` also measures the throughput of two seeds as two processes pinned to one core each
 (XLA:CPU single-threaded), both timing the full program at once, against one process on all cores.
@@ -177,7 +178,7 @@ def main() -> None:
     parser.add_argument("--against", help="a git revision to time side by side")
     parser.add_argument(
         "--xla-flags", action="append", default=[], metavar="FLAGS",
-        help="also time this tree with $XLA_FLAGS=FLAGS (repeatable)",
+        help="also time this tree with $XLA_FLAGS=FLAGS (repeatable; write --xla-flags=FLAGS)",
     )  # fmt: skip
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--single-core", action="store_true", help="also two single-core processes")
