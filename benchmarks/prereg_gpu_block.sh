@@ -111,7 +111,10 @@ collect() {
   for run in "$tmp"/runs/experiments/gpu/*/; do
     local name
     name=$(basename "$run")
-    cp "$run"/device-*.log "$out/" 2>/dev/null || true
+    mkdir -p "$out/$name"
+    for log in "$run"device-*.log; do  # progress lines end in carriage returns: one line each
+      if [ -f "$log" ]; then tr '\r' '\n' <"$log" | grep -v '^\s*$' >"$out/$name/$(basename "$log")"; fi
+    done
     for seed in "$run"s*/; do
       mkdir -p "$out/$name/$(basename "$seed")"
       cp "$seed/config.json" "$out/$name/$(basename "$seed")/"
