@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from jaxsocial.experiments import records  # noqa: E402
-from jaxsocial.run import logs  # noqa: E402
+from jaxsocial.run import logs, metrics  # noqa: E402
 
 
 def seconds_between(start: str, end: str) -> float:
@@ -37,7 +37,7 @@ def share(run_dir: Path) -> dict:
     config, rows = logs.read_config(run_dir), logs.read_metrics(run_dir)
     per_iteration = config["num_envs"] * config["rollout_steps"]
     wall = seconds_between(run["started"], run["ended"])
-    inside = sum(per_iteration / row["env_steps_per_s"] for row in rows)
+    inside = metrics.cpu_minutes(rows, per_iteration, cores=1) * 60  # each row's time, from its speed
     compile_s = sum(row.get("compile_s", 0.0) for row in rows)
     return {
         "run": str(run_dir),
