@@ -18,7 +18,8 @@ checks REV out in a temporary git worktree and imports jaxsocial from there. ``-
 FLAGS, side by side the same way.
 
 ``--single-core`` also measures the throughput of two seeds as two processes pinned to one core each
-(XLA:CPU single-threaded), both timing the full program at once, against one process on all cores.
+(XLA:CPU single-threaded), both timing the full program at once, against one process on all cores: for this
+tree and ``--against``'s, taking turns in every repeat (the layout the sweep and the designs run seeds in).
 
     python benchmarks/recipe_sps.py --recipes cpu_rec,gpu_rec --against 191032c --repeats 3 \
         --out benchmarks/results/recipe_sps.json
@@ -156,19 +157,34 @@ def worktree(rev: str, where: Path) -> Path:
     return path
 
 
-def single_core_pair(recipe: str, tree: Path, repeats: int) -> dict:
-    """Two single-core workers timing the full program at the same moment: their summed env-steps/s."""
+def single_core_pairs(recipe: str, trees: dict[str, Path], repeats: int) -> dict[str, dict]:
+    """Per tree, two single-core workers timing the full program at the same moment: their summed
+    env-steps/s, the trees taking turns in every repeat."""
     env = {"XLA_FLAGS": SINGLE_CORE_XLA_FLAGS}
-    workers = [Worker(recipe, tree, env, cpus=str(core)) for core in range(2)]
-    rates = []
+    workers = {
+        label: [Worker(recipe, tree, env, cpus=str(core)) for core in range(2)]
+        for label, tree in trees.items()
+    }
+    rates: dict[str, list[float]] = {label: [] for label in trees}
     for _ in range(repeats):
-        for w in workers:
-            w.ask("full")
-        seconds = [w._read()["seconds"] for w in workers]
-        rates.append(sum(workers[0].info["env_steps"] / s for s in seconds))
-    for w in workers:
-        w.close()
-    return {"best_total_env_steps_per_s": max(rates), "totals": rates}
+        for label, pair in workers.items():
+            for w in pair:
+                w.ask("full")
+            seconds = [w._read()["seconds"] for w in pair]
+            rates[label].append(sum(pair[0].info["env_steps"] / s for s in seconds))
+    for pair in workers.values():
+        for w in pair:
+            w.close()
+    return {label: {"best_total_env_steps_per_s": max(r), "totals": r} for label, r in rates.items()}
+
+
+def recomputes(row: dict) -> str:
+    """The recomputes of a timed row, as the table shows them."""
+    return (
+        f"recompute {row['recomputes']}x{row['recompute_s_each']:.3f}s"
+        if row["recomputes"]
+        else "no recompute"
+    )
 
 
 def main() -> None:
@@ -226,19 +242,21 @@ def main() -> None:
                 row["ratio_to_head"] = row["best_env_steps_per_s"] / base
                 print(
                     f"{name:18s} {row['tree']:10s} {row['best_env_steps_per_s']:8,.0f} env-steps/s "
-                    f"(x{row['ratio_to_head']:.2f}); rollout {row['rollout_s']:.2f}s, recompute "
-                    f"{row['recomputes']}x{row['recompute_s_each']:.3f}s, gradient "
-                    f"{row['minibatches']}x{row['gradient_s_each']:.3f}s; compile "
+                    f"(x{row['ratio_to_head']:.2f}); rollout {row['rollout_s']:.2f}s, {recomputes(row)}, "
+                    f"gradient {row['minibatches']}x{row['gradient_s_each']:.3f}s; compile "
                     f"{sum(row['compile_s'].values()):.0f}s (3 programs); load {row['loadavg_after'][0]:.1f}",
                     flush=True,
                 )
             if args.single_core:
-                pair = single_core_pair(name, REPO, args.repeats)
-                rows.append({"recipe": name, "tree": "HEAD", "layout": "2 processes x 1 core", **pair})
-                one = rows[-1 - len(trees)]["best_env_steps_per_s"]
-                total = pair["best_total_env_steps_per_s"]
-                print(f"{name:18s} 2 x 1 core {total:8,.0f} env-steps/s in total (x{total / one:.2f} "
-                      "one 2-core process)", flush=True)  # fmt: skip
+                plain = {label: trees[label] for label in trees if not envs[label]}
+                for label, pair in single_core_pairs(name, plain, args.repeats).items():
+                    rows.append({"recipe": name, "tree": label, "layout": "2 processes x 1 core", **pair})
+                    one = next(
+                        r["best_env_steps_per_s"] for r in rows if r["tree"] == label and r["recipe"] == name
+                    )
+                    total = pair["best_total_env_steps_per_s"]
+                    print(f"{name:18s} {label:10s} 2 x 1 core: {total:8,.0f} env-steps/s in total "
+                          f"(x{total / one:.2f} its one 2-core process)", flush=True)  # fmt: skip
     finally:
         if args.against:
             subprocess.run(["git", "worktree", "remove", "--force", str(trees[args.against])], check=False)

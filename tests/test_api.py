@@ -1,5 +1,7 @@
 """The public API contract: presets, shapes, jit/vmap, determinism, auto-reset and bad input."""
 
+import functools
+
 import chex
 import jax
 import jax.numpy as jnp
@@ -130,7 +132,7 @@ def test_step_renders_once_when_final_obs_is_unused():
 def test_vmap_and_step_batch_equal_per_env_step():
     """Under vmap the auto-reset is a cond on "some episode ended" plus a select: with episodes ending at
     different steps in different environments, every environment of the batch is the same as running it
-    alone, and `step_batch` is the same as the vmap."""
+    alone, and `step_batch` is the same as the vmap (with `observers`, on those agents' views)."""
     params = SHORT
     n_envs, n_steps = 4, 9
     _, states = jax.jit(jax.vmap(reset, in_axes=(0, None)), static_argnums=1)(
@@ -151,6 +153,10 @@ def test_vmap_and_step_batch_equal_per_env_step():
     done = np.asarray(vmapped[-1])
     assert np.all((done.sum(1) > 0) & (done.sum(1) < n_envs))  # every step resets some environments only
     chex.assert_trees_all_equal(vmapped, jax.jit(lambda *a: run(step_batch, *a))(states, keys, actions))
+    # Some agents' views only: obs and final_obs are those agents' rows of every view; the rest the same.
+    some = jax.jit(lambda *a: run(functools.partial(step_batch, observers=(2, 0)), *a))(states, keys, actions)
+    rows = [(x[:, :, [2, 0]] if k in (0, 5) else x) for k, x in enumerate(vmapped)]
+    chex.assert_trees_all_equal(tuple(rows), some)
     alone = jax.jit(lambda *a: run(step, *a))
     for i in range(n_envs):
         one = alone(jax.tree.map(lambda x, i=i: x[i], states), keys[:, i], actions[:, i])

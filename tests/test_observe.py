@@ -7,7 +7,7 @@ import pytest
 
 import jaxsocial
 from jaxsocial.env import sprites, state_from_layout
-from jaxsocial.env.observe import attention_targets, visibility
+from jaxsocial.env.observe import attention_targets, observe, visibility
 from jaxsocial.env.types import SHADOW
 
 OPEN = ["#########", *["#.......#"] * 7, "#########"]
@@ -211,3 +211,31 @@ def test_attention_targets_are_view_cells_of_the_other_agents():
     assert targets[1, 0] == 49 and targets[1, 3] == 49
     # Seen from agent 2 at (7, 7) facing east, agent 0 at (4, 6) is 3 behind (outside: only 1 row behind).
     assert targets[2, 0] == 49
+
+
+@pytest.mark.parametrize("observation", ["rgb", "symbolic"])
+def test_views_of_some_observers_are_their_rows_of_every_view(observation):
+    """`observe(state, params, observers)` renders only those agents' views, each exactly its row of the
+    views of every agent, in the observers' order; here with shared cells, arrival order, an inactive and
+    an absent agent in view."""
+    state, params = scene(
+        OPEN, [(4, 6), (4, 4), (4, 4), (4, 5), (3, 4)], [3, 0, 1, 2, 3], n_agents=5, observation=observation
+    )
+    state = state.replace(
+        arrival=np.array([0, 5, 3, 3, 0], np.int32),
+        active=np.array([True, True, False, True, False]),
+        present=np.array([True, True, True, True, False]),
+        prestige=np.array([0.0, 2.0, -1.0, 0.5, 0.0], np.float32),
+    )
+    render = jax.jit(observe, static_argnums=(1, 2))
+    every = np.asarray(render(state, params, None))
+    for observers in [(0,), (2,), (3, 1), (1, 2, 3), (4, 0)]:
+        some = np.asarray(render(state, params, observers))
+        np.testing.assert_array_equal(some, every[list(observers)], err_msg=str(observers))
+
+
+@pytest.mark.parametrize("observers", [(), (5,), (-1,)])
+def test_observers_outside_the_agents_are_refused(observers):
+    state, params = scene(OPEN, [(4, 6), (4, 4)], [3, 3], n_agents=2)
+    with pytest.raises(ValueError, match="observers must be agent indices"):
+        observe(state, params, observers)

@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +16,8 @@ from jaxsocial.agents import policy_io
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.network import init as init_params
 from jaxsocial.agents.ppo import PPOConfig
-from jaxsocial.run import checkpoint, config, logs
+from jaxsocial.env.observe import observe
+from jaxsocial.run import checkpoint, config, logs, loop
 from jaxsocial.run.config import PRESETS
 from jaxsocial.train import make_train, parse_args, run
 
@@ -118,6 +120,27 @@ def test_same_seed_same_run(tiny_runs):
 
 def test_resumed_run_equals_uninterrupted_run(tiny_runs):
     assert metrics_without_speed(tiny_runs["resumed"]) == metrics_without_speed(tiny_runs["full"])
+
+
+def test_a_checkpoint_holding_every_slots_views_resumes_the_same_run(tiny_runs):
+    """Checkpoints written before programs rendered only the views their networks read hold every slot's
+    views (obs [E, N, ...]); resuming one takes the learner's rows, and the run goes on as uninterrupted."""
+    runs_dir = tiny_runs["runs_dir"]
+    cut = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="every_view", iterations=2))
+    ckpt_dir = cut / "checkpoints"
+    static = config.setup(TINY, load_frozen=False)
+    env_params = static.stage(-1)
+    init, _ = loop.make_program(TINY.program, env_params, static.pop)
+    state = checkpoint.restore(ckpt_dir, jax.eval_shape(init, jax.random.key(0)), 2)
+    every = jax.vmap(observe, in_axes=(0, None))(state.env_states, env_params)  # [E, N, ...]
+    assert loop.observers(static.pop, "ppo") == (0,) and every.shape[1] == 3 > state.obs.shape[1] == 1
+    np.testing.assert_array_equal(every[:, :1], state.obs)
+    metadata = checkpoint.read_metadata(ckpt_dir, 2)
+    shutil.rmtree(ckpt_dir / "2")
+    checkpoint.save(ckpt_dir, 2, state._replace(obs=every), metadata=metadata)
+    assert checkpoint.leaf_shapes(ckpt_dir)[".obs"] == every.shape
+    resumed = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="every_view", resume=True))
+    assert metrics_without_speed(resumed) == metrics_without_speed(tiny_runs["full"])
 
 
 def test_checkpoints_every_checkpoint_every_iterations(tiny_runs):

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxsocial.agents import experts, network
+from jaxsocial.env.observe import Observers
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 from jaxsocial.specs import PolicyRef, TextField
 
@@ -207,9 +208,21 @@ def init_slot_state(pop: Population, net: network.NetworkConfig, params: EnvPara
     )
 
 
-def _step_neural(pop: Population, net: network.NetworkConfig, params, carry, obs, resets):
-    """One network step of every neural slot (vmapped over slots), each on its own view of obs [E, N, ...]."""
-    neural_obs = jnp.moveaxis(obs[:, jnp.asarray(pop.neural)], 1, 0)
+def view_rows(slots: tuple[int, ...], observers: Observers) -> tuple[int, ...]:
+    """Where each of `slots` finds its view in observations of `observers` (`observe.Observers`: obs
+    [E, K, ...] holds those slots' views in that order; None: every slot's, [E, N, ...])."""
+    if observers is None:
+        return slots
+    missing = [i for i in slots if i not in observers]
+    if missing:
+        raise ValueError(f"slots {missing} have no view among the observers {observers}")
+    return tuple(observers.index(i) for i in slots)
+
+
+def _step_neural(pop: Population, net: network.NetworkConfig, params, carry, obs, resets, observers):
+    """One network step of every neural slot (vmapped over slots), each on its own view of obs [E, K, ...]
+    (the views of `observers`)."""
+    neural_obs = jnp.moveaxis(obs[:, jnp.asarray(view_rows(pop.neural, observers))], 1, 0)
     return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(params, net, carry, neural_obs, resets)
 
 
@@ -223,24 +236,26 @@ def act(
     obs: jax.Array,
     env_states: EnvState,
     resets: jax.Array,
+    observers: Observers = None,
 ) -> tuple[jax.Array, SlotState, jax.Array, jax.Array]:
     """Every slot's action for a batch of environments.
 
     Args:
         params: neural-slot params stacked [S, ...] in `pop.neural` order (None when there are none);
-        obs: uint8[E, N, 21, 21, 3] (symbolic: int8[E, N, 7, 7, 4]); env_states: EnvState [E] (scripted
-        experts read it); resets: bool[E] the step starts an episode (zero the LSTM state, clear the
-        experts' memory).
+        obs: uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]) the views of `observers` (static slot
+        indices that include every neural slot; None: every slot's, K = N); env_states: EnvState [E]
+        (scripted experts read it); resets: bool[E] the step starts an episode (zero the LSTM state, clear
+        the experts' memory).
     Returns:
         actions int32[E, N]; the new slot state (rewards still those of the previous step, see
         `with_rewards`); log-probabilities and values float32[S, E] of the neural slots.
     """
-    n_envs, n_agents = obs.shape[:2]
+    n_envs, n_agents = obs.shape[0], env_params.n_agents
     k_neural, k_random, k_experts = jax.random.split(key, 3)
     actions = jax.random.randint(k_random, (n_envs, n_agents), 0, NUM_ACTIONS)
     carry, logp, value = slot_state.carry, jnp.zeros((0, n_envs)), jnp.zeros((0, n_envs))
     if pop.neural:
-        carry, out = _step_neural(pop, net, params, carry, obs, resets)
+        carry, out = _step_neural(pop, net, params, carry, obs, resets, observers)
         chosen = jax.random.categorical(k_neural, out.logits)
         logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), chosen[..., None], -1)[..., 0]
         actions = actions.at[:, jnp.asarray(pop.neural)].set(chosen.T.astype(actions.dtype))
@@ -275,9 +290,10 @@ def values(
     carry: network.Carry,
     obs: jax.Array,
     resets: jax.Array | None = None,
+    observers: Observers = None,
 ) -> jax.Array:
-    """float32[S, E] neural slots' values of `obs` ([E, N, ...]) continuing from `carry`, zeroed first where
-    `resets` (bool[E]; None: nowhere)."""
+    """float32[S, E] neural slots' values of `obs` ([E, K, ...], the views of `observers` as in `act`)
+    continuing from `carry`, zeroed first where `resets` (bool[E]; None: nowhere)."""
     resets = jnp.zeros(obs.shape[0], bool) if resets is None else resets
-    _, out = _step_neural(pop, net, params, carry, obs, resets)
+    _, out = _step_neural(pop, net, params, carry, obs, resets, observers)
     return out.value

@@ -6,6 +6,7 @@ Shapes (N agents, one environment; batch with `jax.vmap(..., in_axes=(0, 0, 0, N
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import jax
@@ -15,7 +16,7 @@ import numpy as np
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.dynamics import world_step
 from jaxsocial.env.layouts import generate, parse_ascii
-from jaxsocial.env.observe import observe
+from jaxsocial.env.observe import Observers, observe
 from jaxsocial.env.types import BONUS, NUM_ACTIONS, WALL, EnvParams, EnvState
 
 
@@ -81,12 +82,13 @@ def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.
     )
 
 
-def reset(key: jax.Array, params: EnvParams) -> tuple[jax.Array, EnvState]:
+def reset(key: jax.Array, params: EnvParams, observers: Observers = None) -> tuple[jax.Array, EnvState]:
     """A new episode: a fresh layout and agents placed independently and uniformly on spawn cells
     (they may share a cell or stand on a bonus tile, docs/environment.md 1.3); with `params.solo_prob` it
-    is a solo episode (see `EnvParams.solo_prob`, docs/environment.md 10.2). Returns `(obs, state)`."""
+    is a solo episode (see `EnvParams.solo_prob`, docs/environment.md 10.2). Returns `(obs, state)`, obs
+    the views of `observers` only (static agent indices, `observe.Observers`; None: every agent's)."""
     state = _new_episode(key, params)
-    return observe(state, params), state
+    return observe(state, params, observers), state
 
 
 def _new_episode(key: jax.Array, params: EnvParams) -> EnvState:
@@ -145,9 +147,11 @@ def _episode_done(terminated: jax.Array, truncated: jax.Array) -> jax.Array:
 
 
 def step(
-    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams
+    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams, observers: Observers = None
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
-    """One step with auto-reset (gymnax 1.0 shape).
+    """One step with auto-reset (gymnax 1.0 shape). `obs` and `final_obs` hold the views of `observers`
+    only (static agent indices, `observe.Observers`; None: every agent's), e.g. those a trainer's networks
+    read.
 
     When every agent is terminated or time runs out, the returned `obs` and `state` belong to a new
     episode drawn with `key`; `info["final_obs"]` holds the last observation of the finished episode
@@ -167,18 +171,19 @@ def step(
         return jax.tree.map(lambda r, s: jnp.where(done, r, s), fresh, new_state)
 
     next_state = jax.lax.cond(some_ended, with_reset, lambda: new_state)
-    obs = observe(next_state, params)
-    final_obs = jax.lax.cond(some_ended, lambda: observe(new_state, params), lambda: obs)
+    obs = observe(next_state, params, observers)
+    final_obs = jax.lax.cond(some_ended, lambda: observe(new_state, params, observers), lambda: obs)
     return obs, next_state, reward, terminated, truncated, {"final_obs": final_obs, "done": done}
 
 
 def step_batch(
-    keys: jax.Array, states: EnvState, actions: jax.Array, params: EnvParams
+    keys: jax.Array, states: EnvState, actions: jax.Array, params: EnvParams, observers: Observers = None
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
     """`step` over a leading batch axis (keys [B], states [B, ...], actions int32[B, N]): exactly
     `jax.vmap(step, in_axes=(0, 0, 0, None))`, which generates and renders new episodes only on steps where
     some episode of the batch ended."""
-    return jax.vmap(step, in_axes=(0, 0, 0, None))(keys, states, actions, params)
+    one = functools.partial(step, observers=observers)
+    return jax.vmap(one, in_axes=(0, 0, 0, None))(keys, states, actions, params)
 
 
 def state_from_layout(

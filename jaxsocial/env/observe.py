@@ -31,13 +31,27 @@ def view_offsets(view_size: int, view_offset: int) -> np.ndarray:
     return out
 
 
-def view_cells(state: EnvState, params: EnvParams) -> tuple[jax.Array, jax.Array]:
-    """World coordinates and tile types of every agent's view.
+Observers = tuple[int, ...] | None
+"""The agents whose views are rendered, in this order (a static tuple of agent indices); None: every agent."""
 
-    Returns int32[N, V, V, 2] (x, y) and uint8[N, V, V] tile types (cells outside the grid are EMPTY).
+
+def observer_index(params: EnvParams, observers: Observers) -> np.ndarray:
+    """int32[K] the agent index of each rendered view (`Observers`; K = N for None)."""
+    if observers is None:
+        return np.arange(params.n_agents, dtype=np.int32)
+    who = np.asarray(observers, np.int32).reshape(-1)
+    if who.size == 0 or who.min() < 0 or who.max() >= params.n_agents:
+        raise ValueError(f"observers must be agent indices in [0, {params.n_agents}), got {observers}")
+    return who
+
+
+def view_cells(state: EnvState, params: EnvParams, who: np.ndarray) -> tuple[jax.Array, jax.Array]:
+    """World coordinates and tile types of the views of the observers `who` (int32[K], agent indices).
+
+    Returns int32[K, V, V, 2] (x, y) and uint8[K, V, V] tile types (cells outside the grid are EMPTY).
     """
     offsets = jnp.asarray(view_offsets(params.view_size, params.view_offset))
-    world = state.pos[:, None, None, :] + offsets[state.dir]
+    world = state.pos[who][:, None, None, :] + offsets[state.dir[who]]
     height, width = state.grid.shape
     x, y = world[..., 0], world[..., 1]
     inside = (x >= 0) & (x < width) & (y >= 0) & (y < height)
@@ -98,18 +112,19 @@ def visibility(transparent: jax.Array, view_offset: int) -> jax.Array:
     return jnp.stack(rows, -2)
 
 
-def agent_layer(state: EnvState, world: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Which agent each observer sees drawn in each view cell (docs/environment.md 4.6, 9.11).
+def agent_layer(state: EnvState, world: jax.Array, who: np.ndarray) -> tuple[jax.Array, jax.Array]:
+    """Which agent each observer `who` (int32[K], agent indices; `world` int32[K, V, V, 2] their view cells)
+    sees drawn in each view cell (docs/environment.md 4.6, 9.11).
 
     Only one agent is drawn per cell: the observer if it is there, otherwise the earliest arrival, ties to
     the lowest index. Inactive (done) agents are still drawn; absent ones (`present` False) are not.
-    Returns bool[N, V, V] (an agent is drawn) and int32[N, V, V] its index.
+    Returns bool[K, V, V] (an agent is drawn) and int32[K, V, V] its index.
     """
     n = state.pos.shape[0]
     at = jnp.all(world[:, None] == state.pos[None, :, None, None, :], -1)  # [obs, agent, V, V]
     at = at & state.present[None, :, None, None]
     key = state.arrival * n + jnp.arange(n)
-    key = jnp.where(jnp.eye(n, dtype=bool), -1, key[None, :])  # observer first
+    key = jnp.where(who[:, None] == np.arange(n)[None, :], -1, key[None, :])  # observer first
     big = jnp.iinfo(jnp.int32).max
     drawn = jnp.argmin(jnp.where(at, key[:, :, None, None], big), axis=1).astype(jnp.int32)
     return jnp.any(at, axis=1), drawn
@@ -127,37 +142,42 @@ def color_index(state: EnvState, params: EnvParams) -> jax.Array:
     return 2 * blue + (red + blue - 254)
 
 
-def relative_dir(state: EnvState, drawn: jax.Array) -> jax.Array:
-    """int32[N, V, V] sprite direction (0 right, 1 down, 2 left, 3 up) of the drawn agent as the observer
-    sees it: `(dir_other - dir_observer + 3) mod 4`."""
-    return (state.dir[drawn] - state.dir[:, None, None] + 3) % 4
+def relative_dir(state: EnvState, drawn: jax.Array, who: np.ndarray) -> jax.Array:
+    """int32[K, V, V] sprite direction (0 right, 1 down, 2 left, 3 up) of the drawn agent as each observer
+    `who` (int32[K]) sees it: `(dir_other - dir_observer + 3) mod 4`."""
+    return (state.dir[drawn] - state.dir[who][:, None, None] + 3) % 4
 
 
-def observation_cells(state: EnvState, params: EnvParams) -> dict[str, jax.Array]:
-    """Everything an observation shows, per view cell ([N, V, V] each): tile type, visibility, drawn agent."""
-    world, tiles = view_cells(state, params)
-    visible = visibility(tiles != WALL, params.view_offset) & state.active[:, None, None]
-    has_agent, drawn = agent_layer(state, world)
+def observation_cells(
+    state: EnvState, params: EnvParams, observers: Observers = None
+) -> dict[str, jax.Array]:
+    """Everything the observers' views show, per view cell ([K, V, V] each): tile type, visibility, drawn
+    agent."""
+    who = observer_index(params, observers)
+    world, tiles = view_cells(state, params, who)
+    visible = visibility(tiles != WALL, params.view_offset) & state.active[who][:, None, None]
+    has_agent, drawn = agent_layer(state, world, who)
     return {
         "tiles": tiles,
         "visible": visible,
         "has_agent": has_agent & visible,
         "agent": drawn,
-        "rel_dir": relative_dir(state, drawn),
+        "rel_dir": relative_dir(state, drawn, who),
     }
 
 
 def atlas_index(cells: dict[str, jax.Array], colors: jax.Array, palette: int) -> jax.Array:
-    """int32[N, V, V] index into `sprites.atlas` for each view cell."""
+    """int32[K, V, V] index into `sprites.atlas` for each view cell."""
     tiles = cells["tiles"].astype(jnp.int32)
     agent_tile = sprites.FIRST_AGENT_TILE + (tiles * 4 + cells["rel_dir"]) * palette + colors[cells["agent"]]
     idx = jnp.where(cells["has_agent"], agent_tile, 1 + tiles)
     return jnp.where(cells["visible"], idx, 0)
 
 
-def rgb(state: EnvState, params: EnvParams) -> jax.Array:
-    """uint8[N, V*3, V*3, 3] egocentric RGB views; hidden cells and done observers are shadow."""
-    cells = observation_cells(state, params)
+def rgb(state: EnvState, params: EnvParams, observers: Observers = None) -> jax.Array:
+    """uint8[K, V*3, V*3, 3] the observers' egocentric RGB views; hidden cells and done observers are
+    shadow."""
+    cells = observation_cells(state, params, observers)
     idx = atlas_index(cells, color_index(state, params), sprites.palette_size(params.agent_colors))
     pixels = jnp.asarray(sprites.atlas(params.agent_colors).reshape(-1, 3))  # [T * 9, 3]
     side = params.view_size * sprites.TILE
@@ -167,10 +187,10 @@ def rgb(state: EnvState, params: EnvParams) -> jax.Array:
     return pixels[per_pixel * 9 + sub_offset]
 
 
-def symbolic(state: EnvState, params: EnvParams) -> jax.Array:
-    """int8[N, V, V, 4] symbolic views: tile type (-1 hidden), drawn agent index + 1 (0 none),
+def symbolic(state: EnvState, params: EnvParams, observers: Observers = None) -> jax.Array:
+    """int8[K, V, V, 4] the observers' symbolic views: tile type (-1 hidden), drawn agent index + 1 (0 none),
     its relative direction (-1 none), its colour (prestige: blue level 0-127; fixed: palette index)."""
-    cells = observation_cells(state, params)
+    cells = observation_cells(state, params, observers)
     colors = color_index(state, params)
     if params.agent_colors == "prestige":
         colors = colors // 4
@@ -200,6 +220,8 @@ def attention_targets(state: EnvState, params: EnvParams) -> jax.Array:
     return jnp.where(inside, row * v + col, v * v).astype(jnp.int32)
 
 
-def observe(state: EnvState, params: EnvParams) -> jax.Array:
-    """Every agent's observation, of shape `(N, *params.obs_shape)`."""
-    return rgb(state, params) if params.observation == "rgb" else symbolic(state, params)
+def observe(state: EnvState, params: EnvParams, observers: Observers = None) -> jax.Array:
+    """The observers' observations (every agent's for None), of shape `(K, *params.obs_shape)`: row k is
+    exactly row `observers[k]` of every agent's, and only the K views are computed."""
+    render = rgb if params.observation == "rgb" else symbolic
+    return render(state, params, observers)

@@ -268,6 +268,13 @@ def read_metadata(directory: str | Path, step: int | None = None) -> dict[str, A
     return dict(_read_json_item(directory, step, "metadata") or {})
 
 
+def leaf_shapes(directory: str | Path, step: int | None = None) -> dict[str, tuple[int, ...]]:
+    """The shape of every leaf saved at `step` (latest by default), by key path (`jax.tree_util.keystr`)."""
+    directory = _dir(directory)
+    manifest = _read_json_item(directory, _resolve_step(directory, step), "manifest")
+    return {e["path"]: tuple(e["shape"]) for e in manifest["leaves"]}
+
+
 def restore(directory: str | Path, target: Any, step: int | None = None) -> Any:
     """Restores checkpoint `step` (latest by default) into the structure of `target`.
 

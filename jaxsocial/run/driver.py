@@ -110,13 +110,30 @@ def stage_program(
     return loop.compiled(program_cfg, mesh, static.stage(stage), static.pop)
 
 
+def restore_state(
+    ckpt_dir: Path, template: RunnerState, step: int | None, observed: tuple[int, ...]
+) -> RunnerState:
+    """`checkpoint.restore` of one seed's RunnerState like `template`. A checkpoint written before programs
+    rendered only the views they read holds every slot's views (obs [E, N, ...]); it is restored with the
+    rows of the slots `observed` (`loop.observers`), exactly the views the program renders."""
+    stored = checkpoint.leaf_shapes(ckpt_dir, step).get(".obs")
+    want = template.obs.shape
+    n_slots = template.env_states.pos.shape[1]
+    if stored is None or stored == want or stored != (want[0], n_slots, *want[2:]):
+        return checkpoint.restore(ckpt_dir, template, step)
+    every_view = template._replace(obs=jax.ShapeDtypeStruct(stored, template.obs.dtype))
+    state = checkpoint.restore(ckpt_dir, every_view, step)
+    return state._replace(obs=state.obs[:, np.asarray(observed)])
+
+
 def source_state(seed_dir: Path, iteration: int) -> RunnerState:
     """The RunnerState of the source's checkpoint `iteration` (host arrays)."""
     source = init_from.source_config(seed_dir)
     static = config.setup(source, load_frozen=False)
     init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
     template = jax.eval_shape(init, jax.random.key(0))
-    return checkpoint.restore(rundir.checkpoints(seed_dir), template, iteration)
+    observed = loop.observers(static.pop, source.program.algo)
+    return restore_state(rundir.checkpoints(seed_dir), template, iteration, observed)
 
 
 def load_source_learners(
@@ -259,9 +276,10 @@ class Driver:
             raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
         lead = int(self.program.seeds > 1)
         template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), self.state)
+        observed = loop.observers(self.static.pop, self.program.algo)
         for step in sorted(set.intersection(*map(set, steps)), reverse=True):
             try:
-                restored = [checkpoint.restore(d, template, step) for d in ckpt_dirs]
+                restored = [restore_state(d, template, step, observed) for d in ckpt_dirs]
                 stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", self.stage))
             except checkpoint.CheckpointMismatchError:
                 raise

@@ -34,7 +34,7 @@ class RunnerState(NamedTuple):
     params: Any  # learner params stacked [S_l, ...]
     opt_state: Any  # learner optimiser states stacked [S_l, ...]
     env_states: EnvState  # [E]
-    obs: jax.Array  # uint8[E, N, 21, 21, 3] (symbolic views: int8[E, N, 7, 7, 4])
+    obs: jax.Array  # uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]) the views of `observers(...)`
     resets: jax.Array  # bool[E]: the next step starts an episode
     slots: population.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
     demo_carry: network.Carry | None  # bc: learners' LSTM states on the demonstration streams [S_l, E*D, H]
@@ -93,6 +93,13 @@ def ppo_batch(
     )
 
 
+def observers(pop: population.Population, algo: str) -> tuple[int, ...]:
+    """The slots whose views a program renders (`observe.Observers`): the neural slots, and for behaviour
+    cloning the demonstrators. Scripted experts and random slots read no views, so a step beside two experts
+    renders one view, not three."""
+    return tuple(sorted(set(pop.neural) | set(pop.demonstrators if algo == "bc" else ())))
+
+
 def make_program(
     cfg: ProgramConfig,
     env_params: EnvParams,
@@ -115,14 +122,19 @@ def make_program(
     n_learners, n_neural = len(pop.learners), len(pop.neural)
     n_envs, n_steps = cfg.num_envs, cfg.rollout_steps
     bc_mode = cfg.algo == "bc"
-    training_slots = jnp.asarray(pop.demonstrators if bc_mode else pop.learners)
+    observed = observers(pop, cfg.algo)
+    training = pop.demonstrators if bc_mode else pop.learners
+    training_slots = jnp.asarray(training)
+    training_views = jnp.asarray(population.view_rows(training, observed))  # their rows of state.obs
+    learner_views = jnp.asarray(population.view_rows(pop.learners, observed))
     n_demo_streams = n_envs * len(pop.demonstrators)
     optimizer = bc.make_optimizer(cfg.bc) if bc_mode else ppo.make_optimizer(ppo_cfg)
 
     def init(key: jax.Array) -> RunnerState:
         k_params, k_env, k_run = jax.random.split(key, 3)
         params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(k_params, n_learners), net)
-        obs, env_states = jax.vmap(core.reset, in_axes=(0, None))(jax.random.split(k_env, n_envs), env_params)
+        reset = functools.partial(core.reset, observers=observed)
+        obs, env_states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_env, n_envs), env_params)
         return RunnerState(
             params=params,
             opt_state=jax.vmap(optimizer.init)(params),
@@ -151,16 +163,25 @@ def make_program(
         state, params = carry
         k_act, k_env = jax.random.split(key)
         actions, slots, logp, values = population.act(
-            k_act, pop, net, env_params, params, state.slots, state.obs, state.env_states, state.resets
+            k_act,
+            pop,
+            net,
+            env_params,
+            params,
+            state.slots,
+            state.obs,
+            state.env_states,
+            state.resets,
+            observed,
         )
         alive, present = state.env_states.active, state.env_states.present  # [E, N] at the step's start
         obs, env_states, reward, terminated, truncated, info = core.step_batch(
-            jax.random.split(k_env, n_envs), state.env_states, actions, env_params
+            jax.random.split(k_env, n_envs), state.env_states, actions, env_params, observed
         )
         done = info["done"]
         final_values = jax.lax.cond(
             any_in_batch(done),
-            lambda: population.values(pop, net, params, slots.carry, info["final_obs"]),
+            lambda: population.values(pop, net, params, slots.carry, info["final_obs"], observers=observed),
             lambda: jnp.zeros((n_neural, n_envs), jnp.float32),
         )
         episode_return = state.episode_return + reward
@@ -168,7 +189,7 @@ def make_program(
         stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0))
         agent_done = terminated | done[:, None]
         transition = Transition(
-            obs=state.obs[:, training_slots],
+            obs=state.obs[:, training_views],
             resets=state.resets,
             actions=actions[:, training_slots].T,
             logp=logp[:n_learners],
@@ -192,9 +213,14 @@ def make_program(
         return (new_state, params), (transition, stats)
 
     def ppo_update(state: RunnerState, params, traj: Transition, carry0, k_update):
-        bootstrap = population.values(pop, net, params, state.slots.carry, state.obs, state.resets)
+        bootstrap = population.values(pop, net, params, state.slots.carry, state.obs, state.resets, observed)
         batch = ppo_batch(  # [S_l, T(+1), E, ...]
-            traj, state.obs[:, learners], state.resets, bootstrap[:n_learners], carry0, ppo_cfg.segment_length
+            traj,
+            state.obs[:, learner_views],
+            state.resets,
+            bootstrap[:n_learners],
+            carry0,
+            ppo_cfg.segment_length,
         )
 
         # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
