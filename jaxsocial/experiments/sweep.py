@@ -189,6 +189,23 @@ SETTINGS = {
             "pre-registered test only if this one stays on the plateau far more often than the social one.",
         ),
         Setting(
+            "mb8k8_rec_8x8_pen2",
+            "social_rec",
+            (*ONE_SAMPLE, "--env-args", "width=8,height=8,penalty=2.0"),
+            TWENTY_M,
+            "After the 8x8 grid's seven seeds a condition (social 6 of 7, solo 4 of 7 by 20M, solo's first "
+            "the earliest): a harsher penalty for a wrong tile makes solo's trial and error dearer, "
+            "while a learner that follows the experts steps on tiles in their order. Worth a design only if "
+            "solo learners stay on the plateau far more often than social ones.",
+        ),
+        Setting(
+            "mb8k8_solo_rec_8x8_pen2",
+            "solo_rec",
+            (*ONE_SAMPLE, "--env-args", "width=8,height=8,penalty=2.0"),
+            TWENTY_M,
+            "Baseline for mb8k8_rec_8x8_pen2: the same learner alone in the 8x8 grid at penalty 2.0.",
+        ),
+        Setting(
             "mb8k8_pred",
             "social_pred",
             ONE_SAMPLE,
