@@ -14,7 +14,7 @@ from conftest import TINY, TINY_FLAGS
 import jaxsocial
 from jaxsocial import train
 from jaxsocial.agents import policy_io
-from jaxsocial.run import checkpoint, logs, loop, schedule
+from jaxsocial.run import checkpoint, logs, loop, outputs, schedule
 
 
 @pytest.fixture
@@ -184,6 +184,6 @@ def test_resume_of_a_finished_run_trains_nothing_and_says_so(finished_run, tmp_p
 
 def test_compile_lines_name_stages_as_users_count_them():
     stages = schedule.parse_stages("0:penalty=0.5;return>=5:penalty=1.0")
-    assert train.chunk_description(10, (), -1) == "the 10-iteration chunk"
-    assert train.chunk_description(10, stages, -1) == "the 10-iteration chunk before stage 1 of 2"
-    assert train.chunk_description(3, stages, 1) == "the 3-iteration chunk of stage 2 of 2 (penalty=1.0)"
+    assert outputs.chunk_description(10, (), -1) == "the 10-iteration chunk"
+    assert outputs.chunk_description(10, stages, -1) == "the 10-iteration chunk before stage 1 of 2"
+    assert outputs.chunk_description(3, stages, 1) == "the 3-iteration chunk of stage 2 of 2 (penalty=1.0)"

@@ -100,15 +100,15 @@ def test_progress_fields_and_learner_return():
 
 
 def test_seed_dirs_as_training_writes_them(tmp_path):
-    from jaxsocial import train
+    from jaxsocial.run import outputs
     from jaxsocial.run.config import TrainConfig
 
     for seed, seeds in ((0, 1), (3, 2)):
         cfg = dataclasses.replace(TrainConfig(), seed=seed, seeds=seeds)
-        expected = [s.dir for s in train.seed_runs(cfg, tmp_path)]
+        expected = [s.dir for s in outputs.seed_runs(cfg, tmp_path)]
         names = rundir.seed_dir_names(seed, seeds)
         assert [tmp_path / n if n else tmp_path for n in names] == expected
-        configs = [s.config for s in train.seed_runs(cfg, tmp_path)]
+        configs = [s.config for s in outputs.seed_runs(cfg, tmp_path)]
         assert [metrics.one_seed_of_many(c) for c in configs] == [seeds > 1] * seeds
 
 

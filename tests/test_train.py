@@ -87,7 +87,7 @@ def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, c
 
 
 def test_the_run_ends_with_its_outcome():
-    from jaxsocial.train import outcome
+    from jaxsocial.run.outputs import outcome
 
     def rows(learner_return):
         return [{"iteration": 1, "return/0": learner_return, "episodes/0": 2, "return/1": 38.0,

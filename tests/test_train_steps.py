@@ -7,18 +7,9 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial import train
-from jaxsocial.run import config, logs, metrics, nonfinite, schedule
-from jaxsocial.run.driver import (
-    Check,
-    Chunk,
-    Driver,
-    check_chunk,
-    checkpoint_due,
-    evaluates,
-    plan_chunk,
-    pool_seeds,
-)
+from jaxsocial.run import config, logs, metrics, nonfinite, outputs, schedule
+from jaxsocial.run.chunks import Check, Chunk, check_chunk, checkpoint_due, evaluates, plan_chunk, pool_seeds
+from jaxsocial.run.driver import Driver
 
 
 def planned(cfg, stages=()):
@@ -147,10 +138,10 @@ def test_write_rows_keeps_rows_and_warns_at_the_first_non_finite_iteration(tmp_p
     cfg = dataclasses.replace(TINY, iterations=6, on_nonfinite="warn")
     static = config.setup(cfg)
     metrics_log = logs.MetricsLog(tmp_path)
-    out = train.Outputs(
+    out = outputs.Outputs(
         cfg,
         static,
-        train.seed_runs(cfg, tmp_path),
+        outputs.seed_runs(cfg, tmp_path),
         "x",
         [metrics_log],
         [logs.make_logger(None, tmp_path, {})],

@@ -13,7 +13,7 @@ from typing import Any
 from jaxsocial import evaluate, train
 from jaxsocial.experiments import kinds, pinned, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.run import logs, rundir
+from jaxsocial.run import logs, outputs, rundir
 from jaxsocial.run.config import TrainConfig, setup
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import EnvSpec
@@ -25,7 +25,7 @@ class TrainingFailed(Exception):
 
 def seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
-    return [s.dir for s in train.seed_runs(cfg, train.run_path(cfg))]
+    return [s.dir for s in outputs.seed_runs(cfg, outputs.run_path(cfg))]
 
 
 def condition_seed_dirs(
@@ -93,7 +93,7 @@ def status(cfg: TrainConfig, dirs: list[Path]) -> str:
     directory exists, so training resumes it) or 'missing'."""
     if all(len(logs.read_metrics(d)) >= cfg.iterations for d in dirs):
         return "done"
-    return "partial" if (train.run_path(cfg) / logs.CONFIG_FILE).exists() else "missing"
+    return "partial" if (outputs.run_path(cfg) / logs.CONFIG_FILE).exists() else "missing"
 
 
 def run(
@@ -139,7 +139,7 @@ def run(
                 print("  python -m jaxsocial.train " + shlex.join(flags))
             elif state != "done" and train_missing and cores:
                 resume = ["--resume"] if state == "partial" else []
-                job = pinned.Job(label, pinned.train_command([*flags, *resume]), train.run_path(cfg))
+                job = pinned.Job(label, pinned.train_command([*flags, *resume]), outputs.run_path(cfg))
                 jobs.append((cfg.seed, job))
             elif state != "done" and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == "partial"))

@@ -1,7 +1,8 @@
 """The training driver's state between chunks (`Driver`) and its steps: start-up (from scratch, a checkpoint
-or `--init-from`), planning a chunk (`plan_chunk`), compiling it, running it, checking it for non-finite
-values (`check_chunk`) and saving every seed's checkpoint and policy. `jaxsocial.train.train_chunks` loops
-over them; what process 0 writes (metrics rows, evaluations, progress) is `jaxsocial.train.Outputs`.
+or `--init-from`), compiling a chunk, running it and saving every seed's checkpoint and policy. What it
+decides from its settings and a chunk's results (planning, non-finite checks) is `jaxsocial.run.chunks`;
+`jaxsocial.train.train_chunks` loops over the steps; what process 0 writes (metrics rows, evaluations,
+progress) is `jaxsocial.run.outputs.Outputs`.
 """
 
 from __future__ import annotations
@@ -11,95 +12,18 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import jax
 import numpy as np
 
 from jaxsocial.agents import policy_io, population
 from jaxsocial.run import checkpoint, config, distributed, init_from, loop, nonfinite, rundir, schedule
+from jaxsocial.run.chunks import Chunk, seed_part
 from jaxsocial.run.config import DriverConfig, ProgramConfig
 from jaxsocial.run.loop import Program, RunnerState
+from jaxsocial.run.rundir import SeedRun
 from jaxsocial.specs import CheckpointRef
-
-
-class SeedRun(NamedTuple):
-    """One seed of a run: its PRNG seed, its directory and its config.json values (which its checkpoints
-    carry as metadata)."""
-
-    seed: int
-    dir: Path
-    config: dict[str, Any]
-
-
-def plan_chunk(
-    cfg: DriverConfig, chunk_iterations: int, stages: tuple[schedule.Stage, ...], stage: int, it: int
-) -> int:
-    """The iterations of the chunk after iteration `it` in `stage`: `chunk_iterations`, or fewer so that it
-    ends on the run's last iteration, the iteration before the next iteration-triggered stage and (with
-    `cfg.eval_envs`) an evaluation iteration."""
-    n = min(chunk_iterations, cfg.iterations - it)
-    switch = schedule.next_start(stages, stage)
-    if switch is not None and switch > it:
-        n = min(n, switch - it)  # land exactly on the next stage's first iteration
-    if cfg.eval_envs:
-        n = min(n, cfg.eval_every - it % cfg.eval_every)
-    return n
-
-
-def evaluates(cfg: DriverConfig, end: int) -> bool:
-    """Whether the learner is evaluated after iteration `end`: every `cfg.eval_every`-th and the last."""
-    return bool(cfg.eval_envs) and (end % cfg.eval_every == 0 or end == cfg.iterations)
-
-
-def checkpoint_due(cfg: DriverConfig, it: int, last_saved: int) -> bool:
-    """Whether iteration `it` is saved: `cfg.checkpoint_every` after the last save, and the run's last."""
-    return it - last_saved >= cfg.checkpoint_every or it == cfg.iterations
-
-
-class Chunk(NamedTuple):
-    """A chunk that ran: iterations `first` + 1 ... `first` + `n` in `stage`, its metrics (host arrays with a
-    leading seed axis for several seeds), its non-finite checks (`nonfinite.KEY`, taken out of the metrics)
-    and its speed in env steps per second and seed."""
-
-    first: int
-    n: int
-    stage: int
-    metrics: dict[str, np.ndarray]
-    finite: dict[str, np.ndarray]
-    sps: float
-
-
-class Check(NamedTuple):
-    """What a chunk's non-finite checks decide (`check_chunk`)."""
-
-    failure: nonfinite.Failure | None  # the chunk's first non-finite iteration, if any
-    stop: bool  # a failure with --on-nonfinite stop: the run stops without saving
-    kept: int  # the iterations whose rows are written: up to the failure when stopping, else all
-    failed: list[int]  # offsets in the chunk of the kept iterations that had non-finite values
-    healthy_end: bool  # the chunk's last iteration passed every check: it may be saved and evaluated
-
-
-def check_chunk(
-    finite: dict[str, np.ndarray], learners: tuple[int, ...], seeds: int, on_nonfinite: str
-) -> Check:
-    """`Check` of a chunk's checks {quantity: bool[n, S_l]} (bool[K, n, S_l] for `seeds` K > 1); an
-    iteration counts as non-finite when it is in any seed."""
-    failed = nonfinite.failures(finite).reshape(seeds, -1).any(axis=0)  # bool[n], over seeds
-    failure = nonfinite.first_failure(finite, learners, seeds)
-    stop = failure is not None and on_nonfinite == "stop"
-    kept = failure.offset + 1 if stop else len(failed)
-    return Check(failure, stop, kept, np.flatnonzero(failed[:kept]).tolist(), not failed[-1])
-
-
-def pool_seeds(metrics: dict[str, np.ndarray], seeds: int) -> dict[str, np.ndarray]:
-    """A chunk's metrics with the seeds' iterations as one axis ([K * n, ...]), as one seed's read."""
-    return jax.tree.map(lambda m: m.reshape(-1, *m.shape[2:]), metrics) if seeds > 1 else metrics
-
-
-def seed_part(tree: Any, k: int, seeds: int) -> Any:
-    """Seed k's part of `tree`, whose leaves have a leading seed axis when there are several `seeds`."""
-    return tree if seeds == 1 else jax.tree.map(lambda x: x[k], tree)
 
 
 def stage_program(

@@ -333,7 +333,7 @@ def seed_dirs(run_dir: str | Path) -> list[Path]:
 
 def one_seed_of_many(config: Mapping[str, Any]) -> bool:
     """Whether a seed directory's config is that of one seed of a multi-seed run (its run name ends in
-    '/s<seed>', see `train.seed_runs`)."""
+    '/s<seed>', see `outputs.seed_runs`)."""
     return (config.get("run_name") or "").endswith(f"/s{config['seed']}")
 
 

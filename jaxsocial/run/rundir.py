@@ -13,6 +13,7 @@ Records (`experiments.records`) keep the same layout, less the checkpoints.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, NamedTuple
 
 CHECKPOINTS_DIR = "checkpoints"
 
@@ -36,3 +37,12 @@ def seed_dirs(run_dir: Path, seed: int, seeds: int) -> list[Path]:
 def checkpoints(seed_dir: Path) -> Path:
     """A seed's checkpoint directory."""
     return Path(seed_dir) / CHECKPOINTS_DIR
+
+
+class SeedRun(NamedTuple):
+    """One seed of a run: its PRNG seed, its directory and its config.json values (which its checkpoints
+    carry as metadata)."""
+
+    seed: int
+    dir: Path
+    config: dict[str, Any]
