@@ -24,6 +24,7 @@ no difference.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -101,14 +102,19 @@ def episode_returns(
         params: neural-slot params stacked [S, ...] in `pop.neural` order, or None.
     """
     k_reset, k_run = jax.random.split(key)
-    obs, states = jax.vmap(core.reset, in_axes=(0, None))(jax.random.split(k_reset, n_episodes), env_params)
+    observers = pop.neural  # the only views anyone reads: scripted experts read the state
+    reset = functools.partial(core.reset, observers=observers)
+    obs, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_reset, n_episodes), env_params)
     present = states.present
     slots = population.init_slot_state(pop, net, env_params, n_episodes)
 
     def body(carry, key):
         obs, states, slots, first, done, returns, late = carry
-        actions, slots, _, _ = population.act(key, pop, net, env_params, params, slots, obs, states, first)
-        obs, states, reward, terminated, truncated = jax.vmap(core.step_env, in_axes=(0, 0, None))(
+        actions, slots, _, _ = population.act(
+            key, pop, net, env_params, params, slots, obs, states, first, observers
+        )
+        step = functools.partial(core.step_env, observers=observers)
+        obs, states, reward, terminated, truncated = jax.vmap(step, in_axes=(0, 0, None))(
             states, actions, env_params
         )
         reward = jnp.where(done[:, None], 0.0, reward)

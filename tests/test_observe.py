@@ -229,12 +229,12 @@ def test_views_of_some_observers_are_their_rows_of_every_view(observation):
     )
     render = jax.jit(observe, static_argnums=(1, 2))
     every = np.asarray(render(state, params, None))
-    for observers in [(0,), (2,), (3, 1), (1, 2, 3), (4, 0)]:
+    for observers in [(0,), (2,), (3, 1), (1, 2, 3), (4, 0), ()]:
         some = np.asarray(render(state, params, observers))
         np.testing.assert_array_equal(some, every[list(observers)], err_msg=str(observers))
 
 
-@pytest.mark.parametrize("observers", [(), (5,), (-1,)])
+@pytest.mark.parametrize("observers", [(5,), (-1,), (0, 2)])
 def test_observers_outside_the_agents_are_refused(observers):
     state, params = scene(OPEN, [(4, 6), (4, 4)], [3, 3], n_agents=2)
     with pytest.raises(ValueError, match="observers must be agent indices"):

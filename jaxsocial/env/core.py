@@ -128,18 +128,19 @@ def _advance(
 
 
 def step_env(
-    state: EnvState, actions: jax.Array, params: EnvParams
+    state: EnvState, actions: jax.Array, params: EnvParams, observers: Observers = None
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array]:
     """One step without auto-reset.
 
     Args:
         actions: int32[N], values in [0, 7) (3-6 are no-ops).
+        observers: whose views `obs` holds (static agent indices, `observe.Observers`; None: every agent's).
     Returns:
         obs, state, reward float32[N], terminated bool[N] (agent is on a terminal goal; stays True for the
         rest of the episode), truncated bool[] (time limit reached while some agent is still active).
     """
     state, reward, terminated, truncated = _advance(state, actions, params)
-    return observe(state, params), state, reward, terminated, truncated
+    return observe(state, params, observers), state, reward, terminated, truncated
 
 
 def _episode_done(terminated: jax.Array, truncated: jax.Array) -> jax.Array:

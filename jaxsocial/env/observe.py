@@ -36,11 +36,11 @@ Observers = tuple[int, ...] | None
 
 
 def observer_index(params: EnvParams, observers: Observers) -> np.ndarray:
-    """int32[K] the agent index of each rendered view (`Observers`; K = N for None)."""
+    """int32[K] the agent index of each rendered view (`Observers`; K = N for None, 0 for ())."""
     if observers is None:
         return np.arange(params.n_agents, dtype=np.int32)
     who = np.asarray(observers, np.int32).reshape(-1)
-    if who.size == 0 or who.min() < 0 or who.max() >= params.n_agents:
+    if who.size and (who.min() < 0 or who.max() >= params.n_agents):
         raise ValueError(f"observers must be agent indices in [0, {params.n_agents}), got {observers}")
     return who
 
