@@ -15,6 +15,7 @@ import dataclasses
 import functools
 import sys
 from pathlib import Path
+from typing import Any
 
 import jax
 
@@ -104,7 +105,9 @@ def run(cfg: TrainConfig) -> Path:
     distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
     try:
         distributed.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
-        train_chunks(cfg, static, mesh, run_dir, seeds)
+        main = distributed.is_main()  # evaluates and writes; the others train alongside
+        learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
+        train_chunks(cfg, static, mesh, run_dir, seeds, learner_eval)
         if cfg.resume:  # a resumed run's config is rewritten once it has succeeded
             distributed.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
     finally:
@@ -119,9 +122,11 @@ def train_chunks(
     mesh: jax.sharding.Mesh,
     run_dir: Path,
     seeds: list[SeedRun],
+    learner_eval: Any,
 ) -> None:
     """The training loop of `run` in its prepared (and locked) run directory, over the steps of `Driver`
-    and `Outputs`: chunk after chunk, plan, compile, run, write rows, switch stage, save and show progress.
+    and `Outputs`: chunk after chunk, plan, compile, run, write rows (evaluating with `learner_eval`, on
+    process 0), switch stage, save and show progress.
     Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
     nothing non-finite is ever saved."""
     driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
@@ -129,8 +134,6 @@ def train_chunks(
         if distributed.is_main():
             print(nothing_to_train(driver.it, cfg.iterations))
         return
-    main = distributed.is_main()
-    learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
     out = Outputs.open(cfg, static, mesh, seeds, driver.it, learner_eval)
     try:
         while driver.it < cfg.iterations:
