@@ -41,8 +41,8 @@ class LearnerViewState(environment.EnvState):
 
     Attributes:
         world: the world's `EnvState`.
-        views: every slot's observation uint8[N, 21, 21, 3] (int8[N, 7, 7, 4] symbolic); frozen policies
-            act on theirs.
+        views: the observations uint8[K, 21, 21, 3] (int8[K, 7, 7, 4] symbolic) of the K slots that read
+            one (`LearnerView.observers`: the learner and frozen policies; scripted experts read the world).
         companions: the other slots' `population.SlotState` for a batch of one environment.
         starts: bool[] the next step is the episode's first (companions clear their memory).
     """
@@ -85,6 +85,8 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
         if frozen:
             self.net.check_env(params, f"frozen slot {frozen[0]}")
         self.frozen_params = policy_io.load_frozen(self.companions, self.net)
+        self.observers = tuple(sorted((self.slot, *pop.frozen)))  # only these views are rendered
+        self.row = self.observers.index(self.slot)  # the learner's view in `LearnerViewState.views`
         self.env_name = name
         self._params = params
 
@@ -101,7 +103,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
     def reset_env(self, key: jax.Array, params: EnvParams) -> tuple[jax.Array, LearnerViewState]:
         """A new episode (`core.reset`) with the companions' memory cleared; returns the learner's view."""
         self._check(params)
-        views, world = core.reset(key, params)
+        views, world = core.reset(key, params, self.observers)
         state = LearnerViewState(
             time=world.time,
             world=world,
@@ -109,7 +111,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
             companions=population.init_slot_state(self.companions, self.net, params, 1),
             starts=jnp.ones((), bool),
         )
-        return views[self.slot], state
+        return views[self.row], state
 
     def step_env(
         self, key: jax.Array, state: LearnerViewState, action: int | jax.Array, params: EnvParams
@@ -127,9 +129,10 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
             state.views[None],
             jax.tree.map(lambda x: x[None], state.world),
             state.starts[None],
+            self.observers,
         )
         actions = actions[0].at[self.slot].set(jnp.asarray(action, jnp.int32))
-        views, world, reward, terminated, _ = core.step_env(state.world, actions, params)
+        views, world, reward, terminated, _ = core.step_env(state.world, actions, params, self.observers)
         new_state = LearnerViewState(
             time=world.time,
             world=world,
@@ -138,7 +141,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
             starts=jnp.zeros((), bool),
         )
         info = {"actions": actions, "rewards": reward}
-        return views[self.slot], new_state, reward[self.slot], terminated[self.slot], info
+        return views[self.row], new_state, reward[self.slot], terminated[self.slot], info
 
     def is_terminated(self, state: LearnerViewState, params: EnvParams) -> jax.Array:
         """bool[] the learner is on a terminal goal (it waits there until the episode ends)."""
