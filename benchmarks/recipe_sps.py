@@ -17,6 +17,9 @@ checks REV out in a temporary git worktree and imports jaxsocial from there. ``-
 (repeatable; written with "=", as FLAGS begin with "--") also times this tree with ``$XLA_FLAGS`` set to
 FLAGS, side by side the same way.
 
+A recipe of several seeds (``laptop_rec_2seeds``) compiles them into one program as a run does
+(`loop.over_seeds`) and counts every seed's env-steps.
+
 ``--single-core`` also measures the throughput of two seeds as two processes pinned to one core each
 (XLA:CPU single-threaded), both timing the full program at once, against one process on all cores: for this
 tree and ``--against``'s, taking turns in every repeat (the layout the sweep and the designs run seeds in).
@@ -52,6 +55,7 @@ RECIPES = {
     "laptop_rec": ("laptop", "social_rec", ()),
     "laptop_solo_rec": ("laptop", "solo_rec", ()),
     "laptop_none": ("laptop", "social_none", ()),  # no decoder: laptop_rec less this is the decoder's share
+    "laptop_rec_2seeds": ("laptop", "social_rec", ("--seeds", "2", "--seed-batching", "vmap")),  # 2 vmapped
 }
 """name -> (scale, condition, extra train flags): the recipe's conditions and the levers that change
 learning (measured for speed only)."""
@@ -64,7 +68,7 @@ def worker(recipe: str) -> None:
     import jax
 
     from jaxsocial import train
-    from jaxsocial.agents import ppo
+    from jaxsocial.agents import population, ppo
     from jaxsocial.experiments import recipes
     from jaxsocial.run import config, loop
 
@@ -80,7 +84,10 @@ def worker(recipe: str) -> None:
         )
         cfg = dataclasses.replace(base, ppo=ppo_cfg)
         init, run_chunk = loop.make_program(cfg.program, static.env_params, static.pop)
-        state = jax.jit(init)(jax.random.key(0))
+        states = [jax.jit(init)(jax.random.key(seed)) for seed in range(base.seeds)]
+        state = states[0] if base.seeds == 1 else population.stack(states)
+        if base.seeds > 1:  # as a run of several seeds compiles them (`loop.compiled`)
+            run_chunk = loop.over_seeds(run_chunk, base.seed_batching)
         t0 = time.perf_counter()
         fn = jax.jit(run_chunk, static_argnums=2, donate_argnums=0).lower(state, None, 1).compile()
         compile_s[variant] = time.perf_counter() - t0
@@ -91,7 +98,7 @@ def worker(recipe: str) -> None:
     recomputes = -(-m // k) - int(first_from_rollout)
     print(json.dumps({"compile_s": compile_s, "minibatches": m, "recompute_every": k,
                       "recomputes": recomputes, "first_recompute": int(not first_from_rollout),
-                      "env_steps": base.num_envs * base.rollout_steps}), flush=True)  # fmt: skip
+                      "env_steps": base.num_envs * base.rollout_steps * base.seeds}), flush=True)  # fmt: skip
     for line in sys.stdin:
         fn, state = programs[line.strip()]
         t0 = time.perf_counter()

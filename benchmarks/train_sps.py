@@ -78,6 +78,7 @@ from run_info import REPO, metadata, write_results
 
 from jaxsocial.agents import network
 from jaxsocial.agents.fast import autotune, conv
+from jaxsocial.run.config import PRESETS
 
 TORCH_SCRIPT = Path(__file__).resolve().parent / "pytorch_paper_net.py"
 """The PyTorch reference (run with the `--torch` python; the only file that imports torch)."""
@@ -85,6 +86,7 @@ HUGEPAGES_TUNABLE = "glibc.malloc.hugetlb=1"
 CONFIGS = {
     "paper": network.NetworkConfig(),
     "small": network.NetworkConfig(conv_channels=(16, 32, 32), hidden=64, mlp=32),
+    "laptop": PRESETS["laptop"].net,  # the science's network (its minibatch: --seq 16 --batch 64)
 }
 CPU_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
 """The /proc/cpuinfo flags that decide bfloat16's speed: XLA:CPU widens bfloat16 to float32 without
