@@ -102,7 +102,7 @@ def episode_returns(
         params: neural-slot params stacked [S, ...] in `pop.neural` order, or None.
     """
     k_reset, k_run = jax.random.split(key)
-    observers = pop.neural  # the only views anyone reads: scripted experts read the state
+    observers = pop.observers()  # the only views anyone reads: scripted experts read the state
     reset = functools.partial(core.reset, observers=observers)
     obs, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_reset, n_episodes), env_params)
     present = states.present

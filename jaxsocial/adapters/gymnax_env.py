@@ -85,7 +85,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
         if frozen:
             self.net.check_env(params, f"frozen slot {frozen[0]}")
         self.frozen_params = policy_io.load_frozen(self.companions, self.net)
-        self.observers = tuple(sorted((self.slot, *pop.frozen)))  # only these views are rendered
+        self.observers = pop.observers()  # only these views are rendered: the learner's and frozen ones'
         self.row = self.observers.index(self.slot)  # the learner's view in `LearnerViewState.views`
         self.env_name = name
         self._params = params

@@ -164,6 +164,12 @@ class Population:
         """Neural slots in stacking order: learners first, then frozen policies."""
         return self.learners + self.frozen
 
+    def observers(self, cloned: bool = False) -> tuple[int, ...]:
+        """The slots whose views are rendered (`observe.Observers`), in slot order: the neural slots, which
+        read them (scripted experts and random slots read none), and with `cloned` the demonstrators, whose
+        views behaviour cloning trains on."""
+        return tuple(sorted(set(self.neural) | set(self.demonstrators if cloned else ())))
+
     def validate(self, params: EnvParams) -> None:
         """Raise ValueError if a scripted expert cannot play this environment."""
         for i in self.experts:

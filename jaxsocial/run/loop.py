@@ -94,10 +94,9 @@ def ppo_batch(
 
 
 def observers(pop: population.Population, algo: str) -> tuple[int, ...]:
-    """The slots whose views a program renders (`observe.Observers`): the neural slots, and for behaviour
-    cloning the demonstrators. Scripted experts and random slots read no views, so a step beside two experts
-    renders one view, not three."""
-    return tuple(sorted(set(pop.neural) | set(pop.demonstrators if algo == "bc" else ())))
+    """The slots whose views a program of `algo` renders (`Population.observers`; behaviour cloning trains
+    on the demonstrators' views too), so a step beside two scripted experts renders one view, not three."""
+    return pop.observers(cloned=algo == "bc")
 
 
 def make_program(
