@@ -34,10 +34,10 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsocial
-from jaxsocial.agents import network, policy_io, population
+from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
-from jaxsocial.run import logs
+from jaxsocial.run import logs, policy_io
 from jaxsocial.run.metrics import mean_ci95
 from jaxsocial.specs import ENV_ARGS, EnvArgs, EnvSpec, Policy, PolicyRef, check_eval_envs
 

@@ -12,9 +12,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.agents import network, policy_io, population
+from jaxsocial.agents import network, population
 from jaxsocial.env import core, pictures
 from jaxsocial.env.types import EnvParams
+from jaxsocial.run import policy_io
 from jaxsocial.specs import EnvSpec, PolicyRef
 
 

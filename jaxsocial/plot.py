@@ -22,10 +22,11 @@ from pathlib import Path
 from typing import Any
 
 import jaxsocial
+from jaxsocial import specs
 from jaxsocial.agents import population
 from jaxsocial.axes import steps_axis
 from jaxsocial.curves import band
-from jaxsocial.run import logs, metrics, schedule
+from jaxsocial.run import logs, metrics
 
 PANELS = {
     "return": "episode return",
@@ -73,7 +74,7 @@ class Group:
 
 def slot_labels(config: dict[str, Any]) -> list[str]:
     """Each slot's label ('learner', 'expert:explorer', ...) from a run's config."""
-    _, env_params = jaxsocial.make(config["env"], **schedule.parse_assignments(config.get("env_args", "")))
+    _, env_params = jaxsocial.make(config["env"], **specs.parse_assignments(config.get("env_args", "")))
     text = config.get("slots") or population.default_slots(env_params)
     return [s.label for s in population.parse_slots(text, env_params.n_agents, need_learner=False)]
 

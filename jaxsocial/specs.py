@@ -15,6 +15,7 @@ config.json (`config.TEXT_FIELDS`).
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import warnings
 from collections.abc import Callable
@@ -25,7 +26,26 @@ import tyro
 
 import jaxsocial
 from jaxsocial.env.types import EnvParams
-from jaxsocial.run import schedule
+
+
+def parse_assignments(text: str) -> dict[str, Any]:
+    """'a=1,b=x' -> {'a': 1, 'b': 'x'} (values parsed as Python literals when possible), the syntax of
+    `--env-args` and of a stage's overrides. Raises ValueError on an entry without '='."""
+    out = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"entry {item!r} is not key=value")
+        try:
+            out[key.strip()] = ast.literal_eval(value.strip())
+        except (ValueError, SyntaxError):
+            out[key.strip()] = value.strip()
+    return out
+
+
+def format_assignments(values: dict[str, Any]) -> str:
+    """The inverse of `parse_assignments`."""
+    return ",".join(f"{k}={v!r}" for k, v in values.items())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -157,8 +177,8 @@ ENV = TextField(EnvSpec.parse, str, "NAME[:FIELD=VALUE,...]", EnvSpec)
 Env = Annotated[EnvSpec, ENV.flag()]
 """An `EnvSpec` flag."""
 ENV_ARGS = TextField(
-    lambda text: tuple(schedule.parse_assignments(text).items()),
-    lambda pairs: schedule.format_assignments(dict(pairs)),
+    lambda text: tuple(parse_assignments(text).items()),
+    lambda pairs: format_assignments(dict(pairs)),
     "FIELD=VALUE,...",
 )
 EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]

@@ -21,7 +21,7 @@ import jax
 
 import jaxsocial
 from jaxsocial import evaluate
-from jaxsocial.agents import policy_io, population
+from jaxsocial.agents import population
 from jaxsocial.run import (
     compile_cache,
     config,
@@ -32,6 +32,7 @@ from jaxsocial.run import (
     loop,
     metrics,
     nonfinite,
+    policy_io,
     runlock,
 )
 from jaxsocial.run.chunks import check_chunk, checkpoint_due, plan_chunk, pool_seeds

@@ -14,8 +14,9 @@ from conftest import TINY
 from jaxmarl.wrappers import baselines as jaxmarl_wrappers
 
 from jaxsocial.adapters import gymnax_env, jaxmarl_env
-from jaxsocial.agents import network, policy_io, population
+from jaxsocial.agents import network, population
 from jaxsocial.env import core
+from jaxsocial.run import policy_io
 
 SMALL = {"width": 7, "height": 7, "max_steps": 12}  # 30 steps cross two episode ends
 STEPS, ENVS = 30, 2

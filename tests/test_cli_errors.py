@@ -13,8 +13,7 @@ from conftest import TINY, TINY_FLAGS
 
 import jaxsocial
 from jaxsocial import train
-from jaxsocial.agents import policy_io
-from jaxsocial.run import checkpoint, logs, loop, outputs, schedule
+from jaxsocial.run import checkpoint, logs, loop, outputs, policy_io, schedule
 
 
 @pytest.fixture

@@ -11,8 +11,9 @@ from test_regimes import save_policy
 
 import jaxsocial
 from jaxsocial import evaluate
-from jaxsocial.agents import policy_io, population
+from jaxsocial.agents import population
 from jaxsocial.evaluate import Episodes, EvalConfig
+from jaxsocial.run import policy_io
 from jaxsocial.specs import EnvSpec
 
 

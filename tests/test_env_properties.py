@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 import jaxsocial
 from jaxsocial.env import core
 from jaxsocial.env.types import LEFT, NUM_ACTIONS, PICKUP, WALL
-from jaxsocial.run.schedule import parse_assignments
+from jaxsocial.specs import parse_assignments
 
 STEPS = 24  # several episodes per rollout: every configuration's max_steps is <= 12
 CONFIGS = (

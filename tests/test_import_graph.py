@@ -1,5 +1,6 @@
 """The package's import graph (module-level imports between jaxsocial modules): it has no cycle, the tools for
-people stand on the data layer only, and the floor count README states is the graph's."""
+people stand on the data layer only, the environment, the learners and the typed values import nothing of the
+training run, and the floor count README states is the graph's."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxsocial"
 TOOLS = ("jaxsocial.render", "jaxsocial.playback", "jaxsocial.plot", "jaxsocial.curves")
 """Tools for people, which stand on metrics, logs, policies and the environment only."""
+BELOW_RUN = ("jaxsocial.env", "jaxsocial.agents", "jaxsocial.specs")
+"""What acts and what is parsed, which know no run directory, config or program."""
 ABOVE_TOOLS = (
     "jaxsocial.train",
     "jaxsocial.run.driver",
@@ -81,3 +84,10 @@ def test_tools_for_people_stand_on_the_data_layer():
     for tool in TOOLS:
         above = sorted(m for m in reach(tool, set()) if m.startswith(ABOVE_TOOLS))
         assert not above, f"{tool} imports {above}"
+
+
+def test_the_environment_learners_and_specs_know_no_training_run():
+    for module, deps in import_graph().items():
+        if module.startswith(BELOW_RUN):
+            run = sorted(d for d in deps if d.startswith(("jaxsocial.run", "jaxsocial.train")))
+            assert not run, f"{module} imports {run}"

@@ -12,8 +12,7 @@ import pytest
 from float_bounds import assert_trees_within, assert_within, decoder_error, gamma, network_error
 
 from jaxsocial.agents import network as net
-from jaxsocial.agents import policy_io
-from jaxsocial.run import checkpoint
+from jaxsocial.run import checkpoint, policy_io
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
 T, B = 5, 3

@@ -12,8 +12,7 @@ import pytest
 from conftest import TINY
 
 from jaxsocial import train
-from jaxsocial.agents import policy_io
-from jaxsocial.run import checkpoint, logs, nonfinite
+from jaxsocial.run import checkpoint, logs, nonfinite, policy_io
 
 HUGE_LR = 1e30  # one Adam step moves every param by ~1e30: the next minibatch's logits overflow
 

@@ -21,8 +21,8 @@ from conftest import SOLO_LEARNING, mean_return
 
 from jaxsocial import train
 from jaxsocial.agents import network as net
-from jaxsocial.agents import policy_io
 from jaxsocial.agents.fast import precision
+from jaxsocial.run import policy_io
 from jaxsocial.train import make_train
 
 T, B = 5, 3

@@ -8,10 +8,9 @@ from pathlib import Path
 import pytest
 
 from jaxsocial import playback
-from jaxsocial.agents import policy_io
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import figures, recipes, records
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import logs, metrics, policy_io
 
 REPO = Path(__file__).resolve().parents[1]
 SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"

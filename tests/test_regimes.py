@@ -14,10 +14,10 @@ from conftest import TINY
 
 import jaxsocial
 from jaxsocial import train
-from jaxsocial.agents import network, policy_io, population
+from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
-from jaxsocial.run import logs, schedule
+from jaxsocial.run import logs, policy_io, schedule
 from jaxsocial.run.config import setup
 from jaxsocial.specs import PolicyRef
 from jaxsocial.train import run

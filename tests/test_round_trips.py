@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxsocial
-from jaxsocial import train
+from jaxsocial import specs, train
 from jaxsocial.agents import experts, population
 from jaxsocial.run import config, flags, logs, schedule
 from jaxsocial.run.flags import config_flags
@@ -86,7 +86,7 @@ def test_stages_round_trip(stages):
 
 @given(overrides)
 def test_assignments_round_trip(values_):
-    assert schedule.parse_assignments(schedule.format_assignments(values_)) == values_
+    assert specs.parse_assignments(specs.format_assignments(values_)) == values_
 
 
 def test_formatting_is_the_syntax_users_write():

@@ -17,8 +17,7 @@ import numpy as np
 import pytest
 from conftest import TINY, TINY_RUN_FLAGS, metrics_without_speed
 
-from jaxsocial.agents import policy_io
-from jaxsocial.run import checkpoint, compile_cache, distributed
+from jaxsocial.run import checkpoint, compile_cache, distributed, policy_io
 from jaxsocial.train import run
 
 REPO = Path(__file__).resolve().parent.parent

@@ -12,8 +12,7 @@ from float_bounds import assert_trees_within, decoder_error, gamma
 
 from jaxsocial import evaluate, train
 from jaxsocial.agents import network as net
-from jaxsocial.agents import policy_io
-from jaxsocial.run import logs
+from jaxsocial.run import logs, policy_io
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred", obs="symbolic")
 T, B = 3, 2

@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 from conftest import TINY, TINY_FLAGS, metrics_without_speed
 
-from jaxsocial.agents import policy_io
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.network import init as init_params
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.observe import observe
-from jaxsocial.run import checkpoint, config, logs, loop
+from jaxsocial.run import checkpoint, config, logs, loop, policy_io
 from jaxsocial.run.config import PRESETS
 from jaxsocial.train import make_train, parse_args, run
 

@@ -29,10 +29,11 @@ except ModuleNotFoundError as err:  # pragma: no cover - depends on the installe
     raise ImportError('jaxsocial.adapters.gymnax_env needs gymnax: pip install -e ".[gymnax]"') from err
 
 import jaxsocial
-from jaxsocial.agents import network, policy_io, population
+from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
+from jaxsocial.run import policy_io
 
 
 @struct.dataclass

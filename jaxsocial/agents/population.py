@@ -3,7 +3,7 @@ expert or a random distractor. Neural slots share one architecture; their parame
 leading slot axis and applied with `jax.vmap`, so nothing is shared between agents but the code.
 
 This module is the slot mini-language (`parse_slot_list`, `format_slots`, `check_slots`) and acting (`act`,
-`values`, traced under `jit`); saved policies are read and written by `jaxsocial.agents.policy_io`.
+`values`, traced under `jit`); saved policies are read and written by `jaxsocial.run.policy_io`.
 """
 
 from __future__ import annotations

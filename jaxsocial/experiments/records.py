@@ -29,8 +29,7 @@ from typing import Any
 
 import jax
 
-from jaxsocial.agents import policy_io
-from jaxsocial.run import checkpoint, logs, metrics, rundir
+from jaxsocial.run import checkpoint, logs, metrics, policy_io, rundir
 
 RECORDS_DIR = "benchmarks/results/records"
 """Where the repository keeps its records."""

@@ -17,8 +17,18 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxsocial.agents import policy_io, population
-from jaxsocial.run import checkpoint, config, distributed, init_from, loop, nonfinite, rundir, schedule
+from jaxsocial.agents import population
+from jaxsocial.run import (
+    checkpoint,
+    config,
+    distributed,
+    init_from,
+    loop,
+    nonfinite,
+    policy_io,
+    rundir,
+    schedule,
+)
 from jaxsocial.run.chunks import Chunk, seed_part
 from jaxsocial.run.config import DriverConfig, ProgramConfig
 from jaxsocial.run.loop import Program, RunnerState

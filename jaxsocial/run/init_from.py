@@ -20,9 +20,9 @@ import dataclasses
 from pathlib import Path
 
 import jaxsocial
-from jaxsocial.agents import policy_io, population
+from jaxsocial.agents import population
 from jaxsocial.agents.network_config import NetworkConfig
-from jaxsocial.run import checkpoint, config, logs, rundir
+from jaxsocial.run import checkpoint, config, logs, policy_io, rundir
 from jaxsocial.run.config import RunConfig, TrainConfig
 from jaxsocial.specs import CheckpointRef
 

@@ -17,8 +17,8 @@ import jax
 import numpy as np
 
 from jaxsocial import specs
-from jaxsocial.agents import policy_io, population
-from jaxsocial.run import config, distributed, logs, metrics, nonfinite, rundir, schedule
+from jaxsocial.agents import population
+from jaxsocial.run import config, distributed, logs, metrics, nonfinite, policy_io, rundir, schedule
 from jaxsocial.run.chunks import Check, Chunk, evaluates, seed_part
 from jaxsocial.run.config import TrainConfig, config_dict
 from jaxsocial.run.rundir import SeedRun
@@ -299,7 +299,7 @@ def chunk_description(n: int, stages: tuple[schedule.Stage, ...], stage: int) ->
         return text
     if stage < 0:
         return f"{text} before stage 1 of {len(stages)}"
-    changes = schedule.format_assignments(dict(stages[stage].overrides))
+    changes = specs.format_assignments(dict(stages[stage].overrides))
     return f"{text} of stage {stage + 1} of {len(stages)} ({changes})"
 
 

@@ -4,7 +4,7 @@
         s<seed>/                    one per seed of a several-seed run; a one-seed run is its own seed
             config.json             the config of a one-seed run of that seed (it reads like one)
             checkpoints/<it>/       params, optimiser state and stage, to resume or branch from
-            policy/<it>/            the exported policy (`agents.policy_io`)
+            policy/<it>/            the exported policy (`run.policy_io`)
             eval/<spec>.json        evaluations after training (`logs.EVAL_DIR`)
 
 Records (`experiments.records`) keep the same layout, less the checkpoints.

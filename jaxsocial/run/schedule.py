@@ -19,9 +19,10 @@ stage may not change what sets array shapes (see `STRUCTURAL_FIELDS`).
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 from typing import Any
+
+from jaxsocial.specs import format_assignments, parse_assignments
 
 STRUCTURAL_FIELDS = ("layout", "width", "height", "n_agents", "n_goals", "view_size", "observation")
 """EnvParams fields that set array shapes (a stage may not change them)."""
@@ -39,26 +40,6 @@ class Stage:
         """The stage as `parse_stages` reads it: 'N:field=value,...' or 'return>=X:field=value,...'."""
         when = str(self.start) if self.start is not None else f"return>={self.threshold!r}"
         return f"{when}:{format_assignments(dict(self.overrides))}"
-
-
-def parse_assignments(text: str) -> dict[str, Any]:
-    """'a=1,b=x' -> {'a': 1, 'b': 'x'} (values parsed as Python literals when possible), the syntax of
-    `--env-args` and of a stage's overrides. Raises ValueError on an entry without '='."""
-    out = {}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"entry {item!r} is not key=value")
-        try:
-            out[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            out[key.strip()] = value.strip()
-    return out
-
-
-def format_assignments(values: dict[str, Any]) -> str:
-    """The inverse of `parse_assignments`."""
-    return ",".join(f"{k}={v!r}" for k, v in values.items())
 
 
 def parse_stages(text: str) -> tuple[Stage, ...]:
