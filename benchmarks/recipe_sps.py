@@ -49,6 +49,8 @@ RECIPES = {
     "gpu_rec": ("gpu", "social_rec", ()),
     "gpu_pred": ("gpu", "social_pred", ()),
     "gpu_solo_pred": ("gpu", "solo_pred", ()),  # no experts: gpu_pred less this is the experts' share
+    # the CPU's frame batches (same values up to rounding); --net.chunk: --against trees before the rename
+    "gpu_rec_fb512": ("gpu", "social_rec", ("--net.chunk", "512")),
     "cpu_rec_mb8k8": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "8")),
     "cpu_rec_mb8k2": ("cpu", "social_rec", ("--ppo.num-minibatches", "8", "--ppo.recompute-every", "2")),
     "cpu_rec_k4": ("cpu", "social_rec", ("--ppo.recompute-every", "4")),
@@ -70,7 +72,11 @@ def worker(recipe: str) -> None:
     from jaxsocial import train
     from jaxsocial.agents import population, ppo
     from jaxsocial.experiments import recipes
-    from jaxsocial.run import config, loop
+
+    try:
+        from jaxsocial.run import config, loop
+    except ImportError:  # a tree from before the run/ package (--against 191032c, the issue's baseline)
+        from jaxsocial import config, loop
 
     scale, condition, extra = RECIPES[recipe]
     flags = [*recipes.condition_flags(recipes.SCALES[scale], condition, 0, 1, "/tmp/unused"), *extra]

@@ -130,25 +130,30 @@ def _winograd_kernel(kernel: jax.Array, m: int) -> jax.Array:
     return (filter_ @ kernel.reshape(KERNEL * KERNEL, -1)).reshape(-1, *kernel.shape[2:])
 
 
+def transformed_pixels(transform: np.ndarray, x: jax.Array) -> jax.Array:
+    """x f32[h, w, n, c] through a Winograd pixel transform [a^2, h w] -> f32[a^2, n, c]: one product.
+    Recomputed in the backward pass, not saved (saving it measured slower: docs/performance.md)."""
+    h, w, n, c = x.shape
+    return (transform @ x.reshape(h * w, -1)).reshape(transform.shape[0], n, c)
+
+
 def _winograd_conv(x, kernel, bias):
     """VALID stride-1 cross-correlation of x f32[m+2, m+2, n, c_in] -> f32[m, m, n, c_out]: a transform of the
     pixels, a batched product over the (m+2)^2 transformed pixels, an output transform."""
-    a, _, n, c_in = x.shape
+    a, n = x.shape[0], x.shape[2]
     m = a - KERNEL + 1
     data, _, out = winograd_transforms(m)
-    v = (data @ x.reshape(a * a, -1)).reshape(a * a, n, c_in)
-    y = out @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
+    y = out @ jnp.matmul(transformed_pixels(data, x), _winograd_kernel(kernel, m)).reshape(a * a, -1)
     return y.reshape(m, m, n, -1) + bias
 
 
 def _winograd_deconv(x, kernel, bias):
     """Stride-1 transposed convolution of x f32[m, m, n, c_in] -> f32[m+2, m+2, n, c_out]: `_winograd_conv`'s
     adjoint (transposed transforms)."""
-    m, _, n, c_in = x.shape
+    m, n = x.shape[0], x.shape[2]
     a = m + KERNEL - 1
     data, _, out = winograd_transforms(m)
-    v = (out.T @ x.reshape(m * m, -1)).reshape(a * a, n, c_in)
-    y = data.T @ jnp.matmul(v, _winograd_kernel(kernel, m)).reshape(a * a, -1)
+    y = data.T @ jnp.matmul(transformed_pixels(out.T, x), _winograd_kernel(kernel, m)).reshape(a * a, -1)
     return y.reshape(a, a, n, -1) + bias
 
 
