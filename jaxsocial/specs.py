@@ -1,5 +1,7 @@
 """Values written as text on command lines and in config.json and held parsed:
 
+* ``field=value,...``: EnvParams overrides (`parse_assignments`, `format_assignments`; held as pairs), the
+  syntax of `--env-args`, of a stage's overrides (`run.schedule`) and of an `EnvSpec`'s;
 * `EnvSpec`: an environment, ``NAME`` or ``NAME:field=value,...`` (evaluation environments, `--env` of the
   tools); `check_eval_envs` checks a training run's;
 * `PolicyRef`: a learner's exported policy, ``RUN_DIR`` (its first learner) or ``RUN_DIR#k`` (its k-th), for
