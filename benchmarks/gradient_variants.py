@@ -163,6 +163,8 @@ def main() -> None:
     import train_sps
     from run_info import metadata, write_results
 
+    if args.config not in train_sps.CONFIGS:
+        sys.exit(f"unknown --config {args.config!r}; choose from {list(train_sps.CONFIGS)}")
     meta = metadata(args)
     base = train_sps.CONFIGS[args.config]
     samples = args.seq * args.batch
