@@ -37,8 +37,6 @@ import statistics
 import sys
 import time
 
-SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
-
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -155,7 +153,9 @@ def layer_times(fn, inputs: tuple, hlo: str) -> dict[str, float]:
 
 def main() -> None:
     args = parse_args()
-    if args.cpu is not None:  # before jax is imported
+    if args.cpu is not None:  # before XLA starts its backend (importing jaxsocial starts none)
+        from jaxsocial.experiments.pinned import SINGLE_CORE_XLA_FLAGS
+
         os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS}".strip()
         os.sched_setaffinity(0, {args.cpu})
     import jax

@@ -62,7 +62,6 @@ RECIPES = {
 """name -> (scale, condition, extra train flags): the recipe's conditions and the levers that change
 learning (measured for speed only)."""
 VARIANTS = ("full", "once", "one")
-SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
 
 def worker(recipe: str) -> None:
@@ -173,6 +172,9 @@ def worktree(rev: str, where: Path) -> Path:
 def single_core_pairs(recipe: str, trees: dict[str, Path], repeats: int) -> dict[str, dict]:
     """Per tree, two single-core workers timing the full program at the same moment: their summed
     env-steps/s, the trees taking turns in every repeat."""
+    # this tree's flags, imported here: workers may load an older jaxsocial
+    from jaxsocial.experiments.pinned import SINGLE_CORE_XLA_FLAGS
+
     env = {"XLA_FLAGS": SINGLE_CORE_XLA_FLAGS}
     workers = {
         label: [Worker(recipe, tree, env, cpus=str(core)) for core in range(2)]
