@@ -239,6 +239,22 @@ SETTINGS = {
             "minibatches), to tell whether mb8k8's cheaper update costs sample efficiency (2.2x the CPU "
             "per env-step).",
         ),
+        Setting(
+            "map_g4_rec_7x7",
+            "social_rec",
+            (*ONE_SAMPLE, "--env-args", "width=7,height=7,n_goals=4"),
+            TWENTY_M,
+            "The map of where solo learners fail (issue 46), more goals: the laptop learner (PPO + rec, 7x7) "
+            "beside the experts in a 4-goal cycle. With 4 tiles blind search meets a wrong tile more often "
+            "before it finds the order, while the experts walk it in view.",
+        ),
+        Setting(
+            "map_g4_solo_rec_7x7",
+            "solo_rec",
+            (*ONE_SAMPLE, "--env-args", "width=7,height=7,n_goals=4"),
+            TWENTY_M,
+            "Baseline for map_g4_rec_7x7: the same learner alone in the 7x7 4-goal cycle.",
+        ),
     )
 }
 
