@@ -6,6 +6,7 @@ training: one registry, `KINDS`, read by `runner` (the evaluation) and `figures`
     predictions  the curves' summary; the figure is a trained learner's predicted next frames
     transfer     zero-shot returns in other environments after training (`Recipe.transfer_envs`)
     ct           the cultural-transmission protocol after training (`jaxsocial.evaluate --protocol ct`)
+    takeoff      a time-to-takeoff design: the curves, then the zero-shot returns and the CT protocol
 
 Also here: the measures the kinds share (learned seeds, CI separations, time to learning) and where the
 evaluations after training are written (`eval_path`, `ct_path`).
@@ -492,16 +493,17 @@ class Kind:
     """`summarise(runs)`: the kind's part of the summary (`figures.summarize`), 'conditions' last."""
     draw: Callable[[Any, dict[str, Any], Path], None]
     """`draw(runs, summary, path)`: the recipe's figure as a PNG."""
-    evaluation: Evaluation
-    """What `runner.run` evaluates after training."""
+    evaluations: tuple[Evaluation, ...]
+    """What `runner.run` evaluates after training, in order."""
 
 
 KINDS: dict[str, Kind] = {
-    "curves": Kind(summarise_curves, draw_curves, RETURNS),
-    "mixing": Kind(summarise_mixing, draw_mixing, RETURNS),
-    "predictions": Kind(summarise_curves, draw_predictions, RETURNS),
-    "transfer": Kind(summarise_transfer, draw_transfer, RETURNS),
-    "ct": Kind(summarise_ct, draw_ct, CT),
+    "curves": Kind(summarise_curves, draw_curves, (RETURNS,)),
+    "mixing": Kind(summarise_mixing, draw_mixing, (RETURNS,)),
+    "predictions": Kind(summarise_curves, draw_predictions, (RETURNS,)),
+    "transfer": Kind(summarise_transfer, draw_transfer, (RETURNS,)),
+    "ct": Kind(summarise_ct, draw_ct, (CT,)),
+    "takeoff": Kind(summarise_curves, draw_curves, (RETURNS, CT)),
 }
 
 

@@ -2,8 +2,13 @@
 
 A design is `designs/<name>.json` beside this module: the arms (conditions pooled per arm), the seeds and
 the budget, the "learned" threshold on a seed's final return, the test, alpha, and the power under a stated
-success rate. The design's commit is the last commit that touched that file; `figure` checks that it is an
-ancestor of every run's recorded commit (`git merge-base --is-ancestor`) and writes
+success rate. A design whose `analysis` is 'takeoff' states instead two primary tests, Holm-corrected: the
+time to takeoff (`takeoff`, one-sided log-rank) and the per-seed zero-shot return beside the experts in
+4-goal Goal Cycle (one-sided Mann-Whitney U), with secondary tests, the episodes of every evaluation after
+training, and its power by simulation from committed seeds (`takeoff_power`).
+
+The design's commit is the last commit that touched that file; `figure` checks that it is an ancestor of
+every run's recorded commit (`git merge-base --is-ancestor`) and writes
 
     "preregistered": {"commit": ..., "primary": {"treatment": [...], "control": [...], "learned_threshold": x,
                       "test": ..., "alpha": a}, "result": {"treatment_learned": k, "treatment_seeds": n,
@@ -22,6 +27,10 @@ from jaxsocial.experiments import counts, records
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
+ANALYSES = ("counts", "takeoff")
+TAKEOFF_TEST = "holm(logrank-greater, mannwhitney-greater)"
+"""A 'takeoff' design's primary family: the one-sided log-rank test of the takeoffs and the one-sided
+Mann-Whitney U test of the per-seed 4-goal returns, Holm-corrected at the design's alpha."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,10 +55,20 @@ class Design:
     test: str
     alpha: float
     hazard_per_million: dict[str, float]
-    """Assumed constant hazard of learning per million env-steps, per arm ('treatment', 'control')."""
+    """Assumed constant hazard of learning per million env-steps, per arm ('treatment', 'control'); empty
+    for a 'takeoff' design."""
     power: float
-    """The power under `hazard_per_million`, as `power_of` computes it (stored to 3 decimals)."""
+    """The power under `hazard_per_million`, as `power_of` computes it (stored to 3 decimals); for a
+    'takeoff' design, that of the takeoff test at the planning discount (`power_simulation`)."""
     rationale: str = ""
+    analysis: str = "counts"
+    """'counts': one exact test of learned-seed counts (`test`); 'takeoff': the tests of `tests`."""
+    tests: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """A 'takeoff' design's tests: {'primary': {name: statement}, 'secondary': {...}, 'correction': ...}."""
+    eval_episodes: int | None = None
+    """Episodes of every evaluation after training (None: the scale's)."""
+    power_simulation: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """A 'takeoff' design's power by simulation (`takeoff_power.power_table`) and its planning discount."""
     training_commit: str | None = None
     """The commit every run is trained at (from a worktree of it): `figure` requires each record's commit to
     be this one. None (designs before this field): each run's commit must follow the design's."""
@@ -72,8 +91,11 @@ def load(name: str) -> Design:
     for arm in ("treatment", "control"):
         raw[arm] = tuple(raw[arm])
     design = Design(**raw)
-    if design.test not in counts.TESTS:
-        raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {counts.TESTS}")
+    if design.analysis not in ANALYSES:
+        raise ValueError(f"design {name}: unknown analysis {design.analysis!r}; choose from {ANALYSES}")
+    tests = counts.TESTS if design.analysis == "counts" else (TAKEOFF_TEST,)
+    if design.test not in tests:
+        raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {tests}")
     if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
         raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
     return design
@@ -198,6 +220,8 @@ def verdict(block: dict[str, Any]) -> str:
 
 def describe(design: Design, env_steps_per_run: int) -> str:
     """The design and its power, for people."""
+    if design.analysis == "takeoff":
+        return describe_takeoff(design, env_steps_per_run)
     rates = success_rates(design, env_steps_per_run)
     n = design.arm_seeds
     last = design.seed + design.seeds - 1
@@ -219,4 +243,28 @@ def describe(design: Design, env_steps_per_run: int) -> str:
             test, n["treatment"], rates["treatment"], n["control"], rates["control"], design.alpha
         )
         lines.append(f"    with {test}: {power:.3f}")
+    return "\n".join(lines)
+
+
+def describe_takeoff(design: Design, env_steps_per_run: int) -> str:
+    """A 'takeoff' design, its tests and its simulated power, for people."""
+    last = design.seed + design.seeds - 1
+    sim = design.power_simulation
+    lines = [
+        f"{design.name}: {design.scale} scale, {design.iterations} iterations "
+        f"({env_steps_per_run / 1e6:.2f}M env-steps per seed), seeds {design.seed}..{last} per condition",
+        f"  treatment: {', '.join(design.treatment)}; control: {', '.join(design.control)}",
+        f"  primary ({design.tests.get('correction', '')}, alpha {design.alpha:g}):",
+        *(f"    {name}: {text}" for name, text in design.tests.get("primary", {}).items()),
+        "  secondary:",
+        *(f"    {name}: {text}" for name, text in design.tests.get("secondary", {}).items()),
+        f"  power by simulation ({sim.get('reps')} simulated designs each, evidence seeds "
+        f"{sim.get('evidence_seeds')}):",
+        *(
+            f"    {case}: takeoff {p['takeoff']:.3f}, 4-goal {p['goalcycle4']:.3f}, both {p['both']:.3f}"
+            for case, p in sim.get("power", {}).items()
+        ),
+        f"  power: {design.power:.3f} (the takeoff test at {design.seeds} seeds an arm, discount "
+        f"{sim.get('planning_discount')})",
+    ]
     return "\n".join(lines)

@@ -269,8 +269,9 @@ class Recipe:
     conditions: tuple[str, ...]
     kind: str
     """'curves' (return through training, final-return CIs), 'transfer' (zero-shot bars), 'mixing'
-    (return through training in three environments), 'predictions' (a trained learner's next frames) or 'ct'
-    (the cultural-transmission evaluation, `jaxsocial.evaluate --protocol ct`, after training)."""
+    (return through training in three environments), 'predictions' (a trained learner's next frames), 'ct'
+    (the cultural-transmission evaluation, `jaxsocial.evaluate --protocol ct`, after training) or 'takeoff'
+    (a time-to-takeoff design: the curves, then the zero-shot returns and the CT protocol)."""
     transfer_envs: tuple[str, ...] = ()
     """Evaluation environments after training ('transfer'); Goal Cycle ones take the scale's env_args."""
     hypotheses: tuple[tuple[str, str], ...] = ()
@@ -305,6 +306,9 @@ RECIPES = {
         Recipe("h1_sooner", "H1 sooner, pre-registered: PPO + aux rec beside the experts and alone, by 6.0M",
                ("solo_rec", "social_rec"), "curves", hypotheses=(("social_rec", "solo_rec"),),
                design="h1_sooner"),
+        Recipe("experts", "Experts, pre-registered: PPO + aux rec beside the experts and alone, time to "
+               "takeoff and zero-shot returns beside new experts", ("solo_rec", "social_rec"), "takeoff",
+               ("goalcycle4", "goalcycle3-solo"), hypotheses=(("social_rec", "solo_rec"),), design="experts"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves",
                hypotheses=(("social_pred", "solo_pred"), ("social_pred_imperfect", "solo_pred"))),
@@ -343,6 +347,7 @@ def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
     return dataclasses.replace(
         scale,
         config=dataclasses.replace(scale.config, iterations=design.iterations),
+        eval_episodes=design.eval_episodes or scale.eval_episodes,
         runs_subdir=f"prereg-{design.name}",
     )
 

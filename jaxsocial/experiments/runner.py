@@ -111,7 +111,9 @@ def run(
 
     Every config is validated before anything trains, so a bad recipe fails at once. `dry_run` prints the
     commands and what is done instead. With `train_missing=False` nothing trains: the conditions already
-    trained (e.g. on another machine) are evaluated and the others are skipped with a note. `pick`: see
+    trained (e.g. on another machine) are evaluated and the others are skipped with a note; only seeds that
+    logged every iteration are evaluated, so a design run over several sittings evaluates each seed once it
+    has finished (e.g. `--no-train` at the end of a sitting). `pick`: see
     `condition_seed_dirs`. With `cores`, every seed trains as a one-seed program (`<condition>-s<k>-<k>`) in
     a process of its own pinned to one of them, as many at once as there are cores (`pinned.run`), seed by
     seed (every condition of a seed before the next seed); `TrainingFailed` after they end if any failed.
@@ -154,17 +156,15 @@ def run(
             raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
         dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     for name in skipped:
-        print(f"  {name}: not trained, not evaluated (--no-train)")
-    evaluated = [name for name in programs if name not in skipped]
-    evaluation = kinds.kind_of(recipe).evaluation  # after training: what the recipe's kind asks
-    protocol = evaluation.protocol
-    specs = evaluation.specs(recipe, scale)
-    for name in evaluated if specs and not dry_run else ():
-        for spec in specs:
-            for seed_dir in dirs[name]:
-                out = evaluation.path(seed_dir, spec, scale)
-                if out.exists():
-                    continue
-                result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, protocol)
-                score = evaluation.score(result)
-                print(f"  {name} {seed_dir.name} in {spec} ({protocol}): {score:.3f}")
+        print(f"  {name}: not every seed trained; its unfinished seeds are not evaluated (--no-train)")
+    finished = {c: [d for d in dirs[c] if len(logs.read_metrics(d)) >= scale.iterations] for c in programs}
+    for evaluation in kinds.kind_of(recipe).evaluations:  # after training: what the recipe's kind asks
+        for name in finished if not dry_run else ():
+            for spec in evaluation.specs(recipe, scale):
+                for seed_dir in finished[name]:
+                    out = evaluation.path(seed_dir, spec, scale)
+                    if out.exists():
+                        continue
+                    result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
+                    score = evaluation.score(result)
+                    print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {score:.3f}")

@@ -1,0 +1,172 @@
+"""The power of a time-to-takeoff design (`prereg.Design` with analysis 'takeoff'), by simulation from the
+committed laptop seeds of the same learner.
+
+Evidence: every seed of the earlier pre-registered laptop designs (`EVIDENCE_DESIGNS`) in the design's two
+conditions: its takeoff (`takeoff.seed_takeoff`, or censored at its run's end) and its per-seed mean return
+zero-shot beside the experts in 4-goal Goal Cycle, from one committed evaluation per condition
+(`evidence_eval_path`; each seed's final policy, `EVIDENCE_EPISODES` episodes), made by
+
+    python -m jaxsocial.evaluate --ckpt RECORD... --env goalcycle4 --env-args width=7,height=7 \\
+        --episodes 128 --out benchmarks/results/science/experts-evidence/goalcycle4-<condition>.json
+
+Model, per arm: the fraction of seeds past the plateau against env-steps is the Kaplan-Meier estimate while
+at least `MIN_AT_RISK` of the arm's seeds are still observed, then grows with the arm's constant hazard
+(takeoffs after `HAZARD_FROM` env-steps per env-step at risk after it). A simulated seed of the treatment
+arm takes off by `control + discount * (treatment - control)`: the effect shrunk toward no effect, since
+fresh seeds learned about half as often as the rates read off the runs that chose a budget (`h1_sooner`).
+Its 4-goal score is drawn from its arm's seeds that did not learn if it did not take off by the budget;
+otherwise from its arm's learned seeds of the longest evidence run not longer than the budget (scores rise
+with training beside the experts, so shorter runs understate them), the treatment arm's score again shrunk
+by `discount` toward a control learned seed's. The tests are the design's (one-sided log-rank on the
+takeoffs, censored at the budget; one-sided Mann-Whitney U on the scores), Holm-corrected as a pair.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from jaxsocial.experiments import takeoff
+from jaxsocial.run import logs, metrics
+
+EVIDENCE_DESIGNS = ("h1_laptop", "h1_early", "h1_sooner")
+EVIDENCE_DIR = Path("benchmarks/results/science/experts-evidence")
+EVIDENCE_EPISODES = 128
+MIN_AT_RISK = 3
+HAZARD_FROM = 3_000_000
+DISCOUNTS = (1.0, 0.75, 0.5)
+
+
+def evidence_eval_path(condition: str) -> Path:
+    return EVIDENCE_DIR / f"goalcycle4-{condition}.json"
+
+
+def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
+    """Every evidence seed of `condition`: design, seed, takeoff and end (env-steps; takeoff None if it never
+    took off), and its 4-goal score."""
+    scores = logs.read_json(evidence_eval_path(condition))
+    by_dir = dict(zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True))
+    seeds = []
+    for design in EVIDENCE_DESIGNS:
+        for seed_dir in sorted((records_root / "laptop" / f"prereg-{design}").glob(f"{condition}-s*")):
+            config, rows = logs.read_config(seed_dir), metrics.read_rows(seed_dir)
+            per_iteration = metrics.steps_per_iteration(config)
+            lift = takeoff.seed_takeoff(rows, per_iteration)
+            seeds.append(
+                {
+                    "design": design,
+                    "seed": config["seed"],
+                    "takeoff": None if lift is None else lift * per_iteration,
+                    "end": len(rows) * per_iteration,
+                    "goalcycle4": by_dir[str(seed_dir)],
+                }
+            )
+    return seeds
+
+
+def incidence(seeds: list[dict[str, Any]], grid: np.ndarray) -> np.ndarray:
+    """float64[G] the modelled fraction of an arm's seeds past the plateau at each env-step of `grid`."""
+    lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
+    observed = [t if t is not None else e for t, e in zip(lifts, ends, strict=True)]
+    horizon = max(g for g in grid if sum(o >= g for o in observed) >= MIN_AT_RISK)
+    fit = stats.ecdf(takeoff.censored(lifts, ends))
+    events = sum(t is not None and t > HAZARD_FROM for t in lifts)
+    exposure = sum(max(0.0, o - HAZARD_FROM) for o in observed)
+    hazard = events / exposure
+    known = 1.0 - fit.sf.evaluate(grid)
+    at_horizon = 1.0 - float(fit.sf.evaluate(horizon))
+    beyond = 1.0 - (1.0 - at_horizon) * np.exp(-hazard * (grid - horizon))
+    return np.where(grid <= horizon, known, beyond)
+
+
+def _draw_takeoffs(curve: np.ndarray, grid: np.ndarray, n: int, budget: int, rng) -> list[float | None]:
+    index = np.searchsorted(curve, rng.random(n), side="left")
+    return [None if i >= len(grid) or grid[i] > budget else float(grid[i]) for i in index]
+
+
+def score_pools(arm: list[dict[str, Any]], budget: int) -> dict[str, list[float]]:
+    """An arm's 4-goal scores: 'learned' (its learned seeds of the longest evidence run up to the budget)
+    and 'not' (every seed that did not take off)."""
+    ends = sorted({s["end"] for s in arm if s["takeoff"] is not None and s["end"] <= budget})
+    if not ends:
+        raise ValueError(f"no evidence run ends by the budget ({budget} env-steps)")
+    learned = [s["goalcycle4"] for s in arm if s["takeoff"] is not None and s["end"] == ends[-1]]
+    return {"learned": learned, "not": [s["goalcycle4"] for s in arm if s["takeoff"] is None]}
+
+
+def simulate(
+    treatment: list[dict[str, Any]],
+    control: list[dict[str, Any]],
+    seeds: int,
+    budget: int,
+    steps_per_window: int,
+    discount: float,
+    alpha: float,
+    reps: int,
+    rng_seed: int = 0,
+) -> dict[str, float]:
+    """The probability that each primary test rejects under Holm at `alpha` (and both do), over `reps`
+    simulated designs of `seeds` seeds an arm."""
+    rng = np.random.default_rng(rng_seed)
+    grid = np.arange(steps_per_window, budget + steps_per_window, steps_per_window, dtype=np.float64)
+    grid = np.concatenate([grid, np.arange(grid[-1] + steps_per_window, 4 * budget, steps_per_window)])
+    low, high = incidence(control, grid), incidence(treatment, grid)
+    curves = {"treatment": low + discount * (high - low), "control": low}
+    pools = {"treatment": score_pools(treatment, budget), "control": score_pools(control, budget)}
+    rejected = np.zeros((reps, 2), bool)
+    for r in range(reps):
+        lifts = {arm: _draw_takeoffs(c, grid, seeds, budget, rng) for arm, c in curves.items()}
+        scores = {}
+        for arm, arm_lifts in lifts.items():
+            scores[arm] = [
+                rng.choice(pools[arm]["not"]) if t is None else rng.choice(pools[arm]["learned"])
+                for t in arm_lifts
+            ]
+        learned = [i for i, t in enumerate(lifts["treatment"]) if t is not None]
+        for i in learned:  # the treatment's learned scores, shrunk toward a control learned seed's
+            toward = rng.choice(pools["control"]["learned"])
+            scores["treatment"][i] = toward + discount * (scores["treatment"][i] - toward)
+        ends = [budget] * seeds
+        p = np.array(
+            [
+                takeoff.logrank((lifts["treatment"], ends), (lifts["control"], ends))["p"],
+                stats.mannwhitneyu(scores["treatment"], scores["control"], alternative="greater").pvalue,
+            ]
+        )
+        rejected[r] = holm_rejects(p, alpha)
+    return {
+        "takeoff": float(rejected[:, 0].mean()),
+        "goalcycle4": float(rejected[:, 1].mean()),
+        "both": float(rejected.all(axis=1).mean()),
+    }
+
+
+def holm_rejects(p: np.ndarray, alpha: float) -> np.ndarray:
+    """bool[m] which of the p-values float64[m] Holm's step-down procedure rejects at family level `alpha`."""
+    order = np.argsort(p)
+    out = np.zeros(len(p), bool)
+    for k, i in enumerate(order):
+        if p[i] > alpha / (len(p) - k):
+            break
+        out[i] = True
+    return out
+
+
+def power_table(
+    design, records_root: Path, steps_per_iteration: int, reps: int, seeds: tuple[int, ...] | None = None
+) -> dict[str, Any]:
+    """The design's power under each of `DISCOUNTS`, at its seeds an arm and at each of `seeds`."""
+    (treatment,), (control,) = design.treatment, design.control
+    arms = {"treatment": evidence(treatment, records_root), "control": evidence(control, records_root)}
+    budget = design.iterations * steps_per_iteration
+    window = takeoff.window_iterations(steps_per_iteration) * steps_per_iteration
+    table = {}
+    for n in seeds or (design.seeds,):
+        for d in DISCOUNTS:
+            table[f"{n} seeds, discount {d:g}"] = simulate(
+                arms["treatment"], arms["control"], n, budget, window, d, design.alpha, reps
+            )
+    return {"evidence_seeds": {arm: len(v) for arm, v in arms.items()}, "reps": reps, "power": table}
