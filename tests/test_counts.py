@@ -3,12 +3,13 @@ designs (their power, their seeds, their commit before the runs')."""
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import counts, prereg, recipes, records, takeoff
+from jaxsocial.experiments import counts, prereg, recipes, records, takeoff, takeoff_power
 from jaxsocial.run import config
 
 
@@ -67,9 +68,11 @@ def test_takeoff_and_the_fraction_learned():
 
 
 DESIGNED = sorted(r.name for r in recipes.RECIPES.values() if r.design)
+COUNT_DESIGNS = [name for name in DESIGNED if prereg.load(recipes.RECIPES[name].design).analysis == "counts"]
+TAKEOFF_DESIGNS = [name for name in DESIGNED if name not in COUNT_DESIGNS]
 
 
-@pytest.mark.parametrize("name", DESIGNED)
+@pytest.mark.parametrize("name", COUNT_DESIGNS)
 def test_the_committed_design_has_the_power_it_states(name, capsys):
     recipe = recipes.RECIPES[name]
     design = prereg.load(recipe.design)
@@ -83,6 +86,40 @@ def test_the_committed_design_has_the_power_it_states(name, capsys):
         design.power, abs=5e-4
     )  # stored to 3 decimals
     assert design.power >= 0.8
+    cli.main(["power", name])
+    assert f"power: {design.power:.3f}" in capsys.readouterr().out
+
+
+def test_the_takeoff_design_states_its_tests_budget_and_evaluations():
+    design = prereg.load("experts")
+    assert design.analysis == "takeoff" and design.test == prereg.TAKEOFF_TEST
+    assert set(design.tests["primary"]) == {"takeoff", "goalcycle4"}
+    assert set(design.tests["secondary"]) == {"solo3", "ct", "counts"}
+    assert design.seed >= 300 and design.seeds == 40 and design.eval_episodes >= 128
+    scale = recipes.recipe_scale(recipes.RECIPES["experts"], recipes.LAPTOP)
+    assert scale.eval_episodes == design.eval_episodes and scale.iterations == design.iterations
+    assert design.iterations % takeoff.window_iterations(8192) == 0  # whole takeoff windows to the budget
+    planning = f"{design.seeds} seeds, discount {design.power_simulation['planning_discount']:g}"
+    assert design.power == round(design.power_simulation["power"][planning]["takeoff"], 3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", TAKEOFF_DESIGNS)
+def test_the_takeoff_design_has_the_power_it_states(name, capsys):
+    """The stored power re-simulated from the committed evidence with fewer simulated designs: within the
+    two estimates' Monte Carlo error (4 standard errors)."""
+    design = prereg.load(recipes.RECIPES[name].design)
+    planning = design.power_simulation["planning_discount"]
+    reps = 300
+    table = takeoff_power.power_table(
+        dataclasses.replace(design, power_simulation={}), Path(records.RECORDS_DIR), 8192, reps
+    )
+    again = table["power"][f"{design.seeds} seeds, discount {planning:g}"]
+    stored = design.power_simulation["power"][f"{design.seeds} seeds, discount {planning:g}"]
+    for test in ("takeoff", "goalcycle4"):
+        p = stored[test]
+        se = math.sqrt(p * (1 - p) / reps + p * (1 - p) / design.power_simulation["reps"])
+        assert abs(again[test] - p) <= 4 * se + 1e-9
     cli.main(["power", name])
     assert f"power: {design.power:.3f}" in capsys.readouterr().out
 

@@ -10,7 +10,7 @@ import pytest
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import counts, figures, kinds, recipes, runner
+from jaxsocial.experiments import counts, figures, kinds, recipes, runner, takeoff
 from jaxsocial.run import config, logs, metrics, schedule
 
 
@@ -212,9 +212,10 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     assert list(stated) == ["social_rec > social_none"]
     assert stated["social_rec > social_none"]["fisher_p"] == pytest.approx(4 / 7, abs=1e-4)
     takeoffs = summary["time_to_learning"]["conditions"]["social_rec"]
-    first_block = metrics.curve(runs.rows["social_rec"][0])[0][0]  # every iteration of seeds 3-5 is above 2
-    assert takeoffs["takeoff_iterations"] == [None] * 3 + [first_block] * 3
     cfg = runs.configs["social_rec"]
+    per_iteration = cfg.num_envs * cfg.rollout_steps  # every iteration of seeds 3-5 is above 2:
+    first_block = takeoff.window_curve(runs.rows["social_rec"][0], per_iteration)[0][0]  # the first window
+    assert takeoffs["takeoff_iterations"] == [None] * 3 + [first_block] * 3
     assert takeoffs["takeoff_env_steps"][3] == first_block * cfg.num_envs * cfg.rollout_steps
     assert summary["command"] == "the command"
     assert summary["provenance"] == {  # fake runs: no records behind them
@@ -315,7 +316,7 @@ def test_no_train_trains_nothing_and_says_what_it_skipped(tmp_path, capsys):
     )
     out = capsys.readouterr().out
     for name in recipes.RECIPES["transfer"].conditions:
-        assert f"{name}: not trained, not evaluated (--no-train)" in out
+        assert f"{name}: not trained (--no-train); its unfinished seeds are not evaluated" in out
     assert not any(tmp_path.iterdir())
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsocial import train
-from jaxsocial.experiments import recipes, sweep
+from jaxsocial.experiments import recipes, sweep, takeoff
 from jaxsocial.run import logs
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -56,7 +56,7 @@ def hand_built_run(path, returns, sps, cores):
 
 
 def test_takeoff_in_env_steps_and_cpu_minutes(tmp_path, monkeypatch):
-    monkeypatch.setattr(sweep, "WINDOW_STEPS", 20)  # windows of 2 rows
+    monkeypatch.setattr(takeoff, "WINDOW_STEPS", 20)  # windows of 2 rows
     hand_built_run(tmp_path / "run", [0.0, 1.0, LEARNED_RETURN + 1, LEARNED_RETURN + 3], sps=0.5, cores=2)
     s = sweep.seed_summary(tmp_path / "run")
     # Windows: rows 1-2 (mean 0.5), rows 3-4 (mean above the threshold): takeoff at the end of row 4.

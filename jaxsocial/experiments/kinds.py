@@ -168,15 +168,15 @@ def _seeds(condition: dict[str, Any]) -> int:
 
 
 def takeoffs(runs) -> dict[str, dict[str, Any]]:
-    """Each condition's time to learning (`takeoff`): every seed's takeoff iteration, env-step and CPU-minutes
-    (training seconds to the takeoff times the cores its record says it had; None where it has no record of
-    them), how many seeds took off by the end, and every seed's CPU-minutes of training in all (compilation
-    excluded)."""
+    """Each condition's time to learning (`takeoff.seed_takeoff`): every seed's takeoff iteration, env-step
+    and CPU-minutes (training seconds to the takeoff times the cores its record says it had; None where it
+    has no record of them), how many seeds took off by the end, and every seed's CPU-minutes of training in
+    all (compilation excluded)."""
     out = {}
     for c, seed_rows in runs.rows.items():
         cfg = runs.configs[c]
         per_iteration = cfg.num_envs * cfg.rollout_steps
-        iterations = [takeoff.takeoff(*curve(rows), LEARNED_RETURN) for rows in seed_rows]
+        iterations = [takeoff.seed_takeoff(rows, per_iteration) for rows in seed_rows]
         cores = [records.run_field(d, "cores") for d in runs.seed_dirs[c]]
         minutes = [
             None if i is None or k is None else round(metrics.cpu_minutes(rows, per_iteration, k, i), 2)

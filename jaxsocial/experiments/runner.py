@@ -156,7 +156,7 @@ def run(
             raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
         dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     for name in skipped:
-        print(f"  {name}: not every seed trained; its unfinished seeds are not evaluated (--no-train)")
+        print(f"  {name}: not trained (--no-train); its unfinished seeds are not evaluated")
     finished = {c: [d for d in dirs[c] if len(logs.read_metrics(d)) >= scale.iterations] for c in programs}
     for evaluation in kinds.kind_of(recipe).evaluations:  # after training: what the recipe's kind asks
         for name in finished if not dry_run else ():

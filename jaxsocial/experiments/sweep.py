@@ -5,9 +5,9 @@ A *setting* is a condition of `recipes.CONDITIONS` at the cpu scale with some fl
 the reason it is tried. Each seed trains in a process of its own pinned to one core (`pinned`), and its
 record goes to
 ``benchmarks/results/records/sweep/<setting>/s<seed>/``. The summary (`summarise`) gives per setting each
-seed's takeoff (the end of the first window of `WINDOW_STEPS` env-steps whose mean learner return exceeds
-`metrics.LEARNED_RETURN`) in env-steps and in CPU-minutes on the machine that ran it, the fraction of seeds
-past the plateau against both, and the final returns.
+seed's takeoff (`takeoff.seed_takeoff`: the end of the first window of about 200k env-steps whose mean
+learner return exceeds `metrics.LEARNED_RETURN`) in env-steps and in CPU-minutes on the machine that ran
+it, the fraction of seeds past the plateau against both, and the final returns.
 
     python -m jaxsocial.experiments.sweep list
     python -m jaxsocial.experiments.sweep run mb8k8_rec --seeds 0 1 --cores 0 1   # one process a core
@@ -38,8 +38,6 @@ SUMMARY = "benchmarks/results/science/sweep"
 STOP_RETURN = 5.0
 """A seed stops once a chunk's mean learner return reaches this (`--stop-at-return`): clearly past the
 one-tile plateau (about 1) and the takeoff threshold (`LEARNED_RETURN`), so its remaining budget is saved."""
-WINDOW_STEPS = 200_000
-"""Env-steps per window of the learning curve in which a takeoff is looked for."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -307,8 +305,7 @@ def seed_summary(seed_dir: Path) -> dict[str, Any]:
     prov = records.read_provenance(seed_dir) or {}
     cores = (prov.get("run") or {}).get("cores") or 1
     per_iteration = metrics.steps_per_iteration(config)
-    windows = max(1, len(rows) * per_iteration // WINDOW_STEPS)
-    iterations, returns = metrics.curve(rows, points=windows)
+    iterations, returns = takeoff.window_curve(rows, per_iteration)
     lift = takeoff.takeoff(iterations, returns, LEARNED_RETURN)
     return {
         "seed": config["seed"],
@@ -328,7 +325,8 @@ def seed_summary(seed_dir: Path) -> dict[str, Any]:
 
 def summarise(records_root: Path) -> dict[str, Any]:
     """Every recorded setting's seeds (`seed_summary`) and how many took off."""
-    out: dict[str, Any] = {"learned_return": LEARNED_RETURN, "window_env_steps": WINDOW_STEPS, "settings": {}}
+    out: dict[str, Any] = {"learned_return": LEARNED_RETURN, "window_env_steps": takeoff.WINDOW_STEPS}
+    out["settings"] = {}
     for setting_dir in sorted(p for p in (records_root / RECORDS_SUBDIR).glob("*") if p.is_dir()):
         seeds = [seed_summary(d) for d in sorted(setting_dir.glob("s*"), key=lambda d: int(d.name[1:]))]
         setting = SETTINGS.get(setting_dir.name)

@@ -12,6 +12,7 @@ on the run's length, so seeds of different budgets share their windows.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -95,14 +96,16 @@ def kaplan_meier(
     times, learned, low, high = [0.0], [0.0], [0.0], [0.0]
     if any(t is not None for t in takeoffs):
         fit = stats.ecdf(censored(takeoffs, ends))
-        band = fit.sf.confidence_interval(confidence, method="log-log")
+        with warnings.catch_warnings():  # undefined where S is 0 or 1: the band is the estimate there
+            warnings.simplefilter("ignore", RuntimeWarning)
+            band = fit.sf.confidence_interval(confidence, method="log-log")
         at = np.asarray(fit.sf.quantiles, np.float64)
-        survival = fit.sf.evaluate(at)
-        lows, highs = band.high.evaluate(at), band.low.evaluate(at)  # 1 - S swaps the bounds
+        estimate = 1.0 - fit.sf.evaluate(at)
+        lows, highs = 1.0 - band.high.evaluate(at), 1.0 - band.low.evaluate(at)  # 1 - S swaps the bounds
         times += at.tolist()
-        learned += (1.0 - survival).tolist()
-        low += np.nan_to_num(1.0 - lows, nan=0.0).tolist()
-        high += np.nan_to_num(1.0 - highs, nan=1.0).tolist()
+        learned += estimate.tolist()
+        low += np.where(np.isnan(lows), estimate, lows).tolist()
+        high += np.where(np.isnan(highs), estimate, highs).tolist()
     return {"time": times, "learned": learned, "low": low, "high": high}
 
 

@@ -48,7 +48,10 @@ def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
     """Every evidence seed of `condition`: design, seed, takeoff and end (env-steps; takeoff None if it never
     took off), and its 4-goal score."""
     scores = logs.read_json(evidence_eval_path(condition))
-    by_dir = dict(zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True))
+    by_dir = {  # keyed by '<design folder>/<seed folder>', wherever the records root is
+        Path(*Path(ck).parts[-2:]): score
+        for ck, score in zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True)
+    }
     seeds = []
     for design in EVIDENCE_DESIGNS:
         for seed_dir in sorted((records_root / "laptop" / f"prereg-{design}").glob(f"{condition}-s*")):
@@ -61,7 +64,7 @@ def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
                     "seed": config["seed"],
                     "takeoff": None if lift is None else lift * per_iteration,
                     "end": len(rows) * per_iteration,
-                    "goalcycle4": by_dir[str(seed_dir)],
+                    "goalcycle4": by_dir[Path(*seed_dir.parts[-2:])],
                 }
             )
     return seeds

@@ -1,0 +1,112 @@
+"""Time to takeoff: the one window definition, the log-rank test and the Kaplan-Meier curve checked against
+hand computations, and the simulated power of a time-to-takeoff design (Holm's rule, the model of the
+evidence, a simulation without an effect)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from jaxsocial.experiments import takeoff, takeoff_power
+from jaxsocial.run.metrics import LEARNED_RETURN
+
+
+def rows_of(returns, episodes=1):
+    return [{"iteration": i + 1, "return/0": r, "episodes/0": episodes} for i, r in enumerate(returns)]
+
+
+def test_windows_are_fixed_in_iterations_whatever_the_run_length():
+    """50k env-steps an iteration: windows of 4 iterations (200k env-steps), the last one shorter."""
+    assert takeoff.window_iterations(50_000) == 4 and takeoff.window_iterations(8192) == 24
+    assert takeoff.window_iterations(10**7) == 1
+    returns = [0.0] * 4 + [1.0, 1.0, 3.0, 3.0] + [5.0, 7.0]
+    ends, means = takeoff.window_curve(rows_of(returns), 50_000)
+    np.testing.assert_array_equal(ends, [4, 8, 10])
+    np.testing.assert_allclose(means, [0.0, 2.0, 6.0])
+    assert takeoff.seed_takeoff(rows_of(returns), 50_000) == 10  # window 2's mean is 2, not above it
+    # the same seed cut at 8 iterations or run on to 40 shares its windows: the takeoff does not move
+    assert takeoff.seed_takeoff(rows_of(returns[:8]), 50_000) is None
+    assert takeoff.seed_takeoff(rows_of(returns + [9.0] * 30), 50_000) == 12
+    assert takeoff.seed_takeoff(rows_of([0.0, 5.0, 0.0, 0.0]), 50_000) is None  # one iteration is no window
+
+
+def test_window_means_are_episode_weighted():
+    rows = [
+        {"iteration": 1, "return/0": 0.0, "episodes/0": 3},
+        {"iteration": 2, "return/0": 8.0, "episodes/0": 1},
+        {"iteration": 3, "return/0": 0.0, "episodes/0": 0},
+    ]
+    _, means = takeoff.window_curve(rows, 100_000)  # windows of 2 iterations
+    np.testing.assert_allclose(means, [2.0, np.nan])
+    assert takeoff.seed_takeoff(rows, 100_000, threshold=LEARNED_RETURN) is None  # 2 is not above 2
+
+
+def test_logrank_is_the_hand_computed_statistic_and_one_sided_toward_sooner():
+    """a: takeoffs at 1 and 2, one censored at 3; b: one at 2, two censored at 3. At t = 1: 3 and 3 at
+    risk, a's one event expected 0.5 times, variance 0.25; at t = 2: 2 and 3 at risk, two events, a's
+    expected 0.8, variance 2 (2/5)(3/5)(3/4) = 0.36. Z = (2 - 1.3) / sqrt(0.61)."""
+    a, b = ([1, 2, None], [3, 3, 3]), ([2, None, None], [3, 3, 3])
+    z = 0.7 / math.sqrt(0.61)
+    result = takeoff.logrank(a, b)
+    assert result["statistic"] == pytest.approx(z, rel=1e-9)
+    assert result["p"] == pytest.approx(stats.norm.sf(z), rel=1e-9)  # a sooner: small p
+    assert takeoff.logrank(b, a)["p"] == pytest.approx(stats.norm.cdf(z), rel=1e-9)
+    assert takeoff.logrank(a, b, "two-sided")["p"] == pytest.approx(2 * stats.norm.sf(z), rel=1e-9)
+
+
+def test_kaplan_meier_is_the_hand_computed_curve_with_its_log_log_band():
+    """Takeoffs at 1, 2, 2 and one seed censored at 1.5: S = 3/4 after t = 1, 0 after t = 2. Greenwood's
+    variance at t = 1 is 1 / (4 * 3); the log-log band of S there is exp(-exp(log(-log S) -+ 1.96 se)),
+    se = sqrt(1/12) / -log S."""
+    curve = takeoff.kaplan_meier([1, None, 2, 2], [4, 1.5, 4, 4])
+    assert curve["time"] == [0.0, 1.0, 1.5, 2.0]
+    np.testing.assert_allclose(curve["learned"], [0.0, 0.25, 0.25, 1.0])
+    s, z = 0.75, stats.norm.ppf(0.975)
+    se = math.sqrt(1 / 12) / -math.log(s)
+    bounds = [1 - math.exp(-math.exp(math.log(-math.log(s)) + sign * z * se)) for sign in (-1, 1)]
+    np.testing.assert_allclose(curve["low"][1:3], [bounds[0]] * 2, rtol=1e-9)
+    np.testing.assert_allclose(curve["high"][1:3], [bounds[1]] * 2, rtol=1e-9)
+    assert curve["low"][-1] == curve["high"][-1] == 1.0  # undefined at S = 0: the estimate
+    assert takeoff.kaplan_meier([None, None], [5, 5]) == {"time": [0.0], "learned": [0.0], "low": [0.0],
+                                                          "high": [0.0]}  # fmt: skip
+
+
+def test_holm_rejects_step_down():
+    assert takeoff_power.holm_rejects(np.array([0.03, 0.02]), 0.05).tolist() == [True, True]
+    assert takeoff_power.holm_rejects(np.array([0.03, 0.04]), 0.05).tolist() == [False, False]
+    assert takeoff_power.holm_rejects(np.array([0.01, 0.2]), 0.05).tolist() == [True, False]
+    assert takeoff_power.holm_rejects(np.array([0.2, 0.024]), 0.05).tolist() == [False, True]
+
+
+def evidence_arm(takeoffs, end, learned_score, other_score):
+    return [
+        {"design": "d", "seed": i, "takeoff": t, "end": end,
+         "goalcycle4": learned_score if t is not None else other_score}
+        for i, t in enumerate(takeoffs)
+    ]  # fmt: skip
+
+
+def test_incidence_is_kaplan_meier_then_a_constant_hazard():
+    step = 1_000_000
+    grid = np.arange(step, 20 * step + 1, step, dtype=np.float64)
+    arm = evidence_arm([4 * step, 5 * step, 6 * step, None, None, None], 8 * step, 5.0, 0.0)
+    modelled = takeoff_power.incidence(arm, grid)
+    np.testing.assert_allclose(modelled[:8], [0, 0, 0, 1 / 6, 2 / 6, 3 / 6, 3 / 6, 3 / 6])
+    hazard = 3 / (1 + 2 + 3 + 3 * 5) / step  # takeoffs after 3M per env-step at risk after 3M
+    np.testing.assert_allclose(modelled[8:], 1 - 0.5 * np.exp(-hazard * (grid[8:] - 8 * step)))
+
+
+def test_without_an_effect_the_tests_reject_about_alpha_and_with_one_more_often():
+    step = 196_608
+    arm = evidence_arm([10 * step, 20 * step, 30 * step, None, None, None], 40 * step, 5.0, 0.0)
+    for i, s in enumerate(arm):  # a spread of scores, so the rank test has no ties to lean on
+        s["goalcycle4"] += 0.01 * i
+    null = takeoff_power.simulate(arm, arm, 12, 40 * step, step, 1.0, 0.05, reps=300)
+    se = math.sqrt(0.05 * 0.95 / 300)
+    assert null["takeoff"] <= 0.05 + 3 * se and null["goalcycle4"] <= 0.05 + 3 * se
+    better = evidence_arm([2 * step] * 5 + [None], 40 * step, 9.0, 0.0)
+    power = takeoff_power.simulate(better, arm, 12, 40 * step, step, 1.0, 0.05, reps=300)
+    assert power["takeoff"] > 0.5 and power["goalcycle4"] > 0.5
+    halved = takeoff_power.simulate(better, arm, 12, 40 * step, step, 0.5, 0.05, reps=300)
+    assert halved["takeoff"] < power["takeoff"] and halved["goalcycle4"] < power["goalcycle4"]
