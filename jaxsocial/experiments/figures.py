@@ -192,7 +192,10 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         learned = {
             c: [final_return(rows) > design.learned_threshold for rows in r] for c, r in runs.rows.items()
         }
-        out["preregistered"] = prereg.preregistered(design, learned, runs.commits())
+        if design.analysis == "takeoff":
+            out["preregistered"] = prereg.preregistered_takeoff(design, out, runs.commits())
+        else:
+            out["preregistered"] = prereg.preregistered(design, learned, runs.commits())
         out["preregistered"]["checks"]["scale_as_designed"] = runs.scale.name == design.scale
         out["preregistered"]["checks"]["seeds_as_designed"] &= (runs.seed, runs.seeds) == (
             design.seed,

@@ -275,6 +275,41 @@ def summarise_transfer(runs) -> dict[str, Any]:
     return {"training": training, "conditions": conditions}
 
 
+ZERO_SHOT = {"goalcycle4": "goalcycle4", "solo3": "goalcycle3-solo"}
+"""A takeoff design's zero-shot evaluations: its name of each -> the environment (the scale's grid)."""
+
+
+def zero_shot_scores(runs, seed_dir: Path) -> dict[str, float | None]:
+    """A seed's zero-shot scores (`ZERO_SHOT`: its mean learner return per episode) and its CT score; None
+    for an evaluation it does not have yet (e.g. a seed still training)."""
+    out: dict[str, float | None] = {}
+    for name, env in ZERO_SHOT.items():
+        path = eval_path(seed_dir, str(recipes.goalcycle_spec(env, runs.scale)))
+        out[name] = RETURNS.score(logs.read_json(path)) if path.exists() else None
+    path = ct_path(seed_dir, runs.scale)
+    out["ct"] = CT.score(logs.read_json(path)) if path.exists() else None
+    return out
+
+
+def summarise_takeoff(runs) -> dict[str, Any]:
+    """The curves' summary (`summarise_curves`) with, per condition, every seed's zero-shot scores and CT
+    score (with their stats over the seeds that have them) and the Kaplan-Meier curve of its takeoffs in
+    env-steps, each seed censored at the end of its run (`takeoff.kaplan_meier`)."""
+    out = summarise_curves(runs)
+    lifts = takeoffs(runs)
+    for c, seed_rows in runs.rows.items():
+        per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
+        ends = [len(rows) * per_iteration for rows in seed_rows]
+        scores = [zero_shot_scores(runs, d) for d in runs.seed_dirs[c]]
+        entry = out["conditions"][c]
+        for name in (*ZERO_SHOT, "ct"):
+            values = [s[name] for s in scores]
+            entry[name] = stats([v for v in values if v is not None]) | {"per_seed": values}
+        entry["kaplan_meier"] = takeoff.kaplan_meier(lifts[c]["takeoff_env_steps"], ends)
+        entry["run_env_steps"] = ends
+    return out
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Figures: each draws a recipe's PNG at `path`
 # ----------------------------------------------------------------------------------------------------------
@@ -444,6 +479,46 @@ def draw_takeoffs(ax, runs, summary: dict[str, Any], colors) -> None:
     ax.legend(fontsize=7)
 
 
+TAKEOFF_PANELS = {
+    "goalcycle4": "zero-shot beside experts, 4-goal Goal Cycle",
+    "solo3": "zero-shot alone, 3-goal Goal Cycle",
+    "ct": "CT score: (R_with - R_solo) / R_experts",
+}
+
+
+def draw_takeoff(runs, summary: dict[str, Any], path: Path) -> None:
+    """The Kaplan-Meier curves of the takeoffs with their 95% bands, the learners' returns through training,
+    and per condition each seed's zero-shot scores and CT score (`TAKEOFF_PANELS`)."""
+    plt = _pyplot()
+    colors = plt.get_cmap("tab10").colors
+    fig, axes = plt.subplots(1, 2 + len(TAKEOFF_PANELS), figsize=(5.4 * (2 + len(TAKEOFF_PANELS)), 4.4))
+    km_ax, returns_ax, *score_axes = axes
+    for i, (c, seed_rows) in enumerate(runs.rows.items()):
+        entry, label = summary["conditions"][c], recipes.CONDITIONS[c].label
+        per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
+        end = max(entry["run_env_steps"])
+        took = summary["time_to_learning"]["conditions"][c]["took_off"]
+        km_label = f"{label} ({took} of {len(seed_rows)} took off)"
+        takeoff.draw_kaplan_meier(km_ax, entry["kaplan_meier"], end, km_label, colors[i])
+        xs, ys = zip(*(takeoff.window_curve(rows, per_iteration) for rows in seed_rows), strict=True)
+        band(returns_ax, [x * per_iteration for x in xs], list(ys), label, colors[i])
+    km_ax.set(
+        ylabel="fraction of seeds past the plateau",
+        ylim=(-0.03, 1.03),
+        title=f"time to takeoff (Kaplan-Meier, 95% band): return > {LEARNED_RETURN:g} in a window",
+    )
+    returns_ax.axhline(LEARNED_RETURN, color="grey", ls=":", lw=1)
+    returns_ax.set(ylabel="learner return per window", title="the learners' returns")
+    for ax in (km_ax, returns_ax):
+        steps_axis(ax)
+    km_ax.legend(fontsize=7, loc="upper left")
+    for ax, (name, title) in zip(score_axes, TAKEOFF_PANELS.items(), strict=True):
+        bars(ax, {c: summary["conditions"][c][name] for c in runs.rows}, colors)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set(title=title, ylabel="per seed" if name == "ct" else "mean episode return, per seed")
+    _save(plt, fig, path, runs)
+
+
 def bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
     """One bar per condition: the mean with its t interval (where there is one), the IQM (a diamond) with its
     bootstrap interval, a cross per seed (per slot for the experts); labelled below, explained in a legend."""
@@ -503,7 +578,7 @@ KINDS: dict[str, Kind] = {
     "predictions": Kind(summarise_curves, draw_predictions, (RETURNS,)),
     "transfer": Kind(summarise_transfer, draw_transfer, (RETURNS,)),
     "ct": Kind(summarise_ct, draw_ct, (CT,)),
-    "takeoff": Kind(summarise_curves, draw_curves, (RETURNS, CT)),
+    "takeoff": Kind(summarise_takeoff, draw_takeoff, (RETURNS, CT)),
 }
 
 

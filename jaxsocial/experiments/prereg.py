@@ -143,7 +143,6 @@ def preregistered(
     k = {arm: sum(v) for arm, v in arms.items()}
     n = {arm: len(v) for arm, v in arms.items()}
     p = counts.p_value(design.test, k["treatment"], n["treatment"], k["control"], n["control"])
-    order = {d: precedes(commit, c) for d, c in run_commits.items()}
     return {
         "commit": commit,
         "primary": {
@@ -160,13 +159,92 @@ def preregistered(
             "control_seeds": n["control"],
             "p": round(p, 6),
         },
-        "checks": {
-            "design_committed": commit is not None,
-            "design_precedes_every_run": bool(order) and all(order.values()),
-            "runs_not_after_design": sorted(d for d, ok in order.items() if not ok),
-            "seeds_as_designed": n == design.arm_seeds,
-        },
+        "checks": commit_checks(commit, run_commits) | {"seeds_as_designed": n == design.arm_seeds},
     }
+
+
+def commit_checks(commit: str | None, run_commits: dict[str, str | None]) -> dict[str, Any]:
+    """Whether the design is committed and precedes every run's recorded commit (and which runs it does
+    not)."""
+    order = {d: precedes(commit, c) for d, c in run_commits.items()}
+    return {
+        "design_committed": commit is not None,
+        "design_precedes_every_run": bool(order) and all(order.values()),
+        "runs_not_after_design": sorted(d for d, ok in order.items() if not ok),
+    }
+
+
+def preregistered_takeoff(
+    design: Design, summary: dict[str, Any], run_commits: dict[str, str | None]
+) -> dict[str, Any]:
+    """The `preregistered` block of a 'takeoff' design from a recipe summary (`kinds.summarise_takeoff` and
+    its `time_to_learning`): each arm's takeoffs (censored at its seeds' run ends) and scores, the primary
+    tests Holm-corrected at the design's alpha, the secondary ones Holm-corrected among themselves.
+
+    Seeds without a score (not evaluated yet) are left out of that score's test; `seeds_as_designed` then
+    fails, so an interim block is never valid."""
+    from scipy import stats as scipy_stats
+
+    from jaxsocial.experiments import takeoff
+
+    arms: dict[str, dict[str, list]] = {}
+    for arm in ("treatment", "control"):
+        lifts, ends, scores = [], [], {name: [] for name in ("goalcycle4", "solo3", "ct")}
+        for c in getattr(design, arm):
+            if c not in summary["conditions"]:
+                continue
+            lifts += summary["time_to_learning"]["conditions"][c]["takeoff_env_steps"]
+            ends += summary["conditions"][c]["run_env_steps"]
+            for name, values in scores.items():
+                values += [v for v in summary["conditions"][c][name]["per_seed"] if v is not None]
+        arms[arm] = {"takeoffs": lifts, "ends": ends, **scores}
+    t, c = arms["treatment"], arms["control"]
+    budget = summary["env_steps_per_run"]  # the design's iterations at its scale
+
+    def rank_test(name: str, alternative: str) -> dict[str, Any]:
+        if not t[name] or not c[name]:
+            return {"p": None, "n": [len(t[name]), len(c[name])]}
+        result = scipy_stats.mannwhitneyu(t[name], c[name], alternative=alternative)
+        return {
+            "statistic": float(result.statistic),
+            "p": float(result.pvalue),
+            "n": [len(t[name]), len(c[name])],
+        }
+
+    def learned_by_budget(arm: dict[str, list]) -> int:
+        return sum(x is not None and x <= budget for x in arm["takeoffs"])
+
+    primary = {
+        "takeoff": takeoff.logrank((t["takeoffs"], t["ends"]), (c["takeoffs"], c["ends"]))
+        | {"n": [len(t["takeoffs"]), len(c["takeoffs"])]},
+        "goalcycle4": rank_test("goalcycle4", "greater"),
+    }
+    k = [learned_by_budget(t), learned_by_budget(c)]
+    n = [len(t["takeoffs"]), len(c["takeoffs"])]
+    secondary = {
+        "solo3": rank_test("solo3", "two-sided"),
+        "ct": rank_test("ct", "greater"),
+        "counts": {"learned": [k[0], n[0], k[1], n[1]], "p": counts.boschloo(k[0], n[0], k[1], n[1])},
+    }
+    for family in (primary, secondary):
+        known = {name: entry["p"] for name, entry in family.items() if entry["p"] is not None}
+        adjusted = counts.holm(known)
+        for name, entry in family.items():
+            entry["p_holm"] = None if name not in adjusted else round(adjusted[name], 6)
+            entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
+            entry.update({key: round(v, 6) for key, v in entry.items() if isinstance(v, float)})
+    designed = {arm: design.seeds * len(getattr(design, arm)) for arm in ("treatment", "control")}
+    scored = all(
+        len(arm[name]) == designed[key] for key, arm in arms.items() for name in ("goalcycle4", "solo3", "ct")
+    )
+    return {
+        "commit": design_commit(design.name),
+        "primary": {"treatment": list(design.treatment), "control": list(design.control), "test": design.test,
+                    "alpha": design.alpha, "tests": design.tests},
+        "result": {"primary": primary, "secondary": secondary, "seeds": {"treatment": n[0], "control": n[1]}},
+        "checks": commit_checks(design_commit(design.name), run_commits)
+        | {"seeds_as_designed": n == [designed["treatment"], designed["control"]] and scored},
+    }  # fmt: skip
 
 
 def seed_problems(
@@ -203,6 +281,8 @@ def seed_problems(
 def verdict(block: dict[str, Any]) -> str:
     """A `preregistered` block's result and checks, for people."""
     r, checks = block["result"], block["checks"]
+    if "primary" in r:
+        return _takeoff_verdict(block)
     lines = [
         f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}): treatment "
         f"{r['treatment_learned']}/{r['treatment_seeds']} learned, control {r['control_learned']}/"
@@ -267,4 +347,23 @@ def describe_takeoff(design: Design, env_steps_per_run: int) -> str:
         f"  power: {design.power:.3f} (the takeoff test at {design.seeds} seeds an arm, discount "
         f"{sim.get('planning_discount')})",
     ]
+    return "\n".join(lines)
+
+
+def _takeoff_verdict(block: dict[str, Any]) -> str:
+    """A 'takeoff' design's `preregistered` block, for people."""
+    r, checks = block["result"], block["checks"]
+    lines = [
+        f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}), "
+        f"seeds {r['seeds']}:"
+    ]
+    for family in ("primary", "secondary"):
+        for name, entry in r[family].items():
+            p = "none" if entry["p"] is None else f"{entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
+            lines.append(f"  {family} {name}: p = {p}{', rejected' if entry['rejected'] else ''}")
+    lines.append(f"  design commit {block['commit'] or 'none (the design is not committed)'}")
+    lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
+    lines += [f"  {problem}" for problem in block.get("problems", [])]
+    if not block.get("valid", True):
+        lines.append("NOT VALID: the result above does not test the design (see the problems listed)")
     return "\n".join(lines)

@@ -82,7 +82,9 @@ def logrank(
     """The log-rank test of two samples of (takeoffs, run ends) (`scipy.stats.logrank`). 'greater': a's seeds
     take off sooner than b's (a's hazard of taking off is higher), one-sided. Returns the statistic (a's
     observed minus expected takeoffs over its standard error: positive when a takes off sooner) and the
-    p-value."""
+    p-value; both None when no seed of either took off."""
+    if all(t is None for t in (*a[0], *b[0])):  # no takeoff at all: nothing to compare
+        return {"statistic": None, "p": None}
     result = stats.logrank(censored(*a), censored(*b), alternative=alternative)
     return {"statistic": float(result.statistic), "p": float(result.pvalue)}
 
