@@ -2,13 +2,14 @@
 hand computations, and the simulated power of a time-to-takeoff design (Holm's rule, the model of the
 evidence, a simulation without an effect)."""
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 from scipy import stats
 
-from jaxsocial.experiments import takeoff, takeoff_power
+from jaxsocial.experiments import counts, prereg, takeoff, takeoff_power
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
@@ -110,3 +111,38 @@ def test_without_an_effect_the_tests_reject_about_alpha_and_with_one_more_often(
     assert power["takeoff"] > 0.5 and power["goalcycle4"] > 0.5
     halved = takeoff_power.simulate(better, arm, 12, 40 * step, step, 0.5, 0.05, reps=300)
     assert halved["takeoff"] < power["takeoff"] and halved["goalcycle4"] < power["goalcycle4"]
+
+
+def takeoff_summary(social_lifts, solo_lifts, end, social_scores, solo_scores):
+    def condition(lifts, scores):
+        return {
+            "run_env_steps": [end] * len(lifts),
+            **{name: {"per_seed": list(scores)} for name in ("goalcycle4", "solo3", "ct")},
+        }
+
+    return {
+        "env_steps_per_run": end,
+        "conditions": {"social_rec": condition(social_lifts, social_scores),
+                       "solo_rec": condition(solo_lifts, solo_scores)},
+        "time_to_learning": {"conditions": {"social_rec": {"takeoff_env_steps": social_lifts},
+                                            "solo_rec": {"takeoff_env_steps": solo_lifts}}},
+    }  # fmt: skip
+
+
+def test_the_takeoff_designs_block_tests_its_arms_with_holm():
+    design = dataclasses.replace(prereg.load("experts"), seeds=3)
+    summary = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, 8.0, 7.0], [1.0, 2.0, 0.0])
+    block = prereg.preregistered_takeoff(design, summary, {})
+    primary, secondary = block["result"]["primary"], block["result"]["secondary"]
+    lift = takeoff.logrank(([1, 2, None], [3] * 3), ([2, None, None], [3] * 3))["p"]
+    rank = stats.mannwhitneyu([9.0, 8.0, 7.0], [1.0, 2.0, 0.0], alternative="greater").pvalue
+    assert primary["takeoff"]["p"] == pytest.approx(lift, abs=1e-6) and rank == pytest.approx(0.05)
+    assert primary["takeoff"]["p_holm"] == pytest.approx(max(2 * rank, lift), abs=1e-6)  # Holm's step-down
+    assert primary["goalcycle4"]["p_holm"] == pytest.approx(2 * rank, abs=1e-6)
+    assert not primary["goalcycle4"]["rejected"] and not primary["takeoff"]["rejected"]
+    assert secondary["counts"]["learned"] == [2, 3, 1, 3]  # takeoffs by the budget
+    assert secondary["counts"]["p"] == pytest.approx(counts.boschloo(2, 3, 1, 3), abs=1e-6)
+    assert block["checks"]["seeds_as_designed"]
+    unscored = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, None, 7.0], [1.0, 2.0, 0.0])
+    assert not prereg.preregistered_takeoff(design, unscored, {})["checks"]["seeds_as_designed"]
+    assert "primary takeoff: p = " in prereg.verdict(block | {"valid": False})
