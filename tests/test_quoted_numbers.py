@@ -22,6 +22,7 @@ DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 DECLARED = {
     ("README.md", "jaxsocial"),
     ("README.md", "The headline result"),
+    ("README.md", "Social learning on a laptop"),
     ("docs/experiments.md", "The sample-efficiency sweep (exploratory)"),
     ("docs/experiments.md", "Results"),
     ("docs/experiments.md", "The GPU scale: social learning appears in some seeds *(no records)*"),

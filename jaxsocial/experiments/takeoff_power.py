@@ -173,3 +173,64 @@ def power_table(
                 arms["treatment"], arms["control"], n, budget, window, d, design.alpha, reps
             )
     return {"evidence_seeds": {arm: len(v) for arm, v in arms.items()}, "reps": reps, "power": table}
+
+
+POOLED_SUMMARY = Path("benchmarks/results/science/laptop-pooled.json")
+POOLED_AT = (4_000_000, 6_000_000, 8_000_000, 20_000_000)
+"""Env-steps at which the pooled summary reads the fraction past the plateau."""
+
+
+def pooled_summary(records_root: Path) -> dict[str, Any]:
+    """Every fresh laptop seed of the evidence designs, per condition (social and solo PPO + rec): its
+    takeoff and run end; at each of `POOLED_AT`, how many of the seeds whose run reached it had taken off,
+    how many were still on the plateau (at risk), and the Kaplan-Meier fraction past the plateau there
+    (every seed, censored at its run's end); and the log-rank test of the two conditions (post hoc: these
+    seeds chose the `experts` design)."""
+    conditions = {}
+    for condition in ("social_rec", "solo_rec"):
+        seeds = evidence(condition, records_root)
+        lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
+        curve = takeoff.kaplan_meier(lifts, ends)
+        at = {}
+        for steps in POOLED_AT:
+            ran = [s for s in seeds if s["end"] >= steps]  # the seeds whose run reached `steps`
+            index = int(np.searchsorted(curve["time"], steps, side="right")) - 1
+            at[str(steps)] = {
+                "took_off": sum(s["takeoff"] is not None and s["takeoff"] <= steps for s in ran),
+                "seeds_observed": len(ran),
+                "at_risk": sum((s["takeoff"] or s["end"]) >= steps for s in seeds if s["end"] >= steps),
+                "kaplan_meier": round(curve["learned"][index], 4),
+                "ci95": [round(curve["low"][index], 4), round(curve["high"][index], 4)],
+            }
+        conditions[condition] = {
+            "seeds": len(seeds),
+            "took_off_within_budget": sum(t is not None for t in lifts),
+            "at": at,
+            "seed_list": seeds,
+        }
+    lift = {c: ([s["takeoff"] for s in v["seed_list"]], [s["end"] for s in v["seed_list"]])
+            for c, v in conditions.items()}  # fmt: skip
+    return {
+        "designs": list(EVIDENCE_DESIGNS),
+        "window_env_steps": takeoff.WINDOW_STEPS,
+        "command": "python -m jaxsocial.experiments.takeoff_power",
+        "conditions": conditions,
+        "logrank_social_sooner_post_hoc": takeoff.logrank(lift["social_rec"], lift["solo_rec"]),
+    }
+
+
+def main() -> None:
+    """Write `POOLED_SUMMARY` from the committed records and evidence evaluations."""
+    summary = pooled_summary(Path("benchmarks/results/records"))
+    logs.write_json(POOLED_SUMMARY, summary, indent=1)
+    for c, v in summary["conditions"].items():
+        by = ", ".join(
+            f"{a['took_off']} of {a['seeds_observed']} by {int(s) / 1e6:g}M (KM {a['kaplan_meier']:.2f})"
+            for s, a in v["at"].items()
+        )
+        print(f"{c}: {v['took_off_within_budget']} of {v['seeds']} took off within their budgets; {by}")
+    print(f"wrote {POOLED_SUMMARY}")
+
+
+if __name__ == "__main__":
+    main()
