@@ -1,4 +1,4 @@
-"""`python -m jaxsocial.experiments {list,run,figure,record,power} ...` (see `jaxsocial.experiments`)."""
+"""`python -m jaxsocial.experiments {list,run,figure,record,power,verify} ...` (`jaxsocial.experiments`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import re
 import sys
 from pathlib import Path
 
-from jaxsocial.experiments import figures, pinned, prereg, recipes, records, runner
+from jaxsocial.experiments import figures, pinned, prereg, recipes, records, runner, verify
 from jaxsocial.run import logs
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -90,7 +90,15 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             )
     p = sub.add_parser("power", help="a pre-registered design and its power")
     p.add_argument("recipe", choices=sorted(r.name for r in recipes.RECIPES.values() if r.design))
+    p = sub.add_parser(
+        "verify", help="re-train a record's first iterations and compare its metrics rows (timings aside)"
+    )
+    p.add_argument("record", help="a record (or run) directory of one seed")
+    p.add_argument("--iterations", type=int, default=verify.DEFAULT_ITERATIONS, help="iterations to re-train")
+    p.add_argument("--out", default=None, help="also write the result as JSON here (never into the record)")
     args = parser.parse_args(argv)
+    if args.command == "verify" and args.iterations < 1:
+        parser.error(f"--iterations {args.iterations} must be >= 1")
     if args.command in helps:
         _seed_range(parser, args)
     return args
@@ -160,6 +168,23 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
         )
 
 
+def run_verify(args: argparse.Namespace) -> None:
+    """`verify`: checked before anything trains (the record, the --out file), then re-trained and reported."""
+    out = Path(args.out) if args.out else None
+    if out is not None and out.exists():
+        raise SystemExit(f"error: {out} exists; choose another --out")
+    if out is not None and out.resolve().is_relative_to(Path(args.record).resolve()):
+        raise SystemExit(f"error: --out {out} is inside the record; verify writes nothing there")
+    try:
+        result = verify.verify(Path(args.record), args.iterations)
+    except (ValueError, FileNotFoundError, RuntimeError) as err:
+        raise SystemExit(f"error: {err}") from err
+    print(verify.report(result))
+    if out is not None:
+        logs.write_json(out, result)
+        print(f"wrote {out}")
+
+
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(sys.argv[1:] if argv is None else argv)
     if args.command == "list":
@@ -167,6 +192,9 @@ def main(argv: list[str] | None = None) -> None:
             print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")
         for s in recipes.SCALES.values():
             print(f"scale {s.name}: {s.iterations} iterations; {s.note}")
+        return
+    if args.command == "verify":
+        run_verify(args)
         return
     recipe = recipes.RECIPES[args.recipe]
     if args.command == "power":

@@ -102,24 +102,36 @@ MACHINE_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
 
 
 @functools.cache
-def _cpuinfo() -> tuple[str, frozenset[str]]:
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's /proc/cpuinfo fields (empty where it is missing)."""
     try:
         lines = Path("/proc/cpuinfo").read_text().splitlines()
     except OSError:
         lines = []
-
-    def first(key: str) -> str:
-        values = [line.split(":", 1)[1].strip() for line in lines if line.split(":", 1)[0].strip() == key]
-        return values[0] if values else ""
-
-    return first("model name") or _platform.processor() or _platform.machine(), frozenset(
-        first("flags").split()
-    )
+    fields: dict[str, str] = {}
+    for line in lines:
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    return fields
 
 
 def cpu_flags() -> frozenset[str]:
     """The CPU's flags from /proc/cpuinfo (empty where it is missing)."""
-    return _cpuinfo()[1]
+    return frozenset(_cpuinfo().get("flags", "").split())
+
+
+def cpu_model() -> str:
+    """The CPU's model name, with its family and model numbers where /proc/cpuinfo gives them, e.g. 'AMD EPYC
+    9R14 96-Core Processor (family 25, model 17)': what tells machine kinds apart (several kinds share a
+    name)."""
+    info = _cpuinfo()
+    if "cpu family" in info and "model" in info:
+        return f"{_model_name()} (family {info['cpu family']}, model {info['model']})"
+    return _model_name()
+
+
+def _model_name() -> str:
+    return _cpuinfo().get("model name") or _platform.processor() or _platform.machine()
 
 
 def backend() -> str:
@@ -141,7 +153,10 @@ def machine_id() -> str:
 
     device = jax.devices()[0]
     if device.platform == "cpu":
-        model, flags = _cpuinfo()
+        model, flags = (
+            _cpuinfo().get("model name") or _platform.processor() or _platform.machine(),
+            cpu_flags(),
+        )
         present = "+".join(f for f in MACHINE_FLAGS if f in flags) or "-"
         what = f"cpu {model} [{present}] x{os.cpu_count()}"
     else:

@@ -1,0 +1,143 @@
+"""Re-train the first iterations of a committed record and say whether its training re-runs exactly.
+
+    python -m jaxsocial.experiments verify benchmarks/results/records/laptop/bc-s0-0
+    python -m jaxsocial.experiments verify RECORD --iterations 20 --out verify.json
+
+The record's config.json (read under today's field names) is trained again for its first K iterations in a
+fresh run directory outside the record, in a process of its own with the process settings the record's run
+had (one core, single-threaded XLA, as `pinned` trains, where its provenance says one core), and the two
+metrics logs are compared row by row, every field but the timings (`TIMING_FIELDS`). The report says
+**exact**, or the first row and field that differ with both values and the size of the difference, and
+names the CPU of the record and of this machine: bitwise agreement is expected on the same CPU model and
+commit, not across models (docs/experiments.md). Nothing is written into the record.
+
+Run it from a worktree of the record's commit for the strict check; on today's code it checks that the
+mathematics did not change since, where the configs map. The laptop and cpu scales have no schedule over
+the run's length, so their first K iterations are those of the full run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from jaxsocial.agents.fast import autotune
+from jaxsocial.experiments import pinned, records
+from jaxsocial.run import config, logs, metrics
+from jaxsocial.run.flags import config_flags
+
+TIMING_FIELDS = (metrics.SPEED, metrics.COMPILE_S)
+"""Row fields that measure the machine, not the mathematics: never compared."""
+DEFAULT_ITERATIONS = 10
+
+
+def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
+    """Train the first `iterations` of the record's config into `work_dir` in a process of its own; return
+    the new run directory (RuntimeError, with the log's tail, if training fails)."""
+    saved = logs.read_config(record_dir)
+    cfg = config.config_from_dict(saved)
+    if iterations > cfg.iterations:
+        raise ValueError(f"--iterations {iterations}: the record trained only {cfg.iterations}")
+    cfg = dataclasses.replace(
+        cfg,
+        iterations=iterations,
+        runs_dir=str(work_dir),
+        run_name="verify",
+        resume=False,
+        overwrite=False,
+        logger=None,
+        progress=False,
+        compile_cache=None,
+    )
+    env = dict(os.environ)
+    if records.run_field(record_dir, "cores") == 1:
+        env["XLA_FLAGS"] = pinned.SINGLE_CORE_XLA_FLAGS
+    log = work_dir / "verify.log"
+    with log.open("w") as out:
+        done = subprocess.run(
+            [sys.executable, "-m", "jaxsocial.train", *config_flags(cfg)],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env=env,
+        )
+    if done.returncode != 0:
+        tail = "\n".join(log.read_text().splitlines()[-15:])
+        raise RuntimeError(f"re-training failed (exit {done.returncode}):\n{tail}")
+    return work_dir / "verify"
+
+
+def first_difference(
+    recorded: list[dict[str, Any]], retrained: list[dict[str, Any]]
+) -> dict[str, Any] | None:
+    """The first row (in order) and field (in the record's order) whose values differ, timings aside, with
+    both values and their absolute and relative difference; None if every row is equal. A field one row has
+    and the other lacks counts as a difference."""
+    for old, new in zip(recorded, retrained, strict=False):
+        for field in dict.fromkeys([*old, *new]):
+            if field in TIMING_FIELDS:
+                continue
+            a, b = old.get(field), new.get(field)
+            if a == b or _both_nan(a, b):
+                continue
+            out = {"iteration": old.get(metrics.ITERATION), "field": field, "record": a, "retrained": b}
+            if isinstance(a, int | float) and isinstance(b, int | float):
+                out["abs"] = abs(float(a) - float(b))
+                out["rel"] = out["abs"] / max(abs(float(a)), abs(float(b)), 1e-300)
+            return out
+    return None
+
+
+def _both_nan(a: Any, b: Any) -> bool:
+    return isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b)
+
+
+def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Path | None = None) -> dict:
+    """Re-train the first `iterations` of a record and compare (see the module docstring). `work_dir`: where
+    the new run goes (default: a temporary directory, removed afterwards)."""
+    record_dir = Path(record_dir)
+    if not (record_dir / logs.CONFIG_FILE).is_file():
+        raise FileNotFoundError(f"{record_dir} holds no config.json: not a record or run directory")
+    recorded = metrics.read_rows(record_dir)[:iterations]
+    if len(recorded) < iterations:
+        raise ValueError(f"--iterations {iterations}: the record logged only {len(recorded)} rows")
+    with tempfile.TemporaryDirectory(prefix="jaxsocial-verify-") as tmp:
+        run_dir = retrain(record_dir, iterations, Path(work_dir or tmp))
+        retrained = metrics.read_rows(run_dir)
+    difference = first_difference(recorded, retrained)
+    return {
+        "record": str(record_dir),
+        "iterations": iterations,
+        "exact": difference is None and len(retrained) == len(recorded),
+        "rows": [len(recorded), len(retrained)],
+        "first_difference": difference,
+        "compared": "every field of every row but " + ", ".join(TIMING_FIELDS),
+        "cpu": {"record": records.run_field(record_dir, "device"), "here": autotune.cpu_model()},
+        "commit": {"record": records.run_field(record_dir, "commit"), "here": records.head_commit()},
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+    }
+
+
+def report(result: dict) -> str:
+    """A verification's result, for people."""
+    head = f"{result['record']}: first {result['iterations']} iterations re-trained"
+    lines = [head]
+    if result["exact"]:
+        lines.append(f"  exact: every row equal ({result['compared']})")
+    elif result["first_difference"] is None:
+        lines.append(f"  differs: rows logged {result['rows'][0]} (record) against {result['rows'][1]}")
+    else:
+        d = result["first_difference"]
+        size = f" (abs {d['abs']:.3g}, rel {d['rel']:.3g})" if "abs" in d else ""
+        lines.append(
+            f"  differs from iteration {d['iteration']}, field {d['field']}: record {d['record']!r}, "
+            f"re-trained {d['retrained']!r}{size}"
+        )
+    lines.append(f"  CPU: record {result['cpu']['record']}; here {result['cpu']['here']}")
+    lines.append(f"  commit: record {result['commit']['record']}; here {result['commit']['here']}")
+    return "\n".join(lines)

@@ -1,0 +1,72 @@
+"""`experiments verify`: a record re-trained on the same machine and code equals its rows up to where a row
+was changed, which it names; bad input is refused before anything trains; nothing is written into the
+record."""
+
+import dataclasses
+import json
+import shutil
+
+import pytest
+
+from jaxsocial import train
+from jaxsocial.experiments import __main__ as cli
+from jaxsocial.experiments import recipes, verify
+from jaxsocial.run import logs
+
+
+@pytest.fixture(scope="module")
+def tiny_record(tmp_path_factory):
+    """One seed of the tiny scale trained in this process (4 iterations): a run directory to verify."""
+    runs_dir = tmp_path_factory.mktemp("verify")
+    cfg = dataclasses.replace(recipes.TINY.config, runs_dir=str(runs_dir), run_name="record", seed=3)
+    return train.run(cfg)
+
+
+def test_first_difference_names_the_row_and_field():
+    rows = [{"iteration": 1, "env_steps_per_s": 5.0, "loss/0": 0.5}, {"iteration": 2, "loss/0": 0.25}]
+    faster = [dict(rows[0], env_steps_per_s=9.0), dict(rows[1])]
+    assert verify.first_difference(rows, faster) is None  # timings are not compared
+    changed = [dict(rows[0]), dict(rows[1], **{"loss/0": 0.3})]
+    d = verify.first_difference(rows, changed)
+    assert (d["iteration"], d["field"], d["record"], d["retrained"]) == (2, "loss/0", 0.25, 0.3)
+    assert d["abs"] == pytest.approx(0.05) and d["rel"] == pytest.approx(0.05 / 0.3)
+    missing = [dict(rows[0]), {"iteration": 2}]
+    assert verify.first_difference(rows, missing)["field"] == "loss/0"
+    assert verify.first_difference([{"x": float("nan")}], [{"x": float("nan")}]) is None
+
+
+@pytest.mark.slow
+def test_a_retrained_record_is_exact_up_to_a_changed_row(tiny_record, tmp_path, capsys):
+    """The last row of a copy is changed: the re-training must equal every row before it bit for bit, and
+    the report names the changed one."""
+    record = tmp_path / "record"
+    shutil.copytree(tiny_record, record)
+    rows = [json.loads(line) for line in (record / logs.METRICS_FILE).read_text().splitlines()]
+    field = next(k for k in rows[-1] if k.startswith("policy_loss"))
+    rows[-1][field] += 1e-7
+    (record / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    before = sorted(p.relative_to(record) for p in record.rglob("*"))
+    cli.main(["verify", str(record), "--iterations", str(len(rows)), "--out", str(tmp_path / "v.json")])
+    out = capsys.readouterr().out
+    result = json.loads((tmp_path / "v.json").read_text())
+    assert not result["exact"] and result["first_difference"]["iteration"] == len(rows)
+    assert result["first_difference"]["field"] == field
+    assert result["first_difference"]["abs"] == pytest.approx(1e-7, rel=1e-3)
+    assert f"differs from iteration {len(rows)}, field {field}" in out and "CPU: record" in out
+    assert sorted(p.relative_to(record) for p in record.rglob("*")) == before  # nothing written into it
+
+
+def test_bad_input_is_refused_before_training(tiny_record, tmp_path):
+    with pytest.raises(SystemExit, match="no config.json"):
+        cli.main(["verify", str(tmp_path)])
+    with pytest.raises(SystemExit, match="logged only 4 rows"):
+        cli.main(["verify", str(tiny_record), "--iterations", "5"])
+    taken = tmp_path / "taken.json"
+    taken.write_text("{}")
+    with pytest.raises(SystemExit, match="exists"):
+        cli.main(["verify", str(tiny_record), "--out", str(taken)])
+    with pytest.raises(SystemExit, match="inside the record"):
+        cli.main(["verify", str(tiny_record), "--out", str(tiny_record / "v.json")])
+    with pytest.raises(SystemExit):
+        cli.main(["verify", str(tiny_record), "--iterations", "0"])
+    assert taken.read_text() == "{}"
