@@ -368,7 +368,7 @@ def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
     if cfg.ckpt:
         env = f"--env {cfg.env}" + (f" --env-args {ENV_ARGS.format(cfg.env_args)}" if cfg.env_args else "")
-        lines.append(f"next: python -m jaxsocial.render --ckpt {cfg.ckpt[0]} {env} --out learner.gif")
+        lines.append(f"next: python -m jaxsocial.render --ckpt {cfg.ckpt[0]} {env}   # writes into the run")
     if not cfg.out:
         lines.append("      add --out FILE to keep every number above (and the per-seed values) as JSON")
     return lines

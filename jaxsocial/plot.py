@@ -1,6 +1,6 @@
 """Learning curves of training runs, one row of panels per learner slot and the other slots' returns below.
 
-    python -m jaxsocial.plot runs/goalcycle3-s0-2 --out curves.png
+    python -m jaxsocial.plot runs/goalcycle3-s0-2                     # runs/goalcycle3-s0-2/curves.png
     python -m jaxsocial.plot runs/a-s0 runs/a-s1 runs/b-s0 --out compare.pdf
 
 A learner's row shows its episode return (episode-weighted, in `--points` blocks of iterations) and the
@@ -211,7 +211,11 @@ def summary(groups: list[Group]) -> list[str]:
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.plot", description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="runs of python -m jaxsocial.train")
-    parser.add_argument("--out", required=True, help="output image, e.g. curves.png (.pdf, .svg, ...)")
+    parser.add_argument(
+        "--out",
+        help="output image, e.g. curves.png (.pdf, .svg, ...); default: the first run's own directory, "
+        "RUN_DIR/curves.png, so no two runs' pictures collide",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     parser.add_argument(
         "--points",
@@ -226,6 +230,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         from matplotlib.backend_bases import FigureCanvasBase
     except ImportError:
         parser.error("plotting needs matplotlib: pip install matplotlib")
+    if args.out is None:
+        args.out = os.path.join(args.runs[0], "curves.png")
     formats = FigureCanvasBase.get_supported_filetypes()
     ext = os.path.splitext(args.out)[1].lower().lstrip(".")
     if ext not in formats:

@@ -1,7 +1,7 @@
 """Render one episode to a GIF or MP4: random actions, or a trained learner beside its companions.
 
     python -m jaxsocial.render --env goalcycle3 --out goalcycle3.gif [--seed 0] [--steps 100] [--fps 8]
-    python -m jaxsocial.render --ckpt runs/goalcycle3-s0 [--env goalcycle3] --out learner.gif --scale 2
+    python -m jaxsocial.render --ckpt runs/goalcycle3-s0 [--env goalcycle3] [--out learner.gif] --scale 2
 
 Each frame shows, under their titles, the whole map (agents as triangles in their current colour, fields of
 view outlined in each agent's identity colour, a strip of coloured segments on a cell several agents share)
@@ -60,7 +60,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help=f"NAME[:field=value,...], NAME one of: {', '.join(jaxsocial.registered_envs())} (default with "
         "--ckpt: the run's)",
     )
-    parser.add_argument("--out", required=True, help="output file, .gif or .mp4 (.mp4 needs imageio-ffmpeg)")
+    parser.add_argument(
+        "--out",
+        help="output file, .gif or .mp4 (.mp4 needs imageio-ffmpeg); default with --ckpt: the run's own "
+        "directory, RUN_DIR/learner.gif (RUN_DIR/learner-ENV.gif with --env), so no two runs' pictures "
+        "collide",
+    )
     parser.add_argument(
         "--ckpt", metavar="RUN_DIR", help="play the learner saved in this run (one seed's directory)"
     )
@@ -91,6 +96,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         parser.error("--slots needs --ckpt")
     if args.ckpt is not None and args.policy is not None:
         parser.error("--policy is for random actions; with --ckpt the saved policy acts")
+    if args.out is None and args.ckpt is None:
+        parser.error("give --out FILE (.gif or .mp4): without --ckpt there is no run directory to write into")
+    if args.out is None:
+        name = "learner.gif" if args.env is None else f"learner-{gif_name(args.env)}.gif"
+        args.out = os.path.join(args.ckpt, name)
     if os.path.exists(args.out) and not args.overwrite:
         parser.error(f"{args.out} already exists; pass --overwrite to replace it")
     if args.steps is not None and args.steps < 1:
@@ -112,6 +122,16 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     except (ValueError, RuntimeError) as e:
         parser.error(str(e))
     return args
+
+
+def gif_name(env: str) -> str:
+    """An environment spec as a file name part: 'goalcycle4:width=7' -> 'goalcycle4_width=7'."""
+    return env.replace(":", "_").replace(",", "_")
+
+
+def counted(n: int, one: str, many: str | None = None) -> str:
+    """'1 reward', '2 rewards', '1 penalty', '0 penalties'."""
+    return f"{n} {one if n == 1 else (many or one + 's')}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     for i, label in enumerate(labels):
         print(
             f"agent {i} ({label}): return {rewards[:, i].sum():+.3f}, "
-            f"{int((rewards[:, i] > 0).sum())} rewards, {int((rewards[:, i] < 0).sum())} penalties"
+            f"{counted(int((rewards[:, i] > 0).sum()), 'reward')}, "
+            f"{counted(int((rewards[:, i] < 0).sum()), 'penalty', 'penalties')}"
         )
     print(f"wrote {len(frames)} frames to {args.out}")
     if args.ckpt is None:

@@ -179,6 +179,8 @@ def _resume_from(argv: list[str]) -> tuple[TrainConfig | None, list[str]]:
     for i, arg in enumerate(argv[:-1]):
         if arg == "--resume" and not argv[i + 1].startswith("-"):
             run_dir = Path(argv[i + 1])
+            if not run_dir.exists():
+                raise SystemExit(f"error: --resume {run_dir}: no such directory")
             if not (run_dir / logs.CONFIG_FILE).is_file():
                 raise SystemExit(
                     f"error: --resume {run_dir}: no {logs.CONFIG_FILE} there (not a run directory)"

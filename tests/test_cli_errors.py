@@ -45,6 +45,8 @@ def fail(argv, message):
         (["--num-envs", "0"], "num_envs=0 must be a whole number >= 1"),
         (["--keep-checkpoints", "0"], "keep_checkpoints=0"),
         (["--env", "goalcycle9"], "unknown environment"),
+        (["--iterations", "0"], "iterations=0 must be >= 1"),
+        (["--checkpoint-every", "0"], "checkpoint_every=0 must be >= 1"),
     ],
 )
 def test_bad_input_fails_before_writing_or_compiling(tmp_path, no_compile, flags, message):
@@ -116,6 +118,12 @@ def test_keep_checkpoints_and_resume_reads_the_saved_config(finished_run):
     assert train.parse_args(["--resume", str(run_dir), "--iterations", "8"]).iterations == 8
     with pytest.raises(SystemExit, match="not a run directory"):
         train.parse_args(["--resume", str(run_dir / "checkpoints")])
+    with pytest.raises(SystemExit, match="no such directory"):
+        train.parse_args(["--resume", str(run_dir / "does-not-exist")])
+    with pytest.raises(ValueError, match=f"it holds the runs {run_dir.name}; give one of them"):
+        policy_io.load_policy(run_dir.parent, None)
+    with pytest.raises(ValueError, match="does not exist"):
+        policy_io.load_policy(run_dir / "does-not-exist", None)
 
 
 def copy_run(run_dir, tmp_path, name):

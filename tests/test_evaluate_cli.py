@@ -58,7 +58,7 @@ def _interval(mean: float, half: float = 0.01) -> dict:
     return {"mean": mean, "ci95": [mean - half, mean + half]}
 
 
-RENDER = "next: python -m jaxsocial.render --ckpt runs/a --env goalcycle3 --env-args width=9,height=9 --out learner.gif"  # noqa: E501
+RENDER = "next: python -m jaxsocial.render --ckpt runs/a --env goalcycle3 --env-args width=9,height=9   # writes into the run"  # noqa: E501
 
 
 def test_the_outcome_says_what_the_evaluation_shows():

@@ -85,6 +85,15 @@ def test_seeds_group_by_config(run_dir, tmp_path):
         plot.load_groups([run_dir, twin])
 
 
+def test_cli_writes_into_the_first_run_by_default(run_dir, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(run_dir, run)
+    done = subprocess.run([sys.executable, "-m", "jaxsocial.plot", str(run)], capture_output=True, text=True,
+                          timeout=120)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert iio.imread(run / "curves.png").ndim == 3
+
+
 def test_cli_writes_image_and_refuses_to_overwrite(run_dir, tmp_path):
     out = tmp_path / "curves.png"
     cmd = [sys.executable, "-m", "jaxsocial.plot", str(run_dir), "--out", str(out)]

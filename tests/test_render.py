@@ -1,6 +1,7 @@
 """Rendering for people: map, frames, episodes, video files and the `python -m jaxsocial.render` CLI (random
 actions, or a trained learner beside its companions with its predicted view)."""
 
+import shutil
 import subprocess
 import sys
 
@@ -243,6 +244,21 @@ def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, ca
     assert random_frames.shape[0] == 6  # 5 steps and the final state
     # The same layout, with one more panel: the learner's predicted view.
     assert frames.shape[1] == random_frames.shape[1] and frames.shape[2] > random_frames.shape[2]
+
+
+def test_cli_writes_into_the_run_by_default_so_pictures_never_collide(learner_run, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(learner_run / "s0", run)
+    assert cli.main(["--ckpt", str(run), "--steps", "3"]) == 0
+    assert (run / "learner.gif").is_file() and f"to {run / 'learner.gif'}" in capsys.readouterr().out
+    spec = f"{TINY.env}:{TINY_ENV_ARGS}"
+    assert cli.main(["--ckpt", str(run), "--env", spec, "--steps", "3"]) == 0
+    assert (run / f"learner-{cli.gif_name(spec)}.gif").is_file()
+    with pytest.raises(SystemExit):
+        cli.main(["--env", TINY.env])
+    assert "give --out FILE" in capsys.readouterr().err
+    assert [cli.counted(n, "reward") for n in (0, 1, 2)] == ["0 rewards", "1 reward", "2 rewards"]
+    assert cli.counted(1, "penalty", "penalties") == "1 penalty"
 
 
 def test_predicted_view_beside_the_learners_view(learner_run):

@@ -329,8 +329,9 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         )
     if cfg.algo == "ppo":
         ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
-    if cfg.iterations < 1 or cfg.chunk_iterations < 1 or cfg.checkpoint_every < 1:
-        raise ValueError("iterations, chunk_iterations and checkpoint_every must be >= 1")
+    for name in ("iterations", "chunk_iterations", "checkpoint_every"):
+        if getattr(cfg, name) < 1:
+            raise ValueError(f"{name}={getattr(cfg, name)} must be >= 1")
     if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
         raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
     if cfg.on_nonfinite not in ON_NONFINITE:

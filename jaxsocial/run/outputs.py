@@ -205,8 +205,8 @@ class Outputs:
         first = self.seeds[0].dir
         grid = {k: v for k, v in self.cfg.env_overrides.items() if k in ("width", "height")}
         grid_args = f" --env-args {specs.ENV_ARGS.format(tuple(grid.items()))}" if grid else ""
-        print(f"next: python -m jaxsocial.plot {first} --out curves.png\n"
-              f"      python -m jaxsocial.render --ckpt {first} --out learner.gif\n"
+        print(f"next: python -m jaxsocial.plot {first}                # writes {first / 'curves.png'}\n"
+              f"      python -m jaxsocial.render --ckpt {first}       # writes {first / 'learner.gif'}\n"
               f"      python -m jaxsocial.evaluate --ckpt {first} --env goalcycle4{grid_args}")  # fmt: skip
         if self.nonfinite_iterations:
             count, first = len(self.nonfinite_iterations), self.nonfinite_iterations[0]

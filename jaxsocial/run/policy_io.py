@@ -55,8 +55,17 @@ def export_policy(
 
 def _policy_dir(policy: PolicyRef) -> Path:
     directory = policy.run / POLICY_DIR
+    if not policy.run.is_dir():
+        raise ValueError(f"{policy.run} does not exist")
     if checkpoint.latest_step(directory) is None:
-        raise ValueError(f"no saved policy under {directory} (is {policy.run} a training run directory?)")
+        inside = sorted(d.name for d in policy.run.iterdir() if (d / POLICY_DIR).is_dir())
+        more = " ..." if len(inside) > 8 else ""
+        hint = (
+            f": it holds the runs {', '.join(inside[:8])}{more}; give one of them"
+            if inside
+            else f" (is {policy.run} a training run directory?)"
+        )
+        raise ValueError(f"no saved policy under {directory}{hint}")
     return directory
 
 
