@@ -18,6 +18,8 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxsocial.agents.fast.autotune import cpu_model  # the model name with its family and model numbers
+
 REPO = Path(__file__).resolve().parent.parent
 
 
@@ -34,16 +36,6 @@ def git_revision() -> dict:
         return {"commit": head.stdout.strip(), "dirty": git("diff", "--quiet").returncode != 0}
     except (OSError, subprocess.SubprocessError):
         return {"commit": None, "dirty": None}
-
-
-def cpu_model() -> str | None:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return None
 
 
 def _version(package: str) -> str | None:

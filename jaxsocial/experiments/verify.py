@@ -38,15 +38,22 @@ DEFAULT_ITERATIONS = 10
 
 
 def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
-    """Train the first `iterations` of the record's config into `work_dir` in a process of its own; return
-    the new run directory (RuntimeError, with the log's tail, if training fails)."""
-    saved = logs.read_config(record_dir)
-    cfg = config.config_from_dict(saved)
+    """Train the first `iterations` of the record's config into `work_dir` in a process of its own, with the
+    single-core XLA flags where its run had one core; return the new run directory."""
+    cfg = config.config_from_dict(logs.read_config(record_dir))
     if iterations > cfg.iterations:
         raise ValueError(f"--iterations {iterations}: the record trained only {cfg.iterations}")
+    one_core = records.run_field(record_dir, "cores") == 1
+    xla_flags = pinned.SINGLE_CORE_XLA_FLAGS if one_core else os.environ.get("XLA_FLAGS", "")
+    return train_in_process(dataclasses.replace(cfg, iterations=iterations), work_dir, xla_flags)
+
+
+def train_in_process(cfg: config.TrainConfig, work_dir: Path, xla_flags: str) -> Path:
+    """Train `cfg` (its seeds, iterations and program as they are) as run 'verify' under `work_dir`, in a
+    process of its own with $XLA_FLAGS `xla_flags`, no logger, progress line or compilation cache; return
+    the run directory (RuntimeError, with the log's tail, if training fails)."""
     cfg = dataclasses.replace(
         cfg,
-        iterations=iterations,
         runs_dir=str(work_dir),
         run_name="verify",
         resume=False,
@@ -55,16 +62,13 @@ def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
         progress=False,
         compile_cache=None,
     )
-    env = dict(os.environ)
-    if records.run_field(record_dir, "cores") == 1:
-        env["XLA_FLAGS"] = pinned.SINGLE_CORE_XLA_FLAGS
     log = work_dir / "verify.log"
     with log.open("w") as out:
         done = subprocess.run(
             [sys.executable, "-m", "jaxsocial.train", *config_flags(cfg)],
             stdout=out,
             stderr=subprocess.STDOUT,
-            env=env,
+            env={**os.environ, "XLA_FLAGS": xla_flags},
         )
     if done.returncode != 0:
         tail = "\n".join(log.read_text().splitlines()[-15:])

@@ -1,0 +1,115 @@
+"""Do CPU models agree bit for bit, and which XLA setting makes them? (issue 50, item 2)
+
+Trains the first K iterations of the laptop recipe (social PPO + rec, seed 0) once per setting, each in a
+single-core process as the designs train (`pinned.SINGLE_CORE_XLA_FLAGS`, then the setting's flags), and
+keeps every metrics field but the timings. The rows go to one JSON per machine kind
+(`benchmarks/results/reproducibility/<cpu>.json`, named from the CPU's model and family/model numbers); each
+run compares its rows with every other kind's committed file, setting by setting, and reports the first row
+and field that differ (`verify.first_difference`): a setting with no difference across the kinds seen makes
+the laptop recipe bitwise reproducible across them. The env-steps/s of each setting is recorded with the
+load average, so the speed cost is read on a quiet machine only.
+
+    python benchmarks/reproducibility.py                     # every setting, 10 iterations
+    python benchmarks/reproducibility.py --settings default max_isa_avx2 --iterations 20
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import re
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+from run_info import REPO, metadata, portable, write_json
+
+from jaxsocial.agents.fast import autotune
+from jaxsocial.experiments import pinned, recipes, verify
+from jaxsocial.run import logs, metrics
+
+SETTINGS = {
+    "default": "",
+    "max_isa_avx2": "--xla_cpu_max_isa=AVX2",
+    "no_xnnpack": "--xla_cpu_use_xnnpack=false",
+    "strict_math": "--xla_cpu_strict_dot_conv_math=true --xla_cpu_enable_fast_math=false",
+    "portable": "--xla_cpu_max_isa=AVX2 --xla_cpu_use_xnnpack=false --xla_cpu_strict_dot_conv_math=true "
+    "--xla_cpu_enable_fast_math=false",
+}
+"""Setting name -> XLA flags added to the single-core ones: the candidates of issue 50 (the host's instruction
+set, the kernel library chosen at run time, fast-math and FMA contraction in dots and convolutions)."""
+OUT_DIR = REPO / "benchmarks/results/reproducibility"
+
+
+def kind_file(cpu: str) -> Path:
+    """This machine kind's JSON: the CPU description as a file name."""
+    return OUT_DIR / (re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json")
+
+
+def rows_of(setting: str, iterations: int) -> tuple[list[dict], float]:
+    """The laptop recipe's first `iterations` rows under `setting`, timings removed, and the median
+    env-steps/s of its rows."""
+    cfg = recipes.condition_config(recipes.LAPTOP, "social_rec", 0, 1, "runs")
+    cfg = dataclasses.replace(
+        cfg, iterations=iterations, chunk_iterations=min(cfg.chunk_iterations, iterations)
+    )
+    flags = f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[setting]}".strip()
+    with tempfile.TemporaryDirectory(prefix="jaxsocial-repro-") as tmp:
+        rows = metrics.read_rows(verify.train_in_process(cfg, Path(tmp), flags))
+    speed = statistics.median(r[metrics.SPEED] for r in rows)
+    return [{k: v for k, v in r.items() if k not in verify.TIMING_FIELDS} for r in rows], speed
+
+
+def compare(mine: dict, other: dict) -> dict:
+    """Per setting both kinds ran: 'exact' or the first difference (`verify.first_difference`)."""
+    out = {}
+    for name, entry in mine["settings"].items():
+        theirs = other["settings"].get(name)
+        if theirs is None:
+            continue
+        n = min(len(entry["rows"]), len(theirs["rows"]))
+        difference = verify.first_difference(theirs["rows"][:n], entry["rows"][:n])
+        out[name] = {"rows": n, "exact": difference is None, "first_difference": difference}
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument("--iterations", type=int, default=10)
+    args = parser.parse_args()
+    if args.iterations < 1:
+        parser.error(f"--iterations {args.iterations} must be >= 1")
+    cpu = autotune.cpu_model()
+    path = kind_file(cpu)
+    found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
+    for name in args.settings:
+        rows, speed = rows_of(name, args.iterations)
+        found["settings"][name] = {
+            "xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[name]}".strip(),
+            "env_steps_per_s_median": round(speed, 1),
+            "load_average": list(os.getloadavg()),
+            "rows": rows,
+        }
+        print(
+            f"{name}: {len(rows)} rows, {speed:,.0f} env-steps/s (load {os.getloadavg()[0]:.2f})", flush=True
+        )
+    found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
+    found["metadata"] = metadata(args)
+    found["against"] = {}
+    for other_path in sorted(OUT_DIR.glob("*.json")):
+        if other_path != path:
+            other = logs.read_json(other_path)
+            found["against"][other["cpu"]] = compare(found, other)
+            for name, c in found["against"][other["cpu"]].items():
+                d = c["first_difference"]
+                verdict = "exact" if c["exact"] else f"differs from iteration {d['iteration']} ({d['field']})"
+                print(f"against {other['cpu']}, {name}: {verdict}")
+    write_json(path, portable(found))
+    print(f"wrote {path.relative_to(REPO)}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
