@@ -4,6 +4,7 @@ run -> resume/skip -> figure plumbing at the tiny scale (with evaluation during 
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -317,6 +318,10 @@ def test_no_train_trains_nothing_and_says_what_it_skipped(tmp_path, capsys):
     out = capsys.readouterr().out
     for name in recipes.RECIPES["transfer"].conditions:
         assert f"{name}: not trained (--no-train); its unfinished seeds are not evaluated" in out
+    assert (
+        f"next: python -m jaxsocial.experiments figure transfer --scale tiny --seed 0 --seeds 1 --runs-dir {tmp_path}"
+        in out
+    )  # noqa: E501
     assert not any(tmp_path.iterdir())
 
 
@@ -398,3 +403,21 @@ def test_time_to_learning_and_run_in_cpu_minutes_where_the_record_says_the_cores
     assert entry["takeoff_cpu_minutes"] == [pytest.approx(lift * 2.0 * 2 / 60, abs=0.01), None]
     assert entry["cores"] == [2, None]
     assert entry["cpu_minutes"] == [pytest.approx(100 * 2.0 * 2 / 60, abs=0.01), None]  # the whole run
+
+
+@pytest.mark.parametrize("scale", [s for s in recipes.SCALES.values() if s.rate is not None])
+def test_a_scales_rate_is_the_committed_benchmarks(scale):
+    """The rate a cost estimate rests on is the single-core rate its benchmark JSON measured (HEAD tree)."""
+    path, recipe = scale.rate.source.split(": ")
+    rows = json.loads((Path(__file__).resolve().parents[1] / path).read_text())["sections"]["recipe"]["rows"]
+    best = [r["best_env_steps_per_s"] for r in rows if r["recipe"] == recipe and "best_env_steps_per_s" in r]
+    assert round(best[0]) == scale.rate.env_steps_per_s
+
+
+def test_run_states_its_cost_before_training_and_ends_with_the_figure_command(tmp_path, capsys):
+    cost = recipes.cost(recipes.LAPTOP, 4, 21_351 * 60, 2)
+    assert cost.startswith("4 runs x 1.28M env-steps: about 5 CPU-minutes, 2 minutes on 2 core(s)")
+    cli.main(["run", "h1", "--scale", "laptop", "--seeds", "2", "--runs-dir", str(tmp_path), "--dry-run",
+              "--cores", "0", "1"])  # fmt: skip
+    assert "[h1/laptop] to train: 8 runs x 20.00M env-steps" in capsys.readouterr().out
+    assert recipes.cost(recipes.TINY, 1, 100, 1) is None

@@ -191,7 +191,10 @@ def main(argv: list[str] | None = None) -> None:
         for r in recipes.RECIPES.values():
             print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")
         for s in recipes.SCALES.values():
-            print(f"scale {s.name}: {s.iterations} iterations; {s.note}")
+            per_run = s.iterations * s.config.num_envs * s.config.rollout_steps
+            unmeasured = "seconds" if s.name == "tiny" else "no measured CPU rate (meant for GPUs)"
+            cost = recipes.cost(s, 1, per_run, 1) or unmeasured
+            print(f"scale {s.name}: {s.iterations} iterations; one run: {cost}\n  {s.note}")
         return
     if args.command == "verify":
         run_verify(args)

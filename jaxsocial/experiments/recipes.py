@@ -31,6 +31,19 @@ from jaxsocial.specs import EnvArgs, EnvSpec
 
 
 @dataclasses.dataclass(frozen=True)
+class Rate:
+    """Env-steps per second of one seed trained alone in a single-core process (`run --cores`), as a committed
+    benchmark measured it: the basis of a cost estimate before training."""
+
+    env_steps_per_s: float
+    cpu: str
+    source: str
+    """The benchmark JSON (its `sections.recipe.rows`) and row ('recipe' of the HEAD tree) it comes from."""
+    compile_s: float
+    """Seconds to compile a run's program, about (paid once per process)."""
+
+
+@dataclasses.dataclass(frozen=True)
 class Scale:
     """A size of every recipe: the training config every condition starts from and the evaluation budget."""
 
@@ -48,6 +61,9 @@ class Scale:
     runs_subdir: str = ""
     """A folder of the scale's runs the recipe's runs go in ('prereg-<design>' for a pre-registered design's,
     so that no ordinary recipe run can share their directories)."""
+    rate: Rate | None = None
+    """A measured speed of its runs, for the cost `experiments run` states before training (None: not
+    measured on a CPU)."""
 
     @property
     def iterations(self) -> int:
@@ -77,6 +93,7 @@ CPU = Scale(
     ),
     eval_every=50,
     eval_episodes=64,
+    rate=Rate(6608.0, "AMD EPYC", "benchmarks/results/recipe_sps.json: cpu_rec", 15.0),
     note=(
         "9x9 Goal Cycle (7x7 interior, 4 clutter walls) instead of 13x13, so the experts are in view more "
         "often; the learner chooses among the 3 movement actions (the paper's other 4 do nothing in Goal "
@@ -113,6 +130,7 @@ LAPTOP = Scale(
     config=PRESETS["laptop"],
     eval_every=250,
     eval_episodes=64,
+    rate=Rate(21351.0, "AMD EPYC", "benchmarks/results/recipe_sps_laptop.json: laptop_rec", 12.0),
     note=(
         "The cpu scale's network and learning rates in a 7x7 Goal Cycle (5x5 interior) instead of 9x9, with "
         "one pass of 8 minibatches (1 gradient sample per env-step, the rollout's own value targets: no "
@@ -430,3 +448,18 @@ def condition_programs(
     if not CONDITIONS[condition].program_per_seed:
         return [condition_config(scale, condition, seed, seeds, runs_dir)]
     return [condition_config(scale, condition, s, 1, runs_dir) for s in range(seed, seed + seeds)]
+
+
+def cost(scale: Scale, runs: int, env_steps_per_run: int, processes: int) -> str | None:
+    """What `runs` runs of `env_steps_per_run` each cost at the scale's measured rate, `processes` at a time
+    (None where the scale has no rate): CPU-minutes and wall-clock minutes, with the rate's CPU."""
+    if scale.rate is None:
+        return None
+    r = scale.rate
+    minutes = runs * (env_steps_per_run / r.env_steps_per_s + r.compile_s) / 60
+    return (
+        f"{runs} runs x {env_steps_per_run / 1e6:.2f}M env-steps: about {minutes:.0f} CPU-minutes, "
+        f"{minutes / max(1, min(processes, runs)):.0f} minutes on {processes} core(s) at "
+        f"{r.env_steps_per_s:,.0f} env-steps/s a single-core run ({r.cpu}; {r.source}); machines differ "
+        "up to about 4x"
+    )

@@ -129,6 +129,20 @@ def run(
         for cfg in cfgs:
             setup(cfg, load_frozen=False)
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
+    to_train = [
+        cfg
+        for name, cfgs in programs.items()
+        for cfg in cfgs
+        if status(cfg, dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds]) != "done"
+    ]
+    if to_train and train_missing:
+        runs = sum(cfg.seeds for cfg in to_train)
+        steps = to_train[0].iterations * to_train[0].num_envs * to_train[0].rollout_steps
+        estimate = recipes.cost(scale, runs, steps, len(cores) or 1) or f"{runs} runs (no measured CPU rate)"
+        mode = (
+            "" if cores else " (the rate is one seed a process, as --cores trains; in one process it differs)"
+        )
+        print(f"[{recipe.name}/{scale.name}] to train: {estimate}{mode}")
     skipped, jobs = [], []
     for name, cfgs in programs.items():
         for cfg in cfgs:
@@ -168,3 +182,7 @@ def run(
                     result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
                     score = evaluation.score(result)
                     print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {score:.3f}")
+    if not dry_run:
+        where = "" if runs_dir == "runs/experiments" else f" --runs-dir {runs_dir}"
+        figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
+        print(f"next: python -m jaxsocial.experiments {figure}   # the summary and figure, tests over seeds")

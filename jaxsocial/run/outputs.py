@@ -201,6 +201,9 @@ class Outputs:
         print(f"wrote {run_dir}{where} ({it} iterations)")
         rows = metrics.read_rows(self.seeds[0].dir)
         env_steps = len(rows) * self.cfg.num_envs * self.cfg.rollout_steps
+        if len(self.seeds) > 1:
+            print(over_seeds([metrics.read_rows(s.dir) for s in self.seeds], self.seeds, self.static))
+            print(f"seed {self.seeds[0].seed} (s{self.seeds[0].seed}/), the first:")
         print(outcome(rows, self.static, env_steps, stopped_at))
         first = self.seeds[0].dir
         grid = {k: v for k, v in self.cfg.env_overrides.items() if k in ("width", "height")}
@@ -212,6 +215,16 @@ class Outputs:
             count, first = len(self.nonfinite_iterations), self.nonfinite_iterations[0]
             print(f"warning: {count} iterations had non-finite values (the first: {first}), marked "
                   f"'{nonfinite.ROW_KEY}' in metrics.jsonl", file=sys.stderr)  # fmt: skip
+
+
+def over_seeds(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], static: config.Setup) -> str:
+    """The first learner's final return over a run's seeds: their mean and each seed's value."""
+    learner = static.pop.learners[0]
+    finals = [metrics.final_return(rows, learner) for rows in seed_rows]
+    each = ", ".join(f"s{s.seed} {v:.3g}" for s, v in zip(seeds, finals, strict=True))
+    mean = metrics.stats(finals)["mean"]
+    shown = "no episode ended" if mean is None else f"mean {mean:.3g}"
+    return f"learner final return over the {len(seeds)} seeds (last 10% of the iterations): {shown} ({each})"
 
 
 SMALL_BUDGET = 2_000_000
