@@ -38,7 +38,7 @@ from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import logs, policy_io
-from jaxsocial.run.metrics import mean_ci95
+from jaxsocial.run.metrics import LEARNED_RETURN, mean_ci95
 from jaxsocial.specs import ENV_ARGS, EnvArgs, EnvSpec, Policy, PolicyRef, check_eval_envs
 
 
@@ -341,6 +341,23 @@ def _contains_zero(value: dict[str, Any]) -> bool:
     return value["ci95"][0] <= 0.0 <= value["ci95"][1]
 
 
+def verdict(learner: float, experts: float, env: EnvParams) -> str:
+    """Whether a learner's mean return beside experts shows the task learned: in Goal Cycle under a penalty,
+    against the one-tile plateau (`metrics.LEARNED_RETURN`); elsewhere, as a share of the experts'."""
+    share = f"{learner / experts:.0%} of the experts' return" if experts > 0 else "the experts score nothing"
+    if env.layout != "goalcycle" or env.penalty == 0:
+        return f"that is {share}"
+    if learner > LEARNED_RETURN:
+        return (
+            f"past the one-tile plateau (return > {LEARNED_RETURN:g}): it completes the cycle here, {share}"
+        )
+    paid = "; below 0 it pays more wrong-tile penalties than it earns" if learner < 0 else ""
+    cycle = f"{env.n_goals}-goal cycle"
+    return (
+        f"on the one-tile plateau (return <= {LEARNED_RETURN:g}): it does not complete the {cycle} here{paid}"
+    )
+
+
 def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
     """What an `evaluate` result shows, in words, and the commands to look further: the learner's return
     against its experts'; for `--protocol ct`, whether the experts make a difference and whether it lasts
@@ -366,6 +383,7 @@ def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
             learner = np.mean([s["mean_return"] for s in by_kind["learner"]])
             experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
+            lines.append(verdict(learner, experts, EnvSpec(cfg.env, cfg.env_args).params()))
     if cfg.ckpt:
         env = f"--env {cfg.env}" + (f" --env-args {ENV_ARGS.format(cfg.env_args)}" if cfg.env_args else "")
         lines.append(f"next: python -m jaxsocial.render --ckpt {cfg.ckpt[0]} {env}   # writes into the run")
