@@ -125,17 +125,22 @@ _decode = jax.jit(network.decode, static_argnums=1)
 
 
 def episode_video(
-    episode: dict[str, Any], tile: int = 12, predicted: np.ndarray | None = None
+    episode: dict[str, Any],
+    tile: int = 12,
+    predicted: np.ndarray | None = None,
+    title: str = pictures.PREDICTED_TITLE,
 ) -> list[np.ndarray]:
     """uint8 frames of a `learner_episode`, one per step (the map and every agent's view;
     `pictures.render_frame`), with `predicted` uint8[T, 21, 21, 3] (`predicted_views`) beside the learner's
-    view."""
+    view under `title` (`pictures.DECODER_TITLES` by the network's frame loss)."""
     frames = []
     for t in range(len(episode["actions"])):
         state = jax.tree.map(lambda x, t=t: x[t], episode["states"])
         reward = episode["rewards"][t - 1] if t else None
         extra = None if predicted is None else {episode["learner"]: predicted[t]}
         frames.append(
-            pictures.render_frame(state, episode["obs"][t], episode["env_params"], reward, tile, extra)
+            pictures.render_frame(
+                state, episode["obs"][t], episode["env_params"], reward, tile, extra, predicted_title=title
+            )
         )
     return frames

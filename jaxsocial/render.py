@@ -27,7 +27,15 @@ import numpy as np
 import jaxsocial
 from jaxsocial import playback
 from jaxsocial.agents import network, population
-from jaxsocial.env.pictures import POLICIES, check_video_path, episode_frames, rollout_episode, save_episode
+from jaxsocial.env.pictures import (
+    DECODER_TITLES,
+    POLICIES,
+    PREDICTED_TITLE,
+    check_video_path,
+    episode_frames,
+    rollout_episode,
+    save_episode,
+)
 from jaxsocial.run import logs, metrics
 from jaxsocial.specs import EnvSpec, PolicyRef
 
@@ -79,7 +87,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--fps", type=float, default=8.0, help="frames per second (default 8)")
     parser.add_argument("--tile", type=int, default=12, help="map pixels per cell (default 12)")
     parser.add_argument(
-        "--scale", type=int, default=1, help="draw everything N times larger: N * --tile pixels per cell"
+        "--scale",
+        type=int,
+        default=3,
+        help="draw everything N times larger: N * --tile pixels per cell (default 3, legible at 100%%)",
     )
     parser.add_argument(
         "--policy",
@@ -148,7 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         episode = playback.play_episode(args.setup, steps, args.seed)
         predicted = playback.predicted_views(episode) if args.decoder else None
-        frames = playback.episode_video(episode, args.tile, predicted)
+        title = DECODER_TITLES.get(args.setup.net.frame_aux, PREDICTED_TITLE)
+        frames = playback.episode_video(episode, args.tile, predicted, title)
         rewards = episode["rewards"]
         labels = [s.label for s in args.setup.pop.slots]
         terminated, truncated = episode["terminated"][-1], episode["truncated"][-1]

@@ -16,6 +16,7 @@ from jaxsocial import playback
 from jaxsocial import render as cli
 from jaxsocial.env import sprites
 from jaxsocial.env.pictures import (
+    DECODER_TITLES,
     TITLE_COLOR,
     episode_frames,
     render_frame,
@@ -200,6 +201,7 @@ def test_cli_scale_draws_every_panel_larger(tmp_path):
     assert large.shape[0] > 2 * small.shape[0] - title_height(TILE)
     with pytest.raises(SystemExit):
         cli.parse_args(["--env", "goalcycle3", "--out", str(tmp_path / "x.gif"), "--scale", "0"])
+    assert cli.parse_args(["--env", "goalcycle3", "--out", str(tmp_path / "x.gif")]).tile == 3 * TILE
 
 
 def test_cli_unknown_env(tmp_path):
@@ -246,10 +248,17 @@ def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, ca
     assert frames.shape[1] == random_frames.shape[1] and frames.shape[2] > random_frames.shape[2]
 
 
-def test_cli_writes_into_the_run_by_default_so_pictures_never_collide(learner_run, tmp_path, capsys):
+def test_cli_writes_into_the_run_by_default_so_pictures_never_collide(
+    learner_run, tmp_path, capsys, monkeypatch
+):
     run = tmp_path / "run"
     shutil.copytree(learner_run / "s0", run)
+    titles = []
+    video = playback.episode_video
+    monkeypatch.setattr(playback, "episode_video", lambda *a: titles.append(a[-1]) or video(*a))
     assert cli.main(["--ckpt", str(run), "--steps", "3"]) == 0
+    assert titles == ["predicted next view"]  # the decoder panel's title follows the aux loss ('pred' here)
+    assert DECODER_TITLES["rec"] == "reconstructed view"
     assert (run / "learner.gif").is_file() and f"to {run / 'learner.gif'}" in capsys.readouterr().out
     spec = f"{TINY.env}:{TINY_ENV_ARGS}"
     assert cli.main(["--ckpt", str(run), "--env", spec, "--steps", "3"]) == 0

@@ -43,6 +43,8 @@ VIDEO_EXTENSIONS = (".gif", ".mp4")
 POLICIES = ("random", "random-move")
 TITLE_COLOR = (220, 220, 220)
 PREDICTED_TITLE = "predicted next view"
+DECODER_TITLES = {"pred": PREDICTED_TITLE, "rec": "reconstructed view"}
+"""The decoder panel's title by the network's frame loss (`NetworkConfig.frame_aux`)."""
 
 
 def title_font(tile: int) -> ImageFont.FreeTypeFont | ImageFont.ImageFont:
@@ -162,6 +164,7 @@ def render_frame(
     tile: int = 12,
     predicted: Mapping[int, np.ndarray] | None = None,
     titles: Sequence[str] | None = None,
+    predicted_title: str = PREDICTED_TITLE,
 ) -> np.ndarray:
     """One video frame, uint8[h, w, 3]: the map on the left, every agent's view on the right, each panel
     under its title.
@@ -175,6 +178,8 @@ def render_frame(
             strip in its identity colour.
         titles: the N agents' view titles (default "learner's view" for agents in `predicted`, else
             "agent i").
+        predicted_title: the title over a `predicted` panel (`DECODER_TITLES`: "reconstructed view" for a
+            reconstruction loss).
     """
     state = _as_numpy(state)
     if obs is None or np.ndim(obs) != 4 or np.shape(obs)[-1] != 3:
@@ -205,7 +210,7 @@ def render_frame(
                     f"agent {i}'s predicted view must be {expected}, not {view.dtype}{list(view.shape)}"
                 )
             striped_strip = np.where(striped[:, None], ids[i], BACKGROUND)
-            panels.append((view, striped_strip, NO_REWARD_BORDER, PREDICTED_TITLE))
+            panels.append((view, striped_strip, NO_REWARD_BORDER, predicted_title))
     views = np.stack([upscale(v, 1, max(1, tile // 3)) for v, *_ in panels])
     side = views.shape[1]
     panel_h, panel_w = label + strip + side + 2 * border, side + 2 * border
