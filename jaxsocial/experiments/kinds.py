@@ -348,11 +348,27 @@ def scale_title(runs) -> str:
     return f"{runs.scale.name} scale{caveat}: {format_steps(steps)} env-steps per seed, {seeds}"
 
 
+PANEL_COLUMNS = 3
+"""Panels per row of a recipe's figure: wider figures wrap into rows, so the text reads at 100%."""
+
+
+def _panels(plt, n: int, width: float = 5.6, height: float = 4.4):
+    """A figure of `n` panels in rows of at most `PANEL_COLUMNS`: (fig, the n axes in reading order); the
+    grid's unused cells are removed."""
+    cols = min(n, PANEL_COLUMNS)
+    rows = -(-n // cols)
+    fig, grid = plt.subplots(rows, cols, figsize=(width * cols, height * rows + 0.8), squeeze=False)
+    axes = list(grid.flat)
+    for ax in axes[n:]:
+        fig.delaxes(ax)
+    return fig, axes[:n]
+
+
 def _save(plt, fig, path: Path, runs) -> None:
-    fig.suptitle(f"{runs.recipe.title}\n{scale_title(runs)}", fontsize=10)
+    fig.suptitle(f"{runs.recipe.title}\n{scale_title(runs)}", fontsize=11)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=70)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
 
 
@@ -362,7 +378,7 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
     steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
-    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax, final_ax) = plt.subplots(1, 5, figsize=(27, 4.2))
+    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax, final_ax) = _panels(plt, 5)
     used = set()
     for i, (c, seed_rows) in enumerate(runs.rows.items()):
         xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
@@ -404,7 +420,7 @@ def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
     keys = metrics.eval_keys(r for rows in runs.rows.values() for r in rows)
-    fig, axes = plt.subplots(1, 3 + len(keys), figsize=(5 * (3 + len(keys)), 4))
+    fig, axes = _panels(plt, 3 + len(keys))
     draw_finals(axes[-1], runs, summary, colors)
     draw_takeoffs(axes[-2], runs, summary, colors)
     axes = axes[:-2]
@@ -435,7 +451,7 @@ def draw_ct(runs, summary: dict[str, Any], path: Path) -> None:
         "ct": "CT score: (R_with - R_solo) / R_experts",
         "recall": "recall: 2nd half after the experts left",
     }
-    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 4.2))
+    fig, axes = _panels(plt, len(panels))
     for ax, (score, title) in zip(axes, panels.items(), strict=True):
         per_cond = {c: ct_score(v, score) for c, v in summary["conditions"].items()}
         bars(ax, per_cond, colors)
@@ -449,9 +465,9 @@ def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
     specs = list(summary["conditions"])
-    fig, axes = plt.subplots(1, len(specs) + 1, figsize=(4.5 * (len(specs) + 1), 4), squeeze=False)
-    draw_takeoffs(axes[0, -1], runs, summary, colors)
-    for ax, spec in zip(axes[0, :-1], specs, strict=True):
+    fig, axes = _panels(plt, len(specs) + 1)
+    draw_takeoffs(axes[-1], runs, summary, colors)
+    for ax, spec in zip(axes[:-1], specs, strict=True):
         bars(ax, summary["conditions"][spec], colors)
         ax.set(title=env_title(spec), ylabel="mean episode return")
     _save(plt, fig, path, runs)
@@ -491,7 +507,7 @@ def draw_takeoff(runs, summary: dict[str, Any], path: Path) -> None:
     and per condition each seed's zero-shot scores and CT score (`TAKEOFF_PANELS`)."""
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
-    fig, axes = plt.subplots(1, 2 + len(TAKEOFF_PANELS), figsize=(5.4 * (2 + len(TAKEOFF_PANELS)), 4.4))
+    fig, axes = _panels(plt, 2 + len(TAKEOFF_PANELS))
     km_ax, returns_ax, *score_axes = axes
     for i, (c, seed_rows) in enumerate(runs.rows.items()):
         entry, label = summary["conditions"][c], recipes.CONDITIONS[c].label
