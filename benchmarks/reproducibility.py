@@ -1,13 +1,15 @@
 """Do CPU models agree bit for bit, and which XLA setting makes them? (issue 50, item 2)
 
-Trains the first K iterations of the laptop recipe (social PPO + rec, seed 0) once per setting, each in a
-single-core process as the designs train (`pinned.SINGLE_CORE_XLA_FLAGS`, then the setting's flags), and
-keeps every metrics field but the timings. The rows go to one JSON per machine kind
-(`benchmarks/results/reproducibility/<cpu>.json`, named from the CPU's model and family/model numbers); each
-run compares its rows with every other kind's committed file, setting by setting, and reports the first row
-and field that differ (`verify.first_difference`): a setting with no difference across the kinds seen makes
-the laptop recipe bitwise reproducible across them. The env-steps/s of each setting is recorded with the
-load average, so the speed cost is read on a quiet machine only.
+Trains the first K iterations of a reference record's config (`REFERENCE`: the laptop recipe's social PPO +
+rec, seed 210 of `h1_early`, trained on an AMD EPYC family 25 model 17 with the default single-core flags)
+once per setting, each in a single-core process as the designs train (`pinned.SINGLE_CORE_XLA_FLAGS`, then
+the setting's flags), and keeps every metrics field but the timings. Each setting's rows are compared with
+the record's (the first row and field that differ, `verify.first_difference`) and go to one JSON per machine
+kind (`benchmarks/results/reproducibility/<cpu>.json`, named from the CPU's model and family/model numbers);
+each run also compares its rows with every other kind's committed file, setting by setting: a setting with
+no difference across the kinds seen makes the laptop recipe bitwise reproducible across them. The
+env-steps/s of each setting is recorded with the load average, so the speed cost is read on a quiet machine
+only.
 
     python benchmarks/reproducibility.py                     # every setting, 10 iterations
     python benchmarks/reproducibility.py --settings default max_isa_avx2 --iterations 20
@@ -27,8 +29,8 @@ from pathlib import Path
 from run_info import REPO, metadata, portable, write_json
 
 from jaxsocial.agents.fast import autotune
-from jaxsocial.experiments import pinned, recipes, verify
-from jaxsocial.run import logs, metrics
+from jaxsocial.experiments import pinned, verify
+from jaxsocial.run import config, logs, metrics
 
 SETTINGS = {
     "default": "",
@@ -41,6 +43,7 @@ SETTINGS = {
 """Setting name -> XLA flags added to the single-core ones: the candidates of issue 50 (the host's instruction
 set, the kernel library chosen at run time, fast-math and FMA contraction in dots and convolutions)."""
 OUT_DIR = REPO / "benchmarks/results/reproducibility"
+REFERENCE = REPO / "benchmarks/results/records/laptop/prereg-h1_early/social_rec-s210-210"
 
 
 def kind_file(cpu: str) -> Path:
@@ -49,17 +52,20 @@ def kind_file(cpu: str) -> Path:
 
 
 def rows_of(setting: str, iterations: int) -> tuple[list[dict], float]:
-    """The laptop recipe's first `iterations` rows under `setting`, timings removed, and the median
-    env-steps/s of its rows."""
-    cfg = recipes.condition_config(recipes.LAPTOP, "social_rec", 0, 1, "runs")
-    cfg = dataclasses.replace(
-        cfg, iterations=iterations, chunk_iterations=min(cfg.chunk_iterations, iterations)
-    )
+    """The reference record's first `iterations` rows re-trained under `setting`, timings removed, and the
+    median env-steps/s of its rows."""
+    cfg = config.config_from_dict(logs.read_config(REFERENCE))
+    chunk = min(cfg.chunk_iterations, iterations)
+    cfg = dataclasses.replace(cfg, iterations=iterations, chunk_iterations=chunk)
     flags = f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[setting]}".strip()
     with tempfile.TemporaryDirectory(prefix="jaxsocial-repro-") as tmp:
         rows = metrics.read_rows(verify.train_in_process(cfg, Path(tmp), flags))
     speed = statistics.median(r[metrics.SPEED] for r in rows)
-    return [{k: v for k, v in r.items() if k not in verify.TIMING_FIELDS} for r in rows], speed
+    return [without_timings(r) for r in rows], speed
+
+
+def without_timings(row: dict) -> dict:
+    return {k: v for k, v in row.items() if k not in verify.TIMING_FIELDS}
 
 
 def compare(mine: dict, other: dict) -> dict:
@@ -85,10 +91,15 @@ def main() -> None:
     cpu = autotune.cpu_model()
     path = kind_file(cpu)
     found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
+    if found.get("reference") != portable(str(REFERENCE)):  # rows of another reference do not compare
+        found = {"cpu": cpu, "settings": {}}
+    found["reference"] = portable(str(REFERENCE))
     for name in args.settings:
         rows, speed = rows_of(name, args.iterations)
+        recorded = [without_timings(r) for r in metrics.read_rows(REFERENCE)[: len(rows)]]
         found["settings"][name] = {
             "xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[name]}".strip(),
+            "against_reference": verify.first_difference(recorded, rows),
             "env_steps_per_s_median": round(speed, 1),
             "load_average": list(os.getloadavg()),
             "rows": rows,

@@ -153,14 +153,19 @@ def grid(layout: list[list[str]]) -> list[list[tuple[int, str]]]:
     return rows + [alone[i : i + ncols] for i in range(0, len(alone), ncols)]
 
 
-def draw(groups: list[Group], points: int = metrics.CURVE_POINTS):
+TOGETHER = -1
+"""The slot index of the panel with every slot's return on one axis (`draw(..., together=True)`)."""
+
+
+def draw(groups: list[Group], points: int = metrics.CURVE_POINTS, together: bool = False):
     """The curves as a matplotlib Figure (not managed by pyplot): a row of panels per learner slot, the other
-    slots' returns side by side below (`grid`; no empty axes). Returns are episode-weighted means over
-    `points` blocks of iterations; losses are per iteration."""
+    slots' returns side by side below (`grid`; no empty axes); with `together`, first a panel of every slot's
+    return on one axis, so the gap between the learner and the experts shows. Returns are episode-weighted
+    means over `points` blocks of iterations; losses are per iteration."""
     import matplotlib
     from matplotlib.figure import Figure
 
-    rows = grid(panels(groups))
+    rows = [[(TOGETHER, metrics.RETURN)]] * together + grid(panels(groups))
     ncols = max(len(r) for r in rows)
     fig = Figure(figsize=(4 * ncols, 3 * len(rows)))
     axes = fig.subplots(len(rows), ncols, squeeze=False)
@@ -169,6 +174,9 @@ def draw(groups: list[Group], points: int = metrics.CURVE_POINTS):
         for ax in row_axes[len(cells) :]:
             fig.delaxes(ax)
         for (slot, key), ax in zip(cells, row_axes, strict=False):
+            if slot == TOGETHER:
+                _draw_together(ax, groups, points, colors)
+                continue
             for i, g in enumerate(groups):
                 if slot >= len(g.slots) or (key != metrics.RETURN and not _logged(g, key, slot)):
                     continue
@@ -188,6 +196,24 @@ def draw(groups: list[Group], points: int = metrics.CURVE_POINTS):
     axes[0, 0].legend(fontsize=7)
     fig.tight_layout()
     return fig
+
+
+def _draw_together(ax, groups: list[Group], points: int, colors) -> None:
+    """Every group's every slot's return on `ax`: a colour per group and slot, the learner's lines solid."""
+    styles = ("-", "--", ":", "-.")
+    n = 0
+    for g in groups:
+        for slot, name in enumerate(g.slots):
+            xs, ys = zip(*(metrics.curve(r, slot, points) for r in g.rows), strict=True)
+            xs = [x * g.steps_per_iteration for x in xs]
+            band(ax, xs, list(ys), f"{g.label}: slot {slot} {name}", colors[n % len(colors)])
+            ax.lines[-1].set_linestyle(styles[min(slot, len(styles) - 1)])
+            n += 1
+    ax.set_title("every slot's episode return, one axis", fontsize=9)
+    ax.set_ylabel(Y_LABELS[metrics.RETURN], fontsize=8)
+    steps_axis(ax)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=7)
 
 
 def summary(groups: list[Group]) -> list[str]:
@@ -217,6 +243,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "RUN_DIR/curves.png, so no two runs' pictures collide",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    parser.add_argument(
+        "--together",
+        action="store_true",
+        help="add a first panel with every slot's return on one axis (the learner beside the experts)",
+    )
     parser.add_argument(
         "--points",
         type=int,
@@ -249,7 +280,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    fig = draw(args.groups, args.points)
+    fig = draw(args.groups, args.points, together=args.together)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)

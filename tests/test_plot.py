@@ -85,6 +85,15 @@ def test_seeds_group_by_config(run_dir, tmp_path):
         plot.load_groups([run_dir, twin])
 
 
+def test_together_puts_every_slots_return_on_one_axis(run_dir):
+    groups = plot.load_groups([run_dir])
+    first = plot.draw(groups, together=True).axes[0]
+    assert first.get_title() == "every slot's episode return, one axis"
+    labels = [line.get_label() for line in first.lines if not line.get_label().startswith("_")]
+    assert labels == [f"tiny: slot {i} {name}" for i, name in enumerate(groups[0].slots)]
+    assert len(plot.draw(groups, together=True).axes) == len(plot.draw(groups).axes) + 1
+
+
 def test_cli_writes_into_the_first_run_by_default(run_dir, tmp_path):
     run = tmp_path / "run"
     shutil.copytree(run_dir, run)
