@@ -104,9 +104,10 @@ def main() -> None:
             "load_average": list(os.getloadavg()),
             "rows": rows,
         }
-        print(
-            f"{name}: {len(rows)} rows, {speed:,.0f} env-steps/s (load {os.getloadavg()[0]:.2f})", flush=True
-        )
+        d = found["settings"][name]["against_reference"]
+        against = "exact" if d is None else f"differs from iteration {d['iteration']} ({d['field']})"
+        load = os.getloadavg()[0]
+        print(f"{name}: {speed:,.0f} env-steps/s (load {load:.2f}); against the record: {against}")
     found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
     found["metadata"] = metadata(args)
     found["against"] = {}

@@ -419,3 +419,19 @@ def test_run_states_its_cost_before_training_and_ends_with_the_figure_command(tm
               "--cores", "0", "1"])  # fmt: skip
     assert "[h1/laptop] to train: 8 runs x 20.00M env-steps" in capsys.readouterr().out
     assert recipes.cost(recipes.TINY, 1, 100, 1) is None
+
+
+def test_figure_compares_ones_runs_with_the_committed_summary():
+    def condition(k, finals, mean, ci):
+        return {"seeds_above_one_tile": k, "final_returns": finals, "mean": mean, "ci95": ci}
+
+    mine = {"conditions": {"social_pred": condition(0, [0.1, 0.3, 0.4], 0.255, [-0.1, 0.6])}}
+    committed = {"conditions": {"social_pred": condition(0, [0.0, 0.9, 0.2], 0.38, [-0.12, 0.87]),
+                                "solo_pred": condition(1, [3.0], 3.0, None)}}  # fmt: skip
+    (line,) = figures.against_committed(mine, committed)
+    assert line == (
+        "social PPO + aux pred: yours 0 of 3 past the plateau, final return 0.255; committed 0 of 3, 0.38 "
+        "[-0.12, 0.87]: yours is inside its 95% interval"
+    )
+    mine["conditions"]["social_pred"]["mean"] = 2.0
+    assert figures.against_committed(mine, committed)[0].endswith("yours is outside its 95% interval")

@@ -226,7 +226,16 @@ def main(argv: list[str] | None = None) -> None:
             runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
             json_path, png_path = figures.write(runs, args.out_dir)
             print(f"wrote {json_path}\nwrote {png_path}")
-            print("\n".join(figures.outcome_lines(logs.read_json(json_path))))
+            summary = logs.read_json(json_path)
+            print("\n".join(figures.outcome_lines(summary)))
+            committed = figures.COMMITTED_DIR / json_path.name
+            if committed.is_file() and committed.resolve() != json_path.resolve():
+                print(f"against the committed summary {committed}:")
+                print(
+                    "\n".join(
+                        f"  {line}" for line in figures.against_committed(summary, logs.read_json(committed))
+                    )
+                )
             if recipe.design is not None:
                 print(prereg.verdict(logs.read_json(json_path)["preregistered"]))
     except (ValueError, FileExistsError, FileNotFoundError, runner.TrainingFailed) as err:

@@ -237,3 +237,31 @@ def write(runs: RecipeRuns, out_dir: str) -> tuple[Path, Path]:
     logs.write_json(json_path, summary, indent=1)
     draw(runs, summary, png_path)
     return json_path, png_path
+
+
+COMMITTED_DIR = Path("benchmarks/results/science")
+"""Where the repository's summaries are (`figure --out-dir benchmarks/results/science`)."""
+
+
+def against_committed(summary: dict[str, Any], committed: dict[str, Any]) -> list[str]:
+    """How a summary of one's own runs compares with the committed summary of the same recipe and scale, a
+    line per condition both have: seeds past the plateau in each, and whether one's mean final return lies
+    inside the committed 95% interval."""
+    lines = []
+    for c, mine in summary.get("conditions", {}).items():
+        theirs = committed.get("conditions", {}).get(c)
+        if theirs is None or "seeds_above_one_tile" not in mine or mine.get("mean") is None:
+            continue
+        label = recipes.CONDITIONS[c].label if c in recipes.CONDITIONS else c
+        seeds = lambda x: sum(v is not None for v in x["final_returns"])  # noqa: E731
+        text = (
+            f"{label}: yours {mine['seeds_above_one_tile']} of {seeds(mine)} past the plateau, final return "
+            f"{mine['mean']:.3g}; committed {theirs['seeds_above_one_tile']} of {seeds(theirs)}, "
+            f"{theirs['mean']:.3g}"
+        )
+        if theirs.get("ci95"):
+            lo, hi = theirs["ci95"]
+            where = "inside" if lo <= mine["mean"] <= hi else "outside"
+            text += f" [{lo:.3g}, {hi:.3g}]: yours is {where} its 95% interval"
+        lines.append(text)
+    return lines
