@@ -435,3 +435,28 @@ def test_figure_compares_ones_runs_with_the_committed_summary():
     )
     mine["conditions"]["social_pred"]["mean"] = 2.0
     assert figures.against_committed(mine, committed)[0].endswith("yours is outside its 95% interval")
+
+
+@pytest.mark.slow
+def test_vmapped_seed_programs_write_one_record_per_seed(tmp_path, capsys):
+    """--vmap-seeds 2 over 3 seeds: programs s0-1 (vmapped) and s2-2; every seed is read, recorded and
+    summarised on its own, as with one program per seed."""
+    runs, out = tmp_path / "runs", tmp_path / "records"
+    cli.main(["run", "predictions", "--scale", "tiny", "--seeds", "3", "--vmap-seeds", "2",
+              "--runs-dir", str(runs)])  # fmt: skip
+    dirs = runner.condition_seed_dirs(recipes.TINY, "social_pred", 0, 3, str(runs))
+    assert dirs == [runs / "tiny/social_pred-s0-1/s0", runs / "tiny/social_pred-s0-1/s1",
+                    runs / "tiny/social_pred-s2-2"]  # fmt: skip
+    assert logs.read_config(runs / "tiny/social_pred-s0-1")["seed_batching"] == "vmap"
+    log = tmp_path / "commands.log"
+    log.write_text("".join(
+        f"2026-01-01T00:00:00 {'a' * 40} python -m jaxsocial.train --run-name tiny/social_pred-{name}\n"
+        for name in ("s0-1", "s2-2")
+    ))  # fmt: skip
+    cli.main(["record", "predictions", "--scale", "tiny", "--seeds", "3", "--runs-dir", str(runs),
+              "--out-dir", str(out), "--commands-log", str(log), "--device", "test", "--jax", "0"])  # fmt: skip
+    for seed, record in enumerate([out / "tiny/social_pred-s0-1/s0", out / "tiny/social_pred-s0-1/s1",
+                                   out / "tiny/social_pred-s2-2"]):  # fmt: skip
+        assert logs.read_config(record)["seed"] == seed and len(metrics.read_rows(record)) == 4
+    with pytest.raises(SystemExit):
+        cli.main(["run", "predictions", "--scale", "tiny", "--vmap-seeds", "0", "--dry-run"])

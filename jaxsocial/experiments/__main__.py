@@ -67,6 +67,14 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 "one of these CPU cores, one per core at a time (e.g. --cores 0 1; default: each condition's "
                 "seeds in one program, in this process)",
             )
+            p.add_argument(
+                "--vmap-seeds",
+                type=int,
+                default=None,
+                metavar="K",
+                help="train each K consecutive seeds of a condition as one vmapped program, one record per "
+                "seed as before (a GPU's way; a design fixes its own, `seeds_per_program`)",
+            )
         elif name == "figure":
             p.add_argument("--out-dir", default=FIGURES_DIR, help="where <recipe>-<scale>.json/.png go")
         else:
@@ -114,10 +122,18 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
             if value is not None and value != designed:
                 parser.error(f"{flag} {value}: the pre-registered design {design.name} fixes {designed}")
         args.seed, args.seeds = design.seed, design.seeds
+        stated = design.seeds_per_program
+        if args.command == "run" and stated is not None and (args.vmap_seeds or 1) != stated:
+            parser.error(
+                f"--vmap-seeds {args.vmap_seeds or 1}: the pre-registered design {design.name} runs {stated} "
+                "seed(s) a program"
+            )
     args.seed = 0 if args.seed is None else args.seed
     args.seeds = 3 if args.seeds is None else args.seeds
     if args.seeds < 1:
         parser.error(f"--seeds {args.seeds} must be >= 1")
+    if getattr(args, "vmap_seeds", None) is not None and args.vmap_seeds < 1:
+        parser.error(f"--vmap-seeds {args.vmap_seeds} must be >= 1")
 
 
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
@@ -219,6 +235,7 @@ def main(argv: list[str] | None = None) -> None:
                 train_missing=not args.no_train,
                 pick=tuple(args.pick),
                 cores=tuple(args.cores),
+                seeds_per_program=args.vmap_seeds,
             )
         elif args.command == "record":
             record(args, recipe, scale)

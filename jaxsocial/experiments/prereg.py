@@ -69,6 +69,11 @@ class Design:
     """Episodes of every evaluation after training (None: the scale's)."""
     power_simulation: dict[str, Any] = dataclasses.field(default_factory=dict)
     """A 'takeoff' design's power by simulation (`takeoff_power.power_table`) and its planning discount."""
+    seeds_per_program: int | None = None
+    """How its seeds run: 1, each seed a one-seed program in a single-core process of its own (`run
+    --cores`); K > 1, each K consecutive seeds of a condition one vmapped program (`run --vmap-seeds K`,
+    e.g. on a GPU); None (designs before this field): as their rationale says. Either way each seed is
+    recorded on its own."""
     training_commit: str | None = None
     """The commit every run is trained at (from a worktree of it): `figure` requires each record's commit to
     be this one. None (designs before this field): each run's commit must follow the design's."""

@@ -441,13 +441,20 @@ def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_di
 
 
 def condition_programs(
-    scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str
+    scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str, per_program: int | None = None
 ) -> list[TrainConfig]:
-    """The training programs of a condition's seeds seed..seed+seeds-1: one for all of them, or one per seed
-    (run `<condition>-s<k>-<k>`) when the condition switches stage on each seed's own return."""
-    if not CONDITIONS[condition].program_per_seed:
+    """The training programs of a condition's seeds seed..seed+seeds-1: one for all of them, or (with
+    `per_program` K) one for each K consecutive seeds (run `<condition>-s<first>-<last>`), vmapped where
+    K > 1; one per seed whatever K when the condition switches stage on each seed's own return."""
+    if CONDITIONS[condition].program_per_seed:
+        per_program = 1
+    if per_program is None:
         return [condition_config(scale, condition, seed, seeds, runs_dir)]
-    return [condition_config(scale, condition, s, 1, runs_dir) for s in range(seed, seed + seeds)]
+    programs = []
+    for first in range(seed, seed + seeds, per_program):
+        cfg = condition_config(scale, condition, first, min(per_program, seed + seeds - first), runs_dir)
+        programs.append(dataclasses.replace(cfg, seed_batching="vmap") if cfg.seeds > 1 else cfg)
+    return programs
 
 
 def cost(scale: Scale, runs: int, env_steps_per_run: int, processes: int) -> str | None:

@@ -106,6 +106,7 @@ def run(
     train_missing: bool = True,
     pick: tuple[str, ...] = (),
     cores: tuple[int, ...] = (),
+    seeds_per_program: int | None = None,
 ) -> None:
     """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
 
@@ -117,14 +118,14 @@ def run(
     `condition_seed_dirs`. With `cores`, every seed trains as a one-seed program (`<condition>-s<k>-<k>`) in
     a process of its own pinned to one of them, as many at once as there are cores (`pinned.run`), seed by
     seed (every condition of a seed before the next seed); `TrainingFailed` after they end if any failed.
+    `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
+    (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
+    process of its own with `cores`, else in this one (default: one per seed with `cores`, else one for all).
     """
-    if cores:
-        programs = {
-            c: [recipes.condition_config(scale, c, s, 1, runs_dir) for s in range(seed, seed + seeds)]
-            for c in recipe.conditions
-        }
-    else:
-        programs = {c: recipes.condition_programs(scale, c, seed, seeds, runs_dir) for c in recipe.conditions}
+    per_program = seeds_per_program or (1 if cores else None)
+    programs = {
+        c: recipes.condition_programs(scale, c, seed, seeds, runs_dir, per_program) for c in recipe.conditions
+    }
     for cfgs in programs.values():
         for cfg in cfgs:
             setup(cfg, load_frozen=False)
@@ -148,7 +149,8 @@ def run(
         for cfg in cfgs:
             own = slice(cfg.seed - seed, cfg.seed - seed + cfg.seeds)  # this program's seeds in dirs[name]
             state = status(cfg, dirs[name][own])
-            label = name if len(cfgs) == 1 else f"{name} s{cfg.seed}"
+            last = cfg.seed + cfg.seeds - 1
+            label = name if len(cfgs) == 1 else f"{name} s{cfg.seed}" + (f"-{last}" if cfg.seeds > 1 else "")
             print(f"[{recipe.name}/{scale.name}] {label}: {state}")
             flags = config_flags(cfg)
             if dry_run:
