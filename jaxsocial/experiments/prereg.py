@@ -23,7 +23,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import counts, records
+from scipy import stats as scipy_stats
+
+from jaxsocial.experiments import counts, records, takeoff
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
@@ -188,10 +190,6 @@ def preregistered_takeoff(
 
     Seeds without a score (not evaluated yet) are left out of that score's test; `seeds_as_designed` then
     fails, so an interim block is never valid."""
-    from scipy import stats as scipy_stats
-
-    from jaxsocial.experiments import takeoff
-
     arms: dict[str, dict[str, list]] = {}
     for arm in ("treatment", "control"):
         lifts, ends, scores = [], [], {name: [] for name in ("goalcycle4", "solo3", "ct")}

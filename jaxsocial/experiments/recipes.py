@@ -24,6 +24,7 @@ import dataclasses
 from jaxsocial.agents.experts import ExpertSpec
 from jaxsocial.agents.network_config import Aux
 from jaxsocial.agents.population import Slot
+from jaxsocial.experiments import prereg
 from jaxsocial.run import config, schedule
 from jaxsocial.run.config import PRESETS, TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -357,8 +358,6 @@ def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
     (`Scale.runs_subdir`) where the recipe carries a design for this scale."""
     if recipe.design is None:
         return scale
-    from jaxsocial.experiments import prereg  # here: prereg imports the runner, which imports this module
-
     design = prereg.load(recipe.design)
     if design.scale != scale.name:
         return scale

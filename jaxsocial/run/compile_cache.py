@@ -17,9 +17,11 @@ from pathlib import Path
 
 import jax
 
+from jaxsocial import user_cache
+
 __all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "default_dir", "enable", "entries", "main"]
 
-DEFAULT_DIR = Path(os.environ.get("XDG_CACHE_HOME") or "~/.cache").expanduser() / "jaxsocial" / "xla"
+DEFAULT_DIR = user_cache.ROOT / "xla"
 """The directory `python -m jaxsocial.run.compile_cache` looks at by default."""
 MIN_COMPILE_SECONDS = 0.5
 

@@ -48,6 +48,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxsocial import user_cache
+from jaxsocial.agents import network
 from jaxsocial.agents.fast import conv
 from jaxsocial.agents.network_config import (
     AUTO,
@@ -260,8 +262,6 @@ def measure(spec: LayerSpec, impls: tuple[str, ...], dtype: str, reps: int = REP
 def _step(net: NetworkConfig, frames: int):
     """The jitted gradient of a loss on all of `net`'s heads (value, policy, the auxiliary decoder through
     `network.aux_loss`) for one step of `frames` sequences, and its arguments."""
-    from jaxsocial.agents import network  # (network imports the modules, which import network_config)
-
     rng = np.random.default_rng(0)
     params = jax.jit(network.init, static_argnums=1)(jax.random.key(0), net)
     if net.symbolic:
@@ -323,9 +323,7 @@ def cache_path() -> Path:
     cache directory (``${XDG_CACHE_HOME:-~/.cache}/jaxsocial``)."""
     if directory := os.environ.get("JAXSOCIAL_CACHE"):
         return Path(directory).expanduser() / "autotune.json"
-    from jaxsocial.run import compile_cache
-
-    return compile_cache.DEFAULT_DIR.parent / "autotune.json"
+    return user_cache.ROOT / "autotune.json"
 
 
 def _read_cache(path: Path) -> dict[str, dict]:
