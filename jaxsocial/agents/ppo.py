@@ -76,8 +76,9 @@ class Batch(NamedTuple):
     its LSTM states before each segment's first step (Carry of float32[C, E, H]); both given, they are the
     targets of minibatch 0 (`rollout_targets`: what its recompute would compute, without the unroll), both
     None, minibatch 0 recomputes them.
-    The rollout records its steps in the same fields (`loop.Transition`: no time axis, carry0 None,
-    segment_carries every step's LSTM state).
+    The rollout records each step in the same class (`loop.make_program`: no time axis, carry0 None,
+    segment_carries every step's LSTM state; obs, actions and valid of the training slots), and `ppo_batch`
+    adds both.
     """
 
     obs: jax.Array

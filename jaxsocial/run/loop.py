@@ -58,27 +58,25 @@ ENV_AXES = RunnerState(
 """The environment axis of the RunnerState's arrays, split over devices (pytree prefix; None: replicated)."""
 
 
-Transition = ppo.Batch
-"""One rollout step, in `ppo.Batch`'s fields without their time axis and with carry0 None (`ppo_batch` adds
-both). obs, actions and valid are of the training slots (learners for PPO, demonstrators for BC), the rest of
-the learners: obs uint8 or int8 [E, S_r, ...] (the environment's observations), resets bool[E], actions
-int32[S_r, E], valid bool[S_r, E], logp, rewards, values, final_values float32[S_l, E], terminated, done
-bool[S_l, E], segment_carries the LSTM states before the step (Carry of float32[S_l, E, H]) and attention
-int32[S_l, E, N-1] with an attention head (`observe.attention_targets`), else None."""
-
-
 def ppo_batch(
-    traj: Transition,
+    traj: ppo.Batch,
     last_obs: jax.Array,
     last_resets: jax.Array,
     last_values: jax.Array,
     carry0: network.Carry,
     segment_length: int,
 ) -> ppo.Batch:
-    """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (scan-stacked
-    Transitions, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...], `last_resets`
+    """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (the scan-stacked
+    steps, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...], `last_resets`
     bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the learners' LSTM
-    states `carry0`; the segment-start states are those before every `segment_length`-th step."""
+    states `carry0`; the segment-start states are those before every `segment_length`-th step.
+
+    A rollout step is a `ppo.Batch` without the time axis and with carry0 None: obs, actions and valid are of
+    the training slots (learners for PPO, demonstrators for BC), the rest of the learners: obs uint8 or int8
+    [E, S_r, ...] (the environment's observations), resets bool[E], actions int32[S_r, E], valid bool[S_r, E],
+    logp, rewards, values, final_values float32[S_l, E], terminated, done bool[S_l, E], segment_carries the
+    LSTM states before the step (Carry of float32[S_l, E, H]) and attention int32[S_l, E, N-1] with an
+    attention head (`observe.attention_targets`), else None."""
     obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
     resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
     n_learners = last_obs.shape[1]
@@ -187,7 +185,7 @@ def make_program(
         finished = (done[:, None] & present).astype(jnp.float32)  # episodes each slot took part in
         stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0))
         agent_done = terminated | done[:, None]
-        transition = Transition(
+        transition = ppo.Batch(
             obs=state.obs[:, training_views],
             resets=state.resets,
             actions=actions[:, training_slots].T,
@@ -211,7 +209,7 @@ def make_program(
         )
         return (new_state, params), (transition, stats)
 
-    def ppo_update(state: RunnerState, params, traj: Transition, carry0, k_update):
+    def ppo_update(state: RunnerState, params, traj: ppo.Batch, carry0, k_update):
         bootstrap = population.values(pop, net, params, state.slots.carry, state.obs, state.resets, observed)
         batch = ppo_batch(  # [S_l, T(+1), E, ...]
             traj,
@@ -233,7 +231,7 @@ def make_program(
         )
         return state._replace(params=new_params, opt_state=new_opt), losses
 
-    def bc_update(state: RunnerState, traj: Transition):
+    def bc_update(state: RunnerState, traj: ppo.Batch):
         # Demonstration streams, time-major [T, E * D, ...] (environment-major, demonstrator-minor).
         def streams(x):  # [T, E, D, ...] -> [T, E * D, ...]
             return x.reshape(n_steps, n_demo_streams, *x.shape[3:])
