@@ -11,7 +11,9 @@
 #   device:  run(command="bash .prereg/block.sh device 450", carry=[".prereg", ".whl"], timeout_s=560)
 #   here:    bash benchmarks/prereg_gpu_block.sh collect DIR     (DIR: the files_at of that call)
 #            (the state and commands log back into .prereg/, the records back into the index, and the
-#            block's progress into benchmarks/results/inflight/<design>-gpu/ to commit)
+#            block's progress and slimmed resume state into benchmarks/results/inflight/<design>-gpu/ to
+#            commit: state/<run>.tgz, the latest checkpoint every seed has, one copy, replaced each block;
+#            prepare copies it into an empty .prereg/state, so another workspace resumes from git)
 #
 # .prereg/state/<condition>.tgz holds each run directory with only its latest checkpoint (and policy);
 # BLOCK_EXTRA="FLAGS" appends flags to every run (a smoke test off the GPU, e.g. --num-envs 4).
@@ -24,6 +26,15 @@ prepare() {
   commit=$(git log -1 --format=%H -- "jaxsocial/experiments/designs/$design.json")
   [ -n "$commit" ] || { echo "error: design $design is not committed" >&2; exit 1; }
   mkdir -p .prereg/state .whl
+  local committed=benchmarks/results/inflight/$design-gpu/state
+  if [ -z "$(ls .prereg/state)" ] && [ -d "$committed" ]; then  # a workspace without the state: git's
+    for t in "$committed"/*.tgz; do  # (<run>/...) under the device's tree (runs/experiments/gpu/<run>/...)
+      local tmp
+      tmp=$(mktemp -d) && mkdir -p "$tmp/runs/experiments/gpu"
+      tar xzf "$t" -C "$tmp/runs/experiments/gpu" && tar czf ".prereg/state/$(basename "$t")" -C "$tmp" runs
+      rm -rf "$tmp"
+    done
+  fi
   rm -rf .prereg/code && mkdir .prereg/code && git archive "$commit" | tar -x -C .prereg/code
   (cd .prereg/code && PYTHONPATH=$PWD python -m jaxsocial.experiments run "$design" --scale gpu --dry-run) |
     grep "python -m jaxsocial.train" | sed 's/^ *python -m jaxsocial.train //' >.prereg/commands.txt
@@ -108,6 +119,7 @@ collect() {
   for t in .prereg/state/*.tgz; do tar xzf "$t" -C "$tmp"; done
   rm -rf "$out" && mkdir -p "$out"
   cp .prereg/commands.log "$out/commands.log"
+  python -m jaxsocial.experiments.inflight .prereg/state/*.tgz --out "$out/state"  # the resume state, in git
   for run in "$tmp"/runs/experiments/gpu/*/; do
     local name
     name=$(basename "$run")
@@ -140,7 +152,7 @@ for run in sorted(p for p in out.iterdir() if p.is_dir()):
 (out / "progress.json").write_text(json.dumps(progress, indent=1) + "\n")
 print(json.dumps(progress, indent=1))
 PROGRESS
-  echo "collected into .prereg/ and $out (commit it; the state stays in .prereg/state, out of git)"
+  echo "collected into .prereg/ and $out (commit it now: its state/ resumes the runs from any workspace)"
 }
 
 "$@"

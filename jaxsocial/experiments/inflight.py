@@ -1,0 +1,111 @@
+"""The resume state of a design's runs that have not finished (a GPU design's blocks), kept in git so that the
+next lent GPU can continue them from any workspace.
+
+A run's state is its directory with only the latest checkpoint every seed has, and no exported policy (a
+resumed run exports the policy of the checkpoint it restores), packed as one deterministic .tgz per run
+(`pack`: sorted members, no times or owners). `benchmarks/prereg_gpu_block.sh collect` slims the state a
+device block brings back into `benchmarks/results/inflight/<design>-gpu/state/`, replacing the copy there,
+so the tree holds one state per run:
+
+    python -m jaxsocial.experiments.inflight STATE.tgz ... --out benchmarks/results/inflight/DESIGN-gpu/state
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import io
+import shutil
+import tarfile
+import tempfile
+from pathlib import Path
+
+from jaxsocial.run import checkpoint, logs, policy_io
+from jaxsocial.run.rundir import CHECKPOINTS_DIR as CHECKPOINTS
+
+
+def seed_dirs(run_dir: Path) -> list[Path]:
+    """The seed directories of a run directory: `s<seed>/` for several seeds, else the run itself."""
+    several = sorted(d for d in run_dir.iterdir() if d.is_dir() and d.name[1:].isdigit() and d.name[0] == "s")
+    return several or [run_dir]
+
+
+def slim(run_dir: Path) -> int:
+    """Keep only the latest checkpoint every seed of `run_dir` has and drop the exported policies; returns
+    that checkpoint's step (ValueError if the seeds share none)."""
+    seeds = seed_dirs(run_dir)
+    common = set.intersection(*(set(checkpoint.all_steps(d / CHECKPOINTS)) for d in seeds))
+    if not common:
+        raise ValueError(f"{run_dir}: its seeds share no checkpoint to resume from")
+    keep = max(common)
+    for d in seeds:
+        for step_dir in (d / CHECKPOINTS).iterdir():
+            if step_dir.name != str(keep):
+                shutil.rmtree(step_dir) if step_dir.is_dir() else step_dir.unlink()
+        shutil.rmtree(d / policy_io.POLICY_DIR, ignore_errors=True)
+    return keep
+
+
+def pack(run_dir: Path, out: Path) -> None:
+    """`run_dir` as a .tgz at `out` whose bytes depend only on the files (members `<run name>/...`, sorted,
+    with no times, owners or modes beyond the file/directory distinction)."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w") as tar:
+        for path in sorted([run_dir, *run_dir.rglob("*")]):
+            info = tar.gettarinfo(path, arcname=str(path.relative_to(run_dir.parent)))
+            info.mtime, info.uid, info.gid, info.uname, info.gname = 0, 0, 0, "", ""
+            info.mode = 0o755 if path.is_dir() else 0o644
+            if path.is_file():
+                with path.open("rb") as f:
+                    tar.addfile(info, f)
+            else:
+                tar.addfile(info)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(gzip.compress(buffer.getvalue(), compresslevel=9, mtime=0))
+
+
+def unpack(tgz: Path, dest: Path) -> list[Path]:
+    """Extract a packed state into `dest`; returns the run directories it held."""
+    with tarfile.open(tgz) as tar:
+        tar.extractall(dest, filter="data")
+        tops = sorted({Path(m.name).parts[0] for m in tar.getmembers()})
+    return [dest / t for t in tops]
+
+
+def slim_states(tgzs: list[Path], out_dir: Path) -> list[Path]:
+    """Every run directory inside the device's state archives `tgzs` (any depth), slimmed and packed into
+    `out_dir/<run>.tgz`, which is emptied first (one copy, replaced). Returns the written files."""
+    written = []
+    with tempfile.TemporaryDirectory(prefix="jaxsocial-state-") as tmp:
+        runs = []
+        for tgz in tgzs:
+            with tarfile.open(tgz) as tar:
+                tar.extractall(tmp, filter="data")
+        for config in sorted(Path(tmp).rglob(logs.CONFIG_FILE)):
+            run = config.parent
+            one_of_several = run.name[1:].isdigit() and (run.parent / logs.CONFIG_FILE).is_file()
+            if not one_of_several:
+                runs.append(run)
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        for run in runs:
+            step = slim(run)
+            pack(run, out_dir / f"{run.name}.tgz")
+            written.append(out_dir / f"{run.name}.tgz")
+            print(f"{run.name}: state at iteration {step}, {written[-1].stat().st_size / 2**20:.1f} MiB")
+    return written
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.inflight", description=__doc__)
+    parser.add_argument("tgz", nargs="+", type=Path, help="the device block's state archives")
+    parser.add_argument("--out", type=Path, required=True, help="where the slim states go (replaced)")
+    args = parser.parse_args(argv)
+    missing = [str(t) for t in args.tgz if not t.is_file()]
+    if missing:
+        parser.error(f"no such archive: {', '.join(missing)}")
+    slim_states(args.tgz, args.out)
+
+
+if __name__ == "__main__":
+    main()
