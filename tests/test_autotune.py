@@ -63,10 +63,11 @@ def test_nothing_auto_is_the_identity(tmp_path, counted):
     assert not counted and not (tmp_path / "a.json").exists()
 
 
-def test_auto_resolves_every_layer_and_caches(tmp_path, counted):
+def test_auto_resolves_every_layer_and_caches(tmp_path, counted, capsys):
     path = tmp_path / "cache" / "autotune.json"
     cfg = dataclasses.replace(TINY, conv_impl="auto")
     resolved = autotune.resolve(cfg, BATCH, path=path)
+    assert f"autotune: measuring the {len(CONV_LAYERS)} 'auto' layers" in capsys.readouterr().err  # says so
     expected = "conv1=xla,conv2=matmul,conv3=matmul,deconv1=matmul,deconv2=im2col,deconv3=matmul"
     assert resolved.conv_impl == expected and not resolved.unresolved
     assert dataclasses.replace(resolved, conv_impl="auto") == cfg  # nothing else changed
@@ -80,8 +81,9 @@ def test_auto_resolves_every_layer_and_caches(tmp_path, counted):
     assert set(conv1["times_s"]) == {"matmul", "xla"}
     assert all(f"x{BATCH}x" in k for k in entries if "|network " not in k)
 
-    counted.clear()  # a second resolve reads the cache and measures nothing
+    counted.clear()  # a second resolve reads the cache and measures nothing (and says nothing)
     assert autotune.resolve(cfg, BATCH, path=path) == resolved
+    assert "measuring" not in capsys.readouterr().err
     tuning = autotune.tune(cfg, BATCH, path=path)
     assert not counted and tuning.cached and set(tuning.choices) == set(CONV_LAYERS)
     assert tuning.choices["conv1"].alone == "xla" and tuning.choices["conv1"].times_s == FAKE_TIMES["conv1"]

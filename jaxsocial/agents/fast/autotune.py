@@ -40,6 +40,7 @@ import json
 import logging
 import os
 import platform as _platform
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -461,6 +462,12 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
                 f"autotune cache {path}: entry {key!r} unusable ({err}); measuring again", stacklevel=2
             )
 
+    print(
+        f"autotune: measuring the {len(auto)} 'auto' layers on this machine ({net.dtype}, {frames} frames), "
+        f"once: the choice is cached in {path}",
+        file=sys.stderr,
+        flush=True,
+    )
     alone, times = {}, {}
     for layer in auto:
         spec = specs[layer]
