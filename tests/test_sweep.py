@@ -75,3 +75,19 @@ def test_confirmatory_seeds_are_refused(capsys):
     with pytest.raises(SystemExit):
         sweep.main(["run", "mb8k8_rec", "--seeds", "200"])
     assert "seeds must be in 0-99" in capsys.readouterr().err
+
+
+def test_the_map_pairs_social_and_solo_settings_that_both_have_records():
+    def setting(lifts):
+        seeds = [{"takeoff_env_steps": t, "env_steps": 100} for t in lifts]
+        return {"seeds": seeds, "took_off": sum(t is not None for t in lifts), "n": len(lifts)}
+
+    summary = {"window_env_steps": 20, "learned_return": 2.0,
+               "settings": {"map_g4_rec_7x7": setting([40, None]), "map_g4_solo_rec_7x7": setting([None, None]),
+                            "mb8k8_rec_8x8": setting([60])}}  # fmt: skip
+    found = sweep.summarise_map(summary)
+    assert list(found["cells"]) == ["7x7, 4 goals, rec"]  # 8x8 has no solo records here: left out
+    cell = found["cells"]["7x7, 4 goals, rec"]
+    assert cell["social"]["takeoff_env_steps"] == [40, None] and cell["solo"]["took_off"] == 0
+    assert all(social.startswith(("map_", "mb8k8_")) and solo for _, social, solo in sweep.MAP_PAIRS)
+    assert {name for pair in sweep.MAP_PAIRS for name in pair[1:]} <= set(sweep.SETTINGS)

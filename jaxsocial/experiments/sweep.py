@@ -13,6 +13,7 @@ it, the fraction of seeds past the plateau against both, and the final returns.
     python -m jaxsocial.experiments.sweep run mb8k8_rec --seeds 0 1 --cores 0 1   # one process a core
     python -m jaxsocial.experiments.sweep record mb8k8_rec --seeds 0 1 --device "AMD EPYC, 2 cores"
     python -m jaxsocial.experiments.sweep figure                         # every recorded setting
+    python -m jaxsocial.experiments.sweep map                            # social against solo, per setting
 """
 
 from __future__ import annotations
@@ -378,6 +379,71 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     figures.save_png(fig, path, rect=(0, 0.12, 1, 1))
 
 
+MAP = Path("benchmarks/results/science/map")
+"""The map's summary and figure, without their suffix (.json, .png)."""
+MAP_PAIRS = (
+    ("7x7, 4 goals, rec", "map_g4_rec_7x7", "map_g4_solo_rec_7x7"),
+    ("7x7, 3 goals, pred", "mb8k8_pred_7x7", "mb8k8_solo_pred_7x7"),
+    ("8x8, 3 goals, rec", "mb8k8_rec_8x8", "mb8k8_solo_rec_8x8"),
+    ("8x8, 3 goals, pred", "mb8k8_pred_8x8", "mb8k8_solo_pred_8x8"),
+    ("8x8, penalty 2.0, rec", "mb8k8_rec_8x8_pen2", "mb8k8_solo_rec_8x8_pen2"),
+    ("9x9, penalty 1.0, rec / solo pred", "mb8k8_rec_pen1", "mb8k8_solo_pred_pen1"),
+    ("9x9, penalty 1.25, rec / solo pred", "mb8k8_rec_pen125", "mb8k8_solo_pred_pen125"),
+)
+"""The map of where solo learners fail (issue 46): per setting, (what it varies, the social learners' sweep
+setting, the solo learners' one with the same loss where there is one)."""
+
+
+def summarise_map(summary: dict[str, Any]) -> dict[str, Any]:
+    """Per map setting with records, the social and solo seeds' takeoffs (env-steps, None: never) and
+    budgets, from the sweep's summary."""
+    out = {"window_env_steps": summary["window_env_steps"], "learned_return": summary["learned_return"]}
+    cells = {}
+    for label, social, solo in MAP_PAIRS:
+        if social not in summary["settings"] or solo not in summary["settings"]:
+            continue
+        cells[label] = {
+            who: {
+                "setting": name,
+                "takeoff_env_steps": [x["takeoff_env_steps"] for x in summary["settings"][name]["seeds"]],
+                "env_steps": [x["env_steps"] for x in summary["settings"][name]["seeds"]],
+                "took_off": summary["settings"][name]["took_off"],
+                "n": summary["settings"][name]["n"],
+            }
+            for who, name in (("social", social), ("solo", solo))
+        }
+    out["cells"] = cells
+    return out
+
+
+def draw_map(summary: dict[str, Any], path: Path) -> None:
+    """One panel per map setting: the fraction of its social and solo seeds past the plateau against
+    env-steps (a seed stopped early at return 5 stays counted past the plateau)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = summary["cells"]
+    cols = min(4, len(cells))
+    rows = -(-len(cells) // cols)
+    fig, grid = plt.subplots(rows, cols, figsize=(4.4 * cols, 3.6 * rows + 0.8), squeeze=False)
+    for ax in list(grid.flat)[len(cells) :]:
+        fig.delaxes(ax)
+    for ax, (label, cell) in zip(grid.flat, cells.items(), strict=False):
+        end = max(max(cell[who]["env_steps"]) for who in ("social", "solo")) / 1e6
+        for who, color, ls in (("social", "C0", "-"), ("solo", "C1", "--")):
+            lifts = [None if t is None else t / 1e6 for t in cell[who]["takeoff_env_steps"]]
+            name = f"{who}: {cell[who]['took_off']} of {cell[who]['n']}"
+            takeoff.draw(ax, lifts, end, name, color, ls)
+        ax.set(title=label, xlabel="env-steps (M)", ylim=(-0.03, 1.03))
+        ax.legend(fontsize=7, loc="upper left")
+    grid[0, 0].set_ylabel("fraction of seeds past the plateau")
+    fig.suptitle("Where solo learners fail (exploratory, seeds < 100): social (beside experts) against solo, "
+                 f"takeoff = return > {summary['learned_return']:g} in a window")  # fmt: skip
+    figures.save_png(fig, path)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m jaxsocial.experiments.sweep", description=__doc__.split("\n")[0]
@@ -399,6 +465,9 @@ def main(argv: list[str] | None = None) -> None:
             )
         else:
             p.add_argument("--device", required=True, help="the machine the runs trained on, in words")
+    p = sub.add_parser("map", help="the map of where solo learners fail, from the sweep's summary")
+    p.add_argument("--summary", default=SUMMARY + ".json", help="the sweep's summary (`figure` writes it)")
+    p.add_argument("--out", default=str(MAP), help="path without suffix")
     p = sub.add_parser("figure", help="summary JSON and figure of every recorded setting")
     p.add_argument("--records-dir", default=records.RECORDS_DIR)
     p.add_argument("--out", default=SUMMARY, help="path without suffix")
@@ -417,6 +486,18 @@ def main(argv: list[str] | None = None) -> None:
         import jax
 
         record(setting, args.seeds, args.runs_dir, args.device, jax.__version__)
+        return
+    if args.command == "map":
+        found = summarise_map(logs.read_json(Path(args.summary)))
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        logs.write_json(out.with_suffix(".json"), found)
+        draw_map(found, out.with_suffix(".png"))
+        for label, cell in found["cells"].items():
+            social, solo = cell["social"], cell["solo"]
+            counts = f"social {social['took_off']} of {social['n']}, solo {solo['took_off']} of {solo['n']}"
+            print(f"{label}: {counts}")
+        print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
         return
     summary = summarise(Path(args.records_dir))
     out = Path(args.out)
