@@ -82,9 +82,9 @@ def test_the_map_pairs_social_and_solo_settings_that_both_have_records():
         seeds = [{"takeoff_env_steps": t, "env_steps": 100} for t in lifts]
         return {"seeds": seeds, "took_off": sum(t is not None for t in lifts), "n": len(lifts)}
 
-    summary = {"window_env_steps": 20, "learned_return": 2.0,
-               "settings": {"map_g4_rec_7x7": setting([40, None]), "map_g4_solo_rec_7x7": setting([None, None]),
-                            "mb8k8_rec_8x8": setting([60])}}  # fmt: skip
+    settings = {"map_g4_rec_7x7": setting([40, None]), "map_g4_solo_rec_7x7": setting([None, None]),
+                "mb8k8_rec_8x8": setting([60])}  # fmt: skip
+    summary = {"window_env_steps": 20, "learned_return": 2.0, "settings": settings}
     found = sweep.summarise_map(summary)
     assert list(found["cells"]) == ["7x7, 4 goals, rec"]  # 8x8 has no solo records here: left out
     cell = found["cells"]["7x7, 4 goals, rec"]
