@@ -91,3 +91,10 @@ def test_the_map_pairs_social_and_solo_settings_that_both_have_records():
     assert cell["social"]["takeoff_env_steps"] == [40, None] and cell["solo"]["took_off"] == 0
     assert all(social.startswith(("map_", "mb8k8_")) and solo for _, social, solo in sweep.MAP_PAIRS)
     assert {name for pair in sweep.MAP_PAIRS for name in pair[1:]} <= set(sweep.SETTINGS)
+
+
+def test_the_experiments_command_reaches_the_sweep(capsys):
+    from jaxsocial.experiments import __main__ as cli
+
+    cli.main(["sweep", "list"])
+    assert "map_g4_rec_7x7: social_rec" in capsys.readouterr().out

@@ -1,8 +1,10 @@
-"""`python -m jaxsocial.experiments {list,run,figure,record,power,verify} ...` (`jaxsocial.experiments`)."""
+"""`python -m jaxsocial.experiments COMMAND ...`: recipes, designs, records and the commands of the modules
+beside it (`DELEGATED`); see `jaxsocial.experiments`."""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import re
 import sys
 from pathlib import Path
@@ -96,6 +98,8 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 f"(final return > the design's threshold, else {LEARNED_RETURN:g}) or of all, so later "
                 "sittings can branch from the records (default: none)",
             )
+    for name, (_, help_) in DELEGATED.items():
+        sub.add_parser(name, help=help_ + f" (python -m jaxsocial.experiments {name} --help)", add_help=False)
     p = sub.add_parser("power", help="a pre-registered design and its power")
     p.add_argument("recipe", choices=sorted(r.name for r in recipes.RECIPES.values() if r.design))
     p = sub.add_parser(
@@ -201,8 +205,22 @@ def run_verify(args: argparse.Namespace) -> None:
         print(f"wrote {out}")
 
 
+DELEGATED = {
+    "sweep": ("jaxsocial.experiments.sweep", "the exploratory sweep and the map"),
+    "followup": ("jaxsocial.experiments.followup", "a design's learned seeds followed up"),
+    "pooled": ("jaxsocial.experiments.takeoff_power", "the pooled laptop seeds' summary"),
+    "inflight": ("jaxsocial.experiments.inflight", "a GPU design's resume state slimmed for git"),
+}
+"""Commands with a module of their own, reached through this one too: `experiments sweep ARGS` is
+`python -m jaxsocial.experiments.sweep ARGS` (the module entry points keep working)."""
+
+
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] in DELEGATED:
+        importlib.import_module(DELEGATED[argv[0]][0]).main(argv[1:])
+        return
+    args = parse_args(argv)
     if args.command == "list":
         for r in recipes.RECIPES.values():
             print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")

@@ -23,6 +23,7 @@ takeoffs, censored at the budget; one-sided Mann-Whitney U on the scores), Holm-
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 from typing import Any
 
@@ -219,8 +220,10 @@ def pooled_summary(records_root: Path) -> dict[str, Any]:
     }
 
 
-def main() -> None:
-    """Write `POOLED_SUMMARY` from the committed records and evidence evaluations."""
+def main(argv: list[str] | None = None) -> None:
+    """Write `POOLED_SUMMARY` from the committed records and evidence evaluations (no arguments)."""
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments pooled", description=main.__doc__)
+    parser.parse_args(argv)
     summary = pooled_summary(Path("benchmarks/results/records"))
     logs.write_json(POOLED_SUMMARY, summary, indent=1)
     for c, v in summary["conditions"].items():
