@@ -146,3 +146,13 @@ def test_the_takeoff_designs_block_tests_its_arms_with_holm():
     unscored = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, None, 7.0], [1.0, 2.0, 0.0])
     assert not prereg.preregistered_takeoff(design, unscored, {})["checks"]["seeds_as_designed"]
     assert "primary takeoff: p = " in prereg.verdict(block | {"valid": False})
+
+
+def test_a_designs_deviations_reach_its_verdict(tmp_path):
+    (tmp_path / "x.json").write_text('{"deviations": [{"date": "2026-11-27", "what": "state lost"}]}')
+    assert prereg.deviations("x", tmp_path) == [{"date": "2026-11-27", "what": "state lost"}]
+    assert prereg.deviations("y", tmp_path) == []
+    design = dataclasses.replace(prereg.load("experts"), seeds=3)
+    block = prereg.preregistered_takeoff(design, takeoff_summary([1], [None], 3, [1.0], [0.0]), {})
+    said = prereg.verdict(block | {"deviations": prereg.deviations("x", tmp_path)})
+    assert "deviation (2026-11-27): state lost" in said

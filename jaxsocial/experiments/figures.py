@@ -203,6 +203,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         )
         problems = design_problems(runs, design)
         out["preregistered"]["problems"] = problems
+        out["preregistered"]["deviations"] = prereg.deviations(design.name)
         checks = out["preregistered"]["checks"]
         out["preregistered"]["valid"] = not problems and all(
             v for v in checks.values() if isinstance(v, bool)

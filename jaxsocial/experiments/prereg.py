@@ -85,6 +85,17 @@ class Design:
         return {"treatment": self.seeds * len(self.treatment), "control": self.seeds * len(self.control)}
 
 
+DEVIATIONS_DIR = Path("benchmarks/results/deviations")
+"""`<design>.json`: what happened to a design's runs that its rules did not foresee ({"deviations": [{"date",
+"what"}, ...]}), carried into its summary's `preregistered` block and verdict."""
+
+
+def deviations(name: str, directory: Path = DEVIATIONS_DIR) -> list[dict[str, str]]:
+    """The recorded deviations of design `name` ([] where there are none)."""
+    path = directory / f"{name}.json"
+    return logs.read_json(path)["deviations"] if path.is_file() else []
+
+
 def path_of(name: str) -> Path:
     return DESIGNS_DIR / f"{name}.json"
 
@@ -296,6 +307,7 @@ def verdict(block: dict[str, Any]) -> str:
     if checks["runs_not_after_design"]:
         lines.append(f"  runs not shown to follow the design: {', '.join(checks['runs_not_after_design'])}")
     lines += [f"  {problem}" for problem in block.get("problems", [])]
+    lines += [f"  deviation ({d['date']}): {d['what']}" for d in block.get("deviations", [])]
     if not block.get("valid", True):
         lines.append("NOT VALID: the result above does not test the design (see the problems listed)")
     return "\n".join(lines)
@@ -367,6 +379,7 @@ def _takeoff_verdict(block: dict[str, Any]) -> str:
     lines.append(f"  design commit {block['commit'] or 'none (the design is not committed)'}")
     lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
     lines += [f"  {problem}" for problem in block.get("problems", [])]
+    lines += [f"  deviation ({d['date']}): {d['what']}" for d in block.get("deviations", [])]
     if not block.get("valid", True):
         lines.append("NOT VALID: the result above does not test the design (see the problems listed)")
     return "\n".join(lines)
