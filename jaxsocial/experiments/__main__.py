@@ -79,6 +79,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             )
         elif name == "figure":
             p.add_argument("--out-dir", default=FIGURES_DIR, help="where <recipe>-<scale>.json/.png go")
+            p.add_argument(
+                "--interim",
+                action="store_true",
+                help="summarise a pre-registered design before every seed is in (by default its results stay "
+                "blind until then: figure says how many runs are in and writes nothing)",
+            )
         else:
             p.add_argument("--out-dir", default=RECORDS_OUT, help="root of the records (mirrors --runs-dir)")
             p.add_argument(
@@ -259,6 +265,10 @@ def main(argv: list[str] | None = None) -> None:
             record(args, recipe, scale)
         else:
             runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
+            blind = figures.incomplete_design(runs)
+            if blind and not args.interim:
+                print(f"{blind}; its results stay blind until every seed is in (--interim shows them now)")
+                return
             json_path, png_path = figures.write(runs, args.out_dir)
             print(f"wrote {json_path}\nwrote {png_path}")
             summary = logs.read_json(json_path)
