@@ -78,6 +78,7 @@ def test_the_committed_design_has_the_power_it_states(name, capsys):
     design = prereg.load(recipe.design)
     scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
     assert scale.iterations == design.iterations and scale.runs_subdir == f"prereg-{design.name}"
+    assert scale.config.blind  # a design's runs show no returns while they train
     assert recipes.recipe_scale(recipe, recipes.TINY) == recipes.TINY  # the budget is the design scale's
     assert set(design.treatment + design.control) == set(recipe.conditions)
     assert design.seed >= 100 and design.training_commit is None  # fresh seeds; runs follow the design

@@ -97,6 +97,7 @@ def test_progress_fields_and_learner_return():
     nothing = {**m, "episodes": np.zeros_like(m["episodes"])}
     assert metrics.learner_return(nothing, pop) is None
     assert metrics.progress_fields(nothing, 1.0, pop)["return[0 learner]"] == "-"
+    assert metrics.progress_fields(m, 999.7, pop, returns_shown=False) == {"env-steps/s": 999}  # blind
 
 
 def test_seed_dirs_as_training_writes_them(tmp_path):

@@ -131,6 +131,9 @@ class DriverConfig:
     """Extra metrics sink: 'tensorboard' or 'wandb' (off by default)."""
     progress: bool = True
     """Show a progress line."""
+    blind: bool = False
+    """Show no returns while training or at the end (progress: iterations and speed only): a pre-registered
+    design's runs stay blind until every seed is in."""
     devices: int = 0
     """Devices the environments are split over (data parallel; 0: all devices of all processes)."""
     coordinator: str | None = None

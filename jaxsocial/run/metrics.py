@@ -119,12 +119,17 @@ def eval_fields(results: Mapping[str, float]) -> dict[str, float]:
     return {eval_key(spec): value for spec, value in results.items()}
 
 
-def progress_fields(metrics: Mapping[str, np.ndarray], sps: float, pop) -> dict[str, Any]:
-    """What the progress line shows for a chunk: speed and each slot's mean return over the episodes that
-    finished in the chunk ('-' where none did), named `return[<slot> <kind>]`, e.g. 'return[1 explorer]'."""
+def progress_fields(
+    metrics: Mapping[str, np.ndarray], sps: float, pop, returns_shown: bool = True
+) -> dict[str, Any]:
+    """What the progress line shows for a chunk: speed and (`returns_shown`) each slot's mean return over the
+    episodes that finished in the chunk ('-' where none did), named `return[<slot> <kind>]`, e.g.
+    'return[1 explorer]'."""
+    shown: dict[str, Any] = {"env-steps/s": int(sps)}
+    if not returns_shown:
+        return shown
     episodes = metrics[EPISODES].sum(0)
     returns = (metrics[RETURN] * metrics[EPISODES]).sum(0) / np.maximum(episodes, 1)
-    shown: dict[str, Any] = {"env-steps/s": int(sps)}
     for s, (r, n) in enumerate(zip(returns, episodes, strict=True)):
         shown[f"return[{s} {pop.slots[s].label.split(':')[-1]}]"] = float(r) if n else "-"
     return shown

@@ -182,9 +182,10 @@ class Outputs:
         if self.progress is not None:
             stages = self.static.stages
             shown = {"stage": f"{stage + 1}/{len(stages)}"} if stages else {}
-            self.progress.update(
-                it, **shown, **metrics.progress_fields(pooled, sps * self.cfg.seeds, self.static.pop)
+            fields = metrics.progress_fields(
+                pooled, sps * self.cfg.seeds, self.static.pop, returns_shown=not self.cfg.blind
             )
+            self.progress.update(it, **shown, **fields)
 
     def close(self) -> None:
         if self.progress is not None:
@@ -199,6 +200,9 @@ class Outputs:
             return
         where = f" ({len(self.seeds)} seeds: s{self.cfg.seed}/ ...)" if len(self.seeds) > 1 else ""
         print(f"wrote {run_dir}{where} ({it} iterations)")
+        if self.cfg.blind:
+            print("blind run (a pre-registered design's): no return is shown until every seed is in")
+            return
         rows = metrics.read_rows(self.seeds[0].dir)
         env_steps = len(rows) * self.cfg.num_envs * self.cfg.rollout_steps
         if len(self.seeds) > 1:
