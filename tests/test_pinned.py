@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import pinned
 from jaxsocial.run import logs
@@ -35,6 +36,9 @@ def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monke
     assert "first: core 0" in capsys.readouterr().out
     provenance = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
     assert provenance["device"] == "a CPU" and provenance["rc"] == 0 and provenance["cores"] == 1
+    assert (
+        provenance["cpu"] == autotune.cpu_model() and provenance["xla_flags"] == pinned.SINGLE_CORE_XLA_FLAGS
+    )
     with pytest.raises(FileNotFoundError, match="not trained by"):
         pinned.run_provenance(tmp_path, "a CPU", "0.0")
     with pytest.raises(ValueError, match="at least one core"):

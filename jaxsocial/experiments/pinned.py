@@ -21,11 +21,15 @@ import time
 from pathlib import Path
 from typing import Any
 
+from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import records
 from jaxsocial.run import compile_cache, logs
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 RUN_FILE = "process.json"
+MACHINE_FIELDS = ("cpu", "xla_flags")
+"""What `RUN_FILE` says of where the run trained, beside `records.RUN_FIELDS`: the CPU (model, family and
+model numbers, `autotune.cpu_model`) and the process's $XLA_FLAGS; records carry them in provenance."""
 POLL_SECONDS = 2.0
 
 
@@ -82,20 +86,30 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
             job = jobs[i]
             if (job.run_dir / logs.CONFIG_FILE).is_file():
                 command = shlex.join(["python", *job.argv])
-                write_run_file(job.run_dir, command, commit, 1, started, proc.returncode)
+                write_run_file(
+                    job.run_dir, command, commit, 1, started, proc.returncode, SINGLE_CORE_XLA_FLAGS
+                )
             print(f"{job.label}: exit {proc.returncode}", flush=True)
     return [codes[i] for i in range(len(jobs))]
 
 
 def write_run_file(
-    run_dir: Path, command: str, commit: str | None, cores: int | None, started: str, rc: int
+    run_dir: Path,
+    command: str,
+    commit: str | None,
+    cores: int | None,
+    started: str,
+    rc: int,
+    xla_flags: str | None = None,
 ) -> None:
-    """Write `RUN_FILE` into `run_dir`: what made it (command, commit, cores), when (start, and now as its
-    end) and its exit status."""
+    """Write `RUN_FILE` into `run_dir`: what made it (command, commit, cores), where (this machine's CPU, the
+    process's $XLA_FLAGS: `MACHINE_FIELDS`), when (start, and now as its end) and its exit status."""
     info = {
         "command": command,
         "commit": commit,
         "cores": cores,
+        "cpu": autotune.cpu_model(),
+        "xla_flags": xla_flags,
         "started": started,
         "ended": now(),
         "rc": rc,
@@ -110,11 +124,16 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     if not path.is_file():
         raise FileNotFoundError(f"{path} does not exist: the run was not trained by `pinned.run`")
     info = logs.read_json(path)
-    return {k: info.get(k) for k in records.RUN_FIELDS} | {
-        "device": device,
-        "jax": jax_version,
-        "cores": info.get("cores"),
-    }
+    machine = {k: info[k] for k in MACHINE_FIELDS if k in info}  # runs written before these fields lack them
+    return (
+        {k: info.get(k) for k in records.RUN_FIELDS}
+        | machine
+        | {
+            "device": device,
+            "jax": jax_version,
+            "cores": info.get("cores"),
+        }
+    )
 
 
 def now() -> str:
