@@ -50,9 +50,10 @@ Y_LABELS = {
 NOT_GROUPED = frozenset(
     {
         # `config.DriverConfig`'s: they do not change what is trained
-        "iterations", "stop_at_return", "resume", "overwrite", "progress", "logger", "checkpoint_every",
-        "keep_checkpoints", "run_name", "runs_dir", "devices", "coordinator", "num_processes", "process_id",
-        "compile_cache", "eval_envs", "eval_every", "eval_episodes", "on_nonfinite", "init_from",
+        "iterations", "stop_at_return", "resume", "overwrite", "progress", "blind", "logger",
+        "checkpoint_every", "keep_checkpoints", "run_name", "runs_dir", "devices", "coordinator",
+        "num_processes", "process_id", "compile_cache", "eval_envs", "eval_every", "eval_episodes",
+        "on_nonfinite", "init_from",
         # the seeds' and how they are batched
         "seed", "seeds", "seed_batching",
     }
