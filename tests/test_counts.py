@@ -78,7 +78,7 @@ def test_the_committed_design_has_the_power_it_states(name, capsys):
     design = prereg.load(recipe.design)
     scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
     assert scale.iterations == design.iterations and scale.runs_subdir == f"prereg-{design.name}"
-    assert scale.config.blind  # a design's runs show no returns while they train
+
     assert recipes.recipe_scale(recipe, recipes.TINY) == recipes.TINY  # the budget is the design scale's
     assert set(design.treatment + design.control) == set(recipe.conditions)
     assert design.seed >= 100 and design.training_commit is None  # fresh seeds; runs follow the design
@@ -136,6 +136,7 @@ def test_a_design_fixes_its_seeds(name, tmp_path, capsys):
     out = capsys.readouterr().out
     last = design.seed + design.seeds - 1
     assert f"--iterations {design.iterations} " in out
+    assert all("--blind" in line.split() for line in out.splitlines() if "jaxsocial.train" in line)  # blind
     # in a folder of their own: no ordinary `run h1 --seed 100 --seeds 4` can share their directories
     condition = recipe.conditions[-1]
     assert f"--run-name {design.scale}/prereg-{design.name}/{condition}-s{design.seed}-{last}" in out

@@ -3,7 +3,6 @@ hand computations, and the simulated power of a time-to-takeoff design (Holm's r
 evidence, a simulation without an effect)."""
 
 import dataclasses
-import json
 import math
 
 import numpy as np
@@ -159,23 +158,19 @@ def test_a_designs_deviations_reach_its_verdict(tmp_path):
     assert "deviation (2026-11-27): state lost" in said
 
 
-def test_an_incomplete_design_stays_blind(tmp_path):
+def test_an_incomplete_design_stays_blind():
     from types import SimpleNamespace
 
     from jaxsocial.experiments import figures, recipes
-    from jaxsocial.run import logs
 
     design = prereg.load("experts")
-    done = tmp_path / "done"
-    done.mkdir()
-    logs.write_json(done / logs.CONFIG_FILE, {"seed": design.seed})
-    rows = [{"iteration": i + 1, "return/0": 0.0, "episodes/0": 1} for i in range(design.iterations)]
-    (done / logs.METRICS_FILE).write_text("".join(f"{json.dumps(r)}\n" for r in rows))
-    by_seed = {"social_rec": [done] + [None] * 39, "solo_rec": [None] * 40}
-    runs = SimpleNamespace(recipe=recipes.RECIPES["experts"], scale=recipes.LAPTOP, dirs_by_seed=by_seed)
+    done = [{"iteration": i + 1, "return/0": 0.0, "episodes/0": 1} for i in range(design.iterations)]
+    unfinished = done[: design.iterations // 2]
+    rows = {"social_rec": [done, unfinished], "solo_rec": []}  # what RecipeRuns read of the design's seeds
+    runs = SimpleNamespace(recipe=recipes.RECIPES["experts"], scale=recipes.LAPTOP, rows=rows)
     total = design.seeds * 2
     assert figures.incomplete_design(runs) == f"design experts: 1 of {total} runs finished"
     no_design = SimpleNamespace(recipe=recipes.RECIPES["h1"], scale=recipes.LAPTOP)
     assert figures.incomplete_design(no_design) is None
-    tiny = SimpleNamespace(recipe=recipes.RECIPES["experts"], scale=recipes.TINY, dirs_by_seed={})
+    tiny = SimpleNamespace(recipe=recipes.RECIPES["experts"], scale=recipes.TINY, rows={})
     assert figures.incomplete_design(tiny) is None  # not the design's scale: an ordinary recipe run

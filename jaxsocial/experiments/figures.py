@@ -212,24 +212,17 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
 
 
 def incomplete_design(runs: RecipeRuns) -> str | None:
-    """For the runs of a pre-registered design at its own scale that lack a finished run of some design
-    seed, what is in ('design experts: 12 of 80 runs finished'); None otherwise (no design, another scale,
-    or every seed finished)."""
+    """For the runs of a pre-registered design at its own scale (which read exactly the design's seeds) that
+    lack a finished run of some design seed, what is in ('design experts: 12 of 80 runs finished'); None
+    otherwise (no design, another scale, or every seed finished)."""
     if runs.recipe.design is None:
         return None
     design = prereg.load(runs.recipe.design)
     if runs.scale.name != design.scale:
         return None
-    wanted = {c: range(design.seed, design.seed + design.seeds) for c in (*design.treatment, *design.control)}
-    finished = sum(
-        1
-        for c, seeds in wanted.items()
-        for d in runs.dirs_by_seed.get(c, [])
-        if d is not None
-        and logs.read_config(d)["seed"] in seeds
-        and len(metrics.read_rows(d)) >= design.iterations
-    )
-    total = sum(len(seeds) for seeds in wanted.values())
+    arms = (*design.treatment, *design.control)
+    finished = sum(len(rows) >= design.iterations for c in arms for rows in runs.rows.get(c, []))
+    total = design.seeds * len(arms)
     return None if finished == total else f"design {design.name}: {finished} of {total} runs finished"
 
 

@@ -20,20 +20,14 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from jaxsocial.run import checkpoint, logs, policy_io
+from jaxsocial.run import checkpoint, logs, metrics, policy_io
 from jaxsocial.run.rundir import CHECKPOINTS_DIR as CHECKPOINTS
-
-
-def seed_dirs(run_dir: Path) -> list[Path]:
-    """The seed directories of a run directory: `s<seed>/` for several seeds, else the run itself."""
-    several = sorted(d for d in run_dir.iterdir() if d.is_dir() and d.name[1:].isdigit() and d.name[0] == "s")
-    return several or [run_dir]
 
 
 def slim(run_dir: Path) -> int:
     """Keep only the latest checkpoint every seed of `run_dir` has and drop the exported policies; returns
     that checkpoint's step (ValueError if the seeds share none)."""
-    seeds = seed_dirs(run_dir)
+    seeds = metrics.seed_dirs(run_dir)
     common = set.intersection(*(set(checkpoint.all_steps(d / CHECKPOINTS)) for d in seeds))
     if not common:
         raise ValueError(f"{run_dir}: its seeds share no checkpoint to resume from")
@@ -82,10 +76,8 @@ def slim_states(tgzs: list[Path], out_dir: Path) -> list[Path]:
             with tarfile.open(tgz) as tar:
                 tar.extractall(tmp, filter="data")
         for config in sorted(Path(tmp).rglob(logs.CONFIG_FILE)):
-            run = config.parent
-            one_of_several = run.name[1:].isdigit() and (run.parent / logs.CONFIG_FILE).is_file()
-            if not one_of_several:
-                runs.append(run)
+            if not metrics.one_seed_of_many(logs.read_json(config)):
+                runs.append(config.parent)
         if out_dir.exists():
             shutil.rmtree(out_dir)
         for run in runs:

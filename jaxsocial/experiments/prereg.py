@@ -251,12 +251,13 @@ def preregistered_takeoff(
     scored = all(
         len(arm[name]) == designed[key] for key, arm in arms.items() for name in ("goalcycle4", "solo3", "ct")
     )
+    commit = design_commit(design.name)
     return {
-        "commit": design_commit(design.name),
+        "commit": commit,
         "primary": {"treatment": list(design.treatment), "control": list(design.control), "test": design.test,
                     "alpha": design.alpha, "tests": design.tests},
         "result": {"primary": primary, "secondary": secondary, "seeds": {"treatment": n[0], "control": n[1]}},
-        "checks": commit_checks(design_commit(design.name), run_commits)
+        "checks": commit_checks(commit, run_commits)
         | {"seeds_as_designed": n == [designed["treatment"], designed["control"]] and scored},
     }  # fmt: skip
 
@@ -294,23 +295,15 @@ def seed_problems(
 
 def verdict(block: dict[str, Any]) -> str:
     """A `preregistered` block's result and checks, for people."""
-    r, checks = block["result"], block["checks"]
+    r = block["result"]
     if "primary" in r:
         return _takeoff_verdict(block)
     lines = [
         f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}): treatment "
         f"{r['treatment_learned']}/{r['treatment_seeds']} learned, control {r['control_learned']}/"
         f"{r['control_seeds']}, p = {r['p']:.4g}",
-        f"  design commit {block['commit'] or 'none (the design is not committed)'}",
     ]
-    lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
-    if checks["runs_not_after_design"]:
-        lines.append(f"  runs not shown to follow the design: {', '.join(checks['runs_not_after_design'])}")
-    lines += [f"  {problem}" for problem in block.get("problems", [])]
-    lines += [f"  deviation ({d['date']}): {d['what']}" for d in block.get("deviations", [])]
-    if not block.get("valid", True):
-        lines.append("NOT VALID: the result above does not test the design (see the problems listed)")
-    return "\n".join(lines)
+    return "\n".join(lines + _verdict_checks(block))
 
 
 def describe(design: Design, env_steps_per_run: int) -> str:
@@ -367,7 +360,7 @@ def describe_takeoff(design: Design, env_steps_per_run: int) -> str:
 
 def _takeoff_verdict(block: dict[str, Any]) -> str:
     """A 'takeoff' design's `preregistered` block, for people."""
-    r, checks = block["result"], block["checks"]
+    r = block["result"]
     lines = [
         f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}), "
         f"seeds {r['seeds']}:"
@@ -376,10 +369,19 @@ def _takeoff_verdict(block: dict[str, Any]) -> str:
         for name, entry in r[family].items():
             p = "none" if entry["p"] is None else f"{entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
             lines.append(f"  {family} {name}: p = {p}{', rejected' if entry['rejected'] else ''}")
-    lines.append(f"  design commit {block['commit'] or 'none (the design is not committed)'}")
+    return "\n".join(lines + _verdict_checks(block))
+
+
+def _verdict_checks(block: dict[str, Any]) -> list[str]:
+    """The lines every verdict ends with: the design's commit, its checks, the runs not shown to follow it,
+    the problems and deviations, and NOT VALID where the block is not."""
+    checks = block["checks"]
+    lines = [f"  design commit {block['commit'] or 'none (the design is not committed)'}"]
     lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
+    if checks["runs_not_after_design"]:
+        lines.append(f"  runs not shown to follow the design: {', '.join(checks['runs_not_after_design'])}")
     lines += [f"  {problem}" for problem in block.get("problems", [])]
     lines += [f"  deviation ({d['date']}): {d['what']}" for d in block.get("deviations", [])]
     if not block.get("valid", True):
         lines.append("NOT VALID: the result above does not test the design (see the problems listed)")
-    return "\n".join(lines)
+    return lines

@@ -354,9 +354,8 @@ RECIPES = {
 
 
 def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
-    """The scale `recipe` runs at: `scale`, with the design's iterations, blind runs (no returns shown while
-    they train) and its own runs folder (`Scale.runs_subdir`) where the recipe carries a design for this
-    scale."""
+    """The scale `recipe` runs at: `scale`, with the design's iterations and its own runs folder
+    (`Scale.runs_subdir`) where the recipe carries a design for this scale."""
     if recipe.design is None:
         return scale
     design = prereg.load(recipe.design)
@@ -364,7 +363,7 @@ def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
         return scale
     return dataclasses.replace(
         scale,
-        config=dataclasses.replace(scale.config, iterations=design.iterations, blind=True),
+        config=dataclasses.replace(scale.config, iterations=design.iterations),
         eval_episodes=design.eval_episodes or scale.eval_episodes,
         runs_subdir=f"prereg-{design.name}",
     )

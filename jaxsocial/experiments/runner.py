@@ -121,21 +121,24 @@ def run(
     `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
     (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
     process of its own with `cores`, else in this one (default: one per seed with `cores`, else one for all).
+    A design's runs at its own scale train blind (no returns shown while they train).
     """
     per_program = seeds_per_program or (1 if cores else None)
     programs = {
         c: recipes.condition_programs(scale, c, seed, seeds, runs_dir, per_program) for c in recipe.conditions
     }
+    if recipe.design is not None and scale.runs_subdir:  # a design at its own scale: its runs train blind
+        programs = {c: [dataclasses.replace(cfg, blind=True) for cfg in cfgs] for c, cfgs in programs.items()}
     for cfgs in programs.values():
         for cfg in cfgs:
             setup(cfg, load_frozen=False)
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
-    to_train = [
-        cfg
+    states = {  # each program's state, by its condition and first seed
+        (name, cfg.seed): status(cfg, dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds])
         for name, cfgs in programs.items()
         for cfg in cfgs
-        if status(cfg, dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds]) != "done"
-    ]
+    }
+    to_train = [cfg for name, cfgs in programs.items() for cfg in cfgs if states[name, cfg.seed] != "done"]
     if to_train and train_missing:
         runs = sum(cfg.seeds for cfg in to_train)
         steps = to_train[0].iterations * to_train[0].num_envs * to_train[0].rollout_steps
@@ -147,8 +150,7 @@ def run(
     skipped, jobs = [], []
     for name, cfgs in programs.items():
         for cfg in cfgs:
-            own = slice(cfg.seed - seed, cfg.seed - seed + cfg.seeds)  # this program's seeds in dirs[name]
-            state = status(cfg, dirs[name][own])
+            state = states[name, cfg.seed]
             last = cfg.seed + cfg.seeds - 1
             label = name if len(cfgs) == 1 else f"{name} s{cfg.seed}" + (f"-{last}" if cfg.seeds > 1 else "")
             print(f"[{recipe.name}/{scale.name}] {label}: {state}")
@@ -161,7 +163,7 @@ def run(
                 jobs.append((cfg.seed, job))
             elif state != "done" and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == "partial"))
-                dirs[name][own] = seed_dirs(cfg)
+                dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = seed_dirs(cfg)
             elif state != "done" and name not in skipped:
                 skipped.append(name)
     if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves

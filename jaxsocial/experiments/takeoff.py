@@ -130,9 +130,6 @@ def draw(ax, takeoffs: list[int | None], end: float, label: str, color, ls: str 
 def draw_kaplan_meier(ax, curve: dict[str, list[float]], end: float, label: str, color) -> None:
     """A `kaplan_meier` curve on `ax` as a step line with its shaded band, carried on to `end`."""
     x = np.array([*curve["time"], end], np.float64)
-    for key, kwargs in (("learned", {"lw": 2, "label": label}), ("low", {"lw": 0}), ("high", {"lw": 0})):
-        y = np.array([*curve[key], curve[key][-1]], np.float64)
-        ax.step(x, y, where="post", color=color, **kwargs)
-    low = np.array([*curve["low"], curve["low"][-1]])
-    high = np.array([*curve["high"], curve["high"][-1]])
+    learned, low, high = (np.array([*curve[k], curve[k][-1]], np.float64) for k in ("learned", "low", "high"))
+    ax.step(x, learned, where="post", color=color, lw=2, label=label)
     ax.fill_between(x, low, high, step="post", color=color, alpha=0.15)
