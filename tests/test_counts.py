@@ -3,13 +3,12 @@ designs (their power, their seeds, their commit before the runs')."""
 
 import dataclasses
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import counts, prereg, recipes, records, takeoff, takeoff_power
+from jaxsocial.experiments import counts, paths, prereg, recipes, records, takeoff, takeoff_power
 from jaxsocial.run import config
 
 
@@ -113,7 +112,7 @@ def test_the_takeoff_design_has_the_power_it_states(name, capsys):
     planning = design.power_simulation["planning_discount"]
     reps = 300
     table = takeoff_power.power_table(
-        dataclasses.replace(design, power_simulation={}), Path(records.RECORDS_DIR), 8192, reps
+        dataclasses.replace(design, power_simulation={}), paths.RECORDS, 8192, reps
     )
     again = table["power"][f"{design.seeds} seeds, discount {planning:g}"]
     stored = design.power_simulation["power"][f"{design.seeds} seeds, discount {planning:g}"]

@@ -9,7 +9,7 @@ import pytest
 
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, recipes, records
+from jaxsocial.experiments import figures, paths, recipes, records
 from jaxsocial.run import logs, metrics, policy_io
 
 REPO = Path(__file__).resolve().parents[1]
@@ -26,12 +26,12 @@ def in_repo(monkeypatch):
 
 
 def _record_dirs() -> list[Path]:
-    return sorted(p.parent for p in (REPO / records.RECORDS_DIR / "tiny").rglob(records.PROVENANCE_FILE))
+    return sorted(p.parent for p in (REPO / paths.RECORDS / "tiny").rglob(records.PROVENANCE_FILE))
 
 
 def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_path):
     committed = json.loads(Path(SUMMARY).read_text())
-    runs = figures.RecipeRuns(RECIPE, recipes.TINY, 0, 2, records.RECORDS_DIR)
+    runs = figures.RecipeRuns(RECIPE, recipes.TINY, 0, 2, str(paths.RECORDS))
     assert logs.to_json(figures.summarize(runs, committed["command"])) == committed
     assert committed["provenance"]["unrecorded"] == []
     for condition, dirs in committed["seed_dirs"].items():
@@ -131,7 +131,7 @@ def _commands_log(tmp_path: Path) -> Path:
 
 def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, tmp_path, capsys):
     log = _commands_log(tmp_path)
-    argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", records.RECORDS_DIR,
+    argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(paths.RECORDS),
             "--commands-log", str(log), "--device", "a CPU", "--jax", "0.1",
             "--out-dir", str(tmp_path / "r")]  # fmt: skip
     cli.main(argv)
@@ -165,9 +165,9 @@ def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
     """A design's records are committed seed by seed while the next seeds train: `record` packs the finished
     seeds and names the unfinished one, which it leaves for a later call."""
     runs = tmp_path / "runs"
-    shutil.copytree(REPO / records.RECORDS_DIR / "tiny", runs / "tiny")
+    shutil.copytree(REPO / paths.RECORDS / "tiny", runs / "tiny")
     training = next(d for d in _record_dirs() if "solo_pred" in str(d))
-    training = runs / training.relative_to(REPO / records.RECORDS_DIR)
+    training = runs / training.relative_to(REPO / paths.RECORDS)
     logs.write_config(training, {**logs.read_config(training), "iterations": 1000})
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
             "--commands-log", str(_commands_log(tmp_path)), "--device", "a CPU", "--jax", "0.1",
@@ -177,3 +177,16 @@ def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
     packed = {p.parent.relative_to(tmp_path / "r") for p in (tmp_path / "r").rglob(records.PROVENANCE_FILE)}
     every = {p.parent.relative_to(runs) for p in runs.rglob(records.PROVENANCE_FILE)}
     assert len(every) == 4 and packed == every - {training.relative_to(runs)}
+
+
+def test_every_committed_results_path_exists():
+    """`paths` names where the committed results are: each of them is in the repository."""
+    committed = {name: value for name, value in vars(paths).items() if isinstance(value, Path)}
+    committed = {name: p for name, p in committed.items() if p.is_relative_to(paths.RESULTS)}
+    suffixed = {paths.SWEEP_SUMMARY, paths.MAP_SUMMARY}  # named without their .json/.png
+    missing = [
+        name
+        for name, p in committed.items()
+        if not (REPO / (p.with_suffix(".json") if p in suffixed else p)).exists()
+    ]
+    assert not missing and len(committed) >= 8

@@ -13,5 +13,6 @@ draws them (`takeoff`: time to learning; `counts`: exact tests of learned-seed c
 directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
 `predictions` draws a learner's predicted next frames, `sweep` screens settings, `followup` branches,
 transfers and probes a design's learners that learned, `pinned` runs one single-core process per seed; `kinds`
-says, per kind of recipe, how it is evaluated after training, summarised and drawn.
+says, per kind of recipe, how it is evaluated after training, summarised and drawn; `paths` names where
+everything is read and written.
 """

@@ -9,14 +9,9 @@ import re
 import sys
 from pathlib import Path
 
-from jaxsocial.experiments import figures, pinned, prereg, recipes, records, runner, verify
+from jaxsocial.experiments import figures, paths, pinned, prereg, recipes, records, runner, verify
 from jaxsocial.run import logs
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
-
-FIGURES_DIR = "runs/experiments/figures"
-"""Where `figure` writes by default (the repository's summaries are written with an explicit --out-dir)."""
-RECORDS_OUT = "runs/records"
-"""Where `record` writes by default (the repository's records: --out-dir benchmarks/results/records)."""
 
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
@@ -43,7 +38,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p.add_argument(
             "--seed", type=int, default=None, help="first seed (default 0, or the recipe's design)"
         )
-        p.add_argument("--runs-dir", default="runs/experiments", help="root of the run directories")
+        p.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
         p.add_argument(
             "--pick",
             action="append",
@@ -78,7 +73,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 "seed as before (a GPU's way; a design fixes its own, `seeds_per_program`)",
             )
         elif name == "figure":
-            p.add_argument("--out-dir", default=FIGURES_DIR, help="where <recipe>-<scale>.json/.png go")
+            p.add_argument(
+                "--out-dir", default=str(paths.FIGURES), help="where <recipe>-<scale>.json/.png go"
+            )
             p.add_argument(
                 "--interim",
                 action="store_true",
@@ -86,7 +83,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 "blind until then: figure says how many runs are in and writes nothing)",
             )
         else:
-            p.add_argument("--out-dir", default=RECORDS_OUT, help="root of the records (mirrors --runs-dir)")
+            p.add_argument(
+                "--out-dir", default=str(paths.RECORDS_OUT), help="root of the records (mirrors --runs-dir)"
+            )
             p.add_argument(
                 "--commands-log",
                 default=None,
@@ -273,7 +272,7 @@ def main(argv: list[str] | None = None) -> None:
             print(f"wrote {json_path}\nwrote {png_path}")
             summary = logs.read_json(json_path)
             print("\n".join(figures.outcome_lines(summary)))
-            committed = figures.COMMITTED_DIR / json_path.name
+            committed = paths.SCIENCE / json_path.name
             if committed.is_file() and committed.resolve() != json_path.resolve():
                 print(f"against the committed summary {committed}:")
                 print(

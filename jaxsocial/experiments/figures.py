@@ -255,10 +255,6 @@ def write(runs: RecipeRuns, out_dir: str) -> tuple[Path, Path]:
     return json_path, png_path
 
 
-COMMITTED_DIR = Path("benchmarks/results/science")
-"""Where the repository's summaries are (`figure --out-dir benchmarks/results/science`)."""
-
-
 def against_committed(summary: dict[str, Any], committed: dict[str, Any]) -> list[str]:
     """How a summary of one's own runs compares with the committed summary of the same recipe and scale, a
     line per condition both have: seeds past the plateau in each, and whether one's mean final return lies

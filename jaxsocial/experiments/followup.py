@@ -33,14 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import figures, kinds, pinned, prereg, recipes, records, runner
+from jaxsocial.experiments import figures, kinds, paths, pinned, prereg, recipes, records, runner
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
 
-RUNS_DIR = "runs/experiments"
-SUMMARY_DIR = "benchmarks/results/science"
 EVAL_EPISODES = 256
 """Episodes per evaluation (the issue asks for at least 256)."""
 BRANCH_FRACTION = 0.25
@@ -394,21 +392,23 @@ def main(argv: list[str] | None = None) -> None:
     run_p.add_argument(
         "--from",
         dest="from_dir",
-        default=records.RECORDS_DIR,
+        default=str(paths.RECORDS),
         help="where the design's seeds are (records or runs)",
     )
     for p in (run_p, record_p):
-        p.add_argument("--runs-dir", default=RUNS_DIR, help="root of the follow-ups' run directories")
+        p.add_argument(
+            "--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the follow-ups' run directories"
+        )
     run_p.add_argument(
         "--cores", type=int, nargs="+", default=[0], help="cores for the branches, one process a core"
     )
     run_p.add_argument(
         "--dry-run", action="store_true", help="print the learned seeds and the branch commands"
     )
-    record_p.add_argument("--out-dir", default=records.RECORDS_DIR)
+    record_p.add_argument("--out-dir", default=str(paths.RECORDS))
     record_p.add_argument("--device", required=True, help="the machine the follow-ups ran on, in words")
-    figure_p.add_argument("--records-dir", default=records.RECORDS_DIR)
-    figure_p.add_argument("--out-dir", default=SUMMARY_DIR)
+    figure_p.add_argument("--records-dir", default=str(paths.RECORDS))
+    figure_p.add_argument("--out-dir", default=str(paths.SCIENCE))
     args = parser.parse_args(argv)
     try:
         plan = Plan.of(args.recipe)

@@ -25,7 +25,7 @@ from typing import Any
 
 from scipy import stats as scipy_stats
 
-from jaxsocial.experiments import counts, records, takeoff
+from jaxsocial.experiments import counts, paths, records, takeoff
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
@@ -85,13 +85,10 @@ class Design:
         return {"treatment": self.seeds * len(self.treatment), "control": self.seeds * len(self.control)}
 
 
-DEVIATIONS_DIR = Path("benchmarks/results/deviations")
-"""`<design>.json`: what happened to a design's runs that its rules did not foresee ({"deviations": [{"date",
-"what"}, ...]}), carried into its summary's `preregistered` block and verdict."""
-
-
-def deviations(name: str, directory: Path = DEVIATIONS_DIR) -> list[dict[str, str]]:
-    """The recorded deviations of design `name` ([] where there are none)."""
+def deviations(name: str, directory: Path = paths.DEVIATIONS) -> list[dict[str, str]]:
+    """The recorded deviations of design `name` ([] where there are none): `directory/<name>.json`, what
+    happened to its runs that its rules did not foresee ({"deviations": [{"date", "what"}, ...]}), carried
+    into its summary's `preregistered` block and verdict."""
     path = directory / f"{name}.json"
     return logs.read_json(path)["deviations"] if path.is_file() else []
 

@@ -24,7 +24,7 @@ import dataclasses
 from jaxsocial.agents.experts import ExpertSpec
 from jaxsocial.agents.network_config import Aux
 from jaxsocial.agents.population import Slot
-from jaxsocial.experiments import prereg
+from jaxsocial.experiments import paths, prereg
 from jaxsocial.run import config, schedule
 from jaxsocial.run.config import PRESETS, TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -94,7 +94,7 @@ CPU = Scale(
     ),
     eval_every=50,
     eval_episodes=64,
-    rate=Rate(6608.0, "AMD EPYC", "benchmarks/results/recipe_sps.json: cpu_rec", 15.0),
+    rate=Rate(6608.0, "AMD EPYC", f"{paths.RECIPE_SPS}: cpu_rec", 15.0),
     note=(
         "9x9 Goal Cycle (7x7 interior, 4 clutter walls) instead of 13x13, so the experts are in view more "
         "often; the learner chooses among the 3 movement actions (the paper's other 4 do nothing in Goal "
@@ -131,7 +131,7 @@ LAPTOP = Scale(
     config=PRESETS["laptop"],
     eval_every=250,
     eval_episodes=64,
-    rate=Rate(21351.0, "AMD EPYC", "benchmarks/results/recipe_sps_laptop.json: laptop_rec", 12.0),
+    rate=Rate(21351.0, "AMD EPYC", f"{paths.RECIPE_SPS_LAPTOP}: laptop_rec", 12.0),
     note=(
         "The cpu scale's network and learning rates in a 7x7 Goal Cycle (5x5 interior) instead of 9x9, with "
         "one pass of 8 minibatches (1 gradient sample per env-step, the rollout's own value targets: no "

@@ -31,8 +31,6 @@ import jax
 
 from jaxsocial.run import checkpoint, logs, metrics, policy_io, rundir
 
-RECORDS_DIR = "benchmarks/results/records"
-"""Where the repository keeps its records."""
 PROVENANCE_FILE = "provenance.json"
 ORBAX_COMMIT_NOTE = "commit_success.txt"
 """The file orbax writes into each saved item naming the absolute path it went to (reading needs none)."""

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import evaluate, train
-from jaxsocial.experiments import kinds, pinned, recipes
+from jaxsocial.experiments import kinds, paths, pinned, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import logs, outputs, rundir
 from jaxsocial.run.config import TrainConfig, setup
@@ -187,6 +187,6 @@ def run(
                     score = evaluation.score(result)
                     print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {score:.3f}")
     if not dry_run:
-        where = "" if runs_dir == "runs/experiments" else f" --runs-dir {runs_dir}"
+        where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
         figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
         print(f"next: python -m jaxsocial.experiments {figure}   # the summary and figure, tests over seeds")

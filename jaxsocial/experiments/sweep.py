@@ -28,14 +28,11 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import figures, pinned, recipes, records, takeoff
+from jaxsocial.experiments import figures, paths, pinned, recipes, records, takeoff
 from jaxsocial.run import logs, metrics, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
-RUNS_DIR = "runs/sweep"
 RECORDS_SUBDIR = "sweep"
-SUMMARY = "benchmarks/results/science/sweep"
-"""The summary's path without its suffix (.json, .png)."""
 STOP_RETURN = 5.0
 """A seed stops once a chunk's mean learner return reaches this (`--stop-at-return`): clearly past the
 one-tile plateau (about 1) and the takeoff threshold (`LEARNED_RETURN`), so its remaining budget is saved."""
@@ -293,7 +290,7 @@ def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_v
     for seed in seeds:
         source = run_dir(setting, seed, runs_dir)
         provenance = pinned.run_provenance(source, device, jax_version)
-        target = Path(records.RECORDS_DIR) / RECORDS_SUBDIR / setting.name / rundir.seed_name(seed)
+        target = paths.RECORDS / RECORDS_SUBDIR / setting.name / rundir.seed_name(seed)
         records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/{rundir.seed_name(seed)}")
         print(f"recorded {target}")
 
@@ -379,8 +376,6 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     figures.save_png(fig, path, rect=(0, 0.12, 1, 1))
 
 
-MAP = Path("benchmarks/results/science/map")
-"""The map's summary and figure, without their suffix (.json, .png)."""
 MAP_PAIRS = (
     ("7x7, 4 goals, rec", "map_g4_rec_7x7", "map_g4_solo_rec_7x7"),
     ("7x7, 3 goals, pred", "mb8k8_pred_7x7", "mb8k8_solo_pred_7x7"),
@@ -454,7 +449,7 @@ def main(argv: list[str] | None = None) -> None:
         p = sub.add_parser(name)
         p.add_argument("setting", choices=sorted(SETTINGS))
         p.add_argument("--seeds", type=int, nargs="+", required=True, help="seeds, each below 100")
-        p.add_argument("--runs-dir", default=RUNS_DIR)
+        p.add_argument("--runs-dir", default=str(paths.SWEEP_RUNS))
         if name == "run":
             p.add_argument(
                 "--cores",
@@ -466,11 +461,15 @@ def main(argv: list[str] | None = None) -> None:
         else:
             p.add_argument("--device", required=True, help="the machine the runs trained on, in words")
     p = sub.add_parser("map", help="the map of where solo learners fail, from the sweep's summary")
-    p.add_argument("--summary", default=SUMMARY + ".json", help="the sweep's summary (`figure` writes it)")
-    p.add_argument("--out", default=str(MAP), help="path without suffix")
+    p.add_argument(
+        "--summary",
+        default=str(paths.SWEEP_SUMMARY.with_suffix(".json")),
+        help="the sweep's summary (`figure` writes it)",
+    )
+    p.add_argument("--out", default=str(paths.MAP_SUMMARY), help="path without suffix")
     p = sub.add_parser("figure", help="summary JSON and figure of every recorded setting")
-    p.add_argument("--records-dir", default=records.RECORDS_DIR)
-    p.add_argument("--out", default=SUMMARY, help="path without suffix")
+    p.add_argument("--records-dir", default=str(paths.RECORDS))
+    p.add_argument("--out", default=str(paths.SWEEP_SUMMARY), help="path without suffix")
     args = parser.parse_args(argv)
     if args.command == "list":
         for s in SETTINGS.values():

@@ -30,11 +30,10 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from jaxsocial.experiments import takeoff
+from jaxsocial.experiments import paths, takeoff
 from jaxsocial.run import logs, metrics
 
 EVIDENCE_DESIGNS = ("h1_laptop", "h1_early", "h1_sooner")
-EVIDENCE_DIR = Path("benchmarks/results/science/experts-evidence")
 EVIDENCE_EPISODES = 128
 MIN_AT_RISK = 3
 HAZARD_FROM = 3_000_000
@@ -42,7 +41,7 @@ DISCOUNTS = (1.0, 0.75, 0.5)
 
 
 def evidence_eval_path(condition: str) -> Path:
-    return EVIDENCE_DIR / f"goalcycle4-{condition}.json"
+    return paths.EVIDENCE / f"goalcycle4-{condition}.json"
 
 
 def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
@@ -176,7 +175,6 @@ def power_table(
     return {"evidence_seeds": {arm: len(v) for arm, v in arms.items()}, "reps": reps, "power": table}
 
 
-POOLED_SUMMARY = Path("benchmarks/results/science/laptop-pooled.json")
 POOLED_AT = (4_000_000, 6_000_000, 8_000_000, 20_000_000)
 """Env-steps at which the pooled summary reads the fraction past the plateau."""
 
@@ -221,18 +219,18 @@ def pooled_summary(records_root: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Write `POOLED_SUMMARY` from the committed records and evidence evaluations (no arguments)."""
+    """Write `paths.POOLED_SUMMARY` from the committed records and evidence evaluations (no arguments)."""
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments pooled", description=main.__doc__)
     parser.parse_args(argv)
-    summary = pooled_summary(Path("benchmarks/results/records"))
-    logs.write_json(POOLED_SUMMARY, summary, indent=1)
+    summary = pooled_summary(paths.RECORDS)
+    logs.write_json(paths.POOLED_SUMMARY, summary, indent=1)
     for c, v in summary["conditions"].items():
         by = ", ".join(
             f"{a['took_off']} of {a['seeds_observed']} by {int(s) / 1e6:g}M (KM {a['kaplan_meier']:.2f})"
             for s, a in v["at"].items()
         )
         print(f"{c}: {v['took_off_within_budget']} of {v['seeds']} took off within their budgets; {by}")
-    print(f"wrote {POOLED_SUMMARY}")
+    print(f"wrote {paths.POOLED_SUMMARY}")
 
 
 if __name__ == "__main__":
