@@ -13,6 +13,37 @@ from jaxsocial.run import logs
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
+def test_every_setting_file_loads():
+    files = sorted(sweep.SETTINGS_DIR.glob("*.json"))
+    assert len(files) >= 23 and list(sweep.SETTINGS) == [f.stem for f in files]
+    assert all(sweep.load_setting(f) == sweep.SETTINGS[f.stem] for f in files)
+
+
+@pytest.mark.parametrize(
+    "change, named",
+    [
+        ({"flags": "--ppo.num-minibatches 8"}, "field 'flags'"),
+        ({"iterations": 0}, "field 'iterations'"),
+        ({"condition": "social_nothing"}, "field 'condition'"),
+        ({"name": "other"}, "field 'name'"),
+        ({"seeds": 3}, "unknown field 'seeds'"),
+        ({"why": None}, "field 'why'"),
+    ],
+)
+def test_a_bad_setting_file_is_refused_naming_the_file_and_field(tmp_path, change, named):
+    good = logs.read_json(sweep.SETTINGS_DIR / "mb8k8_rec.json")
+    path = logs.write_json(tmp_path / "mb8k8_rec.json", {**good, **change})
+    with pytest.raises(ValueError, match=f"{path}: .*{named}"):
+        sweep.load_setting(path)
+    del good["why"]
+    logs.write_json(path, good)
+    with pytest.raises(ValueError, match=f"{path}: missing field 'why'"):
+        sweep.load_setting(path)
+    path.write_text("{")
+    with pytest.raises(ValueError, match=f"{path}: not JSON"):
+        sweep.load_setting(path)
+
+
 @pytest.mark.parametrize("name", sorted(sweep.SETTINGS))
 def test_every_setting_parses_to_its_flags(name):
     setting = sweep.SETTINGS[name]

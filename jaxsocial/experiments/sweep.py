@@ -14,12 +14,19 @@ it, the fraction of seeds past the plateau against both, and the final returns.
     python -m jaxsocial.experiments.sweep record mb8k8_rec --seeds 0 1 --device "AMD EPYC, 2 cores"
     python -m jaxsocial.experiments.sweep figure                         # every recorded setting
     python -m jaxsocial.experiments.sweep map                            # social against solo, per setting
+
+The settings are data, `sweeps/<name>.json` beside this module (`load_setting`). Those named `mb8k8_*` and
+`map_*` take one gradient sample per env-step, the targets of the rollout only (`--ppo.num-minibatches 8
+--ppo.recompute-every 8`: 2.2x the env-steps/s of the cpu scale's two samples with a recompute every 2
+minibatches, docs/performance.md); every setting runs 2442 iterations of 8,192 env-steps, 20.0M, the sweep
+goal's horizon.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import shlex
 import sys
@@ -38,6 +45,10 @@ STOP_RETURN = 5.0
 one-tile plateau (about 1) and the takeoff threshold (`LEARNED_RETURN`), so its remaining budget is saved."""
 
 
+SETTINGS_DIR = Path(__file__).parent / "sweeps"
+"""`<name>.json` per setting: the fields of `Setting`."""
+
+
 @dataclasses.dataclass(frozen=True)
 class Setting:
     """One point of the sweep: `condition` at the cpu scale with `flags` on top, for `iterations`."""
@@ -49,210 +60,42 @@ class Setting:
     why: str
 
 
-def _flags(text: str) -> tuple[str, ...]:
-    return tuple(shlex.split(text))
-
-
-ONE_SAMPLE = _flags("--ppo.num-minibatches 8 --ppo.recompute-every 8")
-"""One gradient sample per env-step, the targets of the rollout only (no recompute): 2.2x the env-steps/s of
-the cpu scale's two samples with a recompute every 2 minibatches (docs/performance.md)."""
-TWENTY_M = 2442
-"""Iterations of 8,192 env-steps: 20.0M, the sweep goal's horizon."""
-
-SETTINGS = {
-    s.name: s
-    for s in (
-        Setting(
-            "mb8k8_rec",
-            "social_rec",
-            ONE_SAMPLE,
-            TWENTY_M,
-            "The cpu scale (128 envs: 8x the gpu scale's updates per env-step, at the same env-steps/s) with "
-            "the cheapest PPO (1 gradient sample per env-step, no recompute), and the reconstruction loss "
-            "that took off early in the one unseen gpu-scale seed.",
-        ),
-        Setting(
-            "mb8k8_rec_pen1",
-            "social_rec",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
-            TWENTY_M,
-            "mb8k8_rec with the wrong-tile penalty at 1.0 instead of 1.5: a shallower one-tile plateau, so "
-            "following the experts pays sooner (the baselines must then be checked to stay on it).",
-        ),
-        Setting(
-            "mb8k8_solo_pred_pen1",
-            "solo_pred",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
-            TWENTY_M,
-            "Baseline for mb8k8_rec_pen1: a solo learner with the prediction loss at penalty 1.0. Social "
-            "learning at that penalty needs it to stay on the plateau.",
-        ),
-        Setting(
-            "mb8k8_none_pen1",
-            "social_none",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
-            TWENTY_M,
-            "Baseline for mb8k8_rec_pen1: a social learner without an auxiliary loss at penalty 1.0 (the "
-            "paper's vanilla PPO, which did not learn from the experts).",
-        ),
-        Setting(
-            "mb8k8_pred_pen1",
-            "social_pred",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.0"),
-            TWENTY_M,
-            "mb8k8_rec_pen1 with the paper's prediction loss instead of reconstruction.",
-        ),
-        Setting(
-            "mb8k8_rec_pen125",
-            "social_rec",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
-            TWENTY_M,
-            "Between 1.0, where both social (rec) and solo (pred) learners left the plateau by 8M env-steps, "
-            "and 1.5, where rec stayed on it for 20M: a penalty at which following the experts may still "
-            "pay before individual exploration does.",
-        ),
-        Setting(
-            "mb8k8_solo_pred_pen125",
-            "solo_pred",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
-            TWENTY_M,
-            "Baseline for mb8k8_rec_pen125: the solo learner with the prediction loss at penalty 1.25.",
-        ),
-        Setting(
-            "mb8k8_none_pen125",
-            "social_none",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
-            TWENTY_M,
-            "The other baseline for mb8k8_rec_pen125: social vanilla PPO (no auxiliary loss) at 1.25.",
-        ),
-        Setting(
-            "mb8k8_pred_pen125",
-            "social_pred",
-            (*ONE_SAMPLE, "--env-args", "width=9,height=9,penalty=1.25"),
-            TWENTY_M,
-            "mb8k8_rec_pen125 with the paper's prediction loss instead of reconstruction.",
-        ),
-        Setting(
-            "mb8k8_rec_7x7",
-            "social_rec",
-            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
-            TWENTY_M,
-            "mb8k8_rec in a 7x7 grid (5x5 interior) instead of 9x9: the 7x7 view then covers most of the "
-            "grid, so the experts and the goals they visit are in view far more often, and an expert's "
-            "path to the next goal is shorter to follow.",
-        ),
-        Setting(
-            "mb8k8_solo_pred_7x7",
-            "solo_pred",
-            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
-            TWENTY_M,
-            "Baseline for mb8k8_rec_7x7: the solo learner with the prediction loss in the 7x7 grid, where "
-            "individual exploration also finds the goals sooner; social learning there needs it to stay on "
-            "the plateau.",
-        ),
-        Setting(
-            "mb8k8_none_7x7",
-            "social_none",
-            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
-            TWENTY_M,
-            "The other baseline for mb8k8_rec_7x7: social vanilla PPO (no auxiliary loss) in the 7x7 grid.",
-        ),
-        Setting(
-            "mb8k8_pred_7x7",
-            "social_pred",
-            (*ONE_SAMPLE, "--env-args", "width=7,height=7"),
-            TWENTY_M,
-            "mb8k8_rec_7x7 with the paper's prediction loss: whether the 7x7 grid frees the paper's own "
-            "social learner too, so a pre-registered H1 can pool both auxiliary losses as the paper does.",
-        ),
-        Setting(
-            "mb8k8_rec_8x8",
-            "social_rec",
-            (*ONE_SAMPLE, "--env-args", "width=8,height=8"),
-            TWENTY_M,
-            "After h1_early and h1_sooner: in the 7x7 grid a solo learner with the reconstruction loss "
-            "leaves the plateau nearly as often and as soon as a social one (6 of 10 against 8 of 10 by "
-            "8.0M; 3 of 15 against 5 of 15 by 6.0M), and in the 9x9 grid the social one stayed on it for "
-            "20M (mb8k8_rec). Between them, an 8x8 grid (6x6 interior) may make individual exploration "
-            "slow enough that following the experts pays: the grid at which to test whether they matter.",
-        ),
-        Setting(
-            "mb8k8_solo_rec_8x8",
-            "solo_rec",
-            (*ONE_SAMPLE, "--env-args", "width=8,height=8"),
-            TWENTY_M,
-            "Baseline for mb8k8_rec_8x8: the same learner alone in the 8x8 grid. The setting is worth a "
-            "pre-registered test only if this one stays on the plateau far more often than the social one.",
-        ),
-        Setting(
-            "mb8k8_rec_8x8_pen2",
-            "social_rec",
-            (*ONE_SAMPLE, "--env-args", "width=8,height=8,penalty=2.0"),
-            TWENTY_M,
-            "After the 8x8 grid's seven seeds a condition (social 6 of 7, solo 4 of 7 by 20M, solo's first "
-            "the earliest): a harsher penalty for a wrong tile makes solo's trial and error dearer, "
-            "while a learner that follows the experts steps on tiles in their order. Worth a design only if "
-            "solo learners stay on the plateau far more often than social ones.",
-        ),
-        Setting(
-            "mb8k8_solo_rec_8x8_pen2",
-            "solo_rec",
-            (*ONE_SAMPLE, "--env-args", "width=8,height=8,penalty=2.0"),
-            TWENTY_M,
-            "Baseline for mb8k8_rec_8x8_pen2: the same learner alone in the 8x8 grid at penalty 2.0.",
-        ),
-        Setting(
-            "mb8k8_pred_8x8",
-            "social_pred",
-            (*ONE_SAMPLE, "--env-args", "width=8,height=8"),
-            TWENTY_M,
-            "With the reconstruction loss the 8x8 grid's solo learners left the plateau nearly as often as "
-            "social ones (4 of 7 against 6 of 7), and a penalty of 2.0 kept both on it. The paper's claim is "
-            "for the next-frame prediction loss, which models the experts' moves (in 7x7: social 1 of 2, "
-            "solo 0 of 2): whether it separates social from solo learners in the 8x8 grid.",
-        ),
-        Setting(
-            "mb8k8_solo_pred_8x8",
-            "solo_pred",
-            (*ONE_SAMPLE, "--env-args", "width=8,height=8"),
-            TWENTY_M,
-            "Baseline for mb8k8_pred_8x8: the same learner alone in the 8x8 grid.",
-        ),
-        Setting(
-            "mb8k8_pred",
-            "social_pred",
-            ONE_SAMPLE,
-            TWENTY_M,
-            "mb8k8_rec with the paper's next-frame prediction loss, which it found stronger than "
-            "reconstruction: predicting the next frame models the experts' moves.",
-        ),
-        Setting(
-            "mb16k2_rec",
-            "social_rec",
-            (),
-            TWENTY_M,
-            "The cpu scale's PPO unchanged (2 gradient samples per env-step, a recompute every 2 "
-            "minibatches), to tell whether mb8k8's cheaper update costs sample efficiency (2.2x the CPU "
-            "per env-step).",
-        ),
-        Setting(
-            "map_g4_rec_7x7",
-            "social_rec",
-            (*ONE_SAMPLE, "--env-args", "width=7,height=7,n_goals=4"),
-            TWENTY_M,
-            "The map of where solo learners fail (issue 46), more goals: the laptop learner (PPO + rec, 7x7) "
-            "beside the experts in a 4-goal cycle. With 4 tiles blind search meets a wrong tile more often "
-            "before it finds the order, while the experts walk it in view.",
-        ),
-        Setting(
-            "map_g4_solo_rec_7x7",
-            "solo_rec",
-            (*ONE_SAMPLE, "--env-args", "width=7,height=7,n_goals=4"),
-            TWENTY_M,
-            "Baseline for map_g4_rec_7x7: the same learner alone in the 7x7 4-goal cycle.",
-        ),
-    )
+FIELDS = {
+    "name": ("a string, the file's name", lambda v: isinstance(v, str)),
+    "condition": ("one of recipes.CONDITIONS", lambda v: isinstance(v, str) and v in recipes.CONDITIONS),
+    "flags": ("a list of strings", lambda v: isinstance(v, list) and all(isinstance(f, str) for f in v)),
+    "iterations": ("a whole number >= 1", lambda v: type(v) is int and v >= 1),
+    "why": ("a string", lambda v: isinstance(v, str)),
 }
+"""Each field of a setting's file: what it must be, and the check."""
+
+
+def load_setting(path: Path) -> Setting:
+    """The setting in `path`, a JSON object of `FIELDS` (ValueError naming the file and the field if a field
+    is missing, unknown or not what `FIELDS` says, or `name` is not the file's stem; naming the file if it
+    is not JSON)."""
+    try:
+        raw = logs.read_json(path)
+    except json.JSONDecodeError as err:
+        raise ValueError(f"sweep setting {path}: not JSON ({err})") from err
+    if not isinstance(raw, dict):
+        raise ValueError(f"sweep setting {path}: not a JSON object of the fields {list(FIELDS)}")
+    for field in (*FIELDS, *raw):
+        if field not in raw or field not in FIELDS:
+            what = "missing" if field not in raw else "unknown"
+            raise ValueError(f"sweep setting {path}: {what} field {field!r}; the fields are {list(FIELDS)}")
+    for field, (must, ok) in FIELDS.items():
+        if not ok(raw[field]) or field == "name" and raw[field] != path.stem:
+            raise ValueError(f"sweep setting {path}: field {field!r} is {raw[field]!r}, not {must}")
+    return Setting(**{**raw, "flags": tuple(raw["flags"])})
+
+
+def load_settings(directory: Path = SETTINGS_DIR) -> dict[str, Setting]:
+    """Every setting of `directory`, by name (`load_setting`)."""
+    return {path.stem: load_setting(path) for path in sorted(directory.glob("*.json"))}
+
+
+SETTINGS = load_settings()
 
 
 def train_flags(setting: Setting, seed: int, runs_dir: str) -> list[str]:
