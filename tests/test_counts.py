@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import counts, paths, prereg, recipes, records, takeoff, takeoff_power
+from jaxsocial.experiments import paths, prereg, recipes, records, stats, takeoff, takeoff_power
 from jaxsocial.run import config
 
 
@@ -17,52 +17,52 @@ def test_boschloo_most_extreme_table_has_a_closed_form():
     p^n_a (1 - p)^n_b, largest at p = n_a / (n_a + n_b)."""
     for n_a, n_b in ((6, 6), (8, 8), (4, 7)):
         p = n_a / (n_a + n_b)
-        assert counts.boschloo(n_a, n_a, 0, n_b) == pytest.approx(p**n_a * (1 - p) ** n_b, rel=1e-9)
+        assert stats.boschloo(n_a, n_a, 0, n_b) == pytest.approx(p**n_a * (1 - p) ** n_b, rel=1e-9)
 
 
 def test_boschloo_is_never_above_fisher():
     for table in ((3, 12, 0, 9), (2, 6, 0, 6), (5, 20, 1, 20), (0, 4, 0, 4), (2, 3, 1, 3)):
-        assert counts.boschloo(*table) <= counts.fisher(*table) * (1 + 1e-9)
-    assert counts.boschloo(0, 5, 0, 5) == 1.0  # no evidence
+        assert stats.boschloo(*table) <= stats.fisher(*table) * (1 + 1e-9)
+    assert stats.boschloo(0, 5, 0, 5) == 1.0  # no evidence
 
 
 def test_fisher_exact_by_hand():
     # one-sided: 2 of 6 against 0 of 6, the learned pair lands in a's 6 seeds in C(6,2) of the C(12,2) ways
-    assert counts.fisher(2, 6, 0, 6) == pytest.approx(math.comb(6, 2) / math.comb(12, 2))
-    assert counts.fisher(6, 6, 0, 6) == pytest.approx(1 / math.comb(12, 6))
-    assert counts.fisher(0, 3, 0, 3) == 1.0  # nothing learned: no evidence
+    assert stats.fisher(2, 6, 0, 6) == pytest.approx(math.comb(6, 2) / math.comb(12, 2))
+    assert stats.fisher(6, 6, 0, 6) == pytest.approx(1 / math.comb(12, 6))
+    assert stats.fisher(0, 3, 0, 3) == 1.0  # nothing learned: no evidence
     # one-sided tail: 2 of 3 against 1 of 3 sums P(2 in a) + P(3 in a) = (9 + 1) / 20
-    assert counts.fisher(2, 3, 1, 3) == pytest.approx(0.5)
+    assert stats.fisher(2, 3, 1, 3) == pytest.approx(0.5)
     # two-sided: 3 of 3 against 0 of 3 and its mirror, each 1 / C(6,3)
-    assert counts.fisher(3, 3, 0, 3, "two-sided") == pytest.approx(2 / math.comb(6, 3))
+    assert stats.fisher(3, 3, 0, 3, "two-sided") == pytest.approx(2 / math.comb(6, 3))
 
 
 def test_holm_adjusts_step_down():
     # sorted 0.01, 0.03, 0.04 -> 3 x 0.01, 2 x 0.03, then max(0.06, 1 x 0.04)
-    adjusted = counts.holm({"a": 0.01, "b": 0.04, "c": 0.03})
+    adjusted = stats.holm({"a": 0.01, "b": 0.04, "c": 0.03})
     assert adjusted == pytest.approx({"a": 0.03, "b": 0.06, "c": 0.06})
-    assert counts.holm({"a": 0.6, "b": 0.7}) == {"a": 1.0, "b": 1.0}  # capped at 1
-    assert counts.holm({}) == {}
+    assert stats.holm({"a": 0.6, "b": 0.7}) == {"a": 1.0, "b": 1.0}  # capped at 1
+    assert stats.holm({}) == {}
 
 
 def test_power():
-    for test in counts.TESTS:  # exact tests hold their level whatever the common rate
+    for test in stats.TESTS:  # exact tests hold their level whatever the common rate
         for rate in (0.1, 0.5, 0.9):
-            assert counts.power(test, 6, rate, 6, rate, 0.05) <= 0.05
+            assert stats.power(test, 6, rate, 6, rate, 0.05) <= 0.05
     # every a seed learns, no b seed does: power 1 exactly when that table is significant
-    assert counts.power("fisher-greater", 4, 1.0, 4, 0.0, 0.05) == float(1 / math.comb(8, 4) <= 0.05)
+    assert stats.power("fisher-greater", 4, 1.0, 4, 0.0, 0.05) == float(1 / math.comb(8, 4) <= 0.05)
     # with b never learning, Fisher rejects 8 vs 8 from 4 learned seeds (70/1820 < 0.05, 56/560 > 0.05)
     rate = 0.6
     at_least_4 = sum(math.comb(8, k) * rate**k * (1 - rate) ** (8 - k) for k in range(4, 9))
-    assert counts.power("fisher-greater", 8, rate, 8, 0.0, 0.05) == pytest.approx(at_least_4)
-    assert counts.learned_by(0.0074, 39e6) == pytest.approx(1 - math.exp(-0.0074 * 39))
+    assert stats.power("fisher-greater", 8, rate, 8, 0.0, 0.05) == pytest.approx(at_least_4)
+    assert stats.learned_by(0.0074, 39e6) == pytest.approx(1 - math.exp(-0.0074 * 39))
 
 
 def test_takeoff_and_the_fraction_learned():
     iterations = np.array([10, 20, 30, 40], np.float64)
     assert takeoff.takeoff(iterations, np.array([0.5, 1.9, 2.5, 1.0]), 2.0) == 30
     assert takeoff.takeoff(iterations, np.array([0.5, 1.9, 2.0, 1.0]), 2.0) is None  # not above
-    fraction = takeoff.fraction_learned([30, None, 10, None], np.array([0, 10, 29, 30, 1000]))
+    fraction = stats.fraction_learned([30, None, 10, None], np.array([0, 10, 29, 30, 1000]))
     np.testing.assert_array_equal(fraction, [0, 0.25, 0.25, 0.5, 0.5])
 
 
@@ -154,7 +154,7 @@ def test_preregistered_block():
         "test": design.test,
         "alpha": design.alpha,
     }
-    p = counts.p_value(design.test, 4, 8, 1, 8)
+    p = stats.p_value(design.test, 4, 8, 1, 8)
     assert block["result"] == {
         "treatment_learned": 4,
         "treatment_seeds": 8,

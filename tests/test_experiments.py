@@ -11,7 +11,7 @@ import pytest
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import counts, figures, kinds, recipes, runner, takeoff
+from jaxsocial.experiments import figures, kinds, recipes, runner, stats, takeoff
 from jaxsocial.run import config, logs, metrics, schedule
 
 
@@ -103,7 +103,7 @@ def test_stats_and_ci_separation():
         "c": s,  # the same as b: neither is above the other
         "d": metrics.stats([0.0, 2.5, 5.0]),  # CI [-3.71, 8.71]
     }
-    assert kinds.separations(conditions) == {
+    assert stats.separations(conditions) == {
         "a > b": True,
         "a > c": True,
         "a > d": True,
@@ -131,16 +131,16 @@ def test_learned_seed_tests_state_their_direction():
     other pair is two-sided and Holm-adjusted over the exploratory pairs."""
     conditions = {c: {"seeds_above_one_tile": k, "final_returns": [1.0] * n} for c, k, n in
                   (("a", 2, 6), ("b", 0, 6), ("c", 0, 3), ("d", 3, 3))}  # fmt: skip
-    tests = kinds.learned_seed_tests(conditions, (("a", "b"), ("c", "d"), ("a", "absent")))
+    tests = stats.learned_seed_tests(conditions, (("a", "b"), ("c", "d"), ("a", "absent")))
     assert list(tests["stated"]) == ["a > b", "c > d"]  # a comparison with an absent condition is dropped
     assert tests["stated"]["a > b"]["fisher_p"] == pytest.approx(math.comb(6, 2) / math.comb(12, 2), abs=1e-4)
     assert tests["stated"]["c > d"]["fisher_p"] == 1.0  # against the counts: no evidence in the stated way
     assert tests["stated"]["a > b"]["learned"] == [2, 6, 0, 6]
     exploratory = tests["exploratory"]
     assert list(exploratory) == ["a vs c", "a vs d", "b vs c", "b vs d"]
-    raw = {pair: counts.fisher(*e["learned"], alternative="two-sided") for pair, e in exploratory.items()}
+    raw = {pair: stats.fisher(*e["learned"], alternative="two-sided") for pair, e in exploratory.items()}
     assert exploratory["b vs d"]["fisher_p"] == pytest.approx(raw["b vs d"], abs=1e-4)
-    holm = counts.holm(raw)
+    holm = stats.holm(raw)
     for pair, entry in exploratory.items():
         assert entry["fisher_p_holm"] == pytest.approx(holm[pair], abs=1e-4)
         assert entry["boschloo_p_holm"] >= entry["boschloo_p"]

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 import pytest
-from scipy import stats
+from scipy import stats as scipy_stats
 
-from jaxsocial.experiments import counts, prereg, takeoff, takeoff_power
+from jaxsocial.experiments import prereg, stats, takeoff, takeoff_power
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
@@ -49,35 +49,35 @@ def test_logrank_is_the_hand_computed_statistic_and_one_sided_toward_sooner():
     expected 0.8, variance 2 (2/5)(3/5)(3/4) = 0.36. Z = (2 - 1.3) / sqrt(0.61)."""
     a, b = ([1, 2, None], [3, 3, 3]), ([2, None, None], [3, 3, 3])
     z = 0.7 / math.sqrt(0.61)
-    result = takeoff.logrank(a, b)
+    result = stats.logrank(a, b)
     assert result["statistic"] == pytest.approx(z, rel=1e-9)
-    assert result["p"] == pytest.approx(stats.norm.sf(z), rel=1e-9)  # a sooner: small p
-    assert takeoff.logrank(b, a)["p"] == pytest.approx(stats.norm.cdf(z), rel=1e-9)
-    assert takeoff.logrank(a, b, "two-sided")["p"] == pytest.approx(2 * stats.norm.sf(z), rel=1e-9)
+    assert result["p"] == pytest.approx(scipy_stats.norm.sf(z), rel=1e-9)  # a sooner: small p
+    assert stats.logrank(b, a)["p"] == pytest.approx(scipy_stats.norm.cdf(z), rel=1e-9)
+    assert stats.logrank(a, b, "two-sided")["p"] == pytest.approx(2 * scipy_stats.norm.sf(z), rel=1e-9)
 
 
 def test_kaplan_meier_is_the_hand_computed_curve_with_its_log_log_band():
     """Takeoffs at 1, 2, 2 and one seed censored at 1.5: S = 3/4 after t = 1, 0 after t = 2. Greenwood's
     variance at t = 1 is 1 / (4 * 3); the log-log band of S there is exp(-exp(log(-log S) -+ 1.96 se)),
     se = sqrt(1/12) / -log S."""
-    curve = takeoff.kaplan_meier([1, None, 2, 2], [4, 1.5, 4, 4])
+    curve = stats.kaplan_meier([1, None, 2, 2], [4, 1.5, 4, 4])
     assert curve["time"] == [0.0, 1.0, 1.5, 2.0]
     np.testing.assert_allclose(curve["learned"], [0.0, 0.25, 0.25, 1.0])
-    s, z = 0.75, stats.norm.ppf(0.975)
+    s, z = 0.75, scipy_stats.norm.ppf(0.975)
     se = math.sqrt(1 / 12) / -math.log(s)
     bounds = [1 - math.exp(-math.exp(math.log(-math.log(s)) + sign * z * se)) for sign in (-1, 1)]
     np.testing.assert_allclose(curve["low"][1:3], [bounds[0]] * 2, rtol=1e-9)
     np.testing.assert_allclose(curve["high"][1:3], [bounds[1]] * 2, rtol=1e-9)
     assert curve["low"][-1] == curve["high"][-1] == 1.0  # undefined at S = 0: the estimate
-    assert takeoff.kaplan_meier([None, None], [5, 5]) == {"time": [0.0], "learned": [0.0], "low": [0.0],
+    assert stats.kaplan_meier([None, None], [5, 5]) == {"time": [0.0], "learned": [0.0], "low": [0.0],
                                                           "high": [0.0]}  # fmt: skip
 
 
 def test_holm_rejects_step_down():
-    assert takeoff_power.holm_rejects(np.array([0.03, 0.02]), 0.05).tolist() == [True, True]
-    assert takeoff_power.holm_rejects(np.array([0.03, 0.04]), 0.05).tolist() == [False, False]
-    assert takeoff_power.holm_rejects(np.array([0.01, 0.2]), 0.05).tolist() == [True, False]
-    assert takeoff_power.holm_rejects(np.array([0.2, 0.024]), 0.05).tolist() == [False, True]
+    assert stats.holm_rejects(np.array([0.03, 0.02]), 0.05).tolist() == [True, True]
+    assert stats.holm_rejects(np.array([0.03, 0.04]), 0.05).tolist() == [False, False]
+    assert stats.holm_rejects(np.array([0.01, 0.2]), 0.05).tolist() == [True, False]
+    assert stats.holm_rejects(np.array([0.2, 0.024]), 0.05).tolist() == [False, True]
 
 
 def evidence_arm(takeoffs, end, learned_score, other_score):
@@ -134,14 +134,14 @@ def test_the_takeoff_designs_block_tests_its_arms_with_holm():
     summary = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, 8.0, 7.0], [1.0, 2.0, 0.0])
     block = prereg.preregistered_takeoff(design, summary, {})
     primary, secondary = block["result"]["primary"], block["result"]["secondary"]
-    lift = takeoff.logrank(([1, 2, None], [3] * 3), ([2, None, None], [3] * 3))["p"]
-    rank = stats.mannwhitneyu([9.0, 8.0, 7.0], [1.0, 2.0, 0.0], alternative="greater").pvalue
+    lift = stats.logrank(([1, 2, None], [3] * 3), ([2, None, None], [3] * 3))["p"]
+    rank = scipy_stats.mannwhitneyu([9.0, 8.0, 7.0], [1.0, 2.0, 0.0], alternative="greater").pvalue
     assert primary["takeoff"]["p"] == pytest.approx(lift, abs=1e-6) and rank == pytest.approx(0.05)
     assert primary["takeoff"]["p_holm"] == pytest.approx(max(2 * rank, lift), abs=1e-6)  # Holm's step-down
     assert primary["goalcycle4"]["p_holm"] == pytest.approx(2 * rank, abs=1e-6)
     assert not primary["goalcycle4"]["rejected"] and not primary["takeoff"]["rejected"]
     assert secondary["counts"]["learned"] == [2, 3, 1, 3]  # takeoffs by the budget
-    assert secondary["counts"]["p"] == pytest.approx(counts.boschloo(2, 3, 1, 3), abs=1e-6)
+    assert secondary["counts"]["p"] == pytest.approx(stats.boschloo(2, 3, 1, 3), abs=1e-6)
     assert block["checks"]["seeds_as_designed"]
     unscored = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, None, 7.0], [1.0, 2.0, 0.0])
     assert not prereg.preregistered_takeoff(design, unscored, {})["checks"]["seeds_as_designed"]

@@ -9,7 +9,7 @@
     python -m jaxsocial.experiments.followup run h1_laptop            # follow-ups of a design's learned seeds
 
 `recipes` names the conditions and scales, `runner` trains and evaluates them, `figures` summarises and
-draws them (`takeoff`: time to learning; `counts`: exact tests of learned-seed counts), `records` packs run
+draws them (`takeoff`: time to learning; `stats`: the tests and estimates over seeds), `records` packs run
 directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
 `predictions` draws a learner's predicted next frames, `sweep` screens settings, `followup` branches,
 transfers and probes a design's learners that learned, `pinned` runs one single-core process per seed; `kinds`

@@ -4,7 +4,7 @@ Every number comes from the runs' metrics and post-training evaluations; nothing
 condition's *final return* is, per seed, the learner's episode-weighted mean return over the last 10% of
 training iterations (the issue's measure); the 95% confidence interval is Student t over seeds. A seed has
 *learned* if its final return exceeds `LEARNED_RETURN`; learned counts are compared with one-sided exact
-tests (`counts`), and each seed's takeoff (`takeoff`) gives the time-to-learning curve (`time_to_learning`,
+tests (`stats`), and each seed's takeoff (`takeoff`) gives the time-to-learning curve (`time_to_learning`,
 with each seed's CPU-minutes of training and their sum where every record names its cores). Every summary says
 how it was made (`provenance`: the command that re-creates it, and each seed's recorded training command,
 commit, device and jax version; seeds without a record are listed) and, for a recipe with a design, what was

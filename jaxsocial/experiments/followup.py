@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import figures, kinds, paths, pinned, prereg, recipes, records, runner
+from jaxsocial.experiments import figures, kinds, paths, pinned, prereg, recipes, records, runner, stats
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -236,19 +236,6 @@ def _experts_return(result: dict[str, Any]) -> float | None:
     return float(np.mean(others)) if others else None
 
 
-def _paired(social: list[float], mixed: list[float]) -> dict[str, Any]:
-    """Mixed minus social per seed: mean, 95% t-interval and the exploratory two-sided Wilcoxon signed-rank
-    p (None under 2 pairs or when every difference is 0)."""
-    from scipy import stats as scipy_stats
-
-    diff = np.asarray(mixed, np.float64) - np.asarray(social, np.float64)
-    mean, low, high = metrics.mean_ci95(diff)
-    p = None
-    if len(diff) >= 2 and np.any(diff != 0):
-        p = float(scipy_stats.wilcoxon(diff, alternative="two-sided").pvalue)
-    return {"n": int(len(diff)), "mean": mean, "ci95": [low, high], "wilcoxon_p": p}
-
-
 def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
     """Each learned seed's follow-ups (zero-shot returns, CT, the branches' evaluations) and, per measure,
     the mean over seeds (`measures`): over every learned seed, and over each condition's apart
@@ -310,7 +297,7 @@ def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, A
         "mixing": {
             spec: {
                 **{arm: metrics.stats([s["branches"][arm][spec] for s in learned]) for arm in ARMS},
-                "mixed_minus_social": _paired(
+                "mixed_minus_social": stats.paired_difference(
                     [s["branches"]["social"][spec] for s in learned],
                     [s["branches"]["mixed"][spec] for s in learned],
                 ),

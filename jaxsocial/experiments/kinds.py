@@ -15,7 +15,6 @@ evaluations after training are written (`eval_path`, `ct_path`).
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -24,8 +23,9 @@ import numpy as np
 
 from jaxsocial.axes import format_steps, steps_axis
 from jaxsocial.curves import band
-from jaxsocial.experiments import counts, predictions, recipes, records, takeoff
+from jaxsocial.experiments import predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
+from jaxsocial.experiments.stats import kaplan_meier, learned_seed_tests, separations
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, final_return, metric_curve, stats
 from jaxsocial.specs import EnvSpec
@@ -110,61 +110,6 @@ def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
 def ct_score(condition: dict[str, Any], score: str) -> dict[str, Any]:
     """A ct recipe condition's stats of `score`: 'final' (the training return), 'ct' or 'recall'."""
     return condition if score == "final" else condition[score]
-
-
-def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
-    """For each ordered pair of conditions by mean, 'a > b': whether a's 95% CI lies entirely above b's."""
-    out = {}
-    for a, b in itertools.permutations(conditions, 2):
-        sa, sb = conditions[a], conditions[b]
-        if sa.get("ci95") and sb.get("ci95") and sa["mean"] > sb["mean"]:
-            out[f"{a} > {b}"] = sa["ci95"][0] > sb["ci95"][1]
-    return out
-
-
-def learned_seed_tests(
-    conditions: dict[str, dict[str, Any]], stated: tuple[tuple[str, str], ...]
-) -> dict[str, Any]:
-    """Fisher and Boschloo exact tests of the learned-seed counts (`seeds_above_one_tile` of each condition's
-    finite seeds). 'stated': each hypothesis (a, b) of `stated` whose conditions are both present, 'a > b',
-    one-sided in that direction. 'exploratory': every other pair, 'a vs b', two-sided, with p-values
-    Holm-adjusted over the exploratory family (`_holm` keys). Each test also gives the counts
-    [learned_a, seeds_a, learned_b, seeds_b]."""
-    table = {c: (conditions[c]["seeds_above_one_tile"], _seeds(conditions[c])) for c in conditions}
-    stated = tuple((a, b) for a, b in stated if a in table and b in table)
-    out: dict[str, Any] = {"method": LEARNED_TESTS_METHOD}
-    out["stated"] = {f"{a} > {b}": _count_tests(table[a], table[b], "greater") for a, b in stated}
-    explored = {
-        f"{a} vs {b}": _count_tests(table[a], table[b], "two-sided")
-        for a, b in itertools.combinations(conditions, 2)
-        if (a, b) not in stated and (b, a) not in stated
-    }
-    for test in ("fisher_p", "boschloo_p"):
-        adjusted = counts.holm({pair: entry[test] for pair, entry in explored.items()})
-        for pair, entry in explored.items():
-            entry[f"{test}_holm"] = adjusted[pair]
-    out["exploratory"] = explored
-    for entry in (*out["stated"].values(), *explored.values()):
-        entry.update({k: round(v, 4) for k, v in entry.items() if k != "learned"})
-    return out
-
-
-LEARNED_TESTS_METHOD = (
-    "stated: the recipe's hypotheses, each 'a > b' one-sided (a's seeds learned more often), uncorrected; "
-    "exploratory: every other pair, two-sided, *_holm adjusted over the exploratory pairs (Holm)"
-)
-
-
-def _count_tests(a: tuple[int, int], b: tuple[int, int], alternative: str) -> dict[str, Any]:
-    return {
-        "learned": [a[0], a[1], b[0], b[1]],
-        "fisher_p": counts.fisher(*a, *b, alternative=alternative),
-        "boschloo_p": counts.boschloo(*a, *b, alternative=alternative),
-    }
-
-
-def _seeds(condition: dict[str, Any]) -> int:
-    return sum(np.isfinite(v) for v in condition["final_returns"] if v is not None)
 
 
 def takeoffs(runs) -> dict[str, dict[str, Any]]:
@@ -294,7 +239,7 @@ def zero_shot_scores(runs, seed_dir: Path) -> dict[str, float | None]:
 def summarise_takeoff(runs) -> dict[str, Any]:
     """The curves' summary (`summarise_curves`) with, per condition, every seed's zero-shot scores and CT
     score (with their stats over the seeds that have them) and the Kaplan-Meier curve of its takeoffs in
-    env-steps, each seed censored at the end of its run (`takeoff.kaplan_meier`)."""
+    env-steps, each seed censored at the end of its run (`stats.kaplan_meier`)."""
     out = summarise_curves(runs)
     lifts = takeoffs(runs)
     for c, seed_rows in runs.rows.items():
@@ -305,7 +250,7 @@ def summarise_takeoff(runs) -> dict[str, Any]:
         for name in (*ZERO_SHOT, "ct"):
             values = [s[name] for s in scores]
             entry[name] = stats([v for v in values if v is not None]) | {"per_seed": values}
-        entry["kaplan_meier"] = takeoff.kaplan_meier(lifts[c]["takeoff_env_steps"], ends)
+        entry["kaplan_meier"] = kaplan_meier(lifts[c]["takeoff_env_steps"], ends)
         entry["run_env_steps"] = ends
     return out
 

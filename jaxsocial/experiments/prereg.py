@@ -23,9 +23,7 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from scipy import stats as scipy_stats
-
-from jaxsocial.experiments import counts, paths, records, takeoff
+from jaxsocial.experiments import paths, records, stats
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
@@ -108,7 +106,7 @@ def load(name: str) -> Design:
     design = Design(**raw)
     if design.analysis not in ANALYSES:
         raise ValueError(f"design {name}: unknown analysis {design.analysis!r}; choose from {ANALYSES}")
-    tests = counts.TESTS if design.analysis == "counts" else (TAKEOFF_TEST,)
+    tests = stats.TESTS if design.analysis == "counts" else (TAKEOFF_TEST,)
     if design.test not in tests:
         raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {tests}")
     if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
@@ -118,14 +116,14 @@ def load(name: str) -> Design:
 
 def success_rates(design: Design, env_steps_per_run: int) -> dict[str, float]:
     """Each arm's assumed probability that a seed has learned by the end of its run."""
-    return {arm: counts.learned_by(h, env_steps_per_run) for arm, h in design.hazard_per_million.items()}
+    return {arm: stats.learned_by(h, env_steps_per_run) for arm, h in design.hazard_per_million.items()}
 
 
 def power_of(design: Design, env_steps_per_run: int) -> float:
     """The design's power: the probability that its test rejects at its alpha under its assumed rates."""
     rates = success_rates(design, env_steps_per_run)
     n = design.arm_seeds
-    return counts.power(design.test, n["treatment"], rates["treatment"], n["control"], rates["control"],
+    return stats.power(design.test, n["treatment"], rates["treatment"], n["control"], rates["control"],
                         design.alpha)  # fmt: skip
 
 
@@ -157,7 +155,7 @@ def preregistered(
     }
     k = {arm: sum(v) for arm, v in arms.items()}
     n = {arm: len(v) for arm, v in arms.items()}
-    p = counts.p_value(design.test, k["treatment"], n["treatment"], k["control"], n["control"])
+    p = stats.p_value(design.test, k["treatment"], n["treatment"], k["control"], n["control"])
     return {
         "commit": commit,
         "primary": {
@@ -212,34 +210,24 @@ def preregistered_takeoff(
     t, c = arms["treatment"], arms["control"]
     budget = summary["env_steps_per_run"]  # the design's iterations at its scale
 
-    def rank_test(name: str, alternative: str) -> dict[str, Any]:
-        if not t[name] or not c[name]:
-            return {"p": None, "n": [len(t[name]), len(c[name])]}
-        result = scipy_stats.mannwhitneyu(t[name], c[name], alternative=alternative)
-        return {
-            "statistic": float(result.statistic),
-            "p": float(result.pvalue),
-            "n": [len(t[name]), len(c[name])],
-        }
-
     def learned_by_budget(arm: dict[str, list]) -> int:
         return sum(x is not None and x <= budget for x in arm["takeoffs"])
 
     primary = {
-        "takeoff": takeoff.logrank((t["takeoffs"], t["ends"]), (c["takeoffs"], c["ends"]))
+        "takeoff": stats.logrank((t["takeoffs"], t["ends"]), (c["takeoffs"], c["ends"]))
         | {"n": [len(t["takeoffs"]), len(c["takeoffs"])]},
-        "goalcycle4": rank_test("goalcycle4", "greater"),
+        "goalcycle4": stats.mann_whitney(t["goalcycle4"], c["goalcycle4"], "greater"),
     }
     k = [learned_by_budget(t), learned_by_budget(c)]
     n = [len(t["takeoffs"]), len(c["takeoffs"])]
     secondary = {
-        "solo3": rank_test("solo3", "two-sided"),
-        "ct": rank_test("ct", "greater"),
-        "counts": {"learned": [k[0], n[0], k[1], n[1]], "p": counts.boschloo(k[0], n[0], k[1], n[1])},
+        "solo3": stats.mann_whitney(t["solo3"], c["solo3"], "two-sided"),
+        "ct": stats.mann_whitney(t["ct"], c["ct"], "greater"),
+        "counts": {"learned": [k[0], n[0], k[1], n[1]], "p": stats.boschloo(k[0], n[0], k[1], n[1])},
     }
     for family in (primary, secondary):
         known = {name: entry["p"] for name, entry in family.items() if entry["p"] is not None}
-        adjusted = counts.holm(known)
+        adjusted = stats.holm(known)
         for name, entry in family.items():
             entry["p_holm"] = None if name not in adjusted else round(adjusted[name], 6)
             entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
@@ -323,8 +311,8 @@ def describe(design: Design, env_steps_per_run: int) -> str:
         ),  # fmt: skip
         f"  power: {power_of(design, env_steps_per_run):.3f} (the design file says {design.power:.3f})",
     ]
-    for test in counts.TESTS:
-        power = counts.power(
+    for test in stats.TESTS:
+        power = stats.power(
             test, n["treatment"], rates["treatment"], n["control"], rates["control"], design.alpha
         )
         lines.append(f"    with {test}: {power:.3f}")

@@ -1,6 +1,5 @@
-"""Time to social learning: when each seed left the one-tile plateau, the fraction of seeds that had by each
-point of training, and the time-to-event statistics over seeds (outcomes are bimodal, so a mean return hides
-them).
+"""Time to social learning: when each seed left the one-tile plateau (outcomes are bimodal, so a mean return
+hides them). The time-to-event statistics over seeds (Kaplan-Meier, log-rank) are `stats`'s.
 
 One definition everywhere (recipes, designs, the sweep): a seed's learning curve is cut into windows of
 `window_iterations` consecutive iterations, about `WINDOW_STEPS` env-steps each, from its first iteration on
@@ -12,13 +11,12 @@ on the run's length, so seeds of different budgets share their windows.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
+from jaxsocial.experiments.stats import fraction_learned
 from jaxsocial.run import metrics
 
 WINDOW_STEPS = 200_000
@@ -58,57 +56,6 @@ def seed_takeoff(
     """The iteration at which a seed took off (the end of its first window above `threshold`; None if it
     never did)."""
     return takeoff(*window_curve(rows, steps_per_iteration), threshold)
-
-
-def fraction_learned(takeoffs: list[int | None], at: np.ndarray) -> np.ndarray:
-    """float64[T] the fraction of the seeds whose takeoff (iteration or env-step, as `at`) is at or before
-    each point of `at`; seeds that never took off count as not yet."""
-    times = np.array([t for t in takeoffs if t is not None], np.float64)
-    return np.array([(times <= x).sum() / len(takeoffs) for x in np.asarray(at)], np.float64)
-
-
-def censored(takeoffs: Sequence[float | None], ends: Sequence[float]) -> stats.CensoredData:
-    """scipy's right-censored sample: each seed's takeoff, or its run's end where it never took off."""
-    observed = [float(t) for t in takeoffs if t is not None]
-    right = [float(e) for t, e in zip(takeoffs, ends, strict=True) if t is None]
-    return stats.CensoredData(uncensored=observed, right=right)
-
-
-def logrank(
-    a: tuple[Sequence[float | None], Sequence[float]],
-    b: tuple[Sequence[float | None], Sequence[float]],
-    alternative: str = "greater",
-) -> dict[str, float]:
-    """The log-rank test of two samples of (takeoffs, run ends) (`scipy.stats.logrank`). 'greater': a's seeds
-    take off sooner than b's (a's hazard of taking off is higher), one-sided. Returns the statistic (a's
-    observed minus expected takeoffs over its standard error: positive when a takes off sooner) and the
-    p-value; both None when no seed of either took off."""
-    if all(t is None for t in (*a[0], *b[0])):  # no takeoff at all: nothing to compare
-        return {"statistic": None, "p": None}
-    result = stats.logrank(censored(*a), censored(*b), alternative=alternative)
-    return {"statistic": float(result.statistic), "p": float(result.pvalue)}
-
-
-def kaplan_meier(
-    takeoffs: Sequence[float | None], ends: Sequence[float], confidence: float = 0.95
-) -> dict[str, list[float]]:
-    """The Kaplan-Meier estimate of the fraction of seeds past the plateau against time, 1 - S(t), with its
-    pointwise `confidence` band (scipy's log-log interval of S): 'time' (0 first, then each distinct takeoff),
-    'learned', 'low', 'high'. A step function, constant after each time until the next."""
-    times, learned, low, high = [0.0], [0.0], [0.0], [0.0]
-    if any(t is not None for t in takeoffs):
-        fit = stats.ecdf(censored(takeoffs, ends))
-        with warnings.catch_warnings():  # undefined where S is 0 or 1: the band is the estimate there
-            warnings.simplefilter("ignore", RuntimeWarning)
-            band = fit.sf.confidence_interval(confidence, method="log-log")
-        at = np.asarray(fit.sf.quantiles, np.float64)
-        estimate = 1.0 - fit.sf.evaluate(at)
-        lows, highs = 1.0 - band.high.evaluate(at), 1.0 - band.low.evaluate(at)  # 1 - S swaps the bounds
-        times += at.tolist()
-        learned += estimate.tolist()
-        low += np.where(np.isnan(lows), estimate, lows).tolist()
-        high += np.where(np.isnan(highs), estimate, highs).tolist()
-    return {"time": times, "learned": learned, "low": low, "high": high}
 
 
 def draw(ax, takeoffs: list[int | None], end: float, label: str, color, ls: str = "-") -> None:

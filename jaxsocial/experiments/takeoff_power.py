@@ -28,9 +28,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats
+from scipy import stats as scipy_stats
 
-from jaxsocial.experiments import paths, takeoff
+from jaxsocial.experiments import paths, stats, takeoff
 from jaxsocial.run import logs, metrics
 
 EVIDENCE_DESIGNS = ("h1_laptop", "h1_early", "h1_sooner")
@@ -75,7 +75,7 @@ def incidence(seeds: list[dict[str, Any]], grid: np.ndarray) -> np.ndarray:
     lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
     observed = [t if t is not None else e for t, e in zip(lifts, ends, strict=True)]
     horizon = max(g for g in grid if sum(o >= g for o in observed) >= MIN_AT_RISK)
-    fit = stats.ecdf(takeoff.censored(lifts, ends))
+    fit = scipy_stats.ecdf(stats.censored(lifts, ends))
     events = sum(t is not None and t > HAZARD_FROM for t in lifts)
     exposure = sum(max(0.0, o - HAZARD_FROM) for o in observed)
     hazard = events / exposure
@@ -135,27 +135,16 @@ def simulate(
         ends = [budget] * seeds
         p = np.array(
             [
-                takeoff.logrank((lifts["treatment"], ends), (lifts["control"], ends))["p"],
-                stats.mannwhitneyu(scores["treatment"], scores["control"], alternative="greater").pvalue,
+                stats.logrank((lifts["treatment"], ends), (lifts["control"], ends))["p"],
+                stats.mann_whitney(scores["treatment"], scores["control"], "greater")["p"],
             ]
         )
-        rejected[r] = holm_rejects(p, alpha)
+        rejected[r] = stats.holm_rejects(p, alpha)
     return {
         "takeoff": float(rejected[:, 0].mean()),
         "goalcycle4": float(rejected[:, 1].mean()),
         "both": float(rejected.all(axis=1).mean()),
     }
-
-
-def holm_rejects(p: np.ndarray, alpha: float) -> np.ndarray:
-    """bool[m] which of the p-values float64[m] Holm's step-down procedure rejects at family level `alpha`."""
-    order = np.argsort(p)
-    out = np.zeros(len(p), bool)
-    for k, i in enumerate(order):
-        if p[i] > alpha / (len(p) - k):
-            break
-        out[i] = True
-    return out
 
 
 def power_table(
@@ -189,7 +178,7 @@ def pooled_summary(records_root: Path) -> dict[str, Any]:
     for condition in ("social_rec", "solo_rec"):
         seeds = evidence(condition, records_root)
         lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
-        curve = takeoff.kaplan_meier(lifts, ends)
+        curve = stats.kaplan_meier(lifts, ends)
         at = {}
         for steps in POOLED_AT:
             ran = [s for s in seeds if s["end"] >= steps]  # the seeds whose run reached `steps`
@@ -214,7 +203,7 @@ def pooled_summary(records_root: Path) -> dict[str, Any]:
         "window_env_steps": takeoff.WINDOW_STEPS,
         "command": "python -m jaxsocial.experiments.takeoff_power",
         "conditions": conditions,
-        "logrank_social_sooner_post_hoc": takeoff.logrank(lift["social_rec"], lift["solo_rec"]),
+        "logrank_social_sooner_post_hoc": stats.logrank(lift["social_rec"], lift["solo_rec"]),
     }
 
 
