@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import U32, reordered_tolerance
 
-from jaxsocial.agents import network, ppo
+from jaxsocial.agents import network, ppo, rollout
 from jaxsocial.agents.network import NetworkConfig
 
 NET = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8)
@@ -318,7 +318,6 @@ def test_trainer_records_the_targets_its_recompute_would_compute(monkeypatch):
     from conftest import TINY
 
     from jaxsocial import train
-    from jaxsocial.run import loop
 
     def first_iteration():
         init, run_chunk, _ = train.make_train(TINY)
@@ -326,8 +325,8 @@ def test_trainer_records_the_targets_its_recompute_would_compute(monkeypatch):
         return {name: float(metrics[name][0, 0]) for name in ("policy_loss", "value_loss", "entropy", "kl")}
 
     recorded = first_iteration()
-    record = loop.ppo_batch
-    monkeypatch.setattr(loop, "ppo_batch", lambda *a: record(*a)._replace(values=None, segment_carries=None))
+    record = rollout.ppo_batch
+    monkeypatch.setattr(rollout, "ppo_batch", lambda *a: record(*a)._replace(values=None, segment_carries=None))
     recomputed = first_iteration()
     for name, value in recorded.items():
         np.testing.assert_allclose(value, recomputed[name], rtol=1e-5, atol=1e-7, err_msg=name)

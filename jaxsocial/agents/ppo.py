@@ -2,8 +2,9 @@
 entropy bonus and the auxiliary observation loss; minibatches of trajectory segments seeded with stored LSTM
 states; hidden states and advantages recomputed every few minibatches; KL early stop and hard-limit revert.
 
-Everything here is for a single learner; the trainer maps it over learner slots. With data parallelism
-(`dp`, a `jaxsocial.run.distributed.DataParallel`) the environments of the rollout and the segments of each
+Everything here is for a single learner; the trainer maps it over learner slots. The devices the batch is
+split over are a `Devices` (`dp`): `ONE_DEVICE` by default; with data parallelism
+(`jaxsocial.run.distributed.DataParallel`) the environments of the rollout and the segments of each
 minibatch are split over devices: the network runs on each device's share, the losses' means and the
 gradient are taken over the whole batch, so the result is that of one device.
 Shapes: T rollout steps, E environments, L segment length, C = T / L segments per environment.
@@ -12,7 +13,9 @@ Shapes: T rollout steps, E environments, L segment length, C = T / L segments pe
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, NamedTuple
+import functools
+from collections.abc import Callable
+from typing import Any, NamedTuple, Protocol
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +24,33 @@ import optax
 from jaxsocial.agents import network
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.env.batching import any_in_batch
+
+
+class Devices(Protocol):
+    """How a batch is split over devices inside a jitted function (pytree prefixes of batch axes, None:
+    replicated): `shard` constrains a tree's layout, `per_device(fn, in_axes, out_axes)` runs `fn` on each
+    device's share, `axis_name` names the devices' axis inside it (None on one device)."""
+
+    axis_name: str | None
+
+    def shard(self, tree: Any, axes: Any) -> Any: ...
+
+    def per_device(self, fn: Callable, in_axes: Any, out_axes: Any) -> Callable: ...
+
+
+class OneDevice:
+    """`Devices` of a batch on one device: nothing to split, every function runs on the whole batch."""
+
+    axis_name = None
+
+    def shard(self, tree: Any, axes: Any) -> Any:
+        return tree
+
+    def per_device(self, fn: Callable, in_axes: Any, out_axes: Any) -> Callable:
+        return fn
+
+
+ONE_DEVICE = OneDevice()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,19 +166,24 @@ BATCH_ENV_AXES = Batch(**{name: 1 for name in Batch._fields})._replace(carry0=0)
 TARGETS_ENV_AXES = Targets(carries=1, advantages=1, returns=1)
 
 
-def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Any = None) -> Targets:
+def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Devices = ONE_DEVICE) -> Targets:
     """Unroll the current network over the whole rollout: new segment-start hidden states, values and GAE.
 
-    Every environment on its own, so with `dp` each device computes its environments' targets. The bootstrap
+    Every environment on its own, so each device of `dp` computes its environments' targets. The bootstrap
     values of truncated episodes (`batch.final_values`) stay those of the rollout policy: they need the
     pre-reset observation, which the batch does not keep (one value per truncation, at most a couple per
     environment and rollout).
     """
-    if dp is not None:
-        local = dp.per_device(
-            lambda p, b: recompute(p, net, cfg, b), in_axes=(None, BATCH_ENV_AXES), out_axes=TARGETS_ENV_AXES
-        )
-        return local(params, batch)
+    local = dp.per_device(
+        functools.partial(_recompute, net=net, cfg=cfg),
+        in_axes=(None, BATCH_ENV_AXES),
+        out_axes=TARGETS_ENV_AXES,
+    )
+    return local(params, batch)
+
+
+def _recompute(params, batch: Batch, net: NetworkConfig, cfg: PPOConfig) -> Targets:
+    """`recompute` on one device."""
     length = cfg.segment_length
     n_steps = batch.actions.shape[0]
 
@@ -213,24 +248,22 @@ def _masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
     return jnp.sum(x * mask) / jnp.maximum(jnp.sum(mask), 1.0)
 
 
-def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array], dp: Any = None):
+def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array], dp: Devices = ONE_DEVICE):
     """The paper's total loss on one minibatch: L_pi + c_V L_V + c_aux L_aux - c_ent H (+ c_att L_att with
     the attention head).
 
-    Returns (loss, metrics dict with 'kl' = estimated KL(rollout || current) on valid steps). With `dp` the
-    network runs on each device's segments of the minibatch ([L, M] arrays split along M).
+    Returns (loss, metrics dict with 'kl' = estimated KL(rollout || current) on valid steps). The network
+    runs on each device of `dp` on its segments of the minibatch ([L, M] arrays split along M).
     """
 
     def unroll(params, carry, obs, resets):
         return network.unroll(params, net, carry, obs, resets)
 
-    def aux_part(params, hidden, actions, target, weight):  # f32[1]; with `dp` one per device, summed below
-        axis_name = None if dp is None else dp.axis_name
-        return network.aux_loss(params, net, hidden, actions, target, weight, axis_name)[None]
+    def aux_part(params, hidden, actions, target, weight):  # f32[1], one per device, summed below
+        return network.aux_loss(params, net, hidden, actions, target, weight, dp.axis_name)[None]
 
-    if dp is not None:
-        unroll = dp.per_device(unroll, in_axes=(None, 0, 1, 1), out_axes=(0, 1))
-        aux_part = dp.per_device(aux_part, in_axes=(None, 1, 1, 1, 1), out_axes=0)
+    unroll = dp.per_device(unroll, in_axes=(None, 0, 1, 1), out_axes=(0, 1))
+    aux_part = dp.per_device(aux_part, in_axes=(None, 1, 1, 1, 1), out_axes=0)
     _, out = unroll(params, mb["carry"], mb["obs"], mb["resets"])
     valid = mb["valid"]
     log_probs = jax.nn.log_softmax(out.logits)
@@ -292,7 +325,7 @@ def update(
     net: NetworkConfig,
     cfg: PPOConfig,
     batch: Batch,
-    dp: Any = None,
+    dp: Devices = ONE_DEVICE,
 ) -> tuple[dict, optax.OptState, dict[str, jax.Array]]:
     """One PPO update of one learner on its rollout (the paper's minibatch loop).
 
@@ -303,11 +336,10 @@ def update(
     reverted (params and optimiser state) and the loop ends; above `kl_target` the loop ends without
     applying it. The minibatches after the end compute nothing (a `lax.cond`; under `vmap` until every
     member ended). Returns new params, optimiser state and metrics (means over the minibatches that ran).
-    `dp`: data parallelism (see the module docstring).
+    `dp`: the devices the batch is split over (see the module docstring).
     """
     optimizer = make_optimizer(cfg)
-    if dp is not None:
-        batch = dp.shard(batch, BATCH_ENV_AXES)
+    batch = dp.shard(batch, BATCH_ENV_AXES)
     n_segments = batch.actions.shape[0] // cfg.segment_length * batch.actions.shape[1]
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
@@ -322,8 +354,7 @@ def update(
         )
         idx = jax.random.choice(k, n_segments, (cfg.minibatch_segments,), replace=False)
         mb = minibatch(batch, targets, idx, cfg.segment_length)
-        if dp is not None:  # segments split over devices: [L, M, ...] along M, the carry [M, H] along M
-            mb = dp.shard(mb, {name: int(name != "carry") for name in mb})
+        mb = dp.shard(mb, {name: int(name != "carry") for name in mb})  # [L, M, ...] along M, carry [M, H]
         (_, metrics), grads = grad_fn(state.params, net, cfg, mb, dp)
         kl = metrics["kl"]
         apply = state.running & (kl <= cfg.kl_target)

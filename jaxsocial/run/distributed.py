@@ -233,7 +233,7 @@ def state_shardings(state: Any, mesh: Mesh, env_axes: Any, offset: int = 0) -> A
 
 
 class DataParallel:
-    """Inside a jitted program: how batch axes are split over the devices of `mesh` (see `loop.make_program`).
+    """Inside a jitted program: how batch axes are split over the devices of `mesh` (a `ppo.Devices`).
 
     Axes are given as pytree prefixes of ints (the batch axis of those leaves) or None (replicated).
     """

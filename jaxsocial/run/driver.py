@@ -17,7 +17,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxsocial.agents import population
+from jaxsocial.agents import population, rollout
+from jaxsocial.agents.rollout import RunnerState
 from jaxsocial.run import (
     checkpoint,
     config,
@@ -31,7 +32,7 @@ from jaxsocial.run import (
 )
 from jaxsocial.run.chunks import Chunk, seed_part
 from jaxsocial.run.config import DriverConfig, ProgramConfig
-from jaxsocial.run.loop import Program, RunnerState
+from jaxsocial.run.loop import Program
 from jaxsocial.run.rundir import SeedRun
 from jaxsocial.specs import CheckpointRef
 
@@ -49,7 +50,7 @@ def restore_state(
 ) -> RunnerState:
     """`checkpoint.restore` of one seed's RunnerState like `template`. A checkpoint written before programs
     rendered only the views they read holds every slot's views (obs [E, N, ...]); it is restored with the
-    rows of the slots `observed` (`loop.observers`), exactly the views the program renders."""
+    rows of the slots `observed` (`rollout.observers`), exactly the views the program renders."""
     stored = checkpoint.leaf_shapes(ckpt_dir, step).get(".obs")
     want = template.obs.shape
     n_slots = template.env_states.pos.shape[1]
@@ -66,7 +67,7 @@ def source_state(seed_dir: Path, iteration: int) -> RunnerState:
     static = config.setup(source, load_frozen=False)
     init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
     template = jax.eval_shape(init, jax.random.key(0))
-    observed = loop.observers(static.pop, source.program.algo)
+    observed = rollout.observers(static.pop, source.program.algo)
     return restore_state(rundir.checkpoints(seed_dir), template, iteration, observed)
 
 
@@ -210,7 +211,7 @@ class Driver:
             raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
         lead = int(self.program.seeds > 1)
         template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), self.state)
-        observed = loop.observers(self.static.pop, self.program.algo)
+        observed = rollout.observers(self.static.pop, self.program.algo)
         for step in sorted(set.intersection(*map(set, steps)), reverse=True):
             try:
                 restored = [restore_state(d, template, step, observed) for d in ckpt_dirs]

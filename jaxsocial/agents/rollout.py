@@ -1,0 +1,312 @@
+"""One training iteration's parts as plain functions: the rollout (every slot acts in E environments for T
+steps, one `lax.scan`; neural slots through a `vmap` over their stacked params), the learners' PPO update
+on it (`lax.map` over learners, `ppo.update`) or behaviour cloning's (`bc.update`), and the `RunnerState`
+they carry between iterations. `jaxsocial.run.loop.make_program` wires them into a compiled program.
+
+Everything static (slots, network, environment, hyperparameters) is a `Wiring`, made once by `wiring`.
+Shapes: E environments, N agents, T rollout steps, S neural slots (S_l learners first, then frozen
+policies), K rendered views (`observers`), D demonstrators, H LSTM units.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from jaxsocial.agents import bc, network, population, ppo
+from jaxsocial.env import core, observe
+from jaxsocial.env.batching import any_in_batch
+from jaxsocial.env.types import EnvParams, EnvState
+
+
+class RunnerState(NamedTuple):
+    """The whole training state between iterations (a pytree; checkpointed at chunk boundaries)."""
+
+    params: Any  # learner params stacked [S_l, ...]
+    opt_state: Any  # learner optimiser states stacked [S_l, ...]
+    env_states: EnvState  # [E]
+    obs: jax.Array  # uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]) the views of `observers(...)`
+    resets: jax.Array  # bool[E]: the next step starts an episode
+    slots: population.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
+    demo_carry: network.Carry | None  # bc: learners' LSTM states on the demonstration streams [S_l, E*D, H]
+    episode_return: jax.Array  # float32[E, N] return so far in the current episode
+    key: jax.Array
+    iteration: jax.Array  # int32[]
+
+
+def observers(pop: population.Population, algo: str) -> tuple[int, ...]:
+    """The slots whose views a program of `algo` renders (`Population.observers`; behaviour cloning trains
+    on the demonstrators' views too), so a step beside two scripted experts renders one view, not three."""
+    return pop.observers(cloned=algo == "bc")
+
+
+@dataclasses.dataclass(frozen=True)
+class Wiring:
+    """The static side of one program: its slots `pop` in the environment `env_params`, the network, the
+    algorithm ('ppo' or 'bc') and its hyperparameters, E = `num_envs`, T = `rollout_steps`, and the index
+    arrays derived from them (made once by `wiring`, outside any trace)."""
+
+    pop: population.Population
+    env_params: EnvParams
+    net: network.NetworkConfig
+    ppo: ppo.PPOConfig
+    bc: bc.BCConfig
+    algo: str
+    num_envs: int
+    rollout_steps: int
+    observed: tuple[int, ...]  # the slots whose views are rendered (`observers`)
+    learners: jax.Array  # int32[S_l] the learner slots
+    training_slots: jax.Array  # int32[S_l] (bc: [D]) the slots whose actions are trained on
+    training_views: jax.Array  # int32[S_l] (bc: [D]) their rows of the rendered views
+    learner_views: jax.Array  # int32[S_l] the learners' rows of the rendered views
+
+    @property
+    def cloning(self) -> bool:
+        return self.algo == "bc"
+
+    @property
+    def n_learners(self) -> int:
+        return len(self.pop.learners)
+
+    @property
+    def n_demo_streams(self) -> int:
+        """E * D: behaviour cloning's demonstration streams, environment-major."""
+        return self.num_envs * len(self.pop.demonstrators)
+
+
+def wiring(
+    pop: population.Population,
+    env_params: EnvParams,
+    net: network.NetworkConfig,
+    ppo_cfg: ppo.PPOConfig,
+    bc_cfg: bc.BCConfig,
+    algo: str,
+    num_envs: int,
+    rollout_steps: int,
+) -> Wiring:
+    """The `Wiring` of a program (arguments as its fields)."""
+    observed = observers(pop, algo)
+    training = pop.demonstrators if algo == "bc" else pop.learners
+    return Wiring(
+        pop=pop,
+        env_params=env_params,
+        net=net,
+        ppo=ppo_cfg,
+        bc=bc_cfg,
+        algo=algo,
+        num_envs=num_envs,
+        rollout_steps=rollout_steps,
+        observed=observed,
+        learners=jnp.asarray(pop.learners),
+        training_slots=jnp.asarray(training),
+        training_views=jnp.asarray(population.view_rows(training, observed)),
+        learner_views=jnp.asarray(population.view_rows(pop.learners, observed)),
+    )
+
+
+def optimizer(w: Wiring) -> optax.GradientTransformation:
+    """The learners' optimiser (PPO's or behaviour cloning's)."""
+    return bc.make_optimizer(w.bc) if w.cloning else ppo.make_optimizer(w.ppo)
+
+
+def init(w: Wiring, key: jax.Array) -> RunnerState:
+    """The state before the first iteration: fresh learners, every environment reset."""
+    k_params, k_env, k_run = jax.random.split(key, 3)
+    params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(k_params, w.n_learners), w.net)
+    reset = functools.partial(core.reset, observers=w.observed)
+    obs, env_states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_env, w.num_envs), w.env_params)
+    return RunnerState(
+        params=params,
+        opt_state=jax.vmap(optimizer(w).init)(params),
+        env_states=env_states,
+        obs=obs,
+        resets=jnp.ones(w.num_envs, bool),
+        slots=population.init_slot_state(w.pop, w.net, w.env_params, w.num_envs),
+        demo_carry=network.initial_carry(w.net, (w.n_learners, w.n_demo_streams)) if w.cloning else None,
+        episode_return=jnp.zeros((w.num_envs, w.env_params.n_agents), jnp.float32),
+        key=k_run,
+        iteration=jnp.zeros((), jnp.int32),
+    )
+
+
+def all_params(state: RunnerState, frozen_params) -> Any:
+    """Every neural slot's params, stacked [S, ...]: the learners', then the frozen slots' (or None)."""
+    if frozen_params is None:
+        return state.params
+    return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), state.params, frozen_params)
+
+
+def attention_targets(w: Wiring, env_states: EnvState) -> jax.Array | None:
+    """int32[S_l, E, N-1] where each learner sees the other agents (`observe.attention_targets`), or None
+    without an attention head."""
+    if not w.net.attention:
+        return None
+    targets = jax.vmap(observe.attention_targets, in_axes=(0, None))(env_states, w.env_params)
+    return jnp.moveaxis(targets[:, w.learners], 1, 0)
+
+
+def env_step(w: Wiring, carry: tuple[RunnerState, Any], key: jax.Array):
+    """One step of every environment (the body of `rollout`'s scan): every slot acts, the environments step.
+
+    `carry` is (state, every neural slot's params [S, ...]). Returns the new carry and (the step's
+    `ppo.Batch` without the time axis, see `ppo_batch`; (sum of finished episodes' returns float32[N], their
+    count float32[N]))."""
+    state, params = carry
+    k_act, k_env = jax.random.split(key)
+    actions, slots, logp, values = population.act(
+        k_act,
+        w.pop,
+        w.net,
+        w.env_params,
+        params,
+        state.slots,
+        state.obs,
+        state.env_states,
+        state.resets,
+        w.observed,
+    )
+    alive, present = state.env_states.active, state.env_states.present  # [E, N] at the step's start
+    obs, env_states, reward, terminated, truncated, info = core.step_batch(
+        jax.random.split(k_env, w.num_envs), state.env_states, actions, w.env_params, w.observed
+    )
+    done = info["done"]
+    n_learners = w.n_learners
+    final_values = jax.lax.cond(
+        any_in_batch(done),
+        lambda: population.values(w.pop, w.net, params, slots.carry, info["final_obs"], observers=w.observed),
+        lambda: jnp.zeros((len(w.pop.neural), w.num_envs), jnp.float32),
+    )
+    episode_return = state.episode_return + reward
+    finished = (done[:, None] & present).astype(jnp.float32)  # episodes each slot took part in
+    stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0))
+    agent_done = terminated | done[:, None]
+    transition = ppo.Batch(
+        obs=state.obs[:, w.training_views],
+        resets=state.resets,
+        actions=actions[:, w.training_slots].T,
+        logp=logp[:n_learners],
+        rewards=reward[:, w.learners].T,
+        terminated=terminated[:, w.learners].T,
+        done=agent_done[:, w.learners].T,
+        final_values=final_values[:n_learners],
+        valid=alive[:, w.training_slots].T,
+        carry0=None,
+        attention=attention_targets(w, state.env_states),
+        values=None if w.cloning else values[:n_learners],
+        segment_carries=None if w.cloning else jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
+    )
+    new_state = state._replace(
+        env_states=env_states,
+        obs=obs,
+        resets=done,
+        slots=population.with_rewards(slots, reward),
+        episode_return=jnp.where(done[:, None], 0.0, episode_return),
+    )
+    return (new_state, params), (transition, stats)
+
+
+def rollout(w: Wiring, state: RunnerState, params, key: jax.Array):
+    """T steps of every environment with every neural slot's params [S, ...]. Returns the state after them,
+    the steps (`env_step`'s, stacked [T, ...]) and their episode statistics ([T, N] each)."""
+    (state, _), (traj, stats) = jax.lax.scan(
+        functools.partial(env_step, w), (state, params), jax.random.split(key, w.rollout_steps)
+    )
+    return state, traj, stats
+
+
+def ppo_batch(
+    traj: ppo.Batch,
+    last_obs: jax.Array,
+    last_resets: jax.Array,
+    last_values: jax.Array,
+    carry0: network.Carry,
+    segment_length: int,
+) -> ppo.Batch:
+    """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (the scan-stacked
+    steps, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...], `last_resets`
+    bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the learners' LSTM
+    states `carry0`; the segment-start states are those before every `segment_length`-th step.
+
+    A rollout step is a `ppo.Batch` without the time axis and with carry0 None: obs, actions and valid are of
+    the training slots (learners for PPO, demonstrators for BC), the rest of the learners: obs uint8 or int8
+    [E, S_r, ...] (the environment's observations), resets bool[E], actions int32[S_r, E], valid bool[S_r, E],
+    logp, rewards, values, final_values float32[S_l, E], terminated, done bool[S_l, E], segment_carries the
+    LSTM states before the step (Carry of float32[S_l, E, H]) and attention int32[S_l, E, N-1] with an
+    attention head (`observe.attention_targets`), else None."""
+    obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
+    resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
+    n_learners = last_obs.shape[1]
+    per_learner = traj._replace(obs=None, resets=None)  # the rest are [T, S_l, E, ...]
+    batch = jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)
+    return batch._replace(
+        obs=jnp.moveaxis(obs, 2, 0),
+        resets=jnp.broadcast_to(resets, (n_learners, *resets.shape)),
+        values=jnp.concatenate([batch.values, last_values[:, None]], 1),
+        segment_carries=jax.tree.map(lambda c: c[:, ::segment_length], batch.segment_carries),
+        carry0=carry0,
+    )
+
+
+def ppo_update(
+    w: Wiring,
+    state: RunnerState,
+    params,
+    traj: ppo.Batch,
+    carry0: network.Carry,
+    key: jax.Array,
+    dp: ppo.Devices = ppo.ONE_DEVICE,
+) -> tuple[RunnerState, dict[str, jax.Array]]:
+    """Every learner's PPO update (`ppo.update`) on the rollout `traj` that began with the learners' LSTM
+    states `carry0` and ended in `state`; `params` are every neural slot's, those the rollout acted with.
+    Returns the state with the new params and optimiser states, and the losses ({name: float32[S_l]})."""
+    bootstrap = population.values(
+        w.pop, w.net, params, state.slots.carry, state.obs, state.resets, w.observed
+    )
+    batch = ppo_batch(  # [S_l, T(+1), E, ...]
+        traj,
+        state.obs[:, w.learner_views],
+        state.resets,
+        bootstrap[: w.n_learners],
+        carry0,
+        w.ppo.segment_length,
+    )
+
+    # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
+    # vmapped paper-size network, whose convolutions in frame batches are themselves a `lax.map`.
+    def update(args):
+        key, params, opt_state, learner_batch = args
+        return ppo.update(key, params, opt_state, w.net, w.ppo, learner_batch, dp)
+
+    new_params, new_opt, losses = jax.lax.map(
+        update, (jax.random.split(key, w.n_learners), state.params, state.opt_state, batch)
+    )
+    return state._replace(params=new_params, opt_state=new_opt), losses
+
+
+def bc_update(w: Wiring, state: RunnerState, traj: ppo.Batch) -> tuple[RunnerState, dict[str, jax.Array]]:
+    """Every learner's behaviour-cloning update (`bc.update`) on the demonstrators' steps of the rollout
+    `traj`, as E * D demonstration streams, time-major [T, E * D, ...] (environment-major,
+    demonstrator-minor). Returns the state with the new params, optimiser states and streams' LSTM states,
+    and the losses."""
+
+    def streams(x):  # [T, E, D, ...] -> [T, E * D, ...]
+        return x.reshape(w.rollout_steps, w.n_demo_streams, *x.shape[3:])
+
+    n_demo = len(w.pop.demonstrators)
+    obs = streams(traj.obs)
+    resets = jnp.repeat(traj.resets, n_demo, axis=1)
+    actions, valid = (streams(jnp.moveaxis(x, 1, 2)) for x in (traj.actions, traj.valid))
+
+    def update(args):
+        params, opt_state, carry = args
+        return bc.update(params, opt_state, carry, w.net, w.bc, obs, resets, actions, valid)
+
+    new_params, new_opt, carry, losses = jax.lax.map(
+        update, (state.params, state.opt_state, state.demo_carry)
+    )
+    return state._replace(params=new_params, opt_state=new_opt, demo_carry=carry), losses
