@@ -11,7 +11,7 @@ import pytest
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, kinds, recipes, runner, stats, takeoff
+from jaxsocial.experiments import figures, kinds, plots, recipes, runner, stats, takeoff
 from jaxsocial.run import config, logs, metrics, schedule
 
 
@@ -363,18 +363,18 @@ def test_ct_recipe_trains_evaluates_and_summarises(mixing_runs, tmp_path):
 
 
 def test_figures_name_environments_and_scales_for_people():
-    assert kinds.env_title("goalcycle4:width=9,height=9") == "4-goal Goal Cycle, 9x9"
+    assert plots.env_title("goalcycle4:width=9,height=9") == "4-goal Goal Cycle, 9x9"
     assert (
-        kinds.env_title("goalcycle3-solo:penalty=0,max_steps=20")
+        plots.env_title("goalcycle3-solo:penalty=0,max_steps=20")
         == "3-goal Goal Cycle alone, penalty 0, max steps 20"
     )
-    assert kinds.env_title("fourrooms") == "Four Rooms"
+    assert plots.env_title("fourrooms") == "Four Rooms"
 
     class Runs:  # what `scale_title` reads of a RecipeRuns
         scale, seed, seeds = recipes.TINY, 0, 2
         configs = {"a": recipes.condition_config(recipes.TINY, "social_pred", 0, 2, "runs")}
 
-    assert kinds.scale_title(Runs) == (
+    assert plots.scale_title(Runs) == (
         "tiny scale (plumbing only: it learns nothing): 256 env-steps per seed, seeds 0-1"
     )
 

@@ -226,17 +226,6 @@ def incomplete_design(runs: RecipeRuns) -> str | None:
     return None if finished == total else f"design {design.name}: {finished} of {total} runs finished"
 
 
-def save_png(fig, path: Path, dpi: int = 110, rect: tuple[float, float, float, float] = (0, 0, 1, 1)) -> None:
-    """Lay out a matplotlib figure within `rect` (of the figure; the rest is left to a figure legend), write
-    it to `path` (without the software version, so the bytes depend only on what is drawn) and close it."""
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout(rect=rect)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, metadata={"Software": None})
-    plt.close(fig)
-
-
 def draw(runs: RecipeRuns, summary: dict[str, Any], path: Path) -> None:
     """The recipe's figure as a PNG (the kind's `draw`)."""
     kinds.kind_of(runs.recipe).draw(runs, summary, path)

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import figures, kinds, paths, pinned, prereg, recipes, records, runner, stats
+from jaxsocial.experiments import kinds, paths, pinned, plots, prereg, recipes, records, runner, stats
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -307,64 +307,6 @@ def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, A
     }
 
 
-def draw(summary: dict[str, Any], path: Path) -> None:
-    """Three panels, one point per learned seed, coloured by its condition: zero-shot returns per
-    environment (experts' mean as a bar), CT score and recall, and the branches (social against mixed, one
-    line per seed) in each evaluation environment."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    seeds = summary["seeds"]
-    colours = {c: f"C{i}" for i, c in enumerate(summary.get("conditions", {}))}
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
-    specs = list(summary.get("zero_shot", {}))
-    for i, spec in enumerate(specs):
-        experts = [s["zero_shot"][spec]["experts"] for s in seeds.values() if s["zero_shot"][spec]["experts"]]
-        if experts:
-            axes[0].bar(i, np.mean(experts), color="0.85", label="experts (mean)" if i == 1 else None)
-    for k, (condition, colour) in enumerate(colours.items()):
-        group = [s for s in seeds.values() if s["condition"] == condition]
-        offset = (k - (len(colours) - 1) / 2) * 0.12  # conditions side by side in each column
-        for i, spec in enumerate(specs):
-            learner = [s["zero_shot"][spec]["learner"] for s in group]
-            label = f"{recipes.CONDITIONS[condition].label} ({len(group)})" if i == 0 else None
-            axes[0].scatter(
-                np.full(len(learner), i + offset), learner, color=colour, s=14, zorder=3, label=label
-            )
-        for i, score in enumerate(kinds.CT_SCORES):
-            values = [s["ct"][score] for s in group]
-            axes[1].scatter(np.full(len(values), i + offset), values, color=colour, s=14, zorder=3)
-        for j, spec in enumerate(summary.get("mixing", {})):
-            for s in group:
-                values = [s["branches"][arm][spec] for arm in ARMS]
-                axes[2].plot([2 * j, 2 * j + 1], values, color=colour, marker="o", ms=3, lw=0.8, alpha=0.8)
-    axes[0].set_xticks(range(len(specs)), [kinds.env_title(s) for s in specs], fontsize=7, rotation=15)
-    axes[0].set(ylabel=f"mean return ({summary['eval_episodes']} episodes)", title="zero-shot")
-    axes[1].axhline(0, color="grey", lw=0.8)
-    axes[1].set_xticks(range(len(kinds.CT_SCORES)), ["CT score", "recall"])
-    axes[1].set(title="cultural transmission", xlim=(-0.5, len(kinds.CT_SCORES) - 0.5))
-    mixing = list(summary.get("mixing", {}))
-    axes[2].set_xticks(range(2 * len(mixing)), [arm for _ in mixing for arm in ARMS], fontsize=7)
-    for j, spec in enumerate(mixing):  # each pair's environment, once, under its two ticks
-        axes[2].annotate(
-            kinds.env_title(spec), (2 * j + 0.5, 0), xycoords=("data", "axes fraction"), xytext=(0, -24),
-            textcoords="offset points", ha="center", fontsize=7,
-        )  # fmt: skip
-    axes[2].set(
-        title=f"branches: social vs {summary['mixed_solo_prob']:.0%} solo, "
-        f"{summary['branch_iterations']} iterations",
-        ylabel="mean return at the branch's end",
-    )
-    axes[0].legend(fontsize=7)
-    fig.suptitle(
-        f"Follow-ups of {summary['design']}'s {len(seeds)} learned seeds ({summary['scale']} scale; "
-        "exploratory)"
-    )
-    figures.save_png(fig, path)
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m jaxsocial.experiments.followup", description=__doc__.split("\n")[0]
@@ -412,7 +354,7 @@ def main(argv: list[str] | None = None) -> None:
         out = Path(args.out_dir) / f"followup-{summary['design']}-{summary['scale']}"
         out.parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(out.with_suffix(".json"), summary)
-        draw(summary, out.with_suffix(".png"))
+        plots.draw_followup(summary, out.with_suffix(".png"), tuple(ARMS), kinds.CT_SCORES)
         print(
             f"{len(summary['seeds'])} learned seeds; wrote {out.with_suffix('.json')} and "
             f"{out.with_suffix('.png')}"

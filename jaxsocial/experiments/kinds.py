@@ -8,8 +8,8 @@ training: one registry, `KINDS`, read by `runner` (the evaluation) and `figures`
     ct           the cultural-transmission protocol after training (`jaxsocial.evaluate --protocol ct`)
     takeoff      a time-to-takeoff design: the curves, then the zero-shot returns and the CT protocol
 
-Also here: the measures the kinds share (learned seeds, CI separations, time to learning) and where the
-evaluations after training are written (`eval_path`, `ct_path`).
+Also here: the time to learning every kind's summary holds (`takeoffs`) and where the evaluations after
+training are written (`eval_path`, `ct_path`). The statistics are `stats`'s, the figures `plots`'.
 """
 
 from __future__ import annotations
@@ -21,17 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.axes import format_steps, steps_axis
-from jaxsocial.curves import band
-from jaxsocial.experiments import predictions, recipes, records, takeoff
+from jaxsocial.experiments import plots, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.experiments.stats import kaplan_meier, learned_seed_tests, separations
+from jaxsocial.experiments.stats import ct_score, kaplan_meier, learned_seed_tests, separations
 from jaxsocial.run import logs, metrics
-from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, final_return, metric_curve, stats
-from jaxsocial.specs import EnvSpec
-
-LOSS_PANEL = {"aux_loss": "auxiliary loss (MAE)", "bc_loss": "behaviour-cloning loss (cross-entropy)"}
-"""The learner's (slot 0) loss drawn beside the returns: each condition's first of these metrics."""
+from jaxsocial.run.metrics import LEARNED_RETURN, final_return, stats
 
 CT_SCORES = ("ct", "recall")
 """The cultural-transmission protocol's scores (`jaxsocial.evaluate.cultural_transmission`)."""
@@ -105,11 +99,6 @@ def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
 # ----------------------------------------------------------------------------------------------------------
 # Shared measures
 # ----------------------------------------------------------------------------------------------------------
-
-
-def ct_score(condition: dict[str, Any], score: str) -> dict[str, Any]:
-    """A ct recipe condition's stats of `score`: 'final' (the training return), 'ct' or 'recall'."""
-    return condition if score == "final" else condition[score]
 
 
 def takeoffs(runs) -> dict[str, dict[str, Any]]:
@@ -255,265 +244,9 @@ def summarise_takeoff(runs) -> dict[str, Any]:
     return out
 
 
-# ----------------------------------------------------------------------------------------------------------
-# Figures: each draws a recipe's PNG at `path`
-# ----------------------------------------------------------------------------------------------------------
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-ENV_NAMES = {"goalcycle3": "3-goal Goal Cycle", "goalcycle4": "4-goal Goal Cycle", "fourrooms": "Four Rooms",
-             "maze": "Maze"}  # fmt: skip
-VARIANTS = {"solo": "alone", "distractors": "with distractors"}
-
-
-def env_title(spec: str) -> str:
-    """A reader's name for an environment spec: 'goalcycle4:width=9,height=9' -> '4-goal Goal Cycle, 9x9',
-    'goalcycle3-solo:penalty=0' -> '3-goal Goal Cycle alone, penalty 0'."""
-    env = EnvSpec.parse(spec)
-    base, _, variant = env.name.partition("-")
-    fields = {k: str(v) for k, v in env.args}
-    title = " ".join(t for t in (ENV_NAMES.get(base, base), VARIANTS.get(variant, variant)) if t)
-    size = [f"{fields.pop('width')}x{fields.pop('height')}"] if {"width", "height"} <= set(fields) else []
-    return ", ".join([title, *size, *(f"{k.replace('_', ' ')} {v}" for k, v in fields.items())])
-
-
-def scale_title(runs) -> str:
-    """What a figure was trained at: the scale, env-steps per seed and seeds (and the scale's caveat)."""
-    steps = max(cfg.iterations * cfg.num_envs * cfg.rollout_steps for cfg in runs.configs.values())
-    seeds = f"seed {runs.seed}" if runs.seeds == 1 else f"seeds {runs.seed}-{runs.seed + runs.seeds - 1}"
-    caveat = f" ({runs.scale.caveat})" if runs.scale.caveat else ""
-    return f"{runs.scale.name} scale{caveat}: {format_steps(steps)} env-steps per seed, {seeds}"
-
-
-PANEL_COLUMNS = 3
-"""Panels per row of a recipe's figure: wider figures wrap into rows, so the text reads at 100%."""
-
-
-def _panels(plt, n: int, width: float = 5.6, height: float = 4.4):
-    """A figure of `n` panels in rows of at most `PANEL_COLUMNS`: (fig, the n axes in reading order); the
-    grid's unused cells are removed."""
-    cols = min(n, PANEL_COLUMNS)
-    rows = -(-n // cols)
-    fig, grid = plt.subplots(rows, cols, figsize=(width * cols, height * rows + 0.8), squeeze=False)
-    axes = list(grid.flat)
-    for ax in axes[n:]:
-        fig.delaxes(ax)
-    return fig, axes[:n]
-
-
-def _save(plt, fig, path: Path, runs) -> None:
-    fig.suptitle(f"{runs.recipe.title}\n{scale_title(runs)}", fontsize=11)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
-    """Returns through training (and zoomed), the learner's loss, the time to learning, and each seed's final
-    return with the mean and IQM intervals."""
-    plt = _pyplot()
-    colors = plt.get_cmap("tab10").colors
-    steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
-    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax, final_ax) = _panels(plt, 5)
-    used = set()
-    for i, (c, seed_rows) in enumerate(runs.rows.items()):
-        xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
-        xs = [x * steps_per_iteration[c] for x in xs]
-        for ax in (returns_ax, zoom_ax):
-            band(ax, xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
-        name = next((n for n in LOSS_PANEL if metrics.logged(seed_rows[0][-1], n, 0)), None)
-        if name is not None:
-            used.add(name)
-            its, losses = zip(*(metric_curve(rows, metrics.key(name, 0)) for rows in seed_rows), strict=True)
-            its = [x * steps_per_iteration[c] for x in its]
-            band(loss_ax, its, list(losses), recipes.CONDITIONS[c].label, colors[i])
-    if "experts" in summary and summary["experts"]["mean"] is not None:
-        returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
-    returns_ax.set(ylabel="learner episode return", title="the learners' returns")
-    zoom_ax.set(title="the learners' returns, zoomed")
-    names = " / ".join(LOSS_PANEL[n] for n in LOSS_PANEL if n in used)
-    loss_ax.set(ylabel=names, title="training loss")
-    for ax in (returns_ax, zoom_ax, loss_ax):
-        steps_axis(ax)
-    returns_ax.legend(fontsize=8)
-    draw_takeoffs(takeoff_ax, runs, summary, colors)
-    draw_finals(final_ax, runs, summary, colors)
-    _save(plt, fig, path, runs)
-
-
-def draw_finals(ax, runs, summary: dict[str, Any], colors) -> None:
-    """The final-return panel: per condition (and the experts) each seed, the mean and the IQM (`bars`)."""
-    finals = {c: summary["conditions"][c] for c in runs.rows}
-    if summary.get("experts", {}).get("mean") is not None:
-        finals["experts"] = summary["experts"]
-    bars(ax, finals, [*colors[: len(runs.rows)], "0.3"])
-    ax.set(title="final return, per seed", ylabel="learner episode return")
-
-
-def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
-    """Returns through training and in each evaluation environment, with each seed's switch; the time to
-    learning; the final returns (`draw_finals`)."""
-    plt = _pyplot()
-    colors = plt.get_cmap("tab10").colors
-    keys = metrics.eval_keys(r for rows in runs.rows.values() for r in rows)
-    fig, axes = _panels(plt, 3 + len(keys))
-    draw_finals(axes[-1], runs, summary, colors)
-    draw_takeoffs(axes[-2], runs, summary, colors)
-    axes = axes[:-2]
-    for i, (c, seed_rows) in enumerate(runs.rows.items()):
-        label = recipes.CONDITIONS[c].label
-        xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
-        band(axes[0], list(xs), list(ys), label, colors[i])
-        for ax, key in zip(axes[1:], keys, strict=True):
-            xs, ys = zip(*(eval_curve(rows, key) for rows in seed_rows), strict=True)
-            band(ax, list(xs), list(ys), label, colors[i])
-    for i, seed_rows in enumerate(runs.rows.values()):  # where each seed switched to solo episodes
-        for switch in {metrics.switch_iteration(rows) for rows in seed_rows} - {None}:
-            for ax in axes:
-                ax.axvline(switch, color=colors[i], ls=":")
-    axes[0].set(title="training environment (with experts)", xlabel="iteration", ylabel="learner return")
-    for ax, key in zip(axes[1:], keys, strict=True):
-        ax.set(title=env_title(metrics.eval_spec(key)), xlabel="iteration")
-    axes[0].legend(fontsize=8)
-    _save(plt, fig, path, runs)
-
-
-def draw_ct(runs, summary: dict[str, Any], path: Path) -> None:
-    """Bars of the final training return, the CT score and recall per condition."""
-    plt = _pyplot()
-    colors = plt.get_cmap("tab10").colors
-    panels = {
-        "final": "final training return",
-        "ct": "CT score: (R_with - R_solo) / R_experts",
-        "recall": "recall: 2nd half after the experts left",
-    }
-    fig, axes = _panels(plt, len(panels))
-    for ax, (score, title) in zip(axes, panels.items(), strict=True):
-        per_cond = {c: ct_score(v, score) for c, v in summary["conditions"].items()}
-        bars(ax, per_cond, colors)
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set(title=title)
-    _save(plt, fig, path, runs)
-
-
-def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
-    """Bars of the returns in each evaluation environment, and the time to learning."""
-    plt = _pyplot()
-    colors = plt.get_cmap("tab10").colors
-    specs = list(summary["conditions"])
-    fig, axes = _panels(plt, len(specs) + 1)
-    draw_takeoffs(axes[-1], runs, summary, colors)
-    for ax, spec in zip(axes[:-1], specs, strict=True):
-        bars(ax, summary["conditions"][spec], colors)
-        ax.set(title=env_title(spec), ylabel="mean episode return")
-    _save(plt, fig, path, runs)
-
-
 def draw_predictions(runs, summary: dict[str, Any], path: Path) -> None:
     """A trained learner's predicted next frames in the scale's 3-goal Goal Cycle (`predictions.draw`)."""
     predictions.draw(runs, path, ct_spec(runs.scale))
-
-
-def draw_takeoffs(ax, runs, summary: dict[str, Any], colors) -> None:
-    """The time-to-learning panel: per condition, the fraction of seeds past the one-tile plateau against
-    env-steps (`summary['time_to_learning']`)."""
-    for i, (c, entry) in enumerate(summary["time_to_learning"]["conditions"].items()):
-        cfg = runs.configs[c]
-        end = max(len(rows) for rows in runs.rows[c]) * cfg.num_envs * cfg.rollout_steps
-        steps = entry["takeoff_env_steps"]
-        takeoff.draw(ax, steps, end, recipes.CONDITIONS[c].label, colors[i])
-    steps_axis(ax)
-    ax.set(
-        ylabel="fraction of seeds",
-        ylim=(-0.03, 1.03),
-        title=f"seeds past the one-tile plateau (return > {LEARNED_RETURN:g})",
-    )
-    ax.legend(fontsize=7)
-
-
-TAKEOFF_PANELS = {
-    "goalcycle4": "zero-shot beside experts, 4-goal Goal Cycle",
-    "solo3": "zero-shot alone, 3-goal Goal Cycle",
-    "ct": "CT score: (R_with - R_solo) / R_experts",
-}
-
-
-def draw_takeoff(runs, summary: dict[str, Any], path: Path) -> None:
-    """The Kaplan-Meier curves of the takeoffs with their 95% bands, the learners' returns through training,
-    and per condition each seed's zero-shot scores and CT score (`TAKEOFF_PANELS`)."""
-    plt = _pyplot()
-    colors = plt.get_cmap("tab10").colors
-    fig, axes = _panels(plt, 2 + len(TAKEOFF_PANELS))
-    km_ax, returns_ax, *score_axes = axes
-    for i, (c, seed_rows) in enumerate(runs.rows.items()):
-        entry, label = summary["conditions"][c], recipes.CONDITIONS[c].label
-        per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
-        end = max(entry["run_env_steps"])
-        took = summary["time_to_learning"]["conditions"][c]["took_off"]
-        km_label = f"{label} ({took} of {len(seed_rows)} took off)"
-        takeoff.draw_kaplan_meier(km_ax, entry["kaplan_meier"], end, km_label, colors[i])
-        xs, ys = zip(*(takeoff.window_curve(rows, per_iteration) for rows in seed_rows), strict=True)
-        band(returns_ax, [x * per_iteration for x in xs], list(ys), label, colors[i])
-    km_ax.set(
-        ylabel="fraction of seeds past the plateau",
-        ylim=(-0.03, 1.03),
-        title=f"time to takeoff (Kaplan-Meier, 95% band): return > {LEARNED_RETURN:g} in a window",
-    )
-    returns_ax.axhline(LEARNED_RETURN, color="grey", ls=":", lw=1)
-    returns_ax.set(ylabel="learner return per window", title="the learners' returns")
-    for ax in (km_ax, returns_ax):
-        steps_axis(ax)
-    km_ax.legend(fontsize=7, loc="upper left")
-    for ax, (name, title) in zip(score_axes, TAKEOFF_PANELS.items(), strict=True):
-        bars(ax, {c: summary["conditions"][c][name] for c in runs.rows}, colors)
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set(title=title, ylabel="per seed" if name == "ct" else "mean episode return, per seed")
-    _save(plt, fig, path, runs)
-
-
-def bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
-    """One bar per condition: the mean with its t interval (where there is one), the IQM (a diamond) with its
-    bootstrap interval, a cross per seed (per slot for the experts); labelled below, explained in a legend."""
-    names = list(per_cond)
-    for j, name in enumerate(names):
-        s = per_cond[name]
-        if s["mean"] is None:
-            continue
-        ax.bar(j, s["mean"], color=colors[j], yerr=_whisker(s["mean"], s.get("ci95")), capsize=4)
-        if s.get("iqm") is not None:
-            iqm_whisker = _whisker(s["iqm"], s["iqm_ci95"])
-            ax.errorbar(j + 0.25, s["iqm"], iqm_whisker, fmt="D", color="k", ms=4, capsize=3)
-        marks = s.get("final_returns") or [slot["mean"] for slot in s.get("per_slot", [])]
-        ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
-    labels = [
-        recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts" for n in names
-    ]
-    ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
-    ax.legend(handles=_bar_key(), fontsize=7)
-
-
-def _whisker(centre: float, interval: list[float] | None) -> list[list[float]] | None:
-    return None if interval is None else [[centre - interval[0]], [interval[1] - centre]]
-
-
-def _bar_key() -> list:
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
-    return [
-        Patch(color="0.6", label="mean, t 95% CI"),
-        Line2D([], [], color="k", marker="D", ms=4, label="IQM, bootstrap 95% CI"),
-        Line2D([], [], color="k", marker="x", ls="", label="one seed (or expert slot)"),
-    ]
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -534,12 +267,12 @@ class Kind:
 
 
 KINDS: dict[str, Kind] = {
-    "curves": Kind(summarise_curves, draw_curves, (RETURNS,)),
-    "mixing": Kind(summarise_mixing, draw_mixing, (RETURNS,)),
+    "curves": Kind(summarise_curves, plots.draw_curves, (RETURNS,)),
+    "mixing": Kind(summarise_mixing, plots.draw_mixing, (RETURNS,)),
     "predictions": Kind(summarise_curves, draw_predictions, (RETURNS,)),
-    "transfer": Kind(summarise_transfer, draw_transfer, (RETURNS,)),
-    "ct": Kind(summarise_ct, draw_ct, (CT,)),
-    "takeoff": Kind(summarise_takeoff, draw_takeoff, (RETURNS, CT)),
+    "transfer": Kind(summarise_transfer, plots.draw_transfer, (RETURNS,)),
+    "ct": Kind(summarise_ct, plots.draw_ct, (CT,)),
+    "takeoff": Kind(summarise_takeoff, plots.draw_takeoff, (RETURNS, CT)),
 }
 
 

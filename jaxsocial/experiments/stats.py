@@ -196,6 +196,11 @@ def separations(conditions: dict[str, dict[str, Any]]) -> dict[str, bool]:
     return out
 
 
+def ct_score(condition: dict[str, Any], score: str) -> dict[str, Any]:
+    """A ct recipe condition's stats of `score`: 'final' (the training return), 'ct' or 'recall'."""
+    return condition if score == "final" else condition[score]
+
+
 LEARNED_TESTS_METHOD = (
     "stated: the recipe's hypotheses, each 'a > b' one-sided (a's seeds learned more often), uncorrected; "
     "exploratory: every other pair, two-sided, *_holm adjusted over the exploratory pairs (Holm)"

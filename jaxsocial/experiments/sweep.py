@@ -33,9 +33,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from jaxsocial.experiments import figures, paths, pinned, recipes, records, takeoff
+from jaxsocial.experiments import paths, pinned, plots, recipes, records, takeoff
 from jaxsocial.run import logs, metrics, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -182,43 +180,6 @@ def summarise(records_root: Path) -> dict[str, Any]:
     return out
 
 
-def draw(summary: dict[str, Any], path: Path) -> None:
-    """The fraction of seeds past the plateau against env-steps and against CPU-minutes, per setting, and
-    each seed's learning curve."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5.2))
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for i, (name, s) in enumerate(summary["settings"].items()):
-        color, ls = colors[i % len(colors)], ("-", "--", ":")[i // len(colors) % 3]  # a style per setting
-        for ax, unit, scale in ((axes[0], "env_steps", 1e6), (axes[1], "cpu_minutes", 1.0)):
-            lifts = [
-                None if x[f"takeoff_{unit}"] is None else x[f"takeoff_{unit}"] / scale for x in s["seeds"]
-            ]
-            end = max(x[unit] for x in s["seeds"]) / scale
-            takeoff.draw(ax, lifts, end, name, color, ls)
-        for j, seed in enumerate(s["seeds"]):
-            axes[2].plot(
-                np.array(seed["curve"]["env_steps"]) / 1e6,
-                seed["curve"]["return"],
-                color=color,
-                ls=ls,
-                lw=1,
-                label=name if j == 0 else None,
-            )
-    axes[0].set(xlabel="env-steps (M)", ylabel="fraction of seeds past the plateau", ylim=(-0.02, 1.02))
-    axes[1].set(xlabel="CPU-minutes (1 core per seed)", ylim=(-0.02, 1.02))
-    axes[2].axhline(LEARNED_RETURN, color="grey", ls=":", lw=1)
-    axes[2].set(xlabel="env-steps (M)", ylabel="learner return (per 200k-step window)")
-    handles, labels = axes[0].get_legend_handles_labels()  # one legend for the three panels, below them
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.suptitle(f"Exploratory sweep (seeds < 100): takeoff = return > {LEARNED_RETURN:g} in a window")
-    figures.save_png(fig, path, rect=(0, 0.12, 1, 1))
-
-
 MAP_PAIRS = (
     ("7x7, 4 goals, rec", "map_g4_rec_7x7", "map_g4_solo_rec_7x7"),
     ("7x7, 3 goals, pred", "mb8k8_pred_7x7", "mb8k8_solo_pred_7x7"),
@@ -252,34 +213,6 @@ def summarise_map(summary: dict[str, Any]) -> dict[str, Any]:
         }
     out["cells"] = cells
     return out
-
-
-def draw_map(summary: dict[str, Any], path: Path) -> None:
-    """One panel per map setting: the fraction of its social and solo seeds past the plateau against
-    env-steps (a seed stopped early at return 5 stays counted past the plateau)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cells = summary["cells"]
-    cols = min(4, len(cells))
-    rows = -(-len(cells) // cols)
-    fig, grid = plt.subplots(rows, cols, figsize=(4.4 * cols, 3.6 * rows + 0.8), squeeze=False)
-    for ax in list(grid.flat)[len(cells) :]:
-        fig.delaxes(ax)
-    for ax, (label, cell) in zip(grid.flat, cells.items(), strict=False):
-        end = max(max(cell[who]["env_steps"]) for who in ("social", "solo")) / 1e6
-        for who, color, ls in (("social", "C0", "-"), ("solo", "C1", "--")):
-            lifts = [None if t is None else t / 1e6 for t in cell[who]["takeoff_env_steps"]]
-            name = f"{who}: {cell[who]['took_off']} of {cell[who]['n']}"
-            takeoff.draw(ax, lifts, end, name, color, ls)
-        ax.set(title=label, xlabel="env-steps (M)", ylim=(-0.03, 1.03))
-        ax.legend(fontsize=7, loc="upper left")
-    grid[0, 0].set_ylabel("fraction of seeds past the plateau")
-    fig.suptitle("Where solo learners fail (exploratory, seeds < 100): social (beside experts) against solo, "
-                 f"takeoff = return > {summary['learned_return']:g} in a window")  # fmt: skip
-    figures.save_png(fig, path)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -334,7 +267,7 @@ def main(argv: list[str] | None = None) -> None:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(out.with_suffix(".json"), found)
-        draw_map(found, out.with_suffix(".png"))
+        plots.draw_map(found, out.with_suffix(".png"))
         for label, cell in found["cells"].items():
             social, solo = cell["social"], cell["solo"]
             counts = f"social {social['took_off']} of {social['n']}, solo {solo['took_off']} of {solo['n']}"
@@ -345,7 +278,7 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     logs.write_json(out.with_suffix(".json"), summary)
-    draw(summary, out.with_suffix(".png"))
+    plots.draw_sweep(summary, out.with_suffix(".png"))
     for name, s in summary["settings"].items():
         lifts = [x["takeoff_env_steps"] for x in s["seeds"]]
         print(f"{name}: {s['took_off']} of {s['n']} seeds past the plateau; takeoffs (env-steps) {lifts}")

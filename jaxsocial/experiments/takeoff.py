@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments.stats import fraction_learned
 from jaxsocial.run import metrics
 
 WINDOW_STEPS = 200_000
@@ -56,27 +55,3 @@ def seed_takeoff(
     """The iteration at which a seed took off (the end of its first window above `threshold`; None if it
     never did)."""
     return takeoff(*window_curve(rows, steps_per_iteration), threshold)
-
-
-def draw(ax, takeoffs: list[int | None], end: float, label: str, color, ls: str = "-") -> None:
-    """The survival-style step curve of one condition on `ax`, from 0 to `end` (same units as takeoffs), in
-    `color` and line style `ls`."""
-    times = sorted(t for t in takeoffs if t is not None)
-    x = np.array([0.0, *times, end], np.float64)
-    ax.step(
-        x,
-        fraction_learned(takeoffs, x),
-        where="post",
-        color=color,
-        ls=ls,
-        lw=2,
-        label=f"{label} (n={len(takeoffs)})",
-    )
-
-
-def draw_kaplan_meier(ax, curve: dict[str, list[float]], end: float, label: str, color) -> None:
-    """A `kaplan_meier` curve on `ax` as a step line with its shaded band, carried on to `end`."""
-    x = np.array([*curve["time"], end], np.float64)
-    learned, low, high = (np.array([*curve[k], curve[k][-1]], np.float64) for k in ("learned", "low", "high"))
-    ax.step(x, learned, where="post", color=color, lw=2, label=label)
-    ax.fill_between(x, low, high, step="post", color=color, alpha=0.15)
