@@ -341,18 +341,18 @@ def _contains_zero(value: dict[str, Any]) -> bool:
     return value["ci95"][0] <= 0.0 <= value["ci95"][1]
 
 
-def verdict(learner: float, experts: float, env: EnvParams) -> str:
+def verdict(learner: float, experts: float, env_params: EnvParams) -> str:
     """Whether a learner's mean return beside experts shows the task learned: in Goal Cycle under a penalty,
     against the one-tile plateau (`metrics.LEARNED_RETURN`); elsewhere, as a share of the experts'."""
     share = f"{learner / experts:.0%} of the experts' return" if experts > 0 else "the experts score nothing"
-    if env.layout != "goalcycle" or env.penalty == 0:
+    if env_params.layout != "goalcycle" or env_params.penalty == 0:
         return f"that is {share}"
     if learner > LEARNED_RETURN:
         return (
             f"past the one-tile plateau (return > {LEARNED_RETURN:g}): it completes the cycle here, {share}"
         )
     paid = "; below 0 it pays more wrong-tile penalties than it earns" if learner < 0 else ""
-    cycle = f"{env.n_goals}-goal cycle"
+    cycle = f"{env_params.n_goals}-goal cycle"
     return (
         f"on the one-tile plateau (return <= {LEARNED_RETURN:g}): it does not complete the {cycle} here{paid}"
     )
@@ -383,7 +383,7 @@ def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
             learner = np.mean([s["mean_return"] for s in by_kind["learner"]])
             experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
-            lines.append(verdict(learner, experts, EnvSpec(cfg.env, cfg.env_args).params()))
+            lines.append(verdict(learner, experts, EnvSpec(cfg.env, cfg.env_args).env_params()))
     if cfg.ckpt:
         env = f"--env {cfg.env}" + (f" --env-args {ENV_ARGS.format(cfg.env_args)}" if cfg.env_args else "")
         lines.append(f"next: python -m jaxsocial.render --ckpt {cfg.ckpt[0]} {env}   # writes into the run")

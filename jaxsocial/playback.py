@@ -39,7 +39,7 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     """
     policy = PolicyRef.parse(run_dir)
     net = policy_io.saved_net(policy)
-    env_params = EnvSpec.parse(env_spec).params()
+    env_params = EnvSpec.parse(env_spec).env_params()
     net.check_env(env_params, f"env {env_spec!r} with the policy {run_dir}")
     population.require_rgb(env_params, f"env {env_spec!r}")
     if slots is None:

@@ -52,7 +52,7 @@ def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playba
     spec = env or f"{config['env']}:{config.get('env_args', '')}"
     if slots is None and config.get("slots"):  # else the environment's default companions, as in training
         try:
-            population.parse_slots(config["slots"], EnvSpec.parse(spec).params().n_agents)
+            population.parse_slots(config["slots"], EnvSpec.parse(spec).env_params().n_agents)
         except ValueError as err:
             raise ValueError(f"the run's slots do not fit {spec}: {err}; choose them with --slots") from None
         slots = config["slots"]
@@ -126,10 +126,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     try:
         check_video_path(args.out)
         if args.ckpt is None:
-            args.params = EnvSpec.parse(args.env).params()
+            args.env_params = EnvSpec.parse(args.env).env_params()
         else:
             args.setup, args.env, args.decoder = learner_setup(args.ckpt, args.env, args.slots)
-            args.params = args.setup.env_params
+            args.env_params = args.setup.env_params
     except (ValueError, RuntimeError) as e:
         parser.error(str(e))
     return args
@@ -147,13 +147,13 @@ def counted(n: int, one: str, many: str | None = None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    params = args.params
-    steps = params.max_steps if args.steps is None else args.steps
+    env_params = args.env_params
+    steps = env_params.max_steps if args.steps is None else args.steps
     if args.ckpt is None:
-        episode = rollout_episode(jax.random.key(args.seed), params, args.policy or "random-move", steps)
-        frames = episode_frames(episode, params, args.tile)
-        rewards = np.array(episode["rewards"]).reshape(-1, params.n_agents)
-        labels = ["random"] * params.n_agents
+        episode = rollout_episode(jax.random.key(args.seed), env_params, args.policy or "random-move", steps)
+        frames = episode_frames(episode, env_params, args.tile)
+        rewards = np.array(episode["rewards"]).reshape(-1, env_params.n_agents)
+        labels = ["random"] * env_params.n_agents
         terminated, truncated = episode["terminated"], episode["truncated"]
         print(f"env: {args.env} (seed {args.seed}, {args.policy or 'random-move'} policy)")
     else:

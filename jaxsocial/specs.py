@@ -59,12 +59,12 @@ class EnvSpec:
 
     @classmethod
     def parse(cls, text: str) -> EnvSpec:
-        """``NAME`` or ``NAME:field=value,...`` (the syntax only: `params` checks the name and the fields).
-        ValueError on an override without '='."""
+        """``NAME`` or ``NAME:field=value,...`` (the syntax only: `env_params` checks the name and the
+        fields). ValueError on an override without '='."""
         name, _, args = text.partition(":")
         return cls(name.strip(), ENV_ARGS.parse(args))
 
-    def params(self) -> EnvParams:
+    def env_params(self) -> EnvParams:
         """The environment's parameters; ValueError for an unknown name or field."""
         return jaxsocial.make(self.name, **dict(self.args))[1]
 
@@ -84,7 +84,7 @@ def check_eval_envs(specs: tuple[EnvSpec, ...], net, episodes: int) -> list[tupl
         raise ValueError(f"eval_episodes={episodes} must be >= 1")
     parsed = []
     for spec in specs:
-        env_params = spec.params()
+        env_params = spec.env_params()
         net.check_env(env_params, f"eval env {str(spec)!r}")
         parsed.append((spec, env_params))
     return parsed

@@ -71,7 +71,7 @@ def saved_learner(tmp_path_factory):
 
 def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     net = TINY.net
-    env_params = EnvSpec.parse(f"{CT_ENV}:{CT_ARGS}").params()
+    env_params = EnvSpec.parse(f"{CT_ENV}:{CT_ARGS}").env_params()
     pop = population.Population(population.parse_slots(CT_SLOTS, 3))
     params = population.stack([policy_io.load_policy(saved_learner, net)])
     play = jax.jit(evaluate.episode_returns, static_argnums=(1, 2, 3, 5))

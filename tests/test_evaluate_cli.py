@@ -83,11 +83,11 @@ def test_the_outcome_says_what_the_evaluation_shows():
         "past the one-tile plateau (return > 2): it completes the cycle here, 10% of the experts' return",
         RENDER,
     ]
-    four = evaluate.EnvSpec("goalcycle4").params()
+    four = evaluate.EnvSpec("goalcycle4").env_params()
     below = evaluate.verdict(-4.93, 45.5, four)
     assert below.startswith("on the one-tile plateau (return <= 2): it does not complete the 4-goal cycle")
     assert below.endswith("; below 0 it pays more wrong-tile penalties than it earns")
-    rooms = evaluate.EnvSpec("fourrooms").params()
+    rooms = evaluate.EnvSpec("fourrooms").env_params()
     assert evaluate.verdict(0.5, 0.9, rooms) == "that is 56% of the experts' return"
 
 

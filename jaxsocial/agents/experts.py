@@ -114,30 +114,30 @@ def parse_expert(text: str) -> ExpertSpec:
     return ExpertSpec(kind, **values)
 
 
-def validate(spec: ExpertSpec, params: EnvParams) -> None:
+def validate(spec: ExpertSpec, env_params: EnvParams) -> None:
     """Raise ValueError unless the expert can play the environment."""
     if spec.kind in ("explorer", "oracle"):
-        if params.layout != "goalcycle" or params.n_goals < 2:
+        if env_params.layout != "goalcycle" or env_params.n_goals < 2:
             raise ValueError(
-                f"the {spec.kind} expert plays Goal Cycle with n_goals >= 2; got layout {params.layout!r} "
-                f"with n_goals={params.n_goals}"
+                f"the {spec.kind} expert plays Goal Cycle with n_goals >= 2; got layout "
+                f"{env_params.layout!r} with n_goals={env_params.n_goals}"
             )
-    elif params.layout not in ("fourrooms", "maze"):
-        raise ValueError(f"the navigator expert plays 'fourrooms' or 'maze', not {params.layout!r}")
+    elif env_params.layout not in ("fourrooms", "maze"):
+        raise ValueError(f"the navigator expert plays 'fourrooms' or 'maze', not {env_params.layout!r}")
 
 
-def _n_targets(params: EnvParams) -> int:
-    return params.n_goals if params.layout == "goalcycle" else 1
+def _n_targets(env_params: EnvParams) -> int:
+    return env_params.n_goals if env_params.layout == "goalcycle" else 1
 
 
-def _inf(params: EnvParams) -> int:
+def _inf(env_params: EnvParams) -> int:
     """Larger than any finite path cost (at most H*W cells, each crossing costs 1 + H*W)."""
-    cells = params.width * params.height
-    return (_n_targets(params) + 1) * (cells + 1) + 1
+    cells = env_params.width * env_params.height
+    return (_n_targets(env_params) + 1) * (cells + 1) + 1
 
 
-def _cost_dtype(params: EnvParams):
-    return jnp.int16 if _inf(params) < np.iinfo(np.int16).max else jnp.int32
+def _cost_dtype(env_params: EnvParams):
+    return jnp.int16 if _inf(env_params) < np.iinfo(np.int16).max else jnp.int32
 
 
 @struct.dataclass
@@ -164,12 +164,12 @@ class Memory:
     mistake: jax.Array
 
 
-def init_memory(params: EnvParams) -> Memory:
-    """An empty memory with the shapes `params` implies (call `act` with `reset=True` first)."""
-    n = _n_targets(params)
+def init_memory(env_params: EnvParams) -> Memory:
+    """An empty memory with the shapes `env_params` implies (call `act` with `reset=True` first)."""
+    n = _n_targets(env_params)
     minus_one = jnp.full((), -1, jnp.int32)
     return Memory(
-        cost=jnp.full((n, params.height, params.width), _inf(params), _cost_dtype(params)),
+        cost=jnp.full((n, env_params.height, env_params.width), _inf(env_params), _cost_dtype(env_params)),
         pos=jnp.zeros(2, jnp.int32),
         target=minus_one,
         last=minus_one,
@@ -179,14 +179,14 @@ def init_memory(params: EnvParams) -> Memory:
     )
 
 
-def cost_fields(params: EnvParams, state: EnvState) -> jax.Array:
+def cost_fields(env_params: EnvParams, state: EnvState) -> jax.Array:
     """Cost-to-go fields of one environment, `Memory.cost` (int16/int32[T, H, W])."""
-    inf = _inf(params)
+    inf = _inf(env_params)
     grid = state.grid
     height, width = grid.shape
     free = grid != WALL
-    if params.layout == "goalcycle":
-        labels = jnp.arange(params.n_goals, dtype=jnp.int32)
+    if env_params.layout == "goalcycle":
+        labels = jnp.arange(env_params.n_goals, dtype=jnp.int32)
         is_target = state.goal_id.astype(jnp.int32)[None] == labels[:, None, None]
         crossing = (grid == BONUS)[None] & ~is_target
         weight = jnp.where(crossing, 1 + height * width, 1)
@@ -207,7 +207,7 @@ def cost_fields(params: EnvParams, state: EnvState) -> jax.Array:
         return new, jnp.any(new != cost)
 
     cost, _ = jax.lax.while_loop(lambda c: c[1], relax, (start, jnp.array(True)))
-    return cost.astype(_cost_dtype(params))
+    return cost.astype(_cost_dtype(env_params))
 
 
 def _neighbour_costs(cost: jax.Array, pos: jax.Array, inf: int) -> jax.Array:
@@ -239,9 +239,9 @@ def _nearest(reach: jax.Array, allowed: jax.Array, inf: int) -> jax.Array:
     return jnp.where(ok.any(), jnp.argmin(jnp.where(ok, reach, inf)), -1).astype(jnp.int32)
 
 
-def _decide(key, spec, params, state, agent, memory, reward, reset, cost):
+def _decide(key, spec, env_params, state, agent, memory, reward, reset, cost):
     """`act` given the (already refreshed) cost fields."""
-    inf = _inf(params)
+    inf = _inf(env_params)
     n = cost.shape[0]
     labels = jnp.arange(n, dtype=jnp.int32)
     # One draw serves every random choice (threefry is slow to compile): explore, random action, forget,
@@ -251,7 +251,7 @@ def _decide(key, spec, params, state, agent, memory, reward, reset, cost):
     x, y = pos[0], pos[1]
     entered = ~reset & jnp.any(pos != memory.pos) & (state.grid[y, x] == BONUS)
     label = state.goal_id[y, x].astype(jnp.int32)
-    start_last = state.cycle_state[agent] if params.layout == "goalcycle" else jnp.int32(-1)
+    start_last = state.cycle_state[agent] if env_params.layout == "goalcycle" else jnp.int32(-1)
     last = jnp.where(reset, start_last, memory.last)
     chain_start = jnp.where(reset, start_last, memory.chain_start)
     succ = jnp.where(reset, -1, memory.succ)
@@ -313,7 +313,7 @@ def _decide(key, spec, params, state, agent, memory, reward, reset, cost):
 def act(
     key: jax.Array,
     spec: ExpertSpec,
-    params: EnvParams,
+    env_params: EnvParams,
     state: EnvState,
     agent: int,
     memory: Memory,
@@ -324,7 +324,7 @@ def act(
 
     Args:
         key: PRNG key (used by epsilon and forget).
-        spec, params: static.
+        spec, env_params: static.
         state: the environment state the action is for.
         agent: static agent slot index.
         memory: this expert's memory from the previous call.
@@ -335,14 +335,14 @@ def act(
         int32[] action and the new memory.
     """
     reset = jnp.asarray(reset, bool)
-    cost = jax.lax.cond(reset, lambda: cost_fields(params, state), lambda: memory.cost)
-    return _decide(key, spec, params, state, agent, memory, jnp.asarray(reward, jnp.float32), reset, cost)
+    cost = jax.lax.cond(reset, lambda: cost_fields(env_params, state), lambda: memory.cost)
+    return _decide(key, spec, env_params, state, agent, memory, jnp.asarray(reward, jnp.float32), reset, cost)
 
 
 def act_batch(
     keys: jax.Array,
     spec: ExpertSpec,
-    params: EnvParams,
+    env_params: EnvParams,
     states: EnvState,
     agent: int,
     memory: Memory,
@@ -355,12 +355,12 @@ def act_batch(
     reset = jnp.asarray(reset, bool)
 
     def recompute():
-        fresh = jax.vmap(lambda s: cost_fields(params, s))(states)
+        fresh = jax.vmap(lambda s: cost_fields(env_params, s))(states)
         return jnp.where(reset[:, None, None, None], fresh, memory.cost)
 
     cost = jax.lax.cond(any_in_batch(reset), recompute, lambda: memory.cost)  # a cond under vmap too
 
     def one(key, state, mem, r, rs, c):
-        return _decide(key, spec, params, state, agent, mem, r, rs, c)
+        return _decide(key, spec, env_params, state, agent, mem, r, rs, c)
 
     return jax.vmap(one)(keys, states, memory, jnp.asarray(reward, jnp.float32), reset, cost)

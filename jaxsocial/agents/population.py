@@ -114,22 +114,25 @@ DEFAULT_EXPERT = {"goalcycle": "explorer", "fourrooms": "navigator", "maze": "na
 """The scripted expert of each layout."""
 
 
-def default_slots(params: EnvParams) -> str:
+def default_slots(env_params: EnvParams) -> str:
     """The paper's set-up: a learner in slot 0, scripted experts in the next two slots (the environment's
     own agents), random distractors in any further slots (the `-distractors` presets)."""
-    expert = f"expert:{DEFAULT_EXPERT[params.layout]}"
-    return ",".join(["learner"] + [expert] * min(2, params.n_agents - 1) + ["random"] * (params.n_agents - 3))
+    expert = f"expert:{DEFAULT_EXPERT[env_params.layout]}"
+    return ",".join(
+        ["learner"] + [expert] * min(2, env_params.n_agents - 1) + ["random"] * (env_params.n_agents - 3)
+    )
 
 
-def run_slots(slots: tuple[Slot, ...], params: EnvParams) -> tuple[Slot, ...]:
+def run_slots(slots: tuple[Slot, ...], env_params: EnvParams) -> tuple[Slot, ...]:
     """A training run's slots: `slots` (a run's `--slots`), or the environment's default where empty;
     checked for one per agent and a learner (ValueError)."""
-    return check_slots(slots or parse_slot_list(default_slots(params)), params.n_agents)
+    return check_slots(slots or parse_slot_list(default_slots(env_params)), env_params.n_agents)
 
 
-def require_rgb(params: EnvParams, where: str) -> None:
-    """ValueError unless `params` gives RGB observations (for pictures of the decoder's predicted frames)."""
-    if params.observation != "rgb":
+def require_rgb(env_params: EnvParams, where: str) -> None:
+    """ValueError unless `env_params` gives RGB observations (for pictures of the decoder's predicted
+    frames)."""
+    if env_params.observation != "rgb":
         raise ValueError(f"{where}: pictures of predicted frames need RGB observations (observation='rgb')")
 
 
@@ -170,19 +173,19 @@ class Population:
         views behaviour cloning trains on."""
         return tuple(sorted(set(self.neural) | set(self.demonstrators if cloned else ())))
 
-    def validate(self, params: EnvParams) -> None:
+    def validate(self, env_params: EnvParams) -> None:
         """Raise ValueError if a scripted expert cannot play this environment."""
         for i in self.experts:
             try:
-                experts.validate(self.slots[i].expert, params)
+                experts.validate(self.slots[i].expert, env_params)
             except ValueError as err:
                 raise ValueError(f"slot {i}: {err}") from err
 
 
-def default_population(params: EnvParams) -> Population:
+def default_population(env_params: EnvParams) -> Population:
     """The paper's set-up of an environment (`default_slots`), validated: the learner in slot 0."""
-    pop = Population(parse_slots(default_slots(params), params.n_agents))
-    pop.validate(params)
+    pop = Population(parse_slots(default_slots(env_params), env_params.n_agents))
+    pop.validate(env_params)
     return pop
 
 
@@ -204,13 +207,15 @@ class SlotState(NamedTuple):
     reward: jax.Array
 
 
-def init_slot_state(pop: Population, net: network.NetworkConfig, params: EnvParams, n_envs: int) -> SlotState:
+def init_slot_state(
+    pop: Population, net: network.NetworkConfig, env_params: EnvParams, n_envs: int
+) -> SlotState:
     """The slot state before the first step (every environment starts an episode then)."""
-    batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, *x.shape)), experts.init_memory(params))
+    batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, *x.shape)), experts.init_memory(env_params))
     return SlotState(
         carry=network.initial_carry(net, (len(pop.neural), n_envs)),
         memory=(batched,) * len(pop.experts),
-        reward=jnp.zeros((n_envs, params.n_agents), jnp.float32),
+        reward=jnp.zeros((n_envs, env_params.n_agents), jnp.float32),
     )
 
 

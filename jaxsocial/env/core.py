@@ -20,13 +20,13 @@ from jaxsocial.env.observe import Observers, observe
 from jaxsocial.env.types import BONUS, NUM_ACTIONS, WALL, EnvParams, EnvState
 
 
-def _present(key: jax.Array, params: EnvParams) -> jax.Array:
+def _present(key: jax.Array, env_params: EnvParams) -> jax.Array:
     """bool[N] who takes part in a new episode: everyone, or in a solo episode the first `solo_agents`."""
-    n = params.n_agents
-    if params.solo_prob == 0.0:
+    n = env_params.n_agents
+    if env_params.solo_prob == 0.0:
         return jnp.ones(n, bool)
-    solo = jax.random.bernoulli(key, params.solo_prob)
-    return ~solo | (jnp.arange(n) < params.solo_agents)
+    solo = jax.random.bernoulli(key, env_params.solo_prob)
+    return ~solo | (jnp.arange(n) < env_params.solo_agents)
 
 
 NEVER = np.iinfo(np.int32).max
@@ -40,33 +40,35 @@ def fixed_window(present) -> jax.Array:
     return jnp.stack([jnp.where(present, 0, NEVER), jnp.full(present.shape, NEVER)], -1).astype(jnp.int32)
 
 
-def _window(key: jax.Array, present: jax.Array, params: EnvParams) -> jax.Array:
+def _window(key: jax.Array, present: jax.Array, env_params: EnvParams) -> jax.Array:
     """int32[N, 2] each slot's presence window [join, leave) (docs/environment.md 10.4): slots from
     `solo_agents` on leave (`dropout_prob`) or join (`dropin_prob`) at a uniform step in
     [dropout_min_step, dropout_max_step]; slots absent from a solo episode never join."""
-    n = params.n_agents
-    if not params.changes_presence:
+    n = env_params.n_agents
+    if not env_params.changes_presence:
         return fixed_window(present)
     k_kind, k_step = jax.random.split(key)
     u = jax.random.uniform(k_kind, (n,))
-    other = jnp.arange(n) >= params.solo_agents
-    leaves = other & (u < params.dropout_prob)
-    joins = other & ~leaves & (u < params.dropout_prob + params.dropin_prob)
-    at = jax.random.randint(k_step, (n,), params.dropout_min_step, params.dropout_last_step + 1)
+    other = jnp.arange(n) >= env_params.solo_agents
+    leaves = other & (u < env_params.dropout_prob)
+    joins = other & ~leaves & (u < env_params.dropout_prob + env_params.dropin_prob)
+    at = jax.random.randint(k_step, (n,), env_params.dropout_min_step, env_params.dropout_last_step + 1)
     join = jnp.where(present, jnp.where(joins, at, 0), NEVER)
     leave = jnp.where(leaves, at, NEVER)
     return jnp.stack([join, leave], -1).astype(jnp.int32)
 
 
-def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.Array, params: EnvParams):
+def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.Array, env_params: EnvParams):
     k_pos, k_dir = jax.random.split(key)
-    n = params.n_agents
-    present = _present(jax.random.fold_in(key, 1), params)
-    window = _window(jax.random.fold_in(key, 2), present, params)
+    n = env_params.n_agents
+    present = _present(jax.random.fold_in(key, 1), env_params)
+    window = _window(jax.random.fold_in(key, 2), present, env_params)
     present = window[:, 0] == 0
     cells = jax.random.categorical(k_pos, jnp.where(spawn_mask.ravel(), 0.0, -jnp.inf), shape=(n,))
-    y, x = jnp.divmod(cells, params.width)
-    direction = jax.random.randint(k_dir, (n,), 0, 4) if params.random_spawn_dir else jnp.zeros(n, jnp.int32)
+    y, x = jnp.divmod(cells, env_params.width)
+    direction = (
+        jax.random.randint(k_dir, (n,), 0, 4) if env_params.random_spawn_dir else jnp.zeros(n, jnp.int32)
+    )
     return EnvState(
         grid=grid,
         goal_id=goal_id,
@@ -82,30 +84,30 @@ def _spawn(key: jax.Array, grid: jax.Array, goal_id: jax.Array, spawn_mask: jax.
     )
 
 
-def reset(key: jax.Array, params: EnvParams, observers: Observers = None) -> tuple[jax.Array, EnvState]:
+def reset(key: jax.Array, env_params: EnvParams, observers: Observers = None) -> tuple[jax.Array, EnvState]:
     """A new episode: a fresh layout and agents placed independently and uniformly on spawn cells
-    (they may share a cell or stand on a bonus tile, docs/environment.md 1.3); with `params.solo_prob` it
+    (they may share a cell or stand on a bonus tile, docs/environment.md 1.3); with `env_params.solo_prob` it
     is a solo episode (see `EnvParams.solo_prob`, docs/environment.md 10.2). Returns `(obs, state)`, obs
     the views of `observers` only (static agent indices, `observe.Observers`; None: every agent's)."""
-    state = _new_episode(key, params)
-    return observe(state, params, observers), state
+    state = _new_episode(key, env_params)
+    return observe(state, env_params, observers), state
 
 
-def _new_episode(key: jax.Array, params: EnvParams) -> EnvState:
+def _new_episode(key: jax.Array, env_params: EnvParams) -> EnvState:
     """The state of `reset`, without rendering it."""
     k_layout, k_spawn = jax.random.split(key)
-    layout = generate(k_layout, params)
-    return _spawn(k_spawn, layout.grid, layout.goal_id, layout.spawn_mask, params)
+    layout = generate(k_layout, env_params)
+    return _spawn(k_spawn, layout.grid, layout.goal_id, layout.spawn_mask, env_params)
 
 
-def check_actions(actions: jax.Array, params: EnvParams) -> None:
+def check_actions(actions: jax.Array, env_params: EnvParams) -> None:
     """Raise ValueError unless `actions` is an integer array of shape (n_agents,) (checked when traced) with
     values in the action space [0, 7) (checked when the values are known: eager calls; under `jit` or `vmap`
     an out-of-range action is not checked and does nothing, docs/environment.md 10.1)."""
     shape = getattr(actions, "shape", None)
-    if shape != (params.n_agents,) or not jnp.issubdtype(jnp.asarray(actions).dtype, jnp.integer):
+    if shape != (env_params.n_agents,) or not jnp.issubdtype(jnp.asarray(actions).dtype, jnp.integer):
         raise ValueError(
-            f"actions must be an integer array of shape ({params.n_agents},), one per agent; got "
+            f"actions must be an integer array of shape ({env_params.n_agents},), one per agent; got "
             f"{getattr(actions, 'dtype', type(actions))} {shape}. Batch with jax.vmap."
         )
     if not isinstance(actions, jax.core.Tracer):
@@ -117,18 +119,18 @@ def check_actions(actions: jax.Array, params: EnvParams) -> None:
 
 
 def _advance(
-    state: EnvState, actions: jax.Array, params: EnvParams
+    state: EnvState, actions: jax.Array, env_params: EnvParams
 ) -> tuple[EnvState, jax.Array, jax.Array, jax.Array]:
     """The world step of `step_env`, without rendering: (state, reward, terminated, truncated)."""
-    check_actions(actions, params)
-    state, reward = world_step(state, actions.astype(jnp.int32), params)
+    check_actions(actions, env_params)
+    state, reward = world_step(state, actions.astype(jnp.int32), env_params)
     terminated = ~state.active
-    truncated = (state.time >= params.max_steps) & ~jnp.all(terminated)
+    truncated = (state.time >= env_params.max_steps) & ~jnp.all(terminated)
     return state, reward, terminated, truncated
 
 
 def step_env(
-    state: EnvState, actions: jax.Array, params: EnvParams, observers: Observers = None
+    state: EnvState, actions: jax.Array, env_params: EnvParams, observers: Observers = None
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array]:
     """One step without auto-reset.
 
@@ -139,8 +141,8 @@ def step_env(
         obs, state, reward float32[N], terminated bool[N] (agent is on a terminal goal; stays True for the
         rest of the episode), truncated bool[] (time limit reached while some agent is still active).
     """
-    state, reward, terminated, truncated = _advance(state, actions, params)
-    return observe(state, params, observers), state, reward, terminated, truncated
+    state, reward, terminated, truncated = _advance(state, actions, env_params)
+    return observe(state, env_params, observers), state, reward, terminated, truncated
 
 
 def _episode_done(terminated: jax.Array, truncated: jax.Array) -> jax.Array:
@@ -148,7 +150,7 @@ def _episode_done(terminated: jax.Array, truncated: jax.Array) -> jax.Array:
 
 
 def step(
-    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams, observers: Observers = None
+    key: jax.Array, state: EnvState, actions: jax.Array, env_params: EnvParams, observers: Observers = None
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
     """One step with auto-reset (gymnax 1.0 shape). `obs` and `final_obs` hold the views of `observers`
     only (static agent indices, `observe.Observers`; None: every agent's), e.g. those a trainer's networks
@@ -163,32 +165,32 @@ def step(
     under `jax.vmap` (where a step in which some episode ended resets, and selects, only the environments
     whose episode ended). A caller that ignores `final_obs` never renders it (it is dead code under `jit`).
     """
-    new_state, reward, terminated, truncated = _advance(state, actions, params)
+    new_state, reward, terminated, truncated = _advance(state, actions, env_params)
     done = _episode_done(terminated, truncated)
     some_ended = any_in_batch(done)
 
     def with_reset():
-        fresh = _new_episode(key, params)
+        fresh = _new_episode(key, env_params)
         return jax.tree.map(lambda r, s: jnp.where(done, r, s), fresh, new_state)
 
     next_state = jax.lax.cond(some_ended, with_reset, lambda: new_state)
-    obs = observe(next_state, params, observers)
-    final_obs = jax.lax.cond(some_ended, lambda: observe(new_state, params, observers), lambda: obs)
+    obs = observe(next_state, env_params, observers)
+    final_obs = jax.lax.cond(some_ended, lambda: observe(new_state, env_params, observers), lambda: obs)
     return obs, next_state, reward, terminated, truncated, {"final_obs": final_obs, "done": done}
 
 
 def step_batch(
-    keys: jax.Array, states: EnvState, actions: jax.Array, params: EnvParams, observers: Observers = None
+    keys: jax.Array, states: EnvState, actions: jax.Array, env_params: EnvParams, observers: Observers = None
 ) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, jax.Array, dict[str, Any]]:
     """`step` over a leading batch axis (keys [B], states [B, ...], actions int32[B, N]): exactly
     `jax.vmap(step, in_axes=(0, 0, 0, None))`, which generates and renders new episodes only on steps where
     some episode of the batch ended."""
     one = functools.partial(step, observers=observers)
-    return jax.vmap(one, in_axes=(0, 0, 0, None))(keys, states, actions, params)
+    return jax.vmap(one, in_axes=(0, 0, 0, None))(keys, states, actions, env_params)
 
 
 def state_from_layout(
-    params: EnvParams,
+    env_params: EnvParams,
     layout: str | list[str] | np.ndarray,
     pos,
     dir,
@@ -205,7 +207,7 @@ def state_from_layout(
     """Build an exact state from an explicit layout (for tests, notebooks and scripted scenes).
 
     Args:
-        params: the environment's parameters; the layout must be `params.height x params.width`.
+        env_params: the environment's parameters; the layout must be `env_params.height x env_params.width`.
         layout: an ASCII map (rows along y: '#' wall, '.' empty, 'G' goal, '0'-'9' bonus tile with that
             cycle id; see `layouts.parse_ascii`) or a uint8[H, W] array of tile types indexed [y, x].
         pos: int[N, 2] agent (x, y) positions; x points east, y south.
@@ -228,20 +230,20 @@ def state_from_layout(
         bonus = np.flatnonzero(grid == BONUS)
         goal_id.ravel()[bonus] = np.arange(len(bonus))
     goal_id = np.asarray(goal_id, np.int8)
-    n = params.n_agents
+    n = env_params.n_agents
     pos, dir = np.asarray(pos, np.int32).reshape(-1, 2), np.asarray(dir, np.int32).reshape(-1)
-    if grid.shape != (params.height, params.width) or goal_id.shape != grid.shape:
+    if grid.shape != (env_params.height, env_params.width) or goal_id.shape != grid.shape:
         raise ValueError(
-            f"layout is {grid.shape} (rows, cols) but params say {(params.height, params.width)}"
+            f"layout is {grid.shape} (rows, cols) but env_params say {(env_params.height, env_params.width)}"
         )
     if len(pos) != n or len(dir) != n:
         raise ValueError(f"need {n} agent positions and directions, got {len(pos)} and {len(dir)}")
-    if np.any((pos < 0) | (pos >= [params.width, params.height])) or np.any(
+    if np.any((pos < 0) | (pos >= [env_params.width, env_params.height])) or np.any(
         grid[pos[:, 1], pos[:, 0]] == WALL
     ):
         raise ValueError(f"agents must stand on free cells inside the grid, got {pos.tolist()}")
-    if np.any(goal_id >= params.n_goals):
-        raise ValueError(f"bonus ids must be < n_goals={params.n_goals}")
+    if np.any(goal_id >= env_params.n_goals):
+        raise ValueError(f"bonus ids must be < n_goals={env_params.n_goals}")
 
     def per_agent(values, default, dtype):
         return jnp.asarray(np.broadcast_to(default if values is None else values, (n,)), dtype)
@@ -267,13 +269,13 @@ def state_from_layout(
 class Env:
     """A named environment: gymnax-style methods over static `EnvParams`.
 
-    `obs, state = env.reset(key, params)`;
-    `obs, state, reward, terminated, truncated, info = env.step(key, state, actions, params)`.
+    `obs, state = env.reset(key, env_params)`;
+    `obs, state, reward, terminated, truncated, info = env.step(key, state, actions, env_params)`.
     """
 
-    def __init__(self, name: str, params: EnvParams):
+    def __init__(self, name: str, env_params: EnvParams):
         self.name = name
-        self.default_params = params
+        self.default_params = env_params
 
     reset = staticmethod(reset)
     step = staticmethod(step)

@@ -34,7 +34,7 @@ def move(state: EnvState, actions: jax.Array) -> tuple[EnvState, jax.Array]:
 
 
 def cycle_reward(
-    cycle_state: jax.Array, tile_id: jax.Array, params: EnvParams
+    cycle_state: jax.Array, tile_id: jax.Array, env_params: EnvParams
 ) -> tuple[jax.Array, jax.Array]:
     """Goal Cycle rule (docs/environment.md section 3, master `BonusTile.get_reward`) for agents entering
     bonus tile `tile_id`.
@@ -45,28 +45,28 @@ def cycle_reward(
     Returns:
         float32[N] reward (before decay) and int32[N] the new cycle state.
     """
-    n = params.n_goals
+    n = env_params.n_goals
     first = cycle_state < 0
     last = jnp.where(first, (tile_id - 1) % n, cycle_state)
     correct = (last + 1) % n == tile_id
     if n == 1:  # docs/environment.md 9.14: a single tile rewards every visit (exp semantics)
         correct = jnp.ones_like(first)
-    reward = jnp.where(correct, params.goal_reward, -params.penalty)
-    if not params.initial_reward:
+    reward = jnp.where(correct, env_params.goal_reward, -env_params.penalty)
+    if not env_params.initial_reward:
         reward = jnp.where(first, 0.0, reward)
     new_state = jnp.where(correct, tile_id, last)
-    if params.reset_on_mistake:
+    if env_params.reset_on_mistake:
         new_state = tile_id
     return reward.astype(jnp.float32), new_state.astype(jnp.int32)
 
 
 def update_prestige(
-    prestige: jax.Array, reward: jax.Array, active: jax.Array, params: EnvParams
+    prestige: jax.Array, reward: jax.Array, active: jax.Array, env_params: EnvParams
 ) -> jax.Array:
     """Prestige (docs/environment.md section 5): code c = beta (c + r), paper c = beta c + r; a negative
     reward resets to 0; only active agents change. float32[N] -> float32[N]."""
-    beta = params.prestige_beta
-    grown = beta * (prestige + reward) if params.prestige_formula == "code" else beta * prestige + reward
+    beta = env_params.prestige_beta
+    grown = beta * (prestige + reward) if env_params.prestige_formula == "code" else beta * prestige + reward
     new = jnp.where(reward < 0, 0.0, grown)
     return jnp.where(active, new, prestige).astype(jnp.float32)
 
@@ -84,7 +84,7 @@ def update_presence(state: EnvState) -> EnvState:
     )
 
 
-def world_step(state: EnvState, actions: jax.Array, params: EnvParams) -> tuple[EnvState, jax.Array]:
+def world_step(state: EnvState, actions: jax.Array, env_params: EnvParams) -> tuple[EnvState, jax.Array]:
     """Advance time, move, pay tile rewards, update prestige and deactivate agents on a terminal goal.
 
     Returns the new state and float32[N] rewards.
@@ -95,14 +95,14 @@ def world_step(state: EnvState, actions: jax.Array, params: EnvParams) -> tuple[
     tile = state.grid[y, x]
     on_bonus = moved & (tile == BONUS)
     on_goal = moved & (tile == GOAL)
-    cycle_r, cycle_state = cycle_reward(state.cycle_state, state.goal_id[y, x].astype(jnp.int32), params)
-    reward = jnp.where(on_bonus, cycle_r, 0.0) + jnp.where(on_goal, params.goal_reward, 0.0)
-    if params.reward_decay:
-        reward = reward * (1.0 - 0.9 * time / params.max_steps)
+    cycle_r, cycle_state = cycle_reward(state.cycle_state, state.goal_id[y, x].astype(jnp.int32), env_params)
+    reward = jnp.where(on_bonus, cycle_r, 0.0) + jnp.where(on_goal, env_params.goal_reward, 0.0)
+    if env_params.reward_decay:
+        reward = reward * (1.0 - 0.9 * time / env_params.max_steps)
     reward = reward.astype(jnp.float32)
     new_state = moved_state.replace(
         cycle_state=jnp.where(on_bonus, cycle_state, state.cycle_state),
-        prestige=update_prestige(state.prestige, reward, state.active, params),
+        prestige=update_prestige(state.prestige, reward, state.active, env_params),
         active=state.active & ~on_goal,
         arrival=jnp.where(moved, time, state.arrival),
         time=time,

@@ -1,6 +1,6 @@
 """Jittable layout generators (Goal Cycle, Four Rooms, Maze) and an ASCII map parser.
 
-A generator maps `(key, params)` to a `Layout`: the tile grid, bonus-tile ids and the cells agents may
+A generator maps `(key, env_params)` to a `Layout`: the tile grid, bonus-tile ids and the cells agents may
 spawn on. Every generator keeps the border ring of walls, so agents can never leave the grid.
 """
 
@@ -71,11 +71,11 @@ def _place(grid: jax.Array, flat_idx: jax.Array, tile: int) -> jax.Array:
     return grid.ravel().at[flat_idx].set(tile).reshape(grid.shape)
 
 
-def goal_cycle(key: jax.Array, params: EnvParams) -> Layout:
+def goal_cycle(key: jax.Array, env_params: EnvParams) -> Layout:
     """Goal Cycle (docs/environment.md 1.2): border, `n_goals` bonus tiles (ids in placement order), then
     clutter; no connectivity check."""
-    base = jnp.asarray(_border(params.height, params.width))
-    n_goals, n_clutter = params.n_goals, params.n_clutter
+    base = jnp.asarray(_border(env_params.height, env_params.width))
+    n_goals, n_clutter = env_params.n_goals, env_params.n_clutter
     cells = _sample_cells(key, base == EMPTY, n_goals + n_clutter)
     grid = _place(_place(base, cells[:n_goals], BONUS), cells[n_goals:], WALL)
     goal_id = jnp.full(base.size, -1, jnp.int8).at[cells[:n_goals]].set(jnp.arange(n_goals, dtype=jnp.int8))
@@ -112,16 +112,16 @@ def four_rooms_static(width: int, height: int) -> dict[str, np.ndarray]:
     return {"grid": grid, "doors": doors, "goal_candidates": candidates, "spawn_box": spawn}
 
 
-def four_rooms(key: jax.Array, params: EnvParams) -> Layout:
+def four_rooms(key: jax.Array, env_params: EnvParams) -> Layout:
     """Four Rooms (docs/environment.md 6.2): goal among 9 candidates, clutter on empty cells, then the 4
     doorways open; agents spawn in the top-left box."""
-    fixed = four_rooms_static(params.width, params.height)
+    fixed = four_rooms_static(env_params.width, env_params.height)
     k_goal, k_clutter = jax.random.split(key)
     cand = jnp.asarray(fixed["goal_candidates"])
     gx, gy = cand[jax.random.randint(k_goal, (), 0, len(cand))]
     grid = jnp.asarray(fixed["grid"]).at[gy, gx].set(GOAL)
-    if params.n_clutter:
-        cells = _sample_cells(k_clutter, grid == EMPTY, params.n_clutter)
+    if env_params.n_clutter:
+        cells = _sample_cells(k_clutter, grid == EMPTY, env_params.n_clutter)
         grid = _place(grid, cells, WALL)
     doors = fixed["doors"]
     grid = grid.at[doors[:, 1], doors[:, 0]].set(EMPTY)
@@ -129,7 +129,7 @@ def four_rooms(key: jax.Array, params: EnvParams) -> Layout:
     return Layout(grid, goal_id, jnp.asarray(fixed["spawn_box"]) & (grid != WALL))
 
 
-def maze(key: jax.Array, params: EnvParams) -> Layout:
+def maze(key: jax.Array, env_params: EnvParams) -> Layout:
     """A random maze on the odd lattice, like labmaze's RandomMaze (docs/environment.md 6.3, 9.10).
 
     A random spanning tree (Prim's algorithm on random edge weights) connects every lattice cell; up to four
@@ -138,7 +138,7 @@ def maze(key: jax.Array, params: EnvParams) -> Layout:
     reachable. The goal is uniform over free cells; the spawn point is the one of 5 uniform free cells
     farthest (L1) from it, and agents spawn in the free cells of the 3x3 box around that point.
     """
-    nx, ny = (params.width - 1) // 2, (params.height - 1) // 2
+    nx, ny = (env_params.width - 1) // 2, (env_params.height - 1) // 2
     n_nodes = nx * ny
     node = np.arange(n_nodes).reshape(ny, nx)
     # Edges between lattice neighbours: endpoints and the wall cell between them.
@@ -164,11 +164,11 @@ def maze(key: jax.Array, params: EnvParams) -> Layout:
     _, opened = jax.lax.fori_loop(0, n_nodes - 1, grow, (in_tree, jnp.zeros(len(edges_u), bool)))
     opened |= jax.random.bernoulli(k_extra, 0.05, opened.shape)
 
-    grid = jnp.full((params.height, params.width), WALL, jnp.uint8)
+    grid = jnp.full((env_params.height, env_params.width), WALL, jnp.uint8)
     grid = grid.at[1::2, 1::2].set(EMPTY)
     grid = grid.at[wall_y, wall_x].set(jnp.where(opened, EMPTY, WALL).astype(jnp.uint8))
     # Rooms: up to 4 odd-sized (3 or 5) squares aligned on the lattice.
-    ys, xs = np.mgrid[0 : params.height, 0 : params.width]
+    ys, xs = np.mgrid[0 : env_params.height, 0 : env_params.width]
     kr = jax.random.split(k_rooms, 4)
     for k in kr:
         k_keep, k_size, k_x, k_y = jax.random.split(k, 4)
@@ -179,16 +179,16 @@ def maze(key: jax.Array, params: EnvParams) -> Layout:
         room = (
             (xs >= x0) & (xs < x0 + size) & (ys >= y0) & (ys < y0 + size) & jax.random.bernoulli(k_keep, 0.75)
         )
-        room &= (xs < params.width - 1) & (ys < params.height - 1)
+        room &= (xs < env_params.width - 1) & (ys < env_params.height - 1)
         grid = jnp.where(room, EMPTY, grid).astype(jnp.uint8)
 
     free = grid == EMPTY
     goal_cell = _sample_cells(k_goal, free, 1)[0]
-    gy, gx = jnp.divmod(goal_cell, params.width)
+    gy, gx = jnp.divmod(goal_cell, env_params.width)
     grid = grid.at[gy, gx].set(GOAL)
     free = grid == EMPTY
     cand = jax.random.categorical(k_spawn, jnp.where(free.ravel(), 0.0, -jnp.inf), shape=(5,))
-    cy, cx = jnp.divmod(cand, params.width)
+    cy, cx = jnp.divmod(cand, env_params.width)
     best = jnp.argmax(jnp.abs(cx - gx) + jnp.abs(cy - gy))
     spawn = free & (jnp.abs(xs - cx[best]) <= 1) & (jnp.abs(ys - cy[best]) <= 1)
     return Layout(grid, jnp.full(grid.shape, -1, jnp.int8), spawn)
@@ -197,6 +197,6 @@ def maze(key: jax.Array, params: EnvParams) -> Layout:
 GENERATORS = {"goalcycle": goal_cycle, "fourrooms": four_rooms, "maze": maze}
 
 
-def generate(key: jax.Array, params: EnvParams) -> Layout:
-    """The layout for `params.layout`."""
-    return GENERATORS[params.layout](key, params)
+def generate(key: jax.Array, env_params: EnvParams) -> Layout:
+    """The layout for `env_params.layout`."""
+    return GENERATORS[env_params.layout](key, env_params)

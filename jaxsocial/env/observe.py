@@ -35,22 +35,22 @@ Observers = tuple[int, ...] | None
 """The agents whose views are rendered, in this order (a static tuple of agent indices); None: every agent."""
 
 
-def observer_index(params: EnvParams, observers: Observers) -> np.ndarray:
+def observer_index(env_params: EnvParams, observers: Observers) -> np.ndarray:
     """int32[K] the agent index of each rendered view (`Observers`; K = N for None, 0 for ())."""
     if observers is None:
-        return np.arange(params.n_agents, dtype=np.int32)
+        return np.arange(env_params.n_agents, dtype=np.int32)
     who = np.asarray(observers, np.int32).reshape(-1)
-    if who.size and (who.min() < 0 or who.max() >= params.n_agents):
-        raise ValueError(f"observers must be agent indices in [0, {params.n_agents}), got {observers}")
+    if who.size and (who.min() < 0 or who.max() >= env_params.n_agents):
+        raise ValueError(f"observers must be agent indices in [0, {env_params.n_agents}), got {observers}")
     return who
 
 
-def view_cells(state: EnvState, params: EnvParams, who: np.ndarray) -> tuple[jax.Array, jax.Array]:
+def view_cells(state: EnvState, env_params: EnvParams, who: np.ndarray) -> tuple[jax.Array, jax.Array]:
     """World coordinates and tile types of the views of the observers `who` (int32[K], agent indices).
 
     Returns int32[K, V, V, 2] (x, y) and uint8[K, V, V] tile types (cells outside the grid are EMPTY).
     """
-    offsets = jnp.asarray(view_offsets(params.view_size, params.view_offset))
+    offsets = jnp.asarray(view_offsets(env_params.view_size, env_params.view_offset))
     world = state.pos[who][:, None, None, :] + offsets[state.dir[who]]
     height, width = state.grid.shape
     x, y = world[..., 0], world[..., 1]
@@ -130,13 +130,17 @@ def agent_layer(state: EnvState, world: jax.Array, who: np.ndarray) -> tuple[jax
     return jnp.any(at, axis=1), drawn
 
 
-def color_index(state: EnvState, params: EnvParams) -> jax.Array:
+def color_index(state: EnvState, env_params: EnvParams) -> jax.Array:
     """int32[N] each agent's palette index (see `sprites.prestige_palette`, `sprites.fixed_palette`)."""
     n = state.pos.shape[0]
-    if params.agent_colors == "fixed":
+    if env_params.agent_colors == "fixed":
         return jnp.arange(n, dtype=jnp.int32)
     c = state.prestige
-    s = jnp.tanh(c / params.prestige_scale) if params.prestige_formula == "code" else jax.nn.sigmoid(c)
+    s = (
+        jnp.tanh(c / env_params.prestige_scale)
+        if env_params.prestige_formula == "code"
+        else jax.nn.sigmoid(c)
+    )
     blue = (s * 255.0).astype(jnp.int32)
     red = ((1.0 - s) * 255.0).astype(jnp.int32)
     return 2 * blue + (red + blue - 254)
@@ -149,13 +153,13 @@ def relative_dir(state: EnvState, drawn: jax.Array, who: np.ndarray) -> jax.Arra
 
 
 def observation_cells(
-    state: EnvState, params: EnvParams, observers: Observers = None
+    state: EnvState, env_params: EnvParams, observers: Observers = None
 ) -> dict[str, jax.Array]:
     """Everything the observers' views show, per view cell ([K, V, V] each): tile type, visibility, drawn
     agent."""
-    who = observer_index(params, observers)
-    world, tiles = view_cells(state, params, who)
-    visible = visibility(tiles != WALL, params.view_offset) & state.active[who][:, None, None]
+    who = observer_index(env_params, observers)
+    world, tiles = view_cells(state, env_params, who)
+    visible = visibility(tiles != WALL, env_params.view_offset) & state.active[who][:, None, None]
     has_agent, drawn = agent_layer(state, world, who)
     return {
         "tiles": tiles,
@@ -174,25 +178,25 @@ def atlas_index(cells: dict[str, jax.Array], colors: jax.Array, palette: int) ->
     return jnp.where(cells["visible"], idx, 0)
 
 
-def rgb(state: EnvState, params: EnvParams, observers: Observers = None) -> jax.Array:
+def rgb(state: EnvState, env_params: EnvParams, observers: Observers = None) -> jax.Array:
     """uint8[K, V*3, V*3, 3] the observers' egocentric RGB views; hidden cells and done observers are
     shadow."""
-    cells = observation_cells(state, params, observers)
-    idx = atlas_index(cells, color_index(state, params), sprites.palette_size(params.agent_colors))
-    pixels = jnp.asarray(sprites.atlas(params.agent_colors).reshape(-1, 3))  # [T * 9, 3]
-    side = params.view_size * sprites.TILE
+    cells = observation_cells(state, env_params, observers)
+    idx = atlas_index(cells, color_index(state, env_params), sprites.palette_size(env_params.agent_colors))
+    pixels = jnp.asarray(sprites.atlas(env_params.agent_colors).reshape(-1, 3))  # [T * 9, 3]
+    side = env_params.view_size * sprites.TILE
     sub = np.arange(side) % sprites.TILE
     sub_offset = jnp.asarray(sub[:, None] * sprites.TILE + sub[None, :])  # [side, side]
     per_pixel = jnp.repeat(jnp.repeat(idx, sprites.TILE, axis=1), sprites.TILE, axis=2)
     return pixels[per_pixel * 9 + sub_offset]
 
 
-def symbolic(state: EnvState, params: EnvParams, observers: Observers = None) -> jax.Array:
+def symbolic(state: EnvState, env_params: EnvParams, observers: Observers = None) -> jax.Array:
     """int8[K, V, V, 4] the observers' symbolic views: tile type (-1 hidden), drawn agent index + 1 (0 none),
     its relative direction (-1 none), its colour (prestige: blue level 0-127; fixed: palette index)."""
-    cells = observation_cells(state, params, observers)
-    colors = color_index(state, params)
-    if params.agent_colors == "prestige":
+    cells = observation_cells(state, env_params, observers)
+    colors = color_index(state, env_params)
+    if env_params.agent_colors == "prestige":
         colors = colors // 4
     has = cells["has_agent"]
     tile = jnp.where(cells["visible"], cells["tiles"].astype(jnp.int32), -1)
@@ -202,26 +206,26 @@ def symbolic(state: EnvState, params: EnvParams, observers: Observers = None) ->
     return jnp.stack([tile, agent, rel, blue], -1).astype(jnp.int8)
 
 
-def attention_targets(state: EnvState, params: EnvParams) -> jax.Array:
+def attention_targets(state: EnvState, env_params: EnvParams) -> jax.Array:
     """int32[N, N-1] where each agent's view window holds each other agent (slots in order, skipping itself):
     the view cell `row * V + col`, or `V * V` when the other agent is absent or outside the window.
 
     Geometric: occlusion is ignored, so an agent hidden behind a wall still has its cell (the target of the
     attention auxiliary loss, `network.attention_loss`, which asks the learner to keep track of the others).
     """
-    n, v = params.n_agents, params.view_size
+    n, v = env_params.n_agents, env_params.view_size
     others = np.array([[j for j in range(n) if j != i] for i in range(n)], np.int32).reshape(n, n - 1)
     delta = state.pos[others] - state.pos[:, None, :]  # [N, N-1, 2]
     forward = jnp.asarray(DIR_VEC)[state.dir][:, None, :]  # [N, 1, 2]
     right = jnp.stack([-forward[..., 1], forward[..., 0]], -1)
-    row = v - 1 - params.view_offset - jnp.sum(delta * forward, -1)
+    row = v - 1 - env_params.view_offset - jnp.sum(delta * forward, -1)
     col = v // 2 + jnp.sum(delta * right, -1)
     inside = (row >= 0) & (row < v) & (col >= 0) & (col < v) & state.present[others]
     return jnp.where(inside, row * v + col, v * v).astype(jnp.int32)
 
 
-def observe(state: EnvState, params: EnvParams, observers: Observers = None) -> jax.Array:
-    """The observers' observations (every agent's for None), of shape `(K, *params.obs_shape)`: row k is
+def observe(state: EnvState, env_params: EnvParams, observers: Observers = None) -> jax.Array:
+    """The observers' observations (every agent's for None), of shape `(K, *env_params.obs_shape)`: row k is
     exactly row `observers[k]` of every agent's, and only the K views are computed."""
-    render = rgb if params.observation == "rgb" else symbolic
-    return render(state, params, observers)
+    render = rgb if env_params.observation == "rgb" else symbolic
+    return render(state, env_params, observers)

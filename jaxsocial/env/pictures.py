@@ -63,10 +63,10 @@ def identity_colors(n: int) -> np.ndarray:
     return np.array(sprites.fixed_palette()[:n], np.uint8)
 
 
-def agent_colors(state: EnvState, params: EnvParams) -> np.ndarray:
+def agent_colors(state: EnvState, env_params: EnvParams) -> np.ndarray:
     """uint8[N, 3] each agent's current sprite colour (its prestige colour, or its fixed colour)."""
-    palette = sprites.prestige_palette() if params.agent_colors == "prestige" else sprites.fixed_palette()
-    idx = np.asarray(color_index(state, params))
+    palette = sprites.prestige_palette() if env_params.agent_colors == "prestige" else sprites.fixed_palette()
+    idx = np.asarray(color_index(state, env_params))
     return np.array([palette[i] for i in idx], np.uint8)
 
 
@@ -116,7 +116,7 @@ def _shared_strip(cell: np.ndarray, colors: np.ndarray) -> None:
         cell[: height - 1, px[0] : px[-1] + (len(px) == 1)] = color
 
 
-def render_map(state: EnvState, params: EnvParams, tile: int = 12, fov: bool = True) -> np.ndarray:
+def render_map(state: EnvState, env_params: EnvParams, tile: int = 12, fov: bool = True) -> np.ndarray:
     """The whole map as uint8[H * tile, W * tile, 3] (rows along y).
 
     Tiles are flat colours (wall (74, 65, 42), bonus yellow, goal green, empty black); each occupied cell
@@ -132,12 +132,12 @@ def render_map(state: EnvState, params: EnvParams, tile: int = 12, fov: bool = T
     grid = np.asarray(state.grid)
     t = sprites.TILE
     image = upscale(TILE_COLORS[grid], 1, t)  # [H * 3, W * 3, 3]
-    colors = agent_colors(state, params)
+    colors = agent_colors(state, env_params)
     directions = np.asarray(state.dir)
     cells = cell_agents(state)
     for (x, y), (i, *_) in cells.items():
         color = tuple(int(c) for c in colors[i])
-        cell = sprites.cell_sprite(int(grid[y, x]), int(directions[i]), color, params.agent_colors)
+        cell = sprites.cell_sprite(int(grid[y, x]), int(directions[i]), color, env_params.agent_colors)
         image[y * t : (y + 1) * t, x * t : (x + 1) * t] = cell
     image = upscale(image, t, tile)
     if tile >= 6:
@@ -146,7 +146,7 @@ def render_map(state: EnvState, params: EnvParams, tile: int = 12, fov: bool = T
                 _shared_strip(image[y * tile : (y + 1) * tile, x * tile : (x + 1) * tile], colors[agents])
     if fov and tile >= 6:
         height, width = grid.shape
-        offsets = view_offsets(params.view_size, params.view_offset)
+        offsets = view_offsets(env_params.view_size, env_params.view_offset)
         for i, color in enumerate(identity_colors(len(directions))):
             if not np.asarray(state.active)[i]:
                 continue
@@ -159,7 +159,7 @@ def render_map(state: EnvState, params: EnvParams, tile: int = 12, fov: bool = T
 def render_frame(
     state: EnvState,
     obs: np.ndarray | None,
-    params: EnvParams,
+    env_params: EnvParams,
     reward: np.ndarray | None = None,
     tile: int = 12,
     predicted: Mapping[int, np.ndarray] | None = None,
@@ -183,7 +183,7 @@ def render_frame(
     """
     state = _as_numpy(state)
     if obs is None or np.ndim(obs) != 4 or np.shape(obs)[-1] != 3:
-        obs = rgb(state, params)
+        obs = rgb(state, env_params)
     obs = np.asarray(obs, np.uint8)
     n = obs.shape[0]
     predicted = predicted or {}
@@ -191,7 +191,7 @@ def render_frame(
         titles = ["learner's view" if i in predicted else f"agent {i}" for i in range(n)]
     if len(titles) != n:
         raise ValueError(f"{len(titles)} titles for {n} agents")
-    world = render_map(state, params, tile)
+    world = render_map(state, env_params, tile)
     map_h, map_w = world.shape[:2]
 
     gap, border, strip = max(2, tile // 3), max(1, tile // 6), max(2, tile // 4)
@@ -236,7 +236,7 @@ def render_frame(
         frame[y0 + border : y0 + border + strip, x0 + border : x0 + border + side] = strip_colors
         frame[y0 + border + strip : y0 + border + strip + side, x0 + border : x0 + border + side] = view
 
-    progress = min(1.0, float(np.asarray(state.time)) / params.max_steps)
+    progress = min(1.0, float(np.asarray(state.time)) / env_params.max_steps)
     bar_y = gap + content_h + gap
     frame[bar_y : bar_y + bar, gap : gap + round(progress * (width - 2 * gap))] = PROGRESS
     image = Image.fromarray(frame)
@@ -254,7 +254,7 @@ Policy = Callable[[jax.Array, jax.Array, EnvState], Any]
 
 def rollout_episode(
     key: jax.Array,
-    params: EnvParams,
+    env_params: EnvParams,
     policy: str | Policy = "random",
     max_steps: int | None = None,
 ) -> dict[str, Any]:
@@ -263,18 +263,18 @@ def rollout_episode(
     Args:
         policy: 'random' (uniform over all 7 actions), 'random-move' (uniform over left, right, forward) or
             a callable `(key, obs, state) -> int[N]` actions.
-        max_steps: stop after this many steps at most (default `params.max_steps`); the episode also ends
+        max_steps: stop after this many steps at most (default `env_params.max_steps`); the episode also ends
             when every agent is terminated or the time limit truncates it.
     Returns:
         dict with 'states' (list of T+1 numpy `EnvState`), 'obs' (list of T+1 uint8[N, ...]), 'actions' and
         'rewards' (lists of T int32[N] / float32[N]), 'returns' float32[N], 'steps' T, 'terminated' bool[N],
         'truncated' bool (the time limit ended the episode).
     """
-    limit = params.max_steps if max_steps is None else max_steps
+    limit = env_params.max_steps if max_steps is None else max_steps
     if limit < 1:
         raise ValueError(f"max_steps={max_steps} must be >= 1")
     k_reset, k_act = jax.random.split(key)
-    n = params.n_agents
+    n = env_params.n_agents
     if callable(policy):
         step_keys = jax.random.split(k_act, limit)
 
@@ -291,12 +291,12 @@ def rollout_episode(
     else:
         raise ValueError(f"unknown policy {policy!r}; use one of {POLICIES} or a callable")
 
-    obs, state = jax.device_get(_reset(k_reset, params))
+    obs, state = jax.device_get(_reset(k_reset, env_params))
     states, observations, actions, rewards = [state], [obs], [], []
     terminated, truncated = np.zeros(n, bool), False
     for t in range(limit):
         act = choose(t, obs, state)
-        out = _step_env(state, jnp.asarray(act), params)
+        out = _step_env(state, jnp.asarray(act), env_params)
         obs, state, reward, terminated, truncated = jax.device_get(out)
         states.append(state)
         observations.append(obs)
@@ -317,11 +317,11 @@ def rollout_episode(
     }
 
 
-def episode_frames(episode: dict[str, Any], params: EnvParams, tile: int = 12) -> list[np.ndarray]:
+def episode_frames(episode: dict[str, Any], env_params: EnvParams, tile: int = 12) -> list[np.ndarray]:
     """`render_frame` for every state of a `rollout_episode` result (T+1 uint8 frames)."""
     rewards = [None, *episode["rewards"]]
     return [
-        render_frame(s, o, params, r, tile)
+        render_frame(s, o, env_params, r, tile)
         for s, o, r in zip(episode["states"], episode["obs"], rewards, strict=True)
     ]
 

@@ -29,10 +29,10 @@ _BASE: dict[str, EnvParams] = {
 
 def _presets() -> dict[str, EnvParams]:
     presets = {}
-    for name, params in _BASE.items():
-        presets[name] = params
-        presets[f"{name}-solo"] = params.replace(n_agents=1)
-        presets[f"{name}-distractors"] = params.replace(n_agents=params.n_agents + DISTRACTOR_SLOTS)
+    for name, env_params in _BASE.items():
+        presets[name] = env_params
+        presets[f"{name}-solo"] = env_params.replace(n_agents=1)
+        presets[f"{name}-distractors"] = env_params.replace(n_agents=env_params.n_agents + DISTRACTOR_SLOTS)
     return presets
 
 
@@ -48,7 +48,7 @@ def registered_envs() -> list[str]:
 def make(name: str, **overrides) -> tuple[Env, EnvParams]:
     """The environment and parameters of a preset, with any `EnvParams` field overridden.
 
-    >>> env, params = make("goalcycle3", penalty=0.5, n_agents=1)
+    >>> env, env_params = make("goalcycle3", penalty=0.5, n_agents=1)
 
     Raises ValueError for an unknown name or field, or an impossible combination, before compiling anything.
     """
@@ -57,5 +57,5 @@ def make(name: str, **overrides) -> tuple[Env, EnvParams]:
     unknown = sorted(set(overrides) - set(PARAM_FIELDS))
     if unknown:
         raise ValueError(f"unknown EnvParams field(s) {unknown}; valid fields: {', '.join(PARAM_FIELDS)}")
-    params = PRESETS[name].replace(**overrides)
-    return Env(name, params), params
+    env_params = PRESETS[name].replace(**overrides)
+    return Env(name, env_params), env_params
