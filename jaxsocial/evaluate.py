@@ -89,12 +89,12 @@ class Episodes(NamedTuple):
 def episode_returns(
     key: jax.Array,
     pop: population.Population,
-    net: network.NetworkConfig,
+    net_cfg: network.NetworkConfig,
     env_params: EnvParams,
     params,
     n_episodes: int,
 ) -> Episodes:
-    """Play `n_episodes` episodes in parallel, each to its end. Jittable (static pop, net, env_params,
+    """Play `n_episodes` episodes in parallel, each to its end. Jittable (static pop, net_cfg, env_params,
     n_episodes). The episodes depend on `key` only through their layouts, spawns and actions: playing
     the same key with other presence settings (`solo_prob`, `dropout_prob`) gives the same layouts.
 
@@ -106,12 +106,12 @@ def episode_returns(
     reset = functools.partial(core.reset, observers=observers)
     obs, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_reset, n_episodes), env_params)
     present = states.present
-    slots = population.init_slot_state(pop, net, env_params, n_episodes)
+    slots = population.init_slot_state(pop, net_cfg, env_params, n_episodes)
 
     def body(carry, key):
         obs, states, slots, first, done, returns, late = carry
         actions, slots, _, _ = population.act(
-            key, pop, net, env_params, params, slots, obs, states, first, observers
+            key, pop, net_cfg, env_params, params, slots, obs, states, first, observers
         )
         step = functools.partial(core.step_env, observers=observers)
         obs, states, reward, terminated, truncated = jax.vmap(step, in_axes=(0, 0, None))(
@@ -130,14 +130,14 @@ def episode_returns(
     return Episodes(returns, late, present)
 
 
-def make_learner_eval(specs: tuple[EnvSpec, ...], net: network.NetworkConfig, episodes: int):
+def make_learner_eval(specs: tuple[EnvSpec, ...], net_cfg: network.NetworkConfig, episodes: int):
     """Evaluation during training: `fn(key, params) -> {spec: mean return}` plays `episodes` episodes of
     each environment spec (`specs.EnvSpec`; keys are their text) with one learner's `params` (unstacked) in
     slot 0 beside the environment's default companions (scripted experts, distractors), and returns the
     learner's mean episode return over the episodes it took part in. Validates everything (ValueError) before
     compiling."""
     setups = [
-        (spec, population.default_population(p), p) for spec, p in check_eval_envs(specs, net, episodes)
+        (spec, population.default_population(p), p) for spec, p in check_eval_envs(specs, net_cfg, episodes)
     ]
     play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
 
@@ -145,36 +145,36 @@ def make_learner_eval(specs: tuple[EnvSpec, ...], net: network.NetworkConfig, ep
         stacked = jax.tree.map(lambda x: x[None], params)
         out = {}
         for (spec, pop, env_params), k in zip(setups, jax.random.split(key, len(setups)), strict=True):
-            played = jax.device_get(play(k, pop, net, env_params, stacked, episodes))
+            played = jax.device_get(play(k, pop, net_cfg, env_params, stacked, episodes))
             out[str(spec)] = float(played.returns[played.present[:, 0], 0].mean())
         return out
 
     return run
 
 
-def _setup(cfg: EvalConfig):
+def _setup(eval_cfg: EvalConfig):
     """Validate everything and load the policies; raises ValueError before compiling."""
-    if cfg.episodes < 1:
-        raise ValueError(f"--episodes {cfg.episodes} must be >= 1")
-    if cfg.protocol not in PROTOCOLS:
-        raise ValueError(f"unknown --protocol {cfg.protocol!r}; choose one of {PROTOCOLS}")
-    _, env_params = jaxsocial.make(cfg.env, **dict(cfg.env_args))
-    slots = cfg.slots or population.parse_slot_list(population.default_slots(env_params))
+    if eval_cfg.episodes < 1:
+        raise ValueError(f"--episodes {eval_cfg.episodes} must be >= 1")
+    if eval_cfg.protocol not in PROTOCOLS:
+        raise ValueError(f"unknown --protocol {eval_cfg.protocol!r}; choose one of {PROTOCOLS}")
+    _, env_params = jaxsocial.make(eval_cfg.env, **dict(eval_cfg.env_args))
+    slots = eval_cfg.slots or population.parse_slot_list(population.default_slots(env_params))
     pop = population.Population(population.check_slots(slots, env_params.n_agents, need_learner=False))
     pop.validate(env_params)
     if len(pop.learners) > 1:
         raise ValueError("evaluate one agent at a time: one 'learner' slot (use frozen:POLICY for others)")
-    if bool(pop.learners) != bool(cfg.ckpt):
+    if bool(pop.learners) != bool(eval_cfg.ckpt):
         raise ValueError(
             "--ckpt fills the 'learner' slot: give both, or neither (then --slots must have no learner)"
         )
     policies = [pop.slots[i].policy for i in pop.frozen]
-    first = (list(cfg.ckpt) + policies)[:1]
-    net = policy_io.saved_net(first[0]) if first else network.NetworkConfig(obs=env_params.observation)
+    first = (list(eval_cfg.ckpt) + policies)[:1]
+    net_cfg = policy_io.saved_net(first[0]) if first else network.NetworkConfig(obs=env_params.observation)
     if first:
-        net.check_env(env_params, f"--env {cfg.env} with the policy {first[0]}")
-    frozen = [policy_io.load_policy(p, net) for p in policies]
-    if cfg.protocol == "ct" and (
+        net_cfg.check_env(env_params, f"--env {eval_cfg.env} with the policy {first[0]}")
+    frozen = [policy_io.load_policy(p, net_cfg) for p in policies]
+    if eval_cfg.protocol == "ct" and (
         pop.learners != (0,) or env_params.n_agents < 2 or env_params.solo_agents != 1
     ):
         raise ValueError(
@@ -182,36 +182,41 @@ def _setup(cfg: EvalConfig):
             f"learner first, at least 2 agent slots and solo_agents=1 (got slots "
             f"{[s.label for s in pop.slots]}, solo_agents={env_params.solo_agents})"
         )
-    per_ckpt = [population.stack([policy_io.load_policy(c, net), *frozen]) for c in cfg.ckpt]
-    if not cfg.ckpt:
+    per_ckpt = [population.stack([policy_io.load_policy(c, net_cfg), *frozen]) for c in eval_cfg.ckpt]
+    if not eval_cfg.ckpt:
         per_ckpt = [population.stack(frozen) if frozen else None]
-    return env_params, pop, net, per_ckpt
+    return env_params, pop, net_cfg, per_ckpt
 
 
-def evaluate(cfg: EvalConfig) -> dict[str, Any]:
-    """Run the evaluation (`cfg.protocol`) and return the JSON-able results."""
-    env_params, pop, net, per_ckpt = _setup(cfg)
+def evaluate(eval_cfg: EvalConfig) -> dict[str, Any]:
+    """Run the evaluation (`eval_cfg.protocol`) and return the JSON-able results."""
+    env_params, pop, net_cfg, per_ckpt = _setup(eval_cfg)
     play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
-    key = jax.random.key(cfg.seed)
+    key = jax.random.key(eval_cfg.seed)
     header = {
-        "env": cfg.env,
-        "env_args": ENV_ARGS.format(cfg.env_args),
+        "env": eval_cfg.env,
+        "env_args": ENV_ARGS.format(eval_cfg.env_args),
         "slots": [s.label for s in pop.slots],
-        "checkpoints": [str(c) for c in cfg.ckpt],
-        "policy_iterations": [policy_io.policy_iteration(c) for c in cfg.ckpt],
-        "episodes_per_checkpoint": cfg.episodes,
-        "seed": cfg.seed,
+        "checkpoints": [str(c) for c in eval_cfg.ckpt],
+        "policy_iterations": [policy_io.policy_iteration(c) for c in eval_cfg.ckpt],
+        "episodes_per_checkpoint": eval_cfg.episodes,
+        "seed": eval_cfg.seed,
         "max_steps": env_params.max_steps,
     }
-    if cfg.protocol == "ct":
+    if eval_cfg.protocol == "ct":
         cases = ct_cases(env_params)
         played = {
-            name: [jax.device_get(play(key, pop, net, case, params, cfg.episodes)) for params in per_ckpt]
+            name: [
+                jax.device_get(play(key, pop, net_cfg, case, params, eval_cfg.episodes))
+                for params in per_ckpt
+            ]
             for name, case in cases.items()
         }
         demonstrators = pop.demonstrators or tuple(range(1, env_params.n_agents))
         return {**header, "protocol": "ct", **cultural_transmission(played, demonstrators)}
-    results = [jax.device_get(play(key, pop, net, env_params, params, cfg.episodes)) for params in per_ckpt]
+    results = [
+        jax.device_get(play(key, pop, net_cfg, env_params, params, eval_cfg.episodes)) for params in per_ckpt
+    ]
     slots = []
     for i, slot in enumerate(pop.slots):
         samples = [r.returns[r.present[:, i], i] for r in results]
@@ -358,7 +363,7 @@ def verdict(learner: float, experts: float, env_params: EnvParams) -> str:
     )
 
 
-def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
+def outcome(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
     """What an `evaluate` result shows, in words, and the commands to look further: the learner's return
     against its experts'; for `--protocol ct`, whether the experts make a difference and whether it lasts
     after they leave."""
@@ -383,11 +388,15 @@ def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
             learner = np.mean([s["mean_return"] for s in by_kind["learner"]])
             experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
-            lines.append(verdict(learner, experts, EnvSpec(cfg.env, cfg.env_args).env_params()))
-    if cfg.ckpt:
-        env = f"--env {cfg.env}" + (f" --env-args {ENV_ARGS.format(cfg.env_args)}" if cfg.env_args else "")
-        lines.append(f"next: python -m jaxsocial.render --ckpt {cfg.ckpt[0]} {env}   # writes into the run")
-    if not cfg.out:
+            lines.append(verdict(learner, experts, EnvSpec(eval_cfg.env, eval_cfg.env_args).env_params()))
+    if eval_cfg.ckpt:
+        env = f"--env {eval_cfg.env}" + (
+            f" --env-args {ENV_ARGS.format(eval_cfg.env_args)}" if eval_cfg.env_args else ""
+        )
+        lines.append(
+            f"next: python -m jaxsocial.render --ckpt {eval_cfg.ckpt[0]} {env}   # writes into the run"
+        )
+    if not eval_cfg.out:
         lines.append("      add --out FILE to keep every number above (and the per-seed values) as JSON")
     return lines
 
@@ -395,20 +404,20 @@ def outcome(result: dict[str, Any], cfg: EvalConfig) -> list[str]:
 def main(argv: list[str] | None = None) -> None:
     import tyro
 
-    cfg = tyro.cli(EvalConfig, args=sys.argv[1:] if argv is None else argv, description=__doc__)
-    if cfg.out and Path(cfg.out).exists() and not cfg.overwrite:
-        raise SystemExit(f"error: {cfg.out} exists; pass --overwrite to replace it")
+    eval_cfg = tyro.cli(EvalConfig, args=sys.argv[1:] if argv is None else argv, description=__doc__)
+    if eval_cfg.out and Path(eval_cfg.out).exists() and not eval_cfg.overwrite:
+        raise SystemExit(f"error: {eval_cfg.out} exists; pass --overwrite to replace it")
     try:
-        result = evaluate(cfg)
+        result = evaluate(eval_cfg)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
     print(format_table(result))
-    for line in outcome(result, cfg):
+    for line in outcome(result, eval_cfg):
         print(line)
-    if cfg.out:
-        Path(cfg.out).parent.mkdir(parents=True, exist_ok=True)
-        logs.write_json(cfg.out, result)
-        print(f"wrote {cfg.out}")
+    if eval_cfg.out:
+        Path(eval_cfg.out).parent.mkdir(parents=True, exist_ok=True)
+        logs.write_json(eval_cfg.out, result)
+        print(f"wrote {eval_cfg.out}")
 
 
 if __name__ == "__main__":

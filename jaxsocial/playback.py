@@ -23,7 +23,7 @@ class EpisodeSetup(NamedTuple):
     """A saved learner and its companions, ready to play: `params` are the neural slots' stacked [S, ...]
     in `pop.neural` order (the run's learners, then frozen policies)."""
 
-    net: network.NetworkConfig
+    net_cfg: network.NetworkConfig
     params: Any
     env_params: EnvParams
     pop: population.Population
@@ -38,9 +38,9 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     #1, ...); default: the learner in slot 0 beside the environment's default companions.
     """
     policy = PolicyRef.parse(run_dir)
-    net = policy_io.saved_net(policy)
+    net_cfg = policy_io.saved_net(policy)
     env_params = EnvSpec.parse(env_spec).env_params()
-    net.check_env(env_params, f"env {env_spec!r} with the policy {run_dir}")
+    net_cfg.check_env(env_params, f"env {env_spec!r} with the policy {run_dir}")
     population.require_rgb(env_params, f"env {env_spec!r}")
     if slots is None:
         pop = population.default_population(env_params)
@@ -53,8 +53,8 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
         [PolicyRef(policy.run, k) for k in range(len(pop.learners))] if len(pop.learners) > 1 else [policy]
     )
     frozen = [pop.slots[i].policy for i in pop.frozen]
-    params = population.stack([policy_io.load_policy(p, net) for p in learners + frozen])
-    return EpisodeSetup(net, params, env_params, pop)
+    params = population.stack([policy_io.load_policy(p, net_cfg) for p in learners + frozen])
+    return EpisodeSetup(net_cfg, params, env_params, pop)
 
 
 def play_episode(setup: EpisodeSetup, steps: int = 40, seed: int = 0) -> dict[str, Any]:
@@ -66,15 +66,15 @@ def play_episode(setup: EpisodeSetup, steps: int = 40, seed: int = 0) -> dict[st
     float32[T, N], 'terminated' bool[T, N], 'truncated' bool[T]; and 'learner' (the first learner's slot),
     'net', 'params' (its params), 'env_params', 'pop'.
     """
-    net, params, env_params, pop = setup
+    net_cfg, params, env_params, pop = setup
     steps = min(steps, env_params.max_steps)
-    episode = jax.device_get(_play(jax.random.key(seed), pop, net, env_params, params, steps))
+    episode = jax.device_get(_play(jax.random.key(seed), pop, net_cfg, env_params, params, steps))
     ended = np.flatnonzero(episode["terminated"].all(-1) | episode["truncated"])
     end = int(ended[0]) + 1 if len(ended) else steps
     return {
         **jax.tree.map(lambda x: x[:end], episode),
         "learner": pop.learners[0],
-        "net": net,
+        "net": net_cfg,
         "params": jax.tree.map(lambda x: x[0], params),
         "env_params": env_params,
         "pop": pop,
@@ -82,17 +82,18 @@ def play_episode(setup: EpisodeSetup, steps: int = 40, seed: int = 0) -> dict[st
 
 
 @functools.partial(jax.jit, static_argnums=(1, 2, 3, 5))
-def _play(key, pop, net, env_params, params, steps: int) -> dict[str, Any]:
-    """The scan of `play_episode`: `steps` steps without auto-reset (static pop, net, env_params, steps)."""
+def _play(key, pop, net_cfg, env_params, params, steps: int) -> dict[str, Any]:
+    """The scan of `play_episode`: `steps` steps without auto-reset (static: pop, net_cfg, env_params,
+    steps)."""
     k_reset, k_run = jax.random.split(key)
     obs, state = core.reset(k_reset, env_params)
-    slots = population.init_slot_state(pop, net, env_params, 1)
+    slots = population.init_slot_state(pop, net_cfg, env_params, 1)
 
     def body(carry, key):
         obs, state, slots, first = carry
         batched = jax.tree.map(lambda x: x[None], state)
         actions, slots, _, _ = population.act(
-            key, pop, net, env_params, params, slots, obs[None], batched, first
+            key, pop, net_cfg, env_params, params, slots, obs[None], batched, first
         )
         new_obs, new_state, reward, terminated, truncated = core.step_env(state, actions[0], env_params)
         slots = population.with_rewards(slots, reward[None])

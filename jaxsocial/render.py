@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         episode = playback.play_episode(args.setup, steps, args.seed)
         predicted = playback.predicted_views(episode) if args.decoder else None
-        title = DECODER_TITLES.get(args.setup.net.frame_aux, PREDICTED_TITLE)
+        title = DECODER_TITLES.get(args.setup.net_cfg.frame_aux, PREDICTED_TITLE)
         frames = playback.episode_video(episode, args.tile, predicted, title)
         rewards = episode["rewards"]
         labels = [s.label for s in args.setup.pop.slots]

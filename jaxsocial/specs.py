@@ -77,15 +77,15 @@ class EnvSpec:
         return f"{self.name}:{self.env_args}" if self.args else self.name
 
 
-def check_eval_envs(specs: tuple[EnvSpec, ...], net, episodes: int) -> list[tuple[EnvSpec, EnvParams]]:
+def check_eval_envs(specs: tuple[EnvSpec, ...], net_cfg, episodes: int) -> list[tuple[EnvSpec, EnvParams]]:
     """(spec, parameters) of each evaluation environment of a training run (`TrainConfig.eval_envs`), checked
-    for a network `net` (`NetworkConfig`) to act in and `episodes` >= 1: ValueError otherwise."""
+    for a network `net_cfg` (`NetworkConfig`) to act in and `episodes` >= 1: ValueError otherwise."""
     if episodes < 1:
         raise ValueError(f"eval_episodes={episodes} must be >= 1")
     parsed = []
     for spec in specs:
         env_params = spec.env_params()
-        net.check_env(env_params, f"eval env {str(spec)!r}")
+        net_cfg.check_env(env_params, f"eval env {str(spec)!r}")
         parsed.append((spec, env_params))
     return parsed
 

@@ -63,7 +63,7 @@ def test_a_record_reads_like_a_run_directory():
     # what `render --ckpt` and `evaluate --ckpt` load: the policy with the network it was trained with
     spec = str(recipes.goalcycle_spec("goalcycle3", recipes.TINY))
     setup = playback.episode_setup(str(record_dirs[0]), spec)
-    assert setup.net == policy_io.saved_net(str(record_dirs[0]))
+    assert setup.net_cfg == policy_io.saved_net(str(record_dirs[0]))
 
 
 def test_commands_log(tmp_path):

@@ -25,7 +25,7 @@ from jaxsocial.agents.network_config import NetworkConfig
 
 def aux_loss(
     params: Params,
-    cfg: NetworkConfig,
+    net_cfg: NetworkConfig,
     hidden: jax.Array,
     action: jax.Array,
     target: jax.Array,
@@ -47,45 +47,45 @@ def aux_loss(
     batch's activations are in cache. It keeps the gradients (of the decoder params, and f32[N, H] of hidden)
     rather than every frame's activations; the backward pass only scales them by the incoming cotangent.
     """
-    cfg.check_decoder()
+    net_cfg.check_decoder()
     batch = hidden.shape[:-1]
-    chex.assert_shape([hidden, target], [(*batch, cfg.hidden), (*batch, *cfg.obs_shape)])
-    chex.assert_type(target, cfg.obs_dtype)
-    decoder = {name: params[name] for name in cfg.decoder_params}
+    chex.assert_shape([hidden, target], [(*batch, net_cfg.hidden), (*batch, *net_cfg.obs_shape)])
+    chex.assert_type(target, net_cfg.obs_dtype)
+    decoder = {name: params[name] for name in net_cfg.decoder_params}
     if axis_name is not None:  # per-device gradients; pcast's transpose sums them over the devices
         decoder = lax.pcast(decoder, axis_name, to="varying")
     n = math.prod(batch)
     rows = (
         hidden.reshape(n, hidden.shape[-1]),
         jnp.asarray(action).reshape(n),
-        target.reshape(n, *cfg.obs_shape),
+        target.reshape(n, *net_cfg.obs_shape),
         jnp.broadcast_to(jnp.asarray(weight, jnp.float32), batch).reshape(n),
     )
-    return _fused_aux_loss(cfg, decoder, *rows)
+    return _fused_aux_loss(net_cfg, decoder, *rows)
 
 
-def _decoder_apply(cfg: NetworkConfig, decoder: Params, method: Callable, *args) -> jax.Array:
+def _decoder_apply(net_cfg: NetworkConfig, decoder: Params, method: Callable, *args) -> jax.Array:
     """A `Decoder` method applied to the decoder's entries of the params tree (`DECODER_PARAMS`)."""
-    return Decoder(cfg).apply({"params": decoder}, *args, method=method)
+    return Decoder(net_cfg).apply({"params": decoder}, *args, method=method)
 
 
 @functools.partial(jax.custom_vjp, nondiff_argnums=(0,))
-def _fused_aux_loss(cfg: NetworkConfig, decoder: Params, hidden, action, target, weight) -> jax.Array:
-    return jnp.sum(weight * _decoder_apply(cfg, decoder, Decoder.errors, hidden, action, target))
+def _fused_aux_loss(net_cfg: NetworkConfig, decoder: Params, hidden, action, target, weight) -> jax.Array:
+    return jnp.sum(weight * _decoder_apply(net_cfg, decoder, Decoder.errors, hidden, action, target))
 
 
-def _fused_aux_loss_fwd(cfg: NetworkConfig, decoder: Params, hidden, action, target, weight):
+def _fused_aux_loss_fwd(net_cfg: NetworkConfig, decoder: Params, hidden, action, target, weight):
     """The loss and its gradients, frame batch by frame batch: a `lax.scan` over batches of rows (padded with
     weight 0) that sums the decoder params' gradients and stacks those of hidden and weight (= the frame
     errors)."""
     n = hidden.shape[0]
-    rows = split_frame_batches((hidden, action, target, weight), min(cfg.frame_batch, n))
+    rows = split_frame_batches((hidden, action, target, weight), min(net_cfg.frame_batch, n))
 
     def batch_grads(d_decoder, inputs):
         hidden, action, target, weight = inputs
 
         def weighted_error(decoder, hidden):
-            errors = _decoder_apply(cfg, decoder, Decoder.frame_errors, hidden, action, target)
+            errors = _decoder_apply(net_cfg, decoder, Decoder.frame_errors, hidden, action, target)
             return jnp.sum(weight * errors), errors
 
         (d_batch, d_hidden), errors = jax.grad(weighted_error, argnums=(0, 1), has_aux=True)(decoder, hidden)
@@ -96,8 +96,8 @@ def _fused_aux_loss_fwd(cfg: NetworkConfig, decoder: Params, hidden, action, tar
     return jnp.sum(weight * errors), (d_decoder, d_hidden, errors)
 
 
-def _fused_aux_loss_bwd(cfg: NetworkConfig, residuals, g):
-    del cfg
+def _fused_aux_loss_bwd(net_cfg: NetworkConfig, residuals, g):
+    del net_cfg
     d_decoder, d_hidden, errors = residuals
     return jax.tree.map(lambda x: g * x, d_decoder), g * d_hidden, None, None, g * errors
 

@@ -36,17 +36,17 @@ class BCConfig:
             raise ValueError(f"BCConfig: need epochs >= 1 and lr > 0, got {self.epochs} and {self.lr}")
 
 
-def make_optimizer(cfg: BCConfig) -> optax.GradientTransformation:
-    return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.lr))
+def make_optimizer(bc_cfg: BCConfig) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(bc_cfg.max_grad_norm), optax.adam(bc_cfg.lr))
 
 
-def loss_fn(params, net: NetworkConfig, carry: network.Carry, obs, resets, actions, valid):
+def loss_fn(params, net_cfg: NetworkConfig, carry: network.Carry, obs, resets, actions, valid):
     """Mean cross-entropy of the demonstrators' actions over valid steps.
 
     obs uint8[T, B, 21, 21, 3] (or int8[T, B, 7, 7, 4]); resets bool[T, B]; actions int32[T, B]; valid
     bool[T, B] (the demonstrator was acting). Returns (loss, (final carry, metrics)).
     """
-    carry, out = network.unroll(params, net, carry, obs, resets)
+    carry, out = network.unroll(params, net_cfg, carry, obs, resets)
     log_probs = jax.nn.log_softmax(out.logits)
     nll = -jnp.take_along_axis(log_probs, actions[..., None], -1)[..., 0]
     weight = valid.astype(jnp.float32)
@@ -57,24 +57,34 @@ def loss_fn(params, net: NetworkConfig, carry: network.Carry, obs, resets, actio
 
 
 def update(
-    params, opt_state, carry: network.Carry, net: NetworkConfig, cfg: BCConfig, obs, resets, actions, valid
+    params,
+    opt_state,
+    carry: network.Carry,
+    net_cfg: NetworkConfig,
+    bc_cfg: BCConfig,
+    obs,
+    resets,
+    actions,
+    valid,
 ):
-    """`cfg.epochs` gradient steps on one batch of demonstrations (arguments as in `loss_fn`).
+    """`bc_cfg.epochs` gradient steps on one batch of demonstrations (arguments as in `loss_fn`).
 
     The LSTM runs over the batch from `carry`, the demonstration streams' state at its start. Returns new
     params and optimiser state, the carry at the end of the batch for the next one (computed by the last
     step's forward pass, i.e. with the params before that step) and the metrics of the first step (the
     fit to fresh data).
     """
-    optimizer = make_optimizer(cfg)
+    optimizer = make_optimizer(bc_cfg)
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
     def epoch(state, _):
         params, opt_state = state
-        (_, (end_carry, metrics)), grads = grad_fn(params, net, carry, obs, resets, actions, valid)
+        (_, (end_carry, metrics)), grads = grad_fn(params, net_cfg, carry, obs, resets, actions, valid)
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), (end_carry, metrics)
 
-    (params, opt_state), (end_carries, metrics) = jax.lax.scan(epoch, (params, opt_state), None, cfg.epochs)
+    (params, opt_state), (end_carries, metrics) = jax.lax.scan(
+        epoch, (params, opt_state), None, bc_cfg.epochs
+    )
     last = jax.tree.map(lambda x: x[-1], end_carries)
     return params, opt_state, last, jax.tree.map(lambda x: x[0], metrics)

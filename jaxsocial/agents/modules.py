@@ -118,28 +118,32 @@ class Encoder(nn.Module):
     pre-activation; its activation and the FC layer run on all N frames at once, as large matrix products.
     """
 
-    cfg: NetworkConfig
+    net_cfg: NetworkConfig
 
     def setup(self):
-        (c1, c2, c3), impl, dtype = self.cfg.conv_channels, self.cfg.impl_for, self.cfg.compute_dtype
-        if self.cfg.symbolic:
+        (c1, c2, c3), impl, dtype = (
+            self.net_cfg.conv_channels,
+            self.net_cfg.impl_for,
+            self.net_cfg.compute_dtype,
+        )
+        if self.net_cfg.symbolic:
             self.embed = Embed(c1)
         else:
             self.conv1 = Conv(c1, STRIDES[0], impl("conv1"), dtype=dtype)
         self.conv2 = Conv(c2, STRIDES[1], impl("conv2"), dtype=dtype)
         self.conv3 = Conv(c3, STRIDES[2], impl("conv3"), dtype=dtype)
-        self.fc = Dense(self.cfg.hidden, math.sqrt(2.0), dtype)
+        self.fc = Dense(self.net_cfg.hidden, math.sqrt(2.0), dtype)
 
     def __call__(self, obs: jax.Array) -> jax.Array:
-        chex.assert_shape(obs, (None, *self.cfg.obs_shape))
-        chex.assert_type(obs, self.cfg.obs_dtype)
-        x = leaky_relu(map_frame_batches(Encoder.conv_features, self, (obs,), self.cfg.frame_batch))
+        chex.assert_shape(obs, (None, *self.net_cfg.obs_shape))
+        chex.assert_type(obs, self.net_cfg.obs_dtype)
+        x = leaky_relu(map_frame_batches(Encoder.conv_features, self, (obs,), self.net_cfg.frame_batch))
         return jnp.tanh(self.fc(x))
 
     def conv_features(self, obs: jax.Array) -> jax.Array:
         """uint8[n, 21, 21, 3] (or int8[n, 7, 7, 4]) -> conv3's pre-activation f32[n, feature_size], flattened
         (h, w, c)."""
-        if self.cfg.symbolic:
+        if self.net_cfg.symbolic:
             x = self.embed(conv.to_hwnc(obs))
         else:
             x = self.conv1(conv.to_hwnc(obs).astype(jnp.float32) * (1.0 / 255.0))
@@ -187,42 +191,48 @@ class Decoder(nn.Module):
     per view cell, in place of deconv3 gives logits f32[..., 7, 7, PREDICTED_VOCAB] (`symbolic_errors`).
     """
 
-    cfg: NetworkConfig
+    net_cfg: NetworkConfig
 
     def setup(self):
-        (c1, c2, _), impl, dtype = self.cfg.conv_channels, self.cfg.impl_for, self.cfg.compute_dtype
-        self.aux_fc = Dense(self.cfg.feature_size, math.sqrt(2.0), dtype)
+        (c1, c2, _), impl, dtype = (
+            self.net_cfg.conv_channels,
+            self.net_cfg.impl_for,
+            self.net_cfg.compute_dtype,
+        )
+        self.aux_fc = Dense(self.net_cfg.feature_size, math.sqrt(2.0), dtype)
         self.deconv1 = Conv(c2, STRIDES[2], impl("deconv1"), transpose=True, dtype=dtype)
         self.deconv2 = Conv(c1, STRIDES[1], impl("deconv2"), transpose=True, dtype=dtype)
-        if self.cfg.symbolic:
+        if self.net_cfg.symbolic:
             self.cell_logits = Dense(PREDICTED_VOCAB, 1.0, dtype)
         else:
             self.deconv3 = Conv(OBS_SHAPE[-1], STRIDES[0], impl("deconv3"), transpose=True, dtype=dtype)
 
     def __call__(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
         batch = hidden.shape[:-1]
-        chex.assert_shape(hidden, (*batch, self.cfg.hidden))
+        chex.assert_shape(hidden, (*batch, self.net_cfg.hidden))
         chex.assert_shape(action, batch)
         rows = (hidden.reshape(-1, hidden.shape[-1]), jnp.asarray(action).reshape(-1))
         frames = map_frame_batches(
-            lambda mdl, *rows: conv.to_nhwc(mdl.frames_hwnc(*rows)), self, rows, self.cfg.frame_batch
+            lambda mdl, *rows: conv.to_nhwc(mdl.frames_hwnc(*rows)), self, rows, self.net_cfg.frame_batch
         )
-        return frames.reshape(*batch, *self.cfg.decoded_shape)
+        return frames.reshape(*batch, *self.net_cfg.decoded_shape)
 
     def frames_hwnc(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
         """Rows hidden f32[N, H], action int[N] -> frames f32[21, 21, N, 3] (HWNC), in one piece (symbolic:
         logits f32[7, 7, N, PREDICTED_VOCAB])."""
-        z = jnp.concatenate([hidden, jax.nn.one_hot(action, self.cfg.n_actions, dtype=hidden.dtype)], axis=-1)
+        z = jnp.concatenate(
+            [hidden, jax.nn.one_hot(action, self.net_cfg.n_actions, dtype=hidden.dtype)], axis=-1
+        )
         x = checkpoint_name(jnp.tanh(self.aux_fc(z)), SAVED)
-        x = conv.to_hwnc(x.reshape(-1, *self.cfg.feature_shape))
+        x = conv.to_hwnc(x.reshape(-1, *self.net_cfg.feature_shape))
         x = leaky_relu(self.deconv1(x))
         x = leaky_relu(self.deconv2(x))
-        return self.cell_logits(x) if self.cfg.symbolic else self.deconv3(x)  # linear output
+        return self.cell_logits(x) if self.net_cfg.symbolic else self.deconv3(x)  # linear output
 
     def frame_errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
         """Mean absolute error of each frame's prediction against target / 255, f32[N], for rows hidden
         f32[N, H], action int[N], target uint8[N, 21, 21, 3], in one piece (symbolic: `symbolic_errors`)."""
-        if self.cfg.symbolic:
+        if self.net_cfg.symbolic:
             return symbolic_errors(self.frames_hwnc(hidden, action), conv.to_hwnc(target))
         # Compared in 3x3 blocks, the layout of deconv3's matrix product: XLA then cancels the deconvolution's
         # transpose to HWNC with this one, here and in the backward pass (+12% for the small training preset).
@@ -236,12 +246,14 @@ class Decoder(nn.Module):
     def errors(self, hidden: jax.Array, action: jax.Array, target: jax.Array) -> jax.Array:
         """`frame_errors` of rows f32[N, H], int[N], uint8[N, 21, 21, 3] (or int8[N, 7, 7, 4]) -> f32[N], in
         frame batches."""
-        return map_frame_batches(Decoder.frame_errors, self, (hidden, action, target), self.cfg.frame_batch)
+        return map_frame_batches(
+            Decoder.frame_errors, self, (hidden, action, target), self.net_cfg.frame_batch
+        )
 
 
 class ActorCritic(nn.Module):
-    """The recurrent actor-critic: ``ActorCritic(cfg).apply({"params": params}, carry, obs, resets)`` runs it
-    over T steps of B sequences and returns the final `Carry` and per-step `Output`s.
+    """The recurrent actor-critic: ``ActorCritic(net_cfg).apply({"params": params}, carry, obs, resets)`` runs
+    it over T steps of B sequences and returns the final `Carry` and per-step `Output`s.
 
     carry: `Carry` f32[B, hidden] x 2; obs uint8[T, B, 21, 21, 3] (int8[T, B, 7, 7, 4] symbolic); resets
     bool[T, B] (before step t, the carry of every sequence with resets[t, b] is zeroed: a reset step starts a
@@ -249,46 +261,46 @@ class ActorCritic(nn.Module):
     `attention_logits`).
     """
 
-    cfg: NetworkConfig
+    net_cfg: NetworkConfig
 
     def setup(self):
-        cfg, dtype = self.cfg, self.cfg.compute_dtype
-        self.encoder = Encoder(cfg)
+        net_cfg, dtype = self.net_cfg, self.net_cfg.compute_dtype
+        self.encoder = Encoder(net_cfg)
         nn.share_scope(self, self.encoder)  # its layers are top-level entries of the params tree
-        self.lstm = LSTM(cfg.hidden, dtype)
-        self.policy = MLP(cfg.mlp, cfg.n_actions, 0.01, dtype)
-        self.value = MLP(cfg.mlp, 1, 1.0, dtype)
-        if cfg.attention:
-            self.attention = Dense(cfg.n_others * ATTENTION_CLASSES, 0.01, dtype)
-        if cfg.frame_aux != "none":
-            self.decoder = Decoder(cfg)
+        self.lstm = LSTM(net_cfg.hidden, dtype)
+        self.policy = MLP(net_cfg.mlp, net_cfg.n_actions, 0.01, dtype)
+        self.value = MLP(net_cfg.mlp, 1, 1.0, dtype)
+        if net_cfg.attention:
+            self.attention = Dense(net_cfg.n_others * ATTENTION_CLASSES, 0.01, dtype)
+        if net_cfg.frame_aux != "none":
+            self.decoder = Decoder(net_cfg)
             nn.share_scope(self, self.decoder)
 
     def __call__(self, carry: Carry, obs: jax.Array, resets: jax.Array) -> tuple[Carry, Output]:
-        cfg = self.cfg
+        net_cfg = self.net_cfg
         t, b = obs.shape[:2]
-        chex.assert_shape(obs, (t, b, *cfg.obs_shape))
+        chex.assert_shape(obs, (t, b, *net_cfg.obs_shape))
         chex.assert_shape(resets, (t, b))
-        chex.assert_shape([carry.c, carry.h], (b, cfg.hidden))
+        chex.assert_shape([carry.c, carry.h], (b, net_cfg.hidden))
         chex.assert_type([resets, carry.c, carry.h], [bool, jnp.float32, jnp.float32])
-        x = self.encoder(obs.reshape(t * b, *cfg.obs_shape)).reshape(t, b, -1)
+        x = self.encoder(obs.reshape(t * b, *net_cfg.obs_shape)).reshape(t, b, -1)
         carry, hidden = self.lstm(carry, x, resets)
         out = Output(logits=self.policy(hidden), value=self.value(hidden)[..., 0], hidden=hidden)
         if self.is_initializing():  # create the auxiliary heads' params too
-            if cfg.attention:
+            if net_cfg.attention:
                 self.attention_logits(hidden)
-            if cfg.frame_aux != "none":
+            if net_cfg.frame_aux != "none":
                 self.decode(hidden, jnp.zeros((t, b), jnp.int32))
         return carry, out
 
     def attention_logits(self, hidden: jax.Array) -> jax.Array:
         """LSTM outputs f32[..., H] -> logits f32[..., n_others, 50] over each other slot's view cell."""
-        if not self.cfg.attention:
-            raise ValueError(f"cfg.aux == {self.cfg.aux!r} has no attention head")
+        if not self.net_cfg.attention:
+            raise ValueError(f"cfg.aux == {self.net_cfg.aux!r} has no attention head")
         logits = self.attention(hidden)
-        return logits.reshape(*hidden.shape[:-1], self.cfg.n_others, ATTENTION_CLASSES)
+        return logits.reshape(*hidden.shape[:-1], self.net_cfg.n_others, ATTENTION_CLASSES)
 
     def decode(self, hidden: jax.Array, action: jax.Array) -> jax.Array:
-        """`Decoder`: hidden f32[..., H], action int[...] -> f32[..., *cfg.decoded_shape]."""
-        self.cfg.check_decoder()
+        """`Decoder`: hidden f32[..., H], action int[...] -> f32[..., *net_cfg.decoded_shape]."""
+        self.net_cfg.check_decoder()
         return self.decoder(hidden, action)

@@ -4,9 +4,9 @@ The front door: `NetworkConfig` and the functions the learners call (`init`, `in
 `step`, `decode`, `aux_loss`, `attention_loss`, `param_count`), which apply the Flax linen `ActorCritic` to a
 params dict. Linen, because its params are plain nested dicts of float32 arrays: independent agents stack them
 on a leading axis (``jax.vmap(unroll, in_axes=(0, None, 0, 0, 0))``), seeds ``lax.map`` over them, and orbax
-saves them as they are. ``ActorCritic(cfg).init(key, carry, obs, resets)`` and ``.apply`` are the same model
-for use with other Flax code (`init` draws the same distributions from two random buffers, which compiles
-~10x faster than one draw per tensor).
+saves them as they are. ``ActorCritic(net_cfg).init(key, carry, obs, resets)`` and ``.apply`` are the same
+model for use with other Flax code (`init` draws the same distributions from two random buffers, which
+compiles ~10x faster than one draw per tensor).
 
 The parts, one job each:
 
@@ -120,24 +120,27 @@ __all__ = [
 
 
 @functools.cache
-def _initialisers(cfg: NetworkConfig) -> initialisers.Specs:
-    """Every parameter's path -> (shape, `Init`) of ``ActorCritic(cfg)``."""
+def _initialisers(net_cfg: NetworkConfig) -> initialisers.Specs:
+    """Every parameter's path -> (shape, `Init`) of ``ActorCritic(net_cfg)``."""
     b = 1
-    obs = jnp.zeros((1, b, *cfg.obs_shape), cfg.obs_dtype)
-    return initialisers.param_inits(ActorCritic(cfg), initial_carry(cfg, (b,)), obs, jnp.zeros((1, b), bool))
+    obs = jnp.zeros((1, b, *net_cfg.obs_shape), net_cfg.obs_dtype)
+    return initialisers.param_inits(
+        ActorCritic(net_cfg), initial_carry(net_cfg, (b,)), obs, jnp.zeros((1, b), bool)
+    )
 
 
-def init(key: jax.Array, cfg: NetworkConfig) -> Params:
-    """Initial params of ``ActorCritic(cfg)`` (a nested dict of float32 arrays); pure, so it can be vmapped
-    over keys. Every parameter is a slice of one of two flat random buffers (`initialisers.draw`): a separate
-    `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time each (11 s for the whole network).
+def init(key: jax.Array, net_cfg: NetworkConfig) -> Params:
+    """Initial params of ``ActorCritic(net_cfg)`` (a nested dict of float32 arrays); pure, so it can be
+    vmapped over keys. Every parameter is a slice of one of two flat random buffers (`initialisers.draw`): a
+    separate `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time each (11 s for the whole
+    network).
     """
-    return initialisers.draw(key, _initialisers(cfg))
+    return initialisers.draw(key, _initialisers(net_cfg))
 
 
-def initial_carry(cfg: NetworkConfig, batch_shape: tuple[int, ...]) -> Carry:
+def initial_carry(net_cfg: NetworkConfig, batch_shape: tuple[int, ...]) -> Carry:
     """Zero LSTM state for a batch of shape `batch_shape`."""
-    zeros = jnp.zeros((*batch_shape, cfg.hidden), jnp.float32)
+    zeros = jnp.zeros((*batch_shape, net_cfg.hidden), jnp.float32)
     return Carry(c=zeros, h=zeros)
 
 
@@ -147,40 +150,40 @@ def param_count(params: Params) -> int:
 
 
 def unroll(
-    params: Params, cfg: NetworkConfig, carry: Carry, obs: jax.Array, resets: jax.Array
+    params: Params, net_cfg: NetworkConfig, carry: Carry, obs: jax.Array, resets: jax.Array
 ) -> tuple[Carry, Output]:
     """`ActorCritic` over T steps of B sequences: carry `Carry` f32[B, H] x 2, obs uint8[T, B, 21, 21, 3]
     (symbolic: int8[T, B, 7, 7, 4]), resets bool[T, B] -> (final `Carry`, `Output` with T and B axes)."""
-    return ActorCritic(cfg).apply({"params": params}, carry, obs, resets)
+    return ActorCritic(net_cfg).apply({"params": params}, carry, obs, resets)
 
 
 def step(
-    params: Params, cfg: NetworkConfig, carry: Carry, obs: jax.Array, reset: jax.Array
+    params: Params, net_cfg: NetworkConfig, carry: Carry, obs: jax.Array, reset: jax.Array
 ) -> tuple[Carry, Output]:
     """One step for acting: obs uint8[B, 21, 21, 3] (or int8[B, 7, 7, 4]), reset bool[B]; `Output` fields
     have no T axis."""
-    carry, out = unroll(params, cfg, carry, obs[None], reset[None])
+    carry, out = unroll(params, net_cfg, carry, obs[None], reset[None])
     return carry, jax.tree_util.tree_map(lambda x: x[0], out)
 
 
-def attention_loss(params: Params, cfg: NetworkConfig, hidden: jax.Array, target: jax.Array, weight):
+def attention_loss(params: Params, net_cfg: NetworkConfig, hidden: jax.Array, target: jax.Array, weight):
     """Weighted attention loss ``sum(weight * mean_k CE(logits_k, target_k))``, f32[].
 
     hidden f32[..., H]; target int[..., K] each other slot's view cell (`observe.attention_targets`:
     row * 7 + col, or 49 when not in view); weight f32[...]. Raises ValueError without the attention head.
     """
-    chex.assert_shape(target, (*hidden.shape[:-1], cfg.n_others))
-    logits = ActorCritic(cfg).apply({"params": params}, hidden, method=ActorCritic.attention_logits)
+    chex.assert_shape(target, (*hidden.shape[:-1], net_cfg.n_others))
+    logits = ActorCritic(net_cfg).apply({"params": params}, hidden, method=ActorCritic.attention_logits)
     log_probs = jax.nn.log_softmax(logits)
     nll = -jnp.take_along_axis(log_probs, target[..., None].astype(jnp.int32), -1)[..., 0]
     return jnp.sum(weight * jnp.mean(nll, -1))
 
 
-def decode(params: Params, cfg: NetworkConfig, hidden: jax.Array, action: jax.Array) -> jax.Array:
+def decode(params: Params, net_cfg: NetworkConfig, hidden: jax.Array, action: jax.Array) -> jax.Array:
     """Auxiliary prediction f32[..., 21, 21, 3] from LSTM outputs f32[..., H] and actions int[...].
 
     Unbounded (linear output layer); the learner compares it with obs / 255 (see `aux_loss`, which
     computes that comparison and its gradient faster). Symbolic views: logits f32[..., 7, 7, PREDICTED_VOCAB]
     (`symbolic_errors`). Raises ValueError without a decoder.
     """
-    return ActorCritic(cfg).apply({"params": params}, hidden, action, method=ActorCritic.decode)
+    return ActorCritic(net_cfg).apply({"params": params}, hidden, action, method=ActorCritic.decode)

@@ -208,12 +208,12 @@ class SlotState(NamedTuple):
 
 
 def init_slot_state(
-    pop: Population, net: network.NetworkConfig, env_params: EnvParams, n_envs: int
+    pop: Population, net_cfg: network.NetworkConfig, env_params: EnvParams, n_envs: int
 ) -> SlotState:
     """The slot state before the first step (every environment starts an episode then)."""
     batched = jax.tree.map(lambda x: jnp.broadcast_to(x, (n_envs, *x.shape)), experts.init_memory(env_params))
     return SlotState(
-        carry=network.initial_carry(net, (len(pop.neural), n_envs)),
+        carry=network.initial_carry(net_cfg, (len(pop.neural), n_envs)),
         memory=(batched,) * len(pop.experts),
         reward=jnp.zeros((n_envs, env_params.n_agents), jnp.float32),
     )
@@ -230,17 +230,17 @@ def view_rows(slots: tuple[int, ...], observers: Observers) -> tuple[int, ...]:
     return tuple(observers.index(i) for i in slots)
 
 
-def _step_neural(pop: Population, net: network.NetworkConfig, params, carry, obs, resets, observers):
+def _step_neural(pop: Population, net_cfg: network.NetworkConfig, params, carry, obs, resets, observers):
     """One network step of every neural slot (vmapped over slots), each on its own view of obs [E, K, ...]
     (the views of `observers`)."""
     neural_obs = jnp.moveaxis(obs[:, jnp.asarray(view_rows(pop.neural, observers))], 1, 0)
-    return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(params, net, carry, neural_obs, resets)
+    return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(params, net_cfg, carry, neural_obs, resets)
 
 
 def act(
     key: jax.Array,
     pop: Population,
-    net: network.NetworkConfig,
+    net_cfg: network.NetworkConfig,
     env_params: EnvParams,
     params,
     slot_state: SlotState,
@@ -266,7 +266,7 @@ def act(
     actions = jax.random.randint(k_random, (n_envs, n_agents), 0, NUM_ACTIONS)
     carry, logp, value = slot_state.carry, jnp.zeros((0, n_envs)), jnp.zeros((0, n_envs))
     if pop.neural:
-        carry, out = _step_neural(pop, net, params, carry, obs, resets, observers)
+        carry, out = _step_neural(pop, net_cfg, params, carry, obs, resets, observers)
         chosen = jax.random.categorical(k_neural, out.logits)
         logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), chosen[..., None], -1)[..., 0]
         actions = actions.at[:, jnp.asarray(pop.neural)].set(chosen.T.astype(actions.dtype))
@@ -296,7 +296,7 @@ def with_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:
 
 def values(
     pop: Population,
-    net: network.NetworkConfig,
+    net_cfg: network.NetworkConfig,
     params,
     carry: network.Carry,
     obs: jax.Array,
@@ -306,5 +306,5 @@ def values(
     """float32[S, E] neural slots' values of `obs` ([E, K, ...], the views of `observers` as in `act`)
     continuing from `carry`, zeroed first where `resets` (bool[E]; None: nowhere)."""
     resets = jnp.zeros(obs.shape[0], bool) if resets is None else resets
-    _, out = _step_neural(pop, net, params, carry, obs, resets, observers)
+    _, out = _step_neural(pop, net_cfg, params, carry, obs, resets, observers)
     return out.value

@@ -166,7 +166,9 @@ BATCH_ENV_AXES = Batch(**{name: 1 for name in Batch._fields})._replace(carry0=0)
 TARGETS_ENV_AXES = Targets(carries=1, advantages=1, returns=1)
 
 
-def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Devices = ONE_DEVICE) -> Targets:
+def recompute(
+    params, net_cfg: NetworkConfig, ppo_cfg: PPOConfig, batch: Batch, dp: Devices = ONE_DEVICE
+) -> Targets:
     """Unroll the current network over the whole rollout: new segment-start hidden states, values and GAE.
 
     Every environment on its own, so each device of `dp` computes its environments' targets. The bootstrap
@@ -175,21 +177,21 @@ def recompute(params, net: NetworkConfig, cfg: PPOConfig, batch: Batch, dp: Devi
     environment and rollout).
     """
     local = dp.per_device(
-        functools.partial(_recompute, net=net, cfg=cfg),
+        functools.partial(_recompute, net_cfg=net_cfg, ppo_cfg=ppo_cfg),
         in_axes=(None, BATCH_ENV_AXES),
         out_axes=TARGETS_ENV_AXES,
     )
     return local(params, batch)
 
 
-def _recompute(params, batch: Batch, net: NetworkConfig, cfg: PPOConfig) -> Targets:
+def _recompute(params, batch: Batch, net_cfg: NetworkConfig, ppo_cfg: PPOConfig) -> Targets:
     """`recompute` on one device."""
-    length = cfg.segment_length
+    length = ppo_cfg.segment_length
     n_steps = batch.actions.shape[0]
 
     def unroll_segment(carry, segment):
         obs, resets = segment
-        new_carry, out = network.unroll(params, net, carry, obs, resets)
+        new_carry, out = network.unroll(params, net_cfg, carry, obs, resets)
         return new_carry, (carry, out.value)
 
     segments = jax.tree.map(
@@ -197,23 +199,29 @@ def _recompute(params, batch: Batch, net: NetworkConfig, cfg: PPOConfig) -> Targ
     )
     last_carry, (carries, values) = jax.lax.scan(unroll_segment, batch.carry0, segments)
     values = values.reshape(n_steps, *values.shape[2:])
-    _, last = network.unroll(params, net, last_carry, batch.obs[-1:], batch.resets[-1:])
-    return _targets(cfg, batch, carries, jnp.concatenate([values, last.value], axis=0))
+    _, last = network.unroll(params, net_cfg, last_carry, batch.obs[-1:], batch.resets[-1:])
+    return _targets(ppo_cfg, batch, carries, jnp.concatenate([values, last.value], axis=0))
 
 
-def rollout_targets(cfg: PPOConfig, batch: Batch) -> Targets:
+def rollout_targets(ppo_cfg: PPOConfig, batch: Batch) -> Targets:
     """The targets of the rollout policy from the values and segment-start states the rollout recorded
     (`batch.values`, `batch.segment_carries`): `recompute` with the rollout's params, up to float rounding."""
-    return _targets(cfg, batch, batch.segment_carries, batch.values)
+    return _targets(ppo_cfg, batch, batch.segment_carries, batch.values)
 
 
-def _targets(cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.Array) -> Targets:
+def _targets(ppo_cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.Array) -> Targets:
     """Targets from segment-start states and values float32[T+1, E] (the last bootstraps): GAE, where a
     truncated episode bootstraps from the value of its final observation (`batch.final_values`)."""
     truncated = batch.done & ~batch.terminated
     next_values = jnp.where(truncated, batch.final_values, values[1:])
     advantages, returns = gae(
-        batch.rewards, values[:-1], next_values, batch.terminated, batch.done, cfg.gamma, cfg.gae_lambda
+        batch.rewards,
+        values[:-1],
+        next_values,
+        batch.terminated,
+        batch.done,
+        ppo_cfg.gamma,
+        ppo_cfg.gae_lambda,
     )
     return Targets(carries, advantages, returns)
 
@@ -248,7 +256,9 @@ def _masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
     return jnp.sum(x * mask) / jnp.maximum(jnp.sum(mask), 1.0)
 
 
-def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array], dp: Devices = ONE_DEVICE):
+def loss_fn(
+    params, net_cfg: NetworkConfig, ppo_cfg: PPOConfig, mb: dict[str, jax.Array], dp: Devices = ONE_DEVICE
+):
     """The paper's total loss on one minibatch: L_pi + c_V L_V + c_aux L_aux - c_ent H (+ c_att L_att with
     the attention head).
 
@@ -257,10 +267,10 @@ def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]
     """
 
     def unroll(params, carry, obs, resets):
-        return network.unroll(params, net, carry, obs, resets)
+        return network.unroll(params, net_cfg, carry, obs, resets)
 
     def aux_part(params, hidden, actions, target, weight):  # f32[1], one per device, summed below
-        return network.aux_loss(params, net, hidden, actions, target, weight, dp.axis_name)[None]
+        return network.aux_loss(params, net_cfg, hidden, actions, target, weight, dp.axis_name)[None]
 
     unroll = dp.per_device(unroll, in_axes=(None, 0, 1, 1), out_axes=(0, 1))
     aux_part = dp.per_device(aux_part, in_axes=(None, 1, 1, 1, 1), out_axes=0)
@@ -271,42 +281,44 @@ def loss_fn(params, net: NetworkConfig, cfg: PPOConfig, mb: dict[str, jax.Array]
     log_ratio = logp - mb["logp"]
     ratio = jnp.exp(log_ratio)
     adv = mb["advantages"]
-    if cfg.normalize_advantages:
+    if ppo_cfg.normalize_advantages:
         mean = _masked_mean(adv, valid)
         std = jnp.sqrt(_masked_mean((adv - mean) ** 2, valid))
         adv = (adv - mean) / (std + 1e-8)
     policy_loss = _masked_mean(
-        -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv), valid
+        -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - ppo_cfg.clip, 1 + ppo_cfg.clip) * adv), valid
     )
     value_loss = _masked_mean((out.value - mb["returns"]) ** 2, valid)
     entropy = _masked_mean(-jnp.sum(jnp.exp(log_probs) * log_probs, -1), valid)
     kl = _masked_mean(ratio - 1.0 - log_ratio, valid)
-    loss = policy_loss + cfg.value_coef * value_loss - cfg.entropy_coef * entropy
+    loss = policy_loss + ppo_cfg.value_coef * value_loss - ppo_cfg.entropy_coef * entropy
     metrics = {
         "policy_loss": policy_loss,
         "value_loss": value_loss,
         "entropy": entropy,
         "kl": kl,
-        "clip_frac": _masked_mean((jnp.abs(ratio - 1.0) > cfg.clip).astype(jnp.float32), valid),
+        "clip_frac": _masked_mean((jnp.abs(ratio - 1.0) > ppo_cfg.clip).astype(jnp.float32), valid),
         "ratio_mean": _masked_mean(ratio, valid),
     }
-    if net.frame_aux != "none":
-        predict = net.frame_aux == "pred"
+    if net_cfg.frame_aux != "none":
+        predict = net_cfg.frame_aux == "pred"
         target = mb["next_obs"] if predict else mb["obs"]
         # A next observation after the episode ended belongs to a new episode: nothing to predict.
         aux_mask = (valid & ~mb["done"] if predict else valid).astype(jnp.float32)
         weight = aux_mask / jnp.maximum(jnp.sum(aux_mask), 1.0)  # the masked mean of the frames' errors
         metrics["aux_loss"] = jnp.sum(aux_part(params, out.hidden, mb["actions"], target, weight))
-        loss = loss + cfg.aux_coef * metrics["aux_loss"]
-    if net.attention:
+        loss = loss + ppo_cfg.aux_coef * metrics["aux_loss"]
+    if net_cfg.attention:
         weight = valid.astype(jnp.float32) / jnp.maximum(jnp.sum(valid), 1.0)
-        metrics["attention_loss"] = network.attention_loss(params, net, out.hidden, mb["attention"], weight)
-        loss = loss + cfg.attention_coef * metrics["attention_loss"]
+        metrics["attention_loss"] = network.attention_loss(
+            params, net_cfg, out.hidden, mb["attention"], weight
+        )
+        loss = loss + ppo_cfg.attention_coef * metrics["attention_loss"]
     return loss, metrics
 
 
-def make_optimizer(cfg: PPOConfig) -> optax.GradientTransformation:
-    return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.lr, eps=1e-5))
+def make_optimizer(ppo_cfg: PPOConfig) -> optax.GradientTransformation:
+    return optax.chain(optax.clip_by_global_norm(ppo_cfg.max_grad_norm), optax.adam(ppo_cfg.lr, eps=1e-5))
 
 
 class UpdateState(NamedTuple):
@@ -322,8 +334,8 @@ def update(
     key: jax.Array,
     params,
     opt_state,
-    net: NetworkConfig,
-    cfg: PPOConfig,
+    net_cfg: NetworkConfig,
+    ppo_cfg: PPOConfig,
     batch: Batch,
     dp: Devices = ONE_DEVICE,
 ) -> tuple[dict, optax.OptState, dict[str, jax.Array]]:
@@ -338,9 +350,9 @@ def update(
     member ended). Returns new params, optimiser state and metrics (means over the minibatches that ran).
     `dp`: the devices the batch is split over (see the module docstring).
     """
-    optimizer = make_optimizer(cfg)
+    optimizer = make_optimizer(ppo_cfg)
     batch = dp.shard(batch, BATCH_ENV_AXES)
-    n_segments = batch.actions.shape[0] // cfg.segment_length * batch.actions.shape[1]
+    n_segments = batch.actions.shape[0] // ppo_cfg.segment_length * batch.actions.shape[1]
     grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
 
     from_rollout = batch.values is not None
@@ -348,17 +360,17 @@ def update(
     def minibatch_step(state: UpdateState, inputs):
         m, k = inputs
         targets = jax.lax.cond(
-            (m % cfg.recompute_every == 0) & ((m > 0) | (not from_rollout)),
-            lambda: recompute(state.params, net, cfg, batch, dp),
+            (m % ppo_cfg.recompute_every == 0) & ((m > 0) | (not from_rollout)),
+            lambda: recompute(state.params, net_cfg, ppo_cfg, batch, dp),
             lambda: state.targets,
         )
-        idx = jax.random.choice(k, n_segments, (cfg.minibatch_segments,), replace=False)
-        mb = minibatch(batch, targets, idx, cfg.segment_length)
+        idx = jax.random.choice(k, n_segments, (ppo_cfg.minibatch_segments,), replace=False)
+        mb = minibatch(batch, targets, idx, ppo_cfg.segment_length)
         mb = dp.shard(mb, {name: int(name != "carry") for name in mb})  # [L, M, ...] along M, carry [M, H]
-        (_, metrics), grads = grad_fn(state.params, net, cfg, mb, dp)
+        (_, metrics), grads = grad_fn(state.params, net_cfg, ppo_cfg, mb, dp)
         kl = metrics["kl"]
-        apply = state.running & (kl <= cfg.kl_target)
-        revert = state.running & (kl > cfg.kl_hard_limit)
+        apply = state.running & (kl <= ppo_cfg.kl_target)
+        revert = state.running & (kl > ppo_cfg.kl_hard_limit)
         updates, new_opt = optimizer.update(grads, state.opt_state, state.params)
         new_params = optax.apply_updates(state.params, updates)
 
@@ -382,11 +394,13 @@ def update(
 
     params0, opt0 = params, opt_state
     if from_rollout:
-        targets0 = rollout_targets(cfg, batch)
+        targets0 = rollout_targets(ppo_cfg, batch)
     else:
-        targets0 = jax.tree.map(jnp.zeros_like, jax.eval_shape(lambda: recompute(params, net, cfg, batch)))
+        targets0 = jax.tree.map(
+            jnp.zeros_like, jax.eval_shape(lambda: recompute(params, net_cfg, ppo_cfg, batch))
+        )
     init = UpdateState(params, opt_state, jnp.array(True), jnp.array(False), jnp.array(0), targets0)
-    steps = (jnp.arange(cfg.num_minibatches), jax.random.split(key, cfg.num_minibatches))
+    steps = (jnp.arange(ppo_cfg.num_minibatches), jax.random.split(key, ppo_cfg.num_minibatches))
     final, (metrics, ran) = jax.lax.scan(step_or_skip, init, steps)
     summary = {name: _masked_mean(value, ran) for name, value in metrics.items()}
     summary["kl_last"] = metrics["kl"][jnp.maximum(jnp.sum(ran) - 1, 0)]
@@ -395,20 +409,22 @@ def update(
     return final.params, final.opt_state, summary
 
 
-def validate(cfg: PPOConfig, rollout_steps: int, num_envs: int) -> None:
+def validate(ppo_cfg: PPOConfig, rollout_steps: int, num_envs: int) -> None:
     """Raise ValueError for an impossible configuration (before anything compiles)."""
-    if rollout_steps % cfg.segment_length:
+    if rollout_steps % ppo_cfg.segment_length:
         raise ValueError(
-            f"segment_length={cfg.segment_length} must divide rollout_steps={rollout_steps} "
+            f"segment_length={ppo_cfg.segment_length} must divide rollout_steps={rollout_steps} "
             "(trajectories are cut into whole segments)"
         )
-    n_segments = rollout_steps // cfg.segment_length * num_envs
-    if cfg.minibatch_segments > n_segments:
+    n_segments = rollout_steps // ppo_cfg.segment_length * num_envs
+    if ppo_cfg.minibatch_segments > n_segments:
         raise ValueError(
-            f"minibatch_segments={cfg.minibatch_segments} is larger than the batch: {num_envs} envs x "
-            f"{rollout_steps // cfg.segment_length} segments = {n_segments} segments"
+            f"minibatch_segments={ppo_cfg.minibatch_segments} is larger than the batch: {num_envs} envs x "
+            f"{rollout_steps // ppo_cfg.segment_length} segments = {n_segments} segments"
         )
-    if cfg.num_minibatches < 1 or cfg.recompute_every < 1:
+    if ppo_cfg.num_minibatches < 1 or ppo_cfg.recompute_every < 1:
         raise ValueError("num_minibatches and recompute_every must be >= 1")
-    if not 0 < cfg.kl_target <= cfg.kl_hard_limit:
-        raise ValueError(f"need 0 < kl_target ({cfg.kl_target}) <= kl_hard_limit ({cfg.kl_hard_limit})")
+    if not 0 < ppo_cfg.kl_target <= ppo_cfg.kl_hard_limit:
+        raise ValueError(
+            f"need 0 < kl_target ({ppo_cfg.kl_target}) <= kl_hard_limit ({ppo_cfg.kl_hard_limit})"
+        )

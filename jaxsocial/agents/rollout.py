@@ -53,9 +53,9 @@ class Wiring:
 
     pop: population.Population
     env_params: EnvParams
-    net: network.NetworkConfig
-    ppo: ppo.PPOConfig
-    bc: bc.BCConfig
+    net_cfg: network.NetworkConfig
+    ppo_cfg: ppo.PPOConfig
+    bc_cfg: bc.BCConfig
     algo: str
     num_envs: int
     rollout_steps: int
@@ -82,7 +82,7 @@ class Wiring:
 def wiring(
     pop: population.Population,
     env_params: EnvParams,
-    net: network.NetworkConfig,
+    net_cfg: network.NetworkConfig,
     ppo_cfg: ppo.PPOConfig,
     bc_cfg: bc.BCConfig,
     algo: str,
@@ -95,9 +95,9 @@ def wiring(
     return Wiring(
         pop=pop,
         env_params=env_params,
-        net=net,
-        ppo=ppo_cfg,
-        bc=bc_cfg,
+        net_cfg=net_cfg,
+        ppo_cfg=ppo_cfg,
+        bc_cfg=bc_cfg,
         algo=algo,
         num_envs=num_envs,
         rollout_steps=rollout_steps,
@@ -111,13 +111,13 @@ def wiring(
 
 def optimizer(w: Wiring) -> optax.GradientTransformation:
     """The learners' optimiser (PPO's or behaviour cloning's)."""
-    return bc.make_optimizer(w.bc) if w.cloning else ppo.make_optimizer(w.ppo)
+    return bc.make_optimizer(w.bc_cfg) if w.cloning else ppo.make_optimizer(w.ppo_cfg)
 
 
 def init(w: Wiring, key: jax.Array) -> RunnerState:
     """The state before the first iteration: fresh learners, every environment reset."""
     k_params, k_env, k_run = jax.random.split(key, 3)
-    params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(k_params, w.n_learners), w.net)
+    params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(k_params, w.n_learners), w.net_cfg)
     reset = functools.partial(core.reset, observers=w.observed)
     obs, env_states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_env, w.num_envs), w.env_params)
     return RunnerState(
@@ -126,8 +126,8 @@ def init(w: Wiring, key: jax.Array) -> RunnerState:
         env_states=env_states,
         obs=obs,
         resets=jnp.ones(w.num_envs, bool),
-        slots=population.init_slot_state(w.pop, w.net, w.env_params, w.num_envs),
-        demo_carry=network.initial_carry(w.net, (w.n_learners, w.n_demo_streams)) if w.cloning else None,
+        slots=population.init_slot_state(w.pop, w.net_cfg, w.env_params, w.num_envs),
+        demo_carry=network.initial_carry(w.net_cfg, (w.n_learners, w.n_demo_streams)) if w.cloning else None,
         episode_return=jnp.zeros((w.num_envs, w.env_params.n_agents), jnp.float32),
         key=k_run,
         iteration=jnp.zeros((), jnp.int32),
@@ -144,7 +144,7 @@ def all_params(state: RunnerState, frozen_params) -> Any:
 def attention_targets(w: Wiring, env_states: EnvState) -> jax.Array | None:
     """int32[S_l, E, N-1] where each learner sees the other agents (`observe.attention_targets`), or None
     without an attention head."""
-    if not w.net.attention:
+    if not w.net_cfg.attention:
         return None
     targets = jax.vmap(observe.attention_targets, in_axes=(0, None))(env_states, w.env_params)
     return jnp.moveaxis(targets[:, w.learners], 1, 0)
@@ -161,7 +161,7 @@ def env_step(w: Wiring, carry: tuple[RunnerState, Any], key: jax.Array):
     actions, slots, logp, values = population.act(
         k_act,
         w.pop,
-        w.net,
+        w.net_cfg,
         w.env_params,
         params,
         state.slots,
@@ -178,7 +178,9 @@ def env_step(w: Wiring, carry: tuple[RunnerState, Any], key: jax.Array):
     n_learners = w.n_learners
     final_values = jax.lax.cond(
         any_in_batch(done),
-        lambda: population.values(w.pop, w.net, params, slots.carry, info["final_obs"], observers=w.observed),
+        lambda: population.values(
+            w.pop, w.net_cfg, params, slots.carry, info["final_obs"], observers=w.observed
+        ),
         lambda: jnp.zeros((len(w.pop.neural), w.num_envs), jnp.float32),
     )
     episode_return = state.episode_return + reward
@@ -265,7 +267,7 @@ def ppo_update(
     states `carry0` and ended in `state`; `params` are every neural slot's, those the rollout acted with.
     Returns the state with the new params and optimiser states, and the losses ({name: float32[S_l]})."""
     bootstrap = population.values(
-        w.pop, w.net, params, state.slots.carry, state.obs, state.resets, w.observed
+        w.pop, w.net_cfg, params, state.slots.carry, state.obs, state.resets, w.observed
     )
     batch = ppo_batch(  # [S_l, T(+1), E, ...]
         traj,
@@ -273,14 +275,14 @@ def ppo_update(
         state.resets,
         bootstrap[: w.n_learners],
         carry0,
-        w.ppo.segment_length,
+        w.ppo_cfg.segment_length,
     )
 
     # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
     # vmapped paper-size network, whose convolutions in frame batches are themselves a `lax.map`.
     def update(args):
         key, params, opt_state, learner_batch = args
-        return ppo.update(key, params, opt_state, w.net, w.ppo, learner_batch, dp)
+        return ppo.update(key, params, opt_state, w.net_cfg, w.ppo_cfg, learner_batch, dp)
 
     new_params, new_opt, losses = jax.lax.map(
         update, (jax.random.split(key, w.n_learners), state.params, state.opt_state, batch)
@@ -304,7 +306,7 @@ def bc_update(w: Wiring, state: RunnerState, traj: ppo.Batch) -> tuple[RunnerSta
 
     def update(args):
         params, opt_state, carry = args
-        return bc.update(params, opt_state, carry, w.net, w.bc, obs, resets, actions, valid)
+        return bc.update(params, opt_state, carry, w.net_cfg, w.bc_cfg, obs, resets, actions, valid)
 
     new_params, new_opt, carry, losses = jax.lax.map(
         update, (state.params, state.opt_state, state.demo_carry)

@@ -16,28 +16,30 @@ from jaxsocial.run.config import DriverConfig
 
 
 def plan_chunk(
-    cfg: DriverConfig, chunk_iterations: int, stages: tuple[schedule.Stage, ...], stage: int, it: int
+    driver_cfg: DriverConfig, chunk_iterations: int, stages: tuple[schedule.Stage, ...], stage: int, it: int
 ) -> int:
     """The iterations of the chunk after iteration `it` in `stage`: `chunk_iterations`, or fewer so that it
     ends on the run's last iteration, the iteration before the next iteration-triggered stage and (with
-    `cfg.eval_envs`) an evaluation iteration."""
-    n = min(chunk_iterations, cfg.iterations - it)
+    `driver_cfg.eval_envs`) an evaluation iteration."""
+    n = min(chunk_iterations, driver_cfg.iterations - it)
     switch = schedule.next_start(stages, stage)
     if switch is not None and switch > it:
         n = min(n, switch - it)  # land exactly on the next stage's first iteration
-    if cfg.eval_envs:
-        n = min(n, cfg.eval_every - it % cfg.eval_every)
+    if driver_cfg.eval_envs:
+        n = min(n, driver_cfg.eval_every - it % driver_cfg.eval_every)
     return n
 
 
-def evaluates(cfg: DriverConfig, end: int) -> bool:
-    """Whether the learner is evaluated after iteration `end`: every `cfg.eval_every`-th and the last."""
-    return bool(cfg.eval_envs) and (end % cfg.eval_every == 0 or end == cfg.iterations)
+def evaluates(driver_cfg: DriverConfig, end: int) -> bool:
+    """Whether the learner is evaluated after iteration `end`: every `driver_cfg.eval_every`-th and the
+    last."""
+    return bool(driver_cfg.eval_envs) and (end % driver_cfg.eval_every == 0 or end == driver_cfg.iterations)
 
 
-def checkpoint_due(cfg: DriverConfig, it: int, last_saved: int) -> bool:
-    """Whether iteration `it` is saved: `cfg.checkpoint_every` after the last save, and the run's last."""
-    return it - last_saved >= cfg.checkpoint_every or it == cfg.iterations
+def checkpoint_due(driver_cfg: DriverConfig, it: int, last_saved: int) -> bool:
+    """Whether iteration `it` is saved: `driver_cfg.checkpoint_every` after the last save, and the run's
+    last."""
+    return it - last_saved >= driver_cfg.checkpoint_every or it == driver_cfg.iterations
 
 
 class Chunk(NamedTuple):

@@ -74,14 +74,14 @@ def _learners(run: RunConfig) -> tuple[int, ...]:
     return population.Population(population.run_slots(run.slots, env_params)).learners
 
 
-def check(source: CheckpointRef, seeds: list[int], net: NetworkConfig, learners: tuple[int, ...]) -> None:
-    """Validate `source` for a new run of `seeds` with the network `net` and its learners in slots
+def check(source: CheckpointRef, seeds: list[int], net_cfg: NetworkConfig, learners: tuple[int, ...]) -> None:
+    """Validate `source` for a new run of `seeds` with the network `net_cfg` and its learners in slots
     `learners`: the source exists, has the checkpoint, and has this run's network architecture and learner
     slots. ValueError or FileNotFoundError naming the difference; nothing is compiled."""
     source_iteration(source, seeds)
     for seed_dir in sorted(set(source_dirs(source, seeds))):
         theirs_cfg = source_config(seed_dir)
-        theirs, ours = policy_io.architecture(theirs_cfg.net), policy_io.architecture(net)
+        theirs, ours = policy_io.architecture(theirs_cfg.net), policy_io.architecture(net_cfg)
         diff = sorted(k for k in ours if theirs.get(k) != ours[k])
         if diff:
             raise ValueError(

@@ -41,22 +41,31 @@ ENV_AXES = RunnerState(
 
 
 def make_program(
-    cfg: ProgramConfig,
+    program_cfg: ProgramConfig,
     env_params: EnvParams,
     pop: population.Population,
     mesh: jax.sharding.Mesh | None = None,
 ):
-    """The pure training functions of one program: `cfg` in the validated environment `env_params` with the
-    slots `pop` (see `config.setup`), wired from `jaxsocial.agents.rollout`.
+    """The pure training functions of one program: `program_cfg` in the validated environment `env_params`
+    with the slots `pop` (see `config.setup`), wired from `jaxsocial.agents.rollout`.
 
     Returns `(init, run_chunk)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
     (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
     None). Metrics are dicts of arrays with a leading iteration axis; `metrics[nonfinite.KEY]` holds the
-    iteration's finiteness checks ({quantity: bool[n, S_l]}). One seed (`cfg.seeds` is handled by
+    iteration's finiteness checks ({quantity: bool[n, S_l]}). One seed (`program_cfg.seeds` is handled by
     `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
     minibatches over them too).
     """
-    w = rollout.wiring(pop, env_params, cfg.net, cfg.ppo, cfg.bc, cfg.algo, cfg.num_envs, cfg.rollout_steps)
+    w = rollout.wiring(
+        pop,
+        env_params,
+        program_cfg.net,
+        program_cfg.ppo,
+        program_cfg.bc,
+        program_cfg.algo,
+        program_cfg.num_envs,
+        program_cfg.rollout_steps,
+    )
     devices = distributed.data_parallel(mesh) or ppo.ONE_DEVICE
 
     def iteration(state: RunnerState, frozen_params):

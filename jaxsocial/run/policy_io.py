@@ -24,32 +24,32 @@ SPEED_FIELDS = ("conv_impl", "frame_batch", "dtype")
 whatever `dtype` computes them: a bfloat16 run's policy plays in a float32 run, and the other way round)."""
 
 
-def json_net(net: network.NetworkConfig) -> dict:
+def json_net(net_cfg: network.NetworkConfig) -> dict:
     """The network config as plain JSON types (for checkpoint metadata)."""
-    return logs.to_json(dataclasses.asdict(net))
+    return logs.to_json(dataclasses.asdict(net_cfg))
 
 
-def architecture(net: network.NetworkConfig) -> dict:
+def architecture(net_cfg: network.NetworkConfig) -> dict:
     """The fields that decide the params and the function (JSON types): what a loaded policy must match."""
-    return {k: v for k, v in json_net(net).items() if k not in SPEED_FIELDS}
+    return {k: v for k, v in json_net(net_cfg).items() if k not in SPEED_FIELDS}
 
 
 def export_policy(
     run_dir: str | Path,
     step: int,
     params: Any,
-    net: network.NetworkConfig,
+    net_cfg: network.NetworkConfig,
     *,
     slots: str = "",
     keep: int | None = None,
 ) -> None:
-    """Write learners' params (stacked [S_l, ...]) trained with `net` to `run_dir/policy/<step>`, with the
+    """Write learners' params (stacked [S_l, ...]) trained with `net_cfg` to `run_dir/policy/<step>`, with the
     network and the run's `slots` as metadata, unless that step exists; keep the latest `keep` (None: all)."""
     directory = Path(run_dir) / POLICY_DIR
     if step in checkpoint.all_steps(directory):
         return
     n_learners = int(jax.tree.leaves(params)[0].shape[0])
-    meta = {"net": json_net(net), "n_learners": n_learners, "slots": slots}
+    meta = {"net": json_net(net_cfg), "n_learners": n_learners, "slots": slots}
     checkpoint.save(directory, step, {"params": params}, metadata=meta, keep=keep)
 
 
@@ -84,34 +84,34 @@ def _meta_net(meta: dict[str, Any]) -> network.NetworkConfig:
     return network.NetworkConfig(**network_config.modern_keys(meta["net"]))
 
 
-def load_policy(policy: PolicyRef | str | Path, net: network.NetworkConfig):
+def load_policy(policy: PolicyRef | str | Path, net_cfg: network.NetworkConfig):
     """Params of one learner from a run directory's `policy/` checkpoints, for a frozen slot.
 
     `policy` is `RUN_DIR` (its first learner) or `RUN_DIR#k` (its k-th learner). Raises ValueError if the
-    saved network's architecture differs from `net` (a checkpoint of another architecture; `SPEED_FIELDS`
+    saved network's architecture differs from `net_cfg` (a checkpoint of another architecture; `SPEED_FIELDS`
     may differ) or the run has no policy.
     """
     policy = PolicyRef.of(policy)
     directory, k = _policy_dir(policy), policy.learner
     meta = checkpoint.read_metadata(directory)
     saved = architecture(_meta_net(meta))
-    if saved != architecture(net):
+    if saved != architecture(net_cfg):
         raise ValueError(
             f"frozen slot {policy}: the checkpoint's network {saved} differs from this run's network "
-            f"{architecture(net)} (a checkpoint of another architecture)"
+            f"{architecture(net_cfg)} (a checkpoint of another architecture)"
         )
     n_saved = int(meta["n_learners"])
     if not 0 <= k < n_saved:
         raise ValueError(f"frozen slot {policy}: learner index {k} out of range (the run had {n_saved})")
     template = jax.eval_shape(
-        jax.vmap(lambda k: network.init(k, net)), jax.random.split(jax.random.key(0), n_saved)
+        jax.vmap(lambda k: network.init(k, net_cfg)), jax.random.split(jax.random.key(0), n_saved)
     )
     params = checkpoint.restore(directory, {"params": template})["params"]
     return jax.tree.map(lambda x: x[k], params)
 
 
-def load_frozen(pop: population.Population, net: network.NetworkConfig) -> Any:
+def load_frozen(pop: population.Population, net_cfg: network.NetworkConfig) -> Any:
     """The frozen slots' params stacked [S_f, ...] in slot order, or None if `pop` has no frozen slot."""
     if not pop.frozen:
         return None
-    return population.stack([load_policy(pop.slots[i].policy, net) for i in pop.frozen])
+    return population.stack([load_policy(pop.slots[i].policy, net_cfg) for i in pop.frozen])

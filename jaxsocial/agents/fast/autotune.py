@@ -1,4 +1,4 @@
-"""The machine's choices for `NetworkConfig` fields set to "auto": `resolve(net, batch)`.
+"""The machine's choices for `NetworkConfig` fields set to "auto": `resolve(net_cfg, batch)`.
 
 * ``dtype="auto"`` (`auto_dtype`): "bfloat16" on GPUs (and TPUs) and on CPUs with AMX (`amx_bf16` in
   /proc/cpuinfo's flags), "float32" otherwise. On a CPU without AMX bfloat16 measured slower for the paper
@@ -7,10 +7,10 @@
 * ``conv_impl="auto"`` (for every layer, or ``layer=auto`` for some; `network_config.parse_conv_impl`): per
   conv layer and deconv layer, the fastest of the implementations (`conv.IMPLS`) on this machine, measured in
   the config's (resolved) dtype for the layer's real shapes: its input ``[h, w, frames, c_in]`` with
-  ``frames = min(batch, net.frame_batch)`` (the conv layers run on `net.frame_batch` frames at a time), the
-  forward pass and the gradients the network needs (conv1: no input gradient), jitted, best of `REPS` calls
-  after a warm-up, the candidates interleaved call by call (so the machine's drift affects them alike);
-  "matmul" unless another is clearly faster (`choose`, `PREFER`). Candidates that compute alike
+  ``frames = min(batch, net_cfg.frame_batch)`` (the conv layers run on `net_cfg.frame_batch` frames at a
+  time), the forward pass and the gradients the network needs (conv1: no input gradient), jitted, best of
+  `REPS` calls after a warm-up, the candidates interleaved call by call (so the machine's drift affects them
+  alike); "matmul" unless another is clearly faster (`choose`, `PREFER`). Candidates that compute alike
   (`conv.formulation`: "matmul" and "im2col" at stride 3, or at stride 1 in bfloat16) are measured once, as
   the first of them in `conv.IMPLS`. A layer timed alone misses what XLA does across layers, so each layer
   whose choice alone is not "matmul" is then confirmed in the whole gradient step (`measure_step`; `tune`) and
@@ -207,13 +207,13 @@ class LayerSpec:
         return tuple(out)
 
 
-def layer_specs(net: NetworkConfig, batch: int) -> dict[str, LayerSpec]:
-    """`net.conv_layers` -> their `LayerSpec` for calls of `batch` frames (in batches of
-    `net.frame_batch`)."""
+def layer_specs(net_cfg: NetworkConfig, batch: int) -> dict[str, LayerSpec]:
+    """`net_cfg.conv_layers` -> their `LayerSpec` for calls of `batch` frames (in batches of
+    `net_cfg.frame_batch`)."""
     if not (isinstance(batch, int) and not isinstance(batch, bool) and batch > 0):
         raise ValueError(f"batch must be a positive integer (frames per network call), got {batch!r}")
-    frames = min(batch, net.frame_batch)
-    c1, c2, c3 = net.conv_channels
+    frames = min(batch, net_cfg.frame_batch)
+    c1, c2, c3 = net_cfg.conv_channels
     size = OBS_SHAPE[0]
     sizes = [size // STRIDES[0]]  # 7: conv2's input (conv1's output, or the symbolic view's cells)
     for stride in STRIDES[1:]:
@@ -227,7 +227,7 @@ def layer_specs(net: NetworkConfig, batch: int) -> dict[str, LayerSpec]:
         "deconv2": LayerSpec("deconv2", True, STRIDES[1], sizes[1], c2, c1, frames),
         "deconv3": LayerSpec("deconv3", True, STRIDES[0], sizes[0], c1, OBS_SHAPE[-1], frames),
     }
-    return {layer: specs[layer] for layer in net.conv_layers}
+    return {layer: specs[layer] for layer in net_cfg.conv_layers}
 
 
 # ------------------------------------------------------------------------------------------ measuring
@@ -260,24 +260,24 @@ def measure(spec: LayerSpec, impls: tuple[str, ...], dtype: str, reps: int = REP
     return _best({impl: _compiled(spec, impl, dtype) for impl in impls}, reps)
 
 
-def _step(net: NetworkConfig, frames: int):
-    """The jitted gradient of a loss on all of `net`'s heads (value, policy, the auxiliary decoder through
+def _step(net_cfg: NetworkConfig, frames: int):
+    """The jitted gradient of a loss on all of `net_cfg`'s heads (value, policy, the auxiliary decoder through
     `network.aux_loss`) for one step of `frames` sequences, and its arguments."""
     rng = np.random.default_rng(0)
-    params = jax.jit(network.init, static_argnums=1)(jax.random.key(0), net)
-    if net.symbolic:
-        obs = jnp.zeros((1, frames, *net.obs_shape), net.obs_dtype)
+    params = jax.jit(network.init, static_argnums=1)(jax.random.key(0), net_cfg)
+    if net_cfg.symbolic:
+        obs = jnp.zeros((1, frames, *net_cfg.obs_shape), net_cfg.obs_dtype)
     else:
-        obs = jnp.asarray(rng.integers(0, 256, (1, frames, *net.obs_shape)), net.obs_dtype)
-    actions = jnp.asarray(rng.integers(0, net.n_actions, (1, frames)), jnp.int32)
+        obs = jnp.asarray(rng.integers(0, 256, (1, frames, *net_cfg.obs_shape)), net_cfg.obs_dtype)
+    actions = jnp.asarray(rng.integers(0, net_cfg.n_actions, (1, frames)), jnp.int32)
 
     def loss(params, obs, actions):
-        carry = network.initial_carry(net, (frames,))
-        _, out = network.unroll(params, net, carry, obs, jnp.zeros((1, frames), bool))
+        carry = network.initial_carry(net_cfg, (frames,))
+        _, out = network.unroll(params, net_cfg, carry, obs, jnp.zeros((1, frames), bool))
         total = jnp.mean(out.value**2) - jnp.mean(jax.nn.log_softmax(out.logits))
-        if net.frame_aux != "none":
+        if net_cfg.frame_aux != "none":
             weight = jnp.full(actions.shape, 1.0 / actions.size)
-            total += network.aux_loss(params, net, out.hidden, actions, obs, weight)
+            total += network.aux_loss(params, net_cfg, out.hidden, actions, obs, weight)
         return total
 
     args = (params, obs, actions)
@@ -286,7 +286,7 @@ def _step(net: NetworkConfig, frames: int):
 
 def measure_step(nets: tuple[NetworkConfig, ...], frames: int, reps: int = REPS) -> tuple[float, ...]:
     """Best seconds of `reps` gradient steps (`_step`) of `frames` frames per network of `nets` (`_best`)."""
-    times = _best({i: _step(net, frames) for i, net in enumerate(nets)}, reps)
+    times = _best({i: _step(net_cfg, frames) for i, net_cfg in enumerate(nets)}, reps)
     return tuple(times[i] for i in range(len(nets)))
 
 
@@ -399,13 +399,13 @@ class Tuning:
         return {layer: choice.impl for layer, choice in self.choices.items()}
 
 
-def _network_key(net: NetworkConfig, frames: int, machine: str) -> str:
+def _network_key(net_cfg: NetworkConfig, frames: int, machine: str) -> str:
     """The cache key of a network's choices: `machine`, dtype, frames, the architecture and `conv_impl`."""
     fields = {
-        k: v for k, v in dataclasses.asdict(net).items() if k not in ("frame_batch", "dtype", "conv_impl")
+        k: v for k, v in dataclasses.asdict(net_cfg).items() if k not in ("frame_batch", "dtype", "conv_impl")
     }
     arch = ",".join(f"{k}={v}" for k, v in sorted(fields.items())).replace(" ", "")
-    return f"{machine}|{net.dtype}|network {arch} frames {frames} conv_impl {net.conv_impl}"
+    return f"{machine}|{net_cfg.dtype}|network {arch} frames {frames} conv_impl {net_cfg.conv_impl}"
 
 
 def _cached_times(entry, candidates: tuple[str, ...]) -> dict[str, float] | None:
@@ -421,9 +421,9 @@ def _now() -> str:
     return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
 
 
-def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps: int = REPS) -> Tuning:
-    """The choice of every layer of `net` whose `conv_impl` entry is "auto", in `net`'s dtype (resolved with
-    `auto_dtype` if "auto"), for calls of `batch` frames (`layer_specs`).
+def tune(net_cfg: NetworkConfig, batch: int, *, path: str | Path | None = None, reps: int = REPS) -> Tuning:
+    """The choice of every layer of `net_cfg` whose `conv_impl` entry is "auto", in `net_cfg`'s dtype
+    (resolved with `auto_dtype` if "auto"), for calls of `batch` frames (`layer_specs`).
 
     From the cache file `path` (default `cache_path()`) where it holds this network's key; else each layer's
     fastest implementation alone (`measure`, or the cache's entry for the layer's key; `choose`), confirmed in
@@ -432,12 +432,12 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
     kept only if the step then takes less than `STEP_PREFER` times as long. Everything measured is added to
     the file.
     """
-    net = dataclasses.replace(net, dtype=auto_dtype()) if net.dtype == AUTO else net
-    specs = layer_specs(net, batch)
-    auto = [layer for layer, impl in net.layer_impls.items() if impl == AUTO]
-    frames = min(batch, net.frame_batch)
+    net_cfg = dataclasses.replace(net_cfg, dtype=auto_dtype()) if net_cfg.dtype == AUTO else net_cfg
+    specs = layer_specs(net_cfg, batch)
+    auto = [layer for layer, impl in net_cfg.layer_impls.items() if impl == AUTO]
+    frames = min(batch, net_cfg.frame_batch)
     machine = machine_id()
-    key = _network_key(net, frames, machine)
+    key = _network_key(net_cfg, frames, machine)
     if not auto:
         return Tuning({}, {}, True, key)
     path = Path(path) if path is not None else cache_path()
@@ -454,7 +454,7 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
                 )
                 for layer in auto
             }
-            if all(c.impl in specs[c.layer].candidates(net.dtype) for c in choices.values()):
+            if all(c.impl in specs[c.layer].candidates(net_cfg.dtype) for c in choices.values()):
                 return Tuning(choices, dict(cached.get("step_s", {})), True, key)
             raise ValueError("an implementation that is not a candidate")
         except (KeyError, TypeError, ValueError, AttributeError) as err:
@@ -463,16 +463,16 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
             )
 
     print(
-        f"autotune: measuring the {len(auto)} 'auto' layers on this machine ({net.dtype}, {frames} frames), "
-        f"once: the choice is cached in {path}",
+        f"autotune: measuring the {len(auto)} 'auto' layers on this machine ({net_cfg.dtype}, {frames} "
+        "frames), once: the choice is cached in {path}",
         file=sys.stderr,
         flush=True,
     )
     alone, times = {}, {}
     for layer in auto:
         spec = specs[layer]
-        layer_key = spec.key(net.dtype, machine)
-        candidates = spec.candidates(net.dtype)
+        layer_key = spec.key(net_cfg.dtype, machine)
+        candidates = spec.candidates(net_cfg.dtype)
         entry = entries.get(layer_key)
         if (cached_times := _cached_times(entry, candidates)) is not None:
             times[layer] = cached_times
@@ -481,21 +481,21 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
                 warnings.warn(
                     f"autotune cache {path}: entry {layer_key!r} unusable; measuring again", stacklevel=2
                 )
-            times[layer] = measure(spec, candidates, net.dtype, reps)
+            times[layer] = measure(spec, candidates, net_cfg.dtype, reps)
             new[layer_key] = {"times_s": times[layer], "measured": _now()}
         alone[layer] = choose(times[layer], candidates)
         log.info(
-            "autotune %s (%s, %d frames): %s alone (%s)", layer, net.dtype, frames, alone[layer],
+            "autotune %s (%s, %d frames): %s alone (%s)", layer, net_cfg.dtype, frames, alone[layer],
             ", ".join(f"{c} {times[layer][c] * 1e3:.2f} ms" for c in candidates),
         )  # fmt: skip
 
-    impls = net.impls | dict.fromkeys(auto, CONV_IMPLS[0])
+    impls = net_cfg.impls | dict.fromkeys(auto, CONV_IMPLS[0])
     step_s: dict[str, float] = {}
     for layer in auto:
         if alone[layer] == CONV_IMPLS[0]:
             continue
-        current = dataclasses.replace(net, conv_impl=format_conv_impl(impls))
-        trial = dataclasses.replace(net, conv_impl=format_conv_impl(impls | {layer: alone[layer]}))
+        current = dataclasses.replace(net_cfg, conv_impl=format_conv_impl(impls))
+        trial = dataclasses.replace(net_cfg, conv_impl=format_conv_impl(impls | {layer: alone[layer]}))
         before, after = measure_step((current, trial), frames, reps)
         step_s |= {current.conv_impl: before, trial.conv_impl: after}
         kept = after < STEP_PREFER * before
@@ -517,26 +517,26 @@ def tune(net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps
 
 
 def resolve(
-    net: NetworkConfig, batch: int, *, path: str | Path | None = None, reps: int = REPS
+    net_cfg: NetworkConfig, batch: int, *, path: str | Path | None = None, reps: int = REPS
 ) -> NetworkConfig:
-    """`net` with every "auto" replaced by this machine's choice: `dtype` first (`auto_dtype`), then each
+    """`net_cfg` with every "auto" replaced by this machine's choice: `dtype` first (`auto_dtype`), then each
     "auto" conv layer's implementation (`tune`: cached, else measured in the resolved dtype). The result names
-    every layer's implementation ("conv1=matmul,conv2=xla,...") when some layer was "auto"; `net` itself when
-    nothing is "auto".
+    every layer's implementation ("conv1=matmul,conv2=xla,...") when some layer was "auto"; `net_cfg` itself
+    when nothing is "auto".
 
     `batch`: frames per call of the network in the step that matters for speed, the gradient step (PPO: a
     minibatch, ``minibatch_segments * segment_length`` samples); the layers are measured at
-    ``min(batch, net.frame_batch)`` frames, the frame batch the conv layers run on. `path`: the cache file
+    ``min(batch, net_cfg.frame_batch)`` frames, the frame batch the conv layers run on. `path`: the cache file
     (default `cache_path()`).
     """
-    if not net.unresolved:
-        return net
-    if net.dtype == AUTO:
-        net = dataclasses.replace(net, dtype=auto_dtype())
-    tuning = tune(net, batch, path=path, reps=reps)
+    if not net_cfg.unresolved:
+        return net_cfg
+    if net_cfg.dtype == AUTO:
+        net_cfg = dataclasses.replace(net_cfg, dtype=auto_dtype())
+    tuning = tune(net_cfg, batch, path=path, reps=reps)
     if not tuning.choices:
-        return net
-    impls = net.impls | tuning.impls
+        return net_cfg
+    impls = net_cfg.impls | tuning.impls
     return dataclasses.replace(
-        net, conv_impl=format_conv_impl({layer: impls[layer] for layer in net.conv_layers})
+        net_cfg, conv_impl=format_conv_impl({layer: impls[layer] for layer in net_cfg.conv_layers})
     )
