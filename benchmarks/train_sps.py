@@ -434,7 +434,7 @@ def synthetic_rollout(cfg: network.NetworkConfig, steps: int, envs: int, seed: i
         logp=logp,
         rewards=jnp.asarray(rng.normal(size=(steps, envs)), jnp.float32),
         terminated=resets[1:],
-        done=resets[1:],
+        agent_done=resets[1:],
         final_values=jnp.zeros((steps, envs)),
         valid=jnp.ones((steps, envs), bool),
         carry0=carry0,

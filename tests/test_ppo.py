@@ -83,7 +83,7 @@ def synthetic_rollout(key, params, net=NET):
         logp=logp,
         rewards=jax.random.normal(k_rew, (T, E)),
         terminated=done & (jnp.arange(E) % 2 == 0),
-        done=done,
+        agent_done=done,
         final_values=jnp.ones((T, E)),
         valid=jnp.ones((T, E), bool),
         carry0=carry0,
@@ -197,7 +197,9 @@ def test_aux_loss_targets(setup, aux):
     _, metrics = loss(params, net, CFG, mb)
     _, out = unroll(params, net, mb["carry"], mb["obs"], mb["resets"])
     prediction = decode(params, net, out.hidden, mb["actions"])
-    target, mask = (mb["next_obs"], ~mb["done"]) if aux == "pred" else (mb["obs"], jnp.ones_like(mb["done"]))
+    target, mask = (
+        (mb["next_obs"], ~mb["agent_done"]) if aux == "pred" else (mb["obs"], jnp.ones_like(mb["agent_done"]))
+    )
     error = jnp.abs(prediction - target / 255.0).mean(axis=(-3, -2, -1))
     # The same decoder (4 layers after the LSTM output, at most 8 * 9 = 72 terms a dot product) in two
     # programs; the mean absolute error is a relative 1-Lipschitz function of its inputs, and each mean

@@ -97,16 +97,17 @@ class Batch(NamedTuple):
     obs: uint8[T+1, E, 21, 21, 3] (symbolic: int8[T+1, E, 7, 7, 4]); resets: bool[T+1, E] (the step starts
     a new episode: reset the LSTM);
     actions: int32[T, E]; logp: float32[T, E] rollout log-probabilities; rewards: float32[T, E];
-    terminated: bool[T, E] (the agent reached a terminal state, no bootstrap); done: bool[T, E] (its episode
-    ended after this step); final_values: float32[T, E] value of `info["final_obs"]` where the episode was
-    truncated (bootstrap through the time limit); valid: bool[T, E] the agent was acting (not done earlier);
+    terminated: bool[T, E] (the agent reached a terminal state, no bootstrap); agent_done: bool[T, E] (its
+    episode ended after this step: it terminated or the environment's episode ended, `info["done"]`);
+    final_values: float32[T, E] value of `info["final_obs"]` where the episode was truncated (bootstrap
+    through the time limit); valid: bool[T, E] the agent was acting (not done earlier);
     carry0: the LSTM state before step 0 (network.Carry of float32[E, H]); attention: int32[T, E, K] each
     other slot's cell in the learner's view (`observe.attention_targets`), None without an attention head.
     values: float32[T+1, E] the rollout policy's values (the last of the bootstrap step) and segment_carries:
     its LSTM states before each segment's first step (Carry of float32[C, E, H]); both given, they are the
     targets of minibatch 0 (`rollout_targets`: what its recompute would compute, without the unroll), both
     None, minibatch 0 recomputes them.
-    The rollout records each step in the same class (`loop.make_program`: no time axis, carry0 None,
+    The rollout records each step in the same class (`rollout.env_step`: no time axis, carry0 None,
     segment_carries every step's LSTM state; obs, actions and valid of the training slots), and `ppo_batch`
     adds both.
     """
@@ -117,7 +118,7 @@ class Batch(NamedTuple):
     logp: jax.Array
     rewards: jax.Array
     terminated: jax.Array
-    done: jax.Array
+    agent_done: jax.Array
     final_values: jax.Array
     valid: jax.Array
     carry0: network.Carry
@@ -131,14 +132,14 @@ def gae(
     values: jax.Array,
     next_values: jax.Array,
     terminated: jax.Array,
-    done: jax.Array,
+    agent_done: jax.Array,
     gamma: float,
     lam: float,
 ) -> tuple[jax.Array, jax.Array]:
     """Generalised advantage estimation over a [T, ...] time axis.
 
     `next_values[t]` is the value of the state after step t (for a truncated episode, the value of its final
-    observation); it is ignored where `terminated[t]`. The recursion is cut where `done[t]`.
+    observation); it is ignored where `terminated[t]`. The recursion is cut where `agent_done[t]`.
     Returns (advantages, returns = advantages + values), float32[T, ...].
     """
     delta = rewards + gamma * next_values * (1.0 - terminated) - values
@@ -148,7 +149,9 @@ def gae(
         adv = d + gamma * lam * (1.0 - cut) * next_adv
         return adv, adv
 
-    _, adv = jax.lax.scan(backward, jnp.zeros_like(delta[0]), (delta, done.astype(jnp.float32)), reverse=True)
+    _, adv = jax.lax.scan(
+        backward, jnp.zeros_like(delta[0]), (delta, agent_done.astype(jnp.float32)), reverse=True
+    )
     return adv, adv + values
 
 
@@ -212,14 +215,14 @@ def rollout_targets(ppo_cfg: PPOConfig, batch: Batch) -> Targets:
 def _targets(ppo_cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.Array) -> Targets:
     """Targets from segment-start states and values float32[T+1, E] (the last bootstraps): GAE, where a
     truncated episode bootstraps from the value of its final observation (`batch.final_values`)."""
-    truncated = batch.done & ~batch.terminated
+    truncated = batch.agent_done & ~batch.terminated
     next_values = jnp.where(truncated, batch.final_values, values[1:])
     advantages, returns = gae(
         batch.rewards,
         values[:-1],
         next_values,
         batch.terminated,
-        batch.done,
+        batch.agent_done,
         ppo_cfg.gamma,
         ppo_cfg.gae_lambda,
     )
@@ -242,7 +245,7 @@ def minibatch(batch: Batch, targets: Targets, idx: jax.Array, length: int) -> di
         "resets": take(batch.resets),
         "actions": take(batch.actions),
         "logp": take(batch.logp),
-        "done": take(batch.done),
+        "agent_done": take(batch.agent_done),
         "valid": take(batch.valid),
         "advantages": take(targets.advantages),
         "returns": take(targets.returns),
@@ -304,7 +307,7 @@ def loss_fn(
         predict = net_cfg.frame_aux == "pred"
         target = mb["next_obs"] if predict else mb["obs"]
         # A next observation after the episode ended belongs to a new episode: nothing to predict.
-        aux_mask = (valid & ~mb["done"] if predict else valid).astype(jnp.float32)
+        aux_mask = (valid & ~mb["agent_done"] if predict else valid).astype(jnp.float32)
         weight = aux_mask / jnp.maximum(jnp.sum(aux_mask), 1.0)  # the masked mean of the frames' errors
         metrics["aux_loss"] = jnp.sum(aux_part(params, out.hidden, mb["actions"], target, weight))
         loss = loss + ppo_cfg.aux_coef * metrics["aux_loss"]

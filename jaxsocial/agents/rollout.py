@@ -4,6 +4,8 @@ on it (`lax.map` over learners, `ppo.update`) or behaviour cloning's (`bc.update
 they carry between iterations. `jaxsocial.run.loop.make_program` wires them into a compiled program.
 
 Everything static (slots, network, environment, hyperparameters) is a `Wiring`, made once by `wiring`.
+Names: `done` bool[E] an environment's episode ended (`info["done"]`); `agent_done` bool[..., E] an agent's
+episode ended (it terminated, or `done`); `resets` bool[E] the step starts an episode (the previous `done`).
 Shapes: E environments, N agents, T rollout steps, S neural slots (S_l learners first, then frozen
 policies), K rendered views (`observers`), D demonstrators, H LSTM units.
 """
@@ -194,7 +196,7 @@ def env_step(w: Wiring, carry: tuple[RunnerState, Any], key: jax.Array):
         logp=logp[:n_learners],
         rewards=reward[:, w.learners].T,
         terminated=terminated[:, w.learners].T,
-        done=agent_done[:, w.learners].T,
+        agent_done=agent_done[:, w.learners].T,
         final_values=final_values[:n_learners],
         valid=alive[:, w.training_slots].T,
         carry0=None,
@@ -237,8 +239,8 @@ def ppo_batch(
     A rollout step is a `ppo.Batch` without the time axis and with carry0 None: obs, actions and valid are of
     the training slots (learners for PPO, demonstrators for BC), the rest of the learners: obs uint8 or int8
     [E, S_r, ...] (the environment's observations), resets bool[E], actions int32[S_r, E], valid bool[S_r, E],
-    logp, rewards, values, final_values float32[S_l, E], terminated, done bool[S_l, E], segment_carries the
-    LSTM states before the step (Carry of float32[S_l, E, H]) and attention int32[S_l, E, N-1] with an
+    logp, rewards, values, final_values float32[S_l, E], terminated, agent_done bool[S_l, E], segment_carries
+    the LSTM states before the step (Carry of float32[S_l, E, H]) and attention int32[S_l, E, N-1] with an
     attention head (`observe.attention_targets`), else None."""
     obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
     resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
