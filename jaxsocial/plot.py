@@ -75,7 +75,7 @@ class Group:
 
 def slot_labels(config: dict[str, Any]) -> list[str]:
     """Each slot's label ('learner', 'expert:explorer', ...) from a run's config."""
-    _, env_params = jaxsocial.make(config["env"], **specs.parse_assignments(config.get("env_args", "")))
+    _, env_params = jaxsocial.make(config["env"], **dict(specs.ENV_ARGS.parse(config.get("env_args", ""))))
     text = config.get("slots") or population.default_slots(env_params)
     return [s.label for s in population.parse_slots(text, env_params.n_agents, need_learner=False)]
 

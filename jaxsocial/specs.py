@@ -1,7 +1,7 @@
 """Values written as text on command lines and in config.json and held parsed:
 
-* ``field=value,...``: EnvParams overrides (`parse_assignments`, `format_assignments`; held as pairs), the
-  syntax of `--env-args`, of a stage's overrides (`run.schedule`) and of an `EnvSpec`'s;
+* ``field=value,...``: EnvParams overrides (`ENV_ARGS`; held as pairs, values Python literals), the syntax
+  of `--env-args`, of a stage's overrides (`run.schedule`) and of an `EnvSpec`'s;
 * `EnvSpec`: an environment, ``NAME`` or ``NAME:field=value,...`` (evaluation environments, `--env` of the
   tools); `check_eval_envs` checks a training run's;
 * `PolicyRef`: a learner's exported policy, ``RUN_DIR`` (its first learner) or ``RUN_DIR#k`` (its k-th), for
@@ -17,7 +17,6 @@ config.json (`config.TEXT_FIELDS`).
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import warnings
 from collections.abc import Callable
@@ -27,27 +26,8 @@ from typing import Annotated, Any
 import tyro
 
 import jaxsocial
+from jaxsocial import syntax
 from jaxsocial.env.types import EnvParams
-
-
-def parse_assignments(text: str) -> dict[str, Any]:
-    """'a=1,b=x' -> {'a': 1, 'b': 'x'} (values parsed as Python literals when possible), the syntax of
-    `--env-args` and of a stage's overrides. Raises ValueError on an entry without '='."""
-    out = {}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"entry {item!r} is not key=value")
-        try:
-            out[key.strip()] = ast.literal_eval(value.strip())
-        except (ValueError, SyntaxError):
-            out[key.strip()] = value.strip()
-    return out
-
-
-def format_assignments(values: dict[str, Any]) -> str:
-    """The inverse of `parse_assignments`."""
-    return ",".join(f"{k}={v!r}" for k, v in values.items())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +41,7 @@ class EnvSpec:
     def parse(cls, text: str) -> EnvSpec:
         """``NAME`` or ``NAME:field=value,...`` (the syntax only: `env_params` checks the name and the
         fields). ValueError on an override without '='."""
-        name, _, args = text.partition(":")
+        name, args = syntax.split_name(text)
         return cls(name.strip(), ENV_ARGS.parse(args))
 
     def env_params(self) -> EnvParams:
@@ -179,9 +159,10 @@ ENV = TextField(EnvSpec.parse, str, "NAME[:FIELD=VALUE,...]", EnvSpec)
 Env = Annotated[EnvSpec, ENV.flag()]
 """An `EnvSpec` flag."""
 ENV_ARGS = TextField(
-    lambda text: tuple(parse_assignments(text).items()),
-    lambda pairs: format_assignments(dict(pairs)),
+    lambda text: tuple(dict(syntax.parse_assignments(text, syntax.literal)).items()),
+    lambda pairs: syntax.format_assignments(pairs, repr),
     "FIELD=VALUE,...",
 )
 EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
-"""EnvParams overrides, held as (field, value) pairs, written 'field=value,...' (`--env-args`)."""
+"""EnvParams overrides, held as (field, value) pairs (a field given twice: its last value), written
+'field=value,...' (`--env-args`)."""

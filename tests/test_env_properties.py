@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 import jaxsocial
 from jaxsocial.env import core
 from jaxsocial.env.types import LEFT, NUM_ACTIONS, PICKUP, WALL
-from jaxsocial.specs import parse_assignments
+from jaxsocial.specs import ENV_ARGS
 
 STEPS = 24  # several episodes per rollout: every configuration's max_steps is <= 12
 CONFIGS = (
@@ -41,7 +41,7 @@ SETTINGS = settings(
 def params_of(index: int):
     name, overrides = CONFIGS[index]
     defaults = {"observation": "symbolic"}
-    return jaxsocial.make(name, **{**defaults, **parse_assignments(overrides)})[1]
+    return jaxsocial.make(name, **{**defaults, **dict(ENV_ARGS.parse(overrides))})[1]
 
 
 @functools.cache

@@ -1,6 +1,7 @@
-"""The command-line mini-languages (slots, experts, stages, assignments, policy and checkpoint references)
-each have one parser and one formatter, and formatting then parsing gives back what was parsed
-(hypothesis); a whole TrainConfig's derived command line gives the config back."""
+"""The command-line mini-languages (slots, experts, stages, assignments, per-layer conv_impl, policy and
+checkpoint references) each have one parser and one formatter, and formatting then parsing gives back what
+was parsed (hypothesis); their two shared syntaxes, `key=value,...` and `NAME[:ARGS]`, have one parser each
+(`jaxsocial.syntax`); a whole TrainConfig's derived command line gives the config back."""
 
 import json
 import string
@@ -11,11 +12,11 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxsocial
-from jaxsocial import specs, train
-from jaxsocial.agents import experts, population
+from jaxsocial import syntax, train
+from jaxsocial.agents import experts, network_config, population
 from jaxsocial.run import config, flags, logs, schedule
 from jaxsocial.run.flags import config_flags
-from jaxsocial.specs import CheckpointRef, EnvSpec, PolicyRef
+from jaxsocial.specs import ENV_ARGS, CheckpointRef, EnvSpec, PolicyRef
 
 probabilities = st.floats(0.0, 1.0, allow_nan=False)
 experts_ = st.builds(experts.ExpertSpec, st.sampled_from(experts.KINDS), probabilities, probabilities)
@@ -33,6 +34,13 @@ values = st.one_of(
 keys = st.text(string.ascii_lowercase + "_", min_size=1, max_size=10)
 overrides = st.dictionaries(keys, values, min_size=1, max_size=4)
 thresholds = st.floats(-1e6, 1e6, allow_nan=False)
+words = st.text(string.ascii_letters + string.digits + "_-.:/#@' ", min_size=1, max_size=12).map(str.strip)
+"""Keys and values as text: anything but ',' and '=', without surrounding whitespace ('' included)."""
+conv_impls = st.dictionaries(
+    st.sampled_from(network_config.CONV_LAYERS),
+    st.sampled_from((*network_config.CONV_IMPLS, "auto")),
+    min_size=1,
+)
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -85,8 +93,38 @@ def test_stages_round_trip(stages):
 
 
 @given(overrides)
-def test_assignments_round_trip(values_):
-    assert specs.parse_assignments(specs.format_assignments(values_)) == values_
+def test_env_args_round_trip(values_):
+    pairs = tuple(values_.items())
+    assert ENV_ARGS.parse(ENV_ARGS.format(pairs)) == pairs
+    assert syntax.parse_assignments(syntax.format_assignments(values_, repr), syntax.literal) == list(pairs)
+
+
+@given(st.dictionaries(words.filter(bool), words, max_size=4), st.lists(words, min_size=1, max_size=3))
+def test_assignments_and_names_round_trip(values_, bare):
+    text = syntax.format_assignments(values_)
+    assert syntax.parse_assignments(text) == list(values_.items())
+    spaced = ", ".join([*(f" {k} = {v} " for k, v in values_.items()), *bare])
+    assert syntax.parse_assignments(spaced, bare=True) == [*values_.items(), *((None, v) for v in bare)]
+    assert syntax.split_name(f"name:{text}") == ("name", text) and syntax.split_name("name") == ("name", "")
+
+
+@given(conv_impls)
+def test_conv_impls_round_trip(impls):
+    unnamed = dict.fromkeys(network_config.CONV_LAYERS, "matmul")  # the layers not named
+    assert network_config.parse_conv_impl(network_config.format_conv_impl(impls)) == {**unnamed, **impls}
+
+
+def test_assignments_refuse_what_is_not_field_value():
+    assert syntax.parse_assignments(" ,a = 1,, b=x=y:z ,") == [("a", "1"), ("b", "x=y:z")]
+    with pytest.raises(ValueError, match="entry 'b' is not field=value"):
+        syntax.parse_assignments("a=1,b")
+    assert syntax.parse_assignments("xla,", bare=True) == [(None, "xla"), (None, "")]  # nothing skipped
+    with pytest.raises(ValueError, match="unknown implementation ''"):
+        network_config.parse_conv_impl("xla,")
+    assert ENV_ARGS.parse("penalty=0.5,agent_colors=fixed,penalty=-1") == (
+        ("penalty", -1),
+        ("agent_colors", "fixed"),
+    )
 
 
 def test_formatting_is_the_syntax_users_write():

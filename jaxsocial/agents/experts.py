@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxsocial import syntax
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import (
     BONUS,
@@ -81,8 +82,8 @@ class ExpertSpec:
     def __str__(self) -> str:
         """'kind' or 'kind:field=value,...' (the fields off their defaults), as `parse_expert` reads it."""
         fields = [f for f in dataclasses.fields(self)[1:] if getattr(self, f.name) != f.default]
-        changed = [f"{f.name}={getattr(self, f.name)!r}" for f in fields]
-        return f"{self.kind}:{','.join(changed)}" if changed else self.kind
+        changed = syntax.format_assignments((f.name, getattr(self, f.name)) for f in fields)
+        return f"{self.kind}:{changed}" if changed else self.kind
 
 
 def parse_expert(text: str) -> ExpertSpec:
@@ -90,16 +91,17 @@ def parse_expert(text: str) -> ExpertSpec:
 
     Raises ValueError for an unknown kind or field, a malformed item or a value outside [0, 1].
     """
-    kind, _, rest = text.strip().partition(":")
+    kind, rest = syntax.split_name(text)
     kind = kind.strip()
     if kind not in KINDS:
         raise ValueError(f"unknown expert kind {kind!r} in {text!r}; choose one of {KINDS}")
     fields = [f.name for f in dataclasses.fields(ExpertSpec) if f.name != "kind"]
     values: dict[str, float] = {}
-    for item in filter(None, (part.strip() for part in rest.split(","))):
-        name, eq, value = (s.strip() for s in item.partition("="))
-        if not eq:
-            raise ValueError(f"expected field=value, got {item!r} in {text!r}")
+    try:
+        assignments = syntax.parse_assignments(rest)
+    except ValueError as error:
+        raise ValueError(f"expert {text!r}: {error}") from None
+    for name, value in assignments:
         if name not in fields:
             raise ValueError(f"unknown expert field {name!r} in {text!r}; valid fields: {', '.join(fields)}")
         if name in values:

@@ -19,6 +19,7 @@ from typing import Any, Literal, get_args
 
 import jax.numpy as jnp
 
+from jaxsocial import syntax
 from jaxsocial.agents.fast import conv, precision
 from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_SHAPE
@@ -236,11 +237,10 @@ def parse_conv_impl(value: str) -> dict[str, str]:
     if not isinstance(value, str):
         raise ValueError(f"conv_impl must be a string, got {value!r}")
     default, named = None, {}
-    for entry in value.split(","):
-        layer, sep, impl = (part.strip() for part in entry.strip().rpartition("="))
+    for layer, impl in syntax.parse_assignments(value, bare=True):
         if impl not in choices:
             raise ValueError(f"conv_impl {value!r}: unknown implementation {impl!r}; choose from {choices}")
-        if not sep:
+        if layer is None:
             if default is not None:
                 raise ValueError(f"conv_impl {value!r}: two defaults ({default!r}, {impl!r})")
             default = impl
@@ -257,4 +257,4 @@ def format_conv_impl(impls: dict[str, str]) -> str:
     """{layer: impl} -> the per-layer `conv_impl` string in `CONV_LAYERS` order ("conv1=xla,conv2=matmul")."""
     if unknown := set(impls) - set(CONV_LAYERS):
         raise ValueError(f"unknown conv layers {sorted(unknown)}; choose from {CONV_LAYERS}")
-    return ",".join(f"{layer}={impls[layer]}" for layer in CONV_LAYERS if layer in impls)
+    return syntax.format_assignments((layer, impls[layer]) for layer in CONV_LAYERS if layer in impls)

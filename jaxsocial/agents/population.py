@@ -14,6 +14,7 @@ from typing import Annotated, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxsocial import syntax
 from jaxsocial.agents import experts, network
 from jaxsocial.env.observe import Observers
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
@@ -50,10 +51,8 @@ class Slot:
 def _split_entries(text: str) -> list[str]:
     """Split a slot list on commas, keeping an expert's own 'k=v,k=v' arguments with their entry."""
     entries: list[str] = []
-    for token in (t.strip() for t in text.split(",")):
-        if not token:
-            continue
-        if entries and "=" in token and token.partition(":")[0] not in SLOT_KINDS:
+    for token in syntax.split_entries(text):
+        if entries and "=" in token and syntax.split_name(token)[0] not in SLOT_KINDS:
             entries[-1] += "," + token
         else:
             entries.append(token)
@@ -64,7 +63,7 @@ def parse_slot(entry: str) -> Slot:
     """'learner' | 'random' | 'frozen:POLICY' | 'expert:ckpt=POLICY' (a trained expert, same as frozen; POLICY
     is `RUN_DIR` or `RUN_DIR#k`, `specs.PolicyRef`) | 'expert:KIND[:k=v,...]' (a scripted expert, see
     `experts.parse_expert`). Raises ValueError."""
-    kind, _, arg = entry.partition(":")
+    kind, arg = syntax.split_name(entry)
     if kind not in SLOT_KINDS:
         raise ValueError(f"unknown slot kind {kind!r} in {entry!r}; choose from {SLOT_KINDS}")
     if kind == "expert":

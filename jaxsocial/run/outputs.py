@@ -316,7 +316,7 @@ def chunk_description(n: int, stages: tuple[schedule.Stage, ...], stage: int) ->
         return text
     if stage < 0:
         return f"{text} before stage 1 of {len(stages)}"
-    changes = specs.format_assignments(dict(stages[stage].overrides))
+    changes = specs.ENV_ARGS.format(stages[stage].overrides)
     return f"{text} of stage {stage + 1} of {len(stages)} ({changes})"
 
 

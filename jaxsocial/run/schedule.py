@@ -22,7 +22,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from jaxsocial.specs import format_assignments, parse_assignments
+from jaxsocial import syntax
+from jaxsocial.specs import ENV_ARGS
 
 STRUCTURAL_FIELDS = ("layout", "width", "height", "n_agents", "n_goals", "view_size", "observation")
 """EnvParams fields that set array shapes (a stage may not change them)."""
@@ -39,20 +40,20 @@ class Stage:
     def __str__(self) -> str:
         """The stage as `parse_stages` reads it: 'N:field=value,...' or 'return>=X:field=value,...'."""
         when = str(self.start) if self.start is not None else f"return>={self.threshold!r}"
-        return f"{when}:{format_assignments(dict(self.overrides))}"
+        return f"{when}:{ENV_ARGS.format(self.overrides)}"
 
 
 def parse_stages(text: str) -> tuple[Stage, ...]:
     """Parse a schedule (see the module docstring). Raises ValueError on bad input."""
     stages: list[Stage] = []
-    for item in filter(None, (s.strip() for s in text.split(";"))):
-        when, sep, rest = item.partition(":")
+    for item in syntax.split_entries(text, ";"):
+        when, rest = syntax.split_name(item)
         when = when.replace(" ", "")
         try:
-            overrides = tuple(parse_assignments(rest).items())
+            overrides = ENV_ARGS.parse(rest)
         except ValueError:
             overrides = ()
-        if not sep or not overrides:
+        if not overrides:
             raise ValueError(f"stage {item!r} must be 'WHEN:field=value,...' (WHEN: iteration or return>=X)")
         if when.startswith("return>="):
             try:
