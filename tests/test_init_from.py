@@ -115,18 +115,20 @@ def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
 
 
 def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path):
-    """`records.pack(final_checkpoint=True)` keeps the checkpoint of the final policy's iteration, without
-    orbax's notes naming where it was written, so a later sitting branches from the committed record as from
-    the run; without it a record has no checkpoint to branch from."""
+    """`records.pack(checkpoint_reason=...)` keeps the checkpoint of the final policy's iteration and says
+    why in the provenance, without orbax's notes naming where it was written, so a later sitting branches from
+    the committed record as from the run; without it a record has no checkpoint to branch from."""
     run = dict.fromkeys(records.RUN_FIELDS)
     plain = records.pack(source, tmp_path / "plain", run, "tiny/source")
+    assert logs.read_json(plain / records.PROVENANCE_FILE)["record"]["checkpoint_reason"] is None
     with pytest.raises(FileNotFoundError, match="hold checkpoints"):
         _check(_branch(tmp_path, str(plain)))
-    record = records.pack(source, tmp_path / "record", run, "tiny/source", final_checkpoint=True)
+    reason = records.checkpoint_reason("all", 0.0, 5.0)
+    record = records.pack(source, tmp_path / "record", run, "tiny/source", checkpoint_reason=reason)
     assert checkpoint.all_steps(record / "checkpoints") == [TINY.iterations]
     assert not list(record.rglob(records.ORBAX_COMMIT_NOTE))
     packed = logs.read_json(record / records.PROVENANCE_FILE)["record"]
-    assert packed["checkpoint_iteration"] == TINY.iterations
+    assert packed["checkpoint_iteration"] == TINY.iterations and packed["checkpoint_reason"] == reason
     cfg = _branch(tmp_path, str(record))
     _check(cfg)
     assert _pin(cfg, tmp_path / "branch") == CheckpointRef(record, TINY.iterations)
@@ -138,4 +140,4 @@ def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path)
     shutil.copytree(source, partial)
     shutil.rmtree(partial / "checkpoints" / str(TINY.iterations))
     with pytest.raises(FileNotFoundError, match="no checkpoint of its final iteration"):
-        records.pack(partial, tmp_path / "p", run, "tiny/partial", final_checkpoint=True)
+        records.pack(partial, tmp_path / "p", run, "tiny/partial", checkpoint_reason=reason)

@@ -190,3 +190,12 @@ def test_every_committed_results_path_exists():
         if not (REPO / (p.with_suffix(".json") if p in suffixed else p)).exists()
     ]
     assert not missing and len(committed) >= 8
+
+
+def test_a_record_keeps_its_checkpoint_only_with_a_reason():
+    """`record --final-checkpoint`: learned seeds (above the threshold) or every seed keep theirs, and say
+    why; otherwise none is kept."""
+    assert records.checkpoint_reason(None, 30.0, 5.0) is None
+    assert records.checkpoint_reason("learned", 4.9, 5.0) is None
+    assert "final return 30.00 > 5" in records.checkpoint_reason("learned", 30.0, 5.0)
+    assert "--final-checkpoint all" in records.checkpoint_reason("all", -3.0, 5.0)

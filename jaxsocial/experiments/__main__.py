@@ -97,7 +97,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.add_argument("--overwrite", action="store_true", help="replace existing records")
             p.add_argument(
                 "--final-checkpoint",
-                choices=("learned", "all"),
+                choices=records.CHECKPOINT_CHOICES,
                 default=None,
                 help="also keep the final checkpoint (params and optimiser state) of the seeds that learned "
                 f"(final return > the design's threshold, else {LEARNED_RETURN:g}) or of all, so later "
@@ -174,19 +174,17 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
                 run = records.run_provenance(str(run_name), commands, args.device, args.jax)
             if run["rc"] not in (None, 0):
                 raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
-            keep = args.final_checkpoint == "all" or (
-                args.final_checkpoint == "learned" and final_return(rows) > threshold
-            )
-            if keep:
+            reason = records.checkpoint_reason(args.final_checkpoint, final_return(rows), threshold)
+            if reason:
                 records.require_checkpoint(seed_dir, iteration)
-            plan.append((seed_dir, relative, run, keep))
-    for seed_dir, relative, run, keep in plan:
+            plan.append((seed_dir, relative, run, reason))
+    for seed_dir, relative, run, reason in plan:
         record_dir = Path(args.out_dir) / relative
         if record_dir.exists() and any(record_dir.iterdir()) and not args.overwrite:
             print(f"  {record_dir}: already recorded, kept (--overwrite replaces it)")
             continue
-        records.pack(seed_dir, record_dir, run, str(relative), args.overwrite, final_checkpoint=keep)
-        with_checkpoint = ", with its final checkpoint" if keep else ""
+        records.pack(seed_dir, record_dir, run, str(relative), args.overwrite, checkpoint_reason=reason)
+        with_checkpoint = f", with its final checkpoint: {reason}" if reason else ""
         print(
             f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB"
             f"{with_checkpoint})"

@@ -6,9 +6,10 @@ A record is itself a run directory, so every tool that reads a run reads a recor
 * `config.json`, as the run wrote it;
 * `metrics.jsonl.gz`, the metrics gzipped (`logs.read_metrics` reads it);
 * `policy/<iteration>/`, the final policy exactly as `policy_io` exported it (params only);
-* `checkpoints/<iteration>/`, only where asked (`final_checkpoint`): the final checkpoint (params, optimiser
-  state and stage), so that a later sitting can branch from the record (`train --init-from RECORD`), e.g.
-  the follow-ups of a design's learners that learned (about 1.5 MB at the laptop scale);
+* `checkpoints/<iteration>/`, only where a follow-up branches from it (`pack`'s `checkpoint_reason`, which
+  the provenance keeps): the final checkpoint (params, optimiser state and stage), so that a later sitting
+  can branch from the record (`train --init-from RECORD`), e.g. the follow-ups of a design's learners that
+  learned (about 1.5 MB at the laptop scale);
 * `eval/*.json`, the evaluations after training (`logs.EVAL_DIR`);
 * `provenance.json`: how the run was made (`run`: the exact command, git commit, device, jax version, start
   date, exit status, as given to `pack`) and how the record was made (`record`: source, date, packing commit).
@@ -106,19 +107,37 @@ def run_provenance(
     return {k: entry[k] for k in RUN_FIELDS}
 
 
+CHECKPOINT_CHOICES = ("learned", "all")
+"""`record --final-checkpoint`: keep the final checkpoint of the seeds that learned, or of every seed."""
+
+
+def checkpoint_reason(which: str | None, final: float, threshold: float) -> str | None:
+    """Why a seed's record keeps its final checkpoint (`which` of `CHECKPOINT_CHOICES`, or None: never), given
+    its final return `final` and the learned threshold; None when it keeps none."""
+    branch = "later sittings branch from it (train --init-from RECORD)"
+    if which == "all":
+        return f"every seed's was asked for (--final-checkpoint all): {branch}"
+    if which == "learned" and final > threshold:
+        learned = f"the seed learned (final return {final:.2f} > {threshold:g})"
+        return f"{learned}: follow-ups of learned seeds {branch}"
+    return None
+
+
 def pack(
     seed_dir: str | Path,
     record_dir: str | Path,
     run: dict[str, Any],
     source: str,
     overwrite: bool = False,
-    final_checkpoint: bool = False,
+    checkpoint_reason: str | None = None,
 ) -> Path:
     """Pack one seed's run directory into the record `record_dir` (see the module docstring); `run` is the
-    run's provenance (`RUN_FIELDS`), `source` the seed's name under its runs root (e.g. 'cpu/RUN/s0'); with
-    `final_checkpoint`, the checkpoint of the final policy's iteration goes in too. Checks everything before
-    writing (`packable`; FileExistsError if the record exists, unless `overwrite`). Returns it."""
+    run's provenance (`RUN_FIELDS`), `source` the seed's name under its runs root (e.g. 'cpu/RUN/s0'); with a
+    `checkpoint_reason` (why a follow-up branches from it; the provenance keeps it) the checkpoint of the
+    final policy's iteration goes in too. Checks everything before writing (`packable`; FileExistsError if
+    the record exists, unless `overwrite`). Returns it."""
     seed_dir, record_dir = Path(seed_dir), Path(record_dir)
+    final_checkpoint = checkpoint_reason is not None
     iteration, rows = packable(seed_dir, final_checkpoint)
     planned = logs.read_config(seed_dir)["iterations"]
     if record_dir.exists() and any(record_dir.iterdir()):
@@ -151,6 +170,7 @@ def pack(
             "stopped_early": len(rows) < planned,
             "policy_iteration": iteration,
             "checkpoint_iteration": iteration if final_checkpoint else None,
+            "checkpoint_reason": checkpoint_reason,
             "packed": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "packed_at_commit": head_commit(),
             "packed_with_jax": jax.__version__,
