@@ -39,21 +39,21 @@ from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import logs, policy_io
 from jaxsocial.run.metrics import LEARNED_RETURN, mean_ci95
-from jaxsocial.specs import ENV_ARGS, EnvArgs, EnvSpec, Policy, PolicyRef, check_eval_envs
+from jaxsocial.specs import ENV_ARGS, EnvArgsFlag, EnvSpec, PolicyFlag, PolicyRef, check_eval_envs
 
 
 @dataclasses.dataclass(frozen=True)
 class EvalConfig:
     """An evaluation. Every field is a command-line flag."""
 
-    ckpt: tuple[Policy, ...] = ()
+    ckpt: tuple[PolicyFlag, ...] = ()
     """Run directories of the agent under test (RUN_DIR or RUN_DIR#k), one per training seed."""
     env: str = "goalcycle3"
     """Environment preset: goalcycle3, goalcycle4, fourrooms, maze, each also as NAME-solo and
     NAME-distractors."""
-    env_args: EnvArgs = ()
+    env_args: EnvArgsFlag = ()
     """EnvParams overrides, e.g. 'penalty=0.5,solo_prob=1.0'."""
-    slots: population.Slots = ()
+    slots: population.SlotsFlag = ()
     """Slots as in training; 'learner' is the agent under test (default: the learner in slot 0 and the
     environment's scripted experts and distractors)."""
     episodes: int = 100

@@ -153,16 +153,16 @@ class TextField:
 
 
 POLICY = TextField(PolicyRef.parse, str, "RUN_DIR[#k]", PolicyRef)
-Policy = Annotated[PolicyRef, POLICY.flag()]
+PolicyFlag = Annotated[PolicyRef, POLICY.flag()]
 """A `PolicyRef` flag."""
 ENV = TextField(EnvSpec.parse, str, "NAME[:FIELD=VALUE,...]", EnvSpec)
-Env = Annotated[EnvSpec, ENV.flag()]
+EnvFlag = Annotated[EnvSpec, ENV.flag()]
 """An `EnvSpec` flag."""
 ENV_ARGS = TextField(
     lambda text: tuple(dict(syntax.parse_assignments(text, syntax.literal)).items()),
     lambda pairs: syntax.format_assignments(pairs, repr),
     "FIELD=VALUE,...",
 )
-EnvArgs = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
+EnvArgsFlag = Annotated[tuple[tuple[str, Any], ...], ENV_ARGS.flag()]
 """EnvParams overrides, held as (field, value) pairs (a field given twice: its last value), written
 'field=value,...' (`--env-args`)."""

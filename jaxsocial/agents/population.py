@@ -106,7 +106,7 @@ def format_slots(slots: tuple[Slot, ...]) -> str:
 
 
 SLOTS = TextField(parse_slot_list, format_slots, "SLOT,...")
-Slots = Annotated[tuple[Slot, ...], SLOTS.flag()]
+SlotsFlag = Annotated[tuple[Slot, ...], SLOTS.flag()]
 """Agent slots, held parsed, written 'SLOT,...' (`--slots`)."""
 
 DEFAULT_EXPERT = {"goalcycle": "explorer", "fourrooms": "navigator", "maze": "navigator"}

@@ -28,7 +28,7 @@ from jaxsocial.experiments import paths, prereg
 from jaxsocial.run import config, schedule
 from jaxsocial.run.config import PRESETS, TrainConfig
 from jaxsocial.run.flags import config_flags
-from jaxsocial.specs import EnvArgs, EnvSpec
+from jaxsocial.specs import EnvArgsFlag, EnvSpec
 
 
 @dataclasses.dataclass(frozen=True)
@@ -190,7 +190,7 @@ class Condition:
     """The learner's actions (None: the scale's)."""
     slots: tuple[Slot, ...] = ()
     """The agent slots (empty: the environment's default, a learner beside its experts)."""
-    env_args: EnvArgs = ()
+    env_args: EnvArgsFlag = ()
     """Extra EnvParams overrides (after the scale's)."""
     eval_during_training: bool = False
     """Evaluate in solo 3-goal and in 4-goal with experts during training (the mixing figure)."""
@@ -374,7 +374,7 @@ def goalcycle_spec(name: str, scale: Scale) -> EnvSpec:
     return EnvSpec(name, scale.config.env_args if name.startswith("goalcycle") else ())
 
 
-def with_env_args(base: EnvArgs, extra: EnvArgs) -> EnvArgs:
+def with_env_args(base: EnvArgsFlag, extra: EnvArgsFlag) -> EnvArgsFlag:
     """EnvParams overrides `base`, then `extra` (which wins where both set a field)."""
     return tuple({**dict(base), **dict(extra)}.items())
 

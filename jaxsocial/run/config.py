@@ -24,7 +24,7 @@ from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
 from jaxsocial.run import logs, policy_io, schedule
-from jaxsocial.specs import CheckpointRef, Env, TextField
+from jaxsocial.specs import CheckpointRef, EnvFlag, TextField
 
 STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VALUE,...;...")
 INIT_FROM = TextField(CheckpointRef.parse, str, "RUN_DIR[@ITERATION]", CheckpointRef)
@@ -38,7 +38,7 @@ TEXT_FIELDS = {
 TEXT_TUPLE_FIELDS = {"eval_envs": specs.ENV}
 """The fields written as lists of text, one entry per value."""
 
-Stages = Annotated[tuple[schedule.Stage, ...], STAGES.flag()]
+StagesFlag = Annotated[tuple[schedule.Stage, ...], STAGES.flag()]
 InitFrom = Annotated[CheckpointRef | None, INIT_FROM.flag()]
 
 
@@ -50,14 +50,14 @@ class RunConfig:
 
     env: str = "goalcycle3"
     """Environment preset (see `jaxsocial.registered_envs()`)."""
-    env_args: specs.EnvArgs = ()
+    env_args: specs.EnvArgsFlag = ()
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
-    slots: population.Slots = ()
+    slots: population.SlotsFlag = ()
     """One entry per agent slot: learner | random | frozen:RUN_DIR[#k] | expert:ckpt=RUN_DIR[#k] (a trained
     expert) | expert:KIND[:epsilon=E,forget=F] (scripted: explorer, oracle, navigator). Default: a learner in
     slot 0, the environment's scripted expert in the next two (explorer in Goal Cycle, navigator in Four
     Rooms and Maze), random distractors in any others."""
-    stages: Stages = ()
+    stages: StagesFlag = ()
     """Environment changes during training, e.g. the penalty curriculum
     '0:penalty=0.5;return>=20:penalty=1.0;return>=20:penalty=1.5' or the switch to mixed solo/social
     training '5000:solo_prob=0.75' (see jaxsocial.run.schedule)."""
@@ -146,7 +146,7 @@ class DriverConfig:
     compile_cache: str | None = None
     """Persistent compilation cache directory: a later run of the same program skips compiling (off by
     default; see `python -m jaxsocial.run.compile_cache`)."""
-    eval_envs: tuple[Env, ...] = ()
+    eval_envs: tuple[EnvFlag, ...] = ()
     """Environments the first learner is evaluated in during training, each NAME or NAME:field=value,...
     (e.g. goalcycle3-solo goalcycle4), beside that environment's default companions; logged in
     metrics.jsonl as 'eval/<spec>' on every eval_every-th iteration and the last."""
