@@ -24,7 +24,7 @@ from pathlib import Path
 
 from run_info import REPO, metadata, write_results
 
-from jaxsocial import plot
+from jaxsocial import plot, stats
 from jaxsocial.run import logs, metrics
 
 CONDITIONS = ("social_pred_nopenalty", "social_pred")
@@ -48,7 +48,7 @@ def compare(
             group.label = f"{condition} {dtype}"
             groups.append(group)
             config = logs.read_config(run_dir)
-            entry[dtype] = metrics.stats([metrics.final_return(rows) for rows in group.rows]) | {
+            entry[dtype] = stats.summary([metrics.final_return(rows) for rows in group.rows]) | {
                 "run_dir": str(run_dir.relative_to(runs_dir)),
                 "net_dtype": config["net"].get("dtype", "float32"),
                 "iterations": [len(rows) for rows in group.rows],

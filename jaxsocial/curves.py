@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxsocial.run.metrics import mean_ci95
+from jaxsocial.stats import mean_ci95
 
 
 def band(ax, xs: list[np.ndarray], ys: list[np.ndarray], label: str, color) -> None:

@@ -38,8 +38,9 @@ from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import logs, policy_io
-from jaxsocial.run.metrics import LEARNED_RETURN, mean_ci95
+from jaxsocial.run.metrics import LEARNED_RETURN
 from jaxsocial.specs import ENV_ARGS, EnvArgsFlag, EnvSpec, PolicyFlag, PolicyRef, check_eval_envs
+from jaxsocial.stats import mean_ci95
 
 
 @dataclasses.dataclass(frozen=True)

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import jaxsocial
-from jaxsocial import specs
+from jaxsocial import specs, stats
 from jaxsocial.agents import population
 from jaxsocial.axes import steps_axis
 from jaxsocial.curves import band
@@ -225,7 +225,7 @@ def summary(groups: list[Group]) -> list[str]:
         iterations = f"{shortest}" if shortest == longest else f"{shortest} to {longest}"
         lines.append(f"{g.label}: {len(g.rows)} seed(s), {iterations} iterations")
         for slot, name in enumerate(g.slots):
-            s = metrics.stats([metrics.final_return(r, slot) for r in g.rows])
+            s = stats.summary([metrics.final_return(r, slot) for r in g.rows])
             if s["mean"] is None:
                 final = "no episode ended"
             else:

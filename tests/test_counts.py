@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import paths, prereg, recipes, records, stats, takeoff, takeoff_power
+from jaxsocial.experiments import paths, prereg, recipes, records, takeoff, takeoff_power
 from jaxsocial.run import config
 
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from jaxsocial import train
+from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, kinds, plots, recipes, runner, stats, takeoff
+from jaxsocial.experiments import figures, kinds, plots, recipes, runner, takeoff
 from jaxsocial.run import config, logs, metrics, schedule
 
 
@@ -93,15 +93,15 @@ T_975_DF2 = 0.95 / math.sqrt(2 * 0.975 * 0.025)
 
 
 def test_stats_and_ci_separation():
-    s = metrics.stats([1.0, 2.0, 3.0])
+    s = stats.summary([1.0, 2.0, 3.0])
     half = T_975_DF2 * 1.0 / math.sqrt(3)
     assert s["mean"] == 2.0
     assert s["ci95"] == pytest.approx([2.0 - half, 2.0 + half], abs=1e-4)
     conditions = {
-        "a": metrics.stats([10.0, 10.5, 11.0]),  # CI [9.26, 11.74]
-        "b": metrics.stats([1.0, 2.0, 3.0]),  # CI [-0.48, 4.48]
+        "a": stats.summary([10.0, 10.5, 11.0]),  # CI [9.26, 11.74]
+        "b": stats.summary([1.0, 2.0, 3.0]),  # CI [-0.48, 4.48]
         "c": s,  # the same as b: neither is above the other
-        "d": metrics.stats([0.0, 2.5, 5.0]),  # CI [-3.71, 8.71]
+        "d": stats.summary([0.0, 2.5, 5.0]),  # CI [-3.71, 8.71]
     }
     assert stats.separations(conditions) == {
         "a > b": True,
@@ -114,16 +114,16 @@ def test_stats_and_ci_separation():
 
 def test_iqm_and_its_bootstrap_interval():
     # a quarter cut from each end: 6 seeds keep the middle 4
-    s = metrics.stats([0.7, 30.0, 0.9, 35.2, 0.8, 1.1])
+    s = stats.summary([0.7, 30.0, 0.9, 35.2, 0.8, 1.1])
     assert s["iqm"] == pytest.approx((0.8 + 0.9 + 1.1 + 30.0) / 4)
     assert 0.7 <= s["iqm_ci95"][0] < s["iqm"] < s["iqm_ci95"][1] <= 35.2
-    assert metrics.stats([0.7, 30.0, 0.9, 35.2, 0.8, 1.1]) == s  # a fixed generator: re-derives exactly
+    assert stats.summary([0.7, 30.0, 0.9, 35.2, 0.8, 1.1]) == s  # a fixed generator: re-derives exactly
     # seeds that either learn or do not: the t interval leaves the seeds' range, the IQM's does not
-    bimodal = metrics.stats([0.0, 0.0, 0.0, 30.0, 30.0, 30.0])
+    bimodal = stats.summary([0.0, 0.0, 0.0, 30.0, 30.0, 30.0])
     assert bimodal["ci95"][0] < 0.0 and bimodal["ci95"][1] > 30.0
     assert bimodal["iqm_ci95"][0] >= 0.0 and bimodal["iqm_ci95"][1] <= 30.0
-    assert metrics.stats([5.0])["iqm_ci95"] == [5.0, 5.0]
-    assert metrics.stats([float("nan")])["iqm"] is None
+    assert stats.summary([5.0])["iqm_ci95"] == [5.0, 5.0]
+    assert stats.summary([float("nan")])["iqm"] is None
 
 
 def test_learned_seed_tests_state_their_direction():

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from jaxsocial import stats
 from jaxsocial.run import logs, metrics, rundir
 
 
@@ -82,9 +83,9 @@ def test_readers_give_the_right_curves():
     assert metrics.switch_iteration(rows) is None
     rows[2]["stage"] = 0
     assert metrics.switch_iteration(rows) == 3
-    s = metrics.stats([1.0, 2.0, 3.0, float("nan")])
+    s = stats.summary([1.0, 2.0, 3.0, float("nan")])
     assert s["mean"] == 2.0 and s["ci95"][0] < 2.0 < s["ci95"][1] and len(s["final_returns"]) == 4
-    assert metrics.stats([float("nan")])["mean"] is None
+    assert stats.summary([float("nan")])["mean"] is None
 
 
 def test_progress_fields_and_learner_return():

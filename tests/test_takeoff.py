@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy import stats as scipy_stats
 
-from jaxsocial.experiments import prereg, stats, takeoff, takeoff_power
+from jaxsocial import stats
+from jaxsocial.experiments import prereg, takeoff, takeoff_power
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 

@@ -33,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import kinds, paths, pinned, plots, prereg, recipes, records, runner, stats
+from jaxsocial import stats
+from jaxsocial.experiments import kinds, paths, pinned, plots, prereg, recipes, records, runner
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -286,17 +287,17 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
 
 def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, Any]:
     """Over some learned seeds (`summarise`'s entries): each zero-shot return's and CT score's mean and
-    interval (`metrics.stats`), and each branch evaluation's, with the paired mixed-minus-social
+    interval (`stats.summary`), and each branch evaluation's, with the paired mixed-minus-social
     difference."""
     return {
         "zero_shot": {
-            spec: metrics.stats([s["zero_shot"][spec]["learner"] for s in learned])
+            spec: stats.summary([s["zero_shot"][spec]["learner"] for s in learned])
             for spec in zero_shot_specs(scale)
         },
-        "ct": {score: metrics.stats([s["ct"][score] for s in learned]) for score in kinds.CT_SCORES},
+        "ct": {score: stats.summary([s["ct"][score] for s in learned]) for score in kinds.CT_SCORES},
         "mixing": {
             spec: {
-                **{arm: metrics.stats([s["branches"][arm][spec] for s in learned]) for arm in ARMS},
+                **{arm: stats.summary([s["branches"][arm][spec] for s in learned]) for arm in ARMS},
                 "mixed_minus_social": stats.paired_difference(
                     [s["branches"]["social"][spec] for s in learned],
                     [s["branches"]["mixed"][spec] for s in learned],

@@ -23,9 +23,9 @@ import numpy as np
 
 from jaxsocial.experiments import plots, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.experiments.stats import ct_score, kaplan_meier, learned_seed_tests, separations
 from jaxsocial.run import logs, metrics
-from jaxsocial.run.metrics import LEARNED_RETURN, final_return, stats
+from jaxsocial.run.metrics import LEARNED_RETURN, final_return
+from jaxsocial.stats import ct_score, kaplan_meier, learned_seed_tests, separations, summary
 
 CT_SCORES = ("ct", "recall")
 """The cultural-transmission protocol's scores (`jaxsocial.evaluate.cultural_transmission`)."""
@@ -145,19 +145,21 @@ def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
     conditions: dict[str, Any] = {}
     for c, seed_rows in runs.rows.items():
         finals = [final_return(rows) for rows in seed_rows]
-        conditions[c] = stats(finals)
+        conditions[c] = summary(finals)
         conditions[c]["seeds_above_one_tile"] = sum(v > LEARNED_RETURN for v in finals)
         if mixing:
             conditions[c]["switch_iterations"] = [metrics.switch_iteration(rows) for rows in seed_rows]
             for key in metrics.eval_keys(seed_rows):
-                conditions[c][key] = stats([metrics.final_eval(rows, key) for rows in seed_rows])
+                conditions[c][key] = summary([metrics.final_eval(rows, key) for rows in seed_rows])
     # Scripted experts do not react to the learner, and all conditions of a seed share the environment's
     # random numbers, so the experts' returns are the same in every social condition: take the first's.
     social = [c for c in runs.rows if recipes.CONDITIONS[c].env == "goalcycle3"]
     if social:
         seed_rows = runs.rows[social[0]]
         slots = metrics.slots(seed_rows[0][0])[1:]  # the learner is in slot 0
-        out["experts"] = stats([float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows])
+        out["experts"] = summary(
+            [float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows]
+        )
     out["separated_ci95"] = separations(conditions)
     out["learned_seed_tests"] = learned_seed_tests(conditions, runs.recipe.hypotheses)
     out["conditions"] = conditions
@@ -172,11 +174,11 @@ def summarise_ct(runs) -> dict[str, Any]:
     """The training return, and the CT protocol's scores after training, per condition."""
     conditions: dict[str, Any] = {}
     for c, seed_rows in runs.rows.items():
-        conditions[c] = stats([final_return(rows) for rows in seed_rows])
+        conditions[c] = summary([final_return(rows) for rows in seed_rows])
         results = [_read_json(ct_path(d, runs.scale)) for d in runs.seed_dirs[c]]
         for score in CT_SCORES:
-            conditions[c][score] = stats([r[score]["mean"] for r in results])
-        conditions[c]["expert_return"] = stats([r["expert_return"]["episode"] for r in results])
+            conditions[c][score] = summary([r[score]["mean"] for r in results])
+        conditions[c]["expert_return"] = summary([r["expert_return"]["episode"] for r in results])
     separated = {
         score: separations({c: ct_score(v, score) for c, v in conditions.items()})
         for score in ("final", *CT_SCORES)
@@ -190,11 +192,11 @@ def _rounded(values: list[float]) -> list[float]:
 
 def summarise_transfer(runs) -> dict[str, Any]:
     """Learner and expert returns in each evaluation environment, and the training returns."""
-    training = {c: stats([final_return(rows) for rows in r]) for c, r in runs.rows.items()}
+    training = {c: summary([final_return(rows) for rows in r]) for c, r in runs.rows.items()}
     conditions: dict[str, Any] = {}
     for spec in transfer_specs(runs.recipe, runs.scale):
         per_cond: dict[str, Any] = {
-            c: stats([_read_eval(d, spec)[0]["mean_return"] for d in dirs])
+            c: summary([_read_eval(d, spec)[0]["mean_return"] for d in dirs])
             for c, dirs in runs.seed_dirs.items()
         }
         # The environment's own experts, from one evaluation (every evaluation plays the same episodes).
@@ -238,7 +240,7 @@ def summarise_takeoff(runs) -> dict[str, Any]:
         entry = out["conditions"][c]
         for name in (*ZERO_SHOT, "ct"):
             values = [s[name] for s in scores]
-            entry[name] = stats([v for v in values if v is not None]) | {"per_seed": values}
+            entry[name] = summary([v for v in values if v is not None]) | {"per_seed": values}
         entry["kaplan_meier"] = kaplan_meier(lifts[c]["takeoff_env_steps"], ends)
         entry["run_env_steps"] = ends
     return out

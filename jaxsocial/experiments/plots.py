@@ -15,10 +15,10 @@ import numpy as np
 from jaxsocial.axes import format_steps, steps_axis
 from jaxsocial.curves import band
 from jaxsocial.experiments import recipes, takeoff
-from jaxsocial.experiments.stats import ct_score, fraction_learned
 from jaxsocial.run import metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, metric_curve
 from jaxsocial.specs import EnvSpec
+from jaxsocial.stats import ct_score, fraction_learned
 
 
 def _pyplot():

@@ -23,7 +23,8 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import paths, records, stats
+from jaxsocial import stats
+from jaxsocial.experiments import paths, records
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"

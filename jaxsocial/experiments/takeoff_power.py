@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 from scipy import stats as scipy_stats
 
-from jaxsocial.experiments import paths, stats, takeoff
+from jaxsocial import stats
+from jaxsocial.experiments import paths, takeoff
 from jaxsocial.run import logs, metrics
 
 EVIDENCE_DESIGNS = ("h1_laptop", "h1_early", "h1_sooner")

@@ -11,22 +11,19 @@ A row is one training iteration::
      "compile_s": 12.3, "nonfinite": [...]}                                   # where they apply
 
 Keys are built and taken apart only here (`key`, `eval_key`, `split_key`). The file itself (append,
-truncate, the gzipped copy of a record) is `jaxsocial.run.logs` (`MetricsLog`, `read_metrics`). The statistics
-over seeds are here too (`stats`: the t interval of the mean, the bootstrap interval of the IQM). This module
-needs numpy, scipy and `logs` only: tools that read runs (`plot`, `render`, `experiments.figures`) import it
-without the training stack.
+truncate, the gzipped copy of a record) is `jaxsocial.run.logs` (`MetricsLog`, `read_metrics`); the
+statistics over seeds are `jaxsocial.stats`. This module needs numpy and `logs` only: tools that read runs
+(`plot`, `render`, `experiments.figures`) import it without the training stack.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats as scipy_stats
 
 from jaxsocial.run import logs, rundir
 
@@ -234,67 +231,6 @@ def final_eval(rows: list[Mapping[str, Any]], k: str) -> float:
     _, values = eval_curve(rows, k)
     n = max(1, round(len(values) * FINAL_FRACTION))
     return float(values[-n:].mean()) if len(values) else float("nan")
-
-
-# ----------------------------------------------------------------------------------------------------------
-# Statistics over seeds
-# ----------------------------------------------------------------------------------------------------------
-
-
-def mean_ci95(values: np.ndarray) -> tuple[float, float, float]:
-    """Mean and a 95% t-interval of the mean of independent samples (half-width 0 for one sample)."""
-    values = np.asarray(values, np.float64)
-    mean = float(values.mean())
-    n = len(values)
-    if n < 2:
-        return mean, mean, mean
-    half = float(scipy_stats.t.ppf(0.975, n - 1)) * float(values.std(ddof=1)) / math.sqrt(n)
-    return mean, mean - half, mean + half
-
-
-IQM_RESAMPLES = 10_000
-"""Bootstrap resamples of `iqm_ci95`."""
-
-
-def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
-    """The interquartile mean: the mean after cutting a quarter of the values from each end (as rliable
-    computes it, `scipy.stats.trim_mean(values, 0.25)`)."""
-    return scipy_stats.trim_mean(values, 0.25, axis=axis)
-
-
-def iqm_ci95(values: np.ndarray) -> tuple[float, float, float]:
-    """The IQM of independent samples and its 95% percentile-bootstrap interval (`IQM_RESAMPLES` resamples
-    of the samples, a fixed generator so a summary re-derives exactly; rliable's interval for one task).
-    Unlike a t interval it stays within the samples' range when seeds either learn or do not."""
-    values = np.asarray(values, np.float64)
-    value = float(iqm(values))
-    if len(values) < 2:
-        return value, value, value
-    interval = scipy_stats.bootstrap(
-        (values,),
-        iqm,
-        n_resamples=IQM_RESAMPLES,
-        method="percentile",
-        rng=np.random.default_rng(0),
-    ).confidence_interval
-    return value, float(interval.low), float(interval.high)
-
-
-def stats(values: list[float]) -> dict[str, Any]:
-    """{'final_returns': per-seed values, 'mean', 'ci95': [lo, hi] (Student t over seeds), 'iqm',
-    'iqm_ci95': [lo, hi] (bootstrap over seeds)}; the statistics skip non-finite values."""
-    finite = np.array([v for v in values if np.isfinite(v)], np.float64)
-    if not len(finite):
-        return {"final_returns": values, "mean": None, "ci95": None, "iqm": None, "iqm_ci95": None}
-    mean, lo, hi = mean_ci95(finite)
-    middle, iqm_lo, iqm_hi = iqm_ci95(finite)
-    return {
-        "final_returns": [round(v, 4) for v in values],
-        "mean": round(mean, 4),
-        "ci95": [round(lo, 4), round(hi, 4)],
-        "iqm": round(middle, 4),
-        "iqm_ci95": [round(iqm_lo, 4), round(iqm_hi, 4)],
-    }
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxsocial import specs
+from jaxsocial import specs, stats
 from jaxsocial.agents import population
 from jaxsocial.run import config, distributed, logs, metrics, nonfinite, policy_io, rundir, schedule
 from jaxsocial.run.chunks import Check, Chunk, evaluates, seed_part
@@ -226,7 +226,7 @@ def over_seeds(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], stat
     learner = static.pop.learners[0]
     finals = [metrics.final_return(rows, learner) for rows in seed_rows]
     each = ", ".join(f"s{s.seed} {v:.3g}" for s, v in zip(seeds, finals, strict=True))
-    mean = metrics.stats(finals)["mean"]
+    mean = stats.summary(finals)["mean"]
     shown = "no episode ended" if mean is None else f"mean {mean:.3g}"
     return f"learner final return over the {len(seeds)} seeds (last 10% of the iterations): {shown} ({each})"
 

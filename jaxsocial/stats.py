@@ -1,4 +1,4 @@
-"""The statistics over seeds the experiments compute, as pure functions of numbers (no files, no figures).
+"""The statistics over seeds, as pure functions of numbers (no files, no figures).
 
 * Exact tests of learned-seed counts, k_a of n_a seeds against k_b of n_b, their power, and Holm's
   correction. The tests are scipy's: Fisher's exact test conditions on the total learned; Boschloo's ranks
@@ -9,7 +9,10 @@
 * Per-seed scores: the Mann-Whitney U test of two samples, the paired difference with its Wilcoxon test.
 * A summary's conditions: which 95% intervals separate, and the learned-seed tests of every pair.
 
-The mean's t interval and the IQM's bootstrap interval over seeds are `jaxsocial.run.metrics.stats`.
+* Means over seeds: the mean's t interval, the interquartile mean (IQM) and its bootstrap interval, and a
+  summary of final returns with both (`summary`).
+
+Numbers in, numbers out (numpy and scipy only): runs, summaries, figures and the tools for people read it.
 """
 
 from __future__ import annotations
@@ -23,7 +26,66 @@ from typing import Any
 import numpy as np
 from scipy import stats as scipy_stats
 
-from jaxsocial.run import metrics
+# ----------------------------------------------------------------------------------------------------------
+# Means over seeds
+# ----------------------------------------------------------------------------------------------------------
+
+
+def mean_ci95(values: np.ndarray) -> tuple[float, float, float]:
+    """Mean and a 95% t-interval of the mean of independent samples (half-width 0 for one sample)."""
+    values = np.asarray(values, np.float64)
+    mean = float(values.mean())
+    n = len(values)
+    if n < 2:
+        return mean, mean, mean
+    half = float(scipy_stats.t.ppf(0.975, n - 1)) * float(values.std(ddof=1)) / math.sqrt(n)
+    return mean, mean - half, mean + half
+
+
+IQM_RESAMPLES = 10_000
+"""Bootstrap resamples of `iqm_ci95`."""
+
+
+def iqm(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    """The interquartile mean: the mean after cutting a quarter of the values from each end (as rliable
+    computes it, `scipy.stats.trim_mean(values, 0.25)`)."""
+    return scipy_stats.trim_mean(values, 0.25, axis=axis)
+
+
+def iqm_ci95(values: np.ndarray) -> tuple[float, float, float]:
+    """The IQM of independent samples and its 95% percentile-bootstrap interval (`IQM_RESAMPLES` resamples
+    of the samples, a fixed generator so a summary re-derives exactly; rliable's interval for one task).
+    Unlike a t interval it stays within the samples' range when seeds either learn or do not."""
+    values = np.asarray(values, np.float64)
+    value = float(iqm(values))
+    if len(values) < 2:
+        return value, value, value
+    interval = scipy_stats.bootstrap(
+        (values,),
+        iqm,
+        n_resamples=IQM_RESAMPLES,
+        method="percentile",
+        rng=np.random.default_rng(0),
+    ).confidence_interval
+    return value, float(interval.low), float(interval.high)
+
+
+def summary(values: list[float]) -> dict[str, Any]:
+    """{'final_returns': per-seed values, 'mean', 'ci95': [lo, hi] (Student t over seeds), 'iqm',
+    'iqm_ci95': [lo, hi] (bootstrap over seeds)}; the statistics skip non-finite values."""
+    finite = np.array([v for v in values if np.isfinite(v)], np.float64)
+    if not len(finite):
+        return {"final_returns": values, "mean": None, "ci95": None, "iqm": None, "iqm_ci95": None}
+    mean, lo, hi = mean_ci95(finite)
+    middle, iqm_lo, iqm_hi = iqm_ci95(finite)
+    return {
+        "final_returns": [round(v, 4) for v in values],
+        "mean": round(mean, 4),
+        "ci95": [round(lo, 4), round(hi, 4)],
+        "iqm": round(middle, 4),
+        "iqm_ci95": [round(iqm_lo, 4), round(iqm_hi, 4)],
+    }
+
 
 # ----------------------------------------------------------------------------------------------------------
 # Learned-seed counts
@@ -174,7 +236,7 @@ def paired_difference(before: list[float], after: list[float]) -> dict[str, Any]
     """`after` minus `before` per seed: n, mean, 95% t-interval and the two-sided Wilcoxon signed-rank p (None
     under 2 pairs or when every difference is 0)."""
     diff = np.asarray(after, np.float64) - np.asarray(before, np.float64)
-    mean, low, high = metrics.mean_ci95(diff)
+    mean, low, high = mean_ci95(diff)
     p = None
     if len(diff) >= 2 and np.any(diff != 0):
         p = float(scipy_stats.wilcoxon(diff, alternative="two-sided").pvalue)
@@ -182,7 +244,7 @@ def paired_difference(before: list[float], after: list[float]) -> dict[str, Any]
 
 
 # ----------------------------------------------------------------------------------------------------------
-# A summary's conditions (`metrics.stats` of each, with 'seeds_above_one_tile')
+# A summary's conditions (`summary` of each, with 'seeds_above_one_tile')
 # ----------------------------------------------------------------------------------------------------------
 
 
