@@ -182,6 +182,10 @@ def summarise(records_root: Path) -> dict[str, Any]:
 
 MAP_PAIRS = (
     ("7x7, 4 goals, rec", "map_g4_rec_7x7", "map_g4_solo_rec_7x7"),
+    ("7x7, 4 goals, penalty 1.0, rec", "map_g4_pen1_rec_7x7", "map_g4_pen1_solo_rec_7x7"),
+    ("7x7, 5 goals, rec", "map_g5_rec_7x7", "map_g5_solo_rec_7x7"),
+    ("7x7, 125-step episodes, rec", "map_g3_steps125_rec_7x7", "map_g3_steps125_solo_rec_7x7"),
+    ("7x7, clutter 0.3, rec", "map_g3_clutter03_rec_7x7", "map_g3_clutter03_solo_rec_7x7"),
     ("7x7, 3 goals, pred", "mb8k8_pred_7x7", "mb8k8_solo_pred_7x7"),
     ("8x8, 3 goals, rec", "mb8k8_rec_8x8", "mb8k8_solo_rec_8x8"),
     ("8x8, 3 goals, pred", "mb8k8_pred_8x8", "mb8k8_solo_pred_8x8"),
