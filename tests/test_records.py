@@ -9,7 +9,7 @@ import pytest
 
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, paths, recipes, records
+from jaxsocial.experiments import figures, paths, pinned, recipes, records
 from jaxsocial.run import logs, metrics, policy_io
 
 REPO = Path(__file__).resolve().parents[1]
@@ -177,6 +177,18 @@ def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
     packed = {p.parent.relative_to(tmp_path / "r") for p in (tmp_path / "r").rglob(records.PROVENANCE_FILE)}
     every = {p.parent.relative_to(runs) for p in runs.rglob(records.PROVENANCE_FILE)}
     assert len(every) == 4 and packed == every - {training.relative_to(runs)}
+
+
+def test_record_command_skips_seeds_whose_command_has_not_ended(in_repo, tmp_path, capsys):
+    """A seed whose training has finished while its `pinned` command has not yet written its run file (the
+    runner winding up): `record` names it and leaves it for a later call instead of failing."""
+    runs = tmp_path / "runs"
+    shutil.copytree(REPO / paths.RECORDS / "tiny", runs / "tiny")  # records hold no run file
+    argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
+            "--device", "a CPU", "--jax", "0.1", "--out-dir", str(tmp_path / "r")]  # fmt: skip
+    cli.main(argv)
+    assert capsys.readouterr().out.count(f"{pinned.RUN_FILE} does not exist") == 4
+    assert not (tmp_path / "r").exists()
 
 
 def test_every_committed_results_path_exists():

@@ -169,7 +169,11 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
             run_name = relative.parent if one_of_several else relative
             if commands is None:
-                run = pinned.run_provenance(runs_dir / run_name, args.device, args.jax)
+                try:
+                    run = pinned.run_provenance(runs_dir / run_name, args.device, args.jax)
+                except FileNotFoundError as err:  # its command has not ended yet (or was not `pinned`)
+                    print(f"  {condition}: {err}; skipped")
+                    continue
             else:
                 run = records.run_provenance(str(run_name), commands, args.device, args.jax)
             if run["rc"] not in (None, 0):
