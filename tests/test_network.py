@@ -12,6 +12,7 @@ import pytest
 from float_bounds import assert_trees_within, assert_within, decoder_error, gamma, network_error
 
 from jaxsocial.agents import network as net
+from jaxsocial.agents import paper_net
 from jaxsocial.run import checkpoint, policy_io
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
@@ -304,6 +305,61 @@ def test_flax_modules_are_the_functional_network(small_params):
     applied = jax.jit(net.ActorCritic(cfg).apply)({"params": small_params}, *args)
     expected = unroll(small_params, SMALL, *args)
     assert_trees_within(applied, expected, 2 * network_error(cfg, T, decoder=False))
+
+
+def test_paper_net_is_the_network_in_plain_layers(small_params):
+    """`paper_net.PaperActorCritic` (plain Flax layers, NHWC, float32, in one piece) builds the params tree
+    `init` builds and computes `unroll`, `decode` and, weighted and summed, `aux_loss` with the same (random)
+    params, frames in batches of 4 on the fast side. Tolerances: two float32 computations' error bounds
+    (`float_bounds`), plus the sums over a frame's pixels and the frames for the loss."""
+    cfg = dataclasses.replace(SMALL, aux="pred+attention", frame_batch=4)
+    plain = paper_net.PaperActorCritic(cfg)
+    rng = np.random.default_rng(11)
+    obs, resets = _obs(12, (T, B, *net.OBS_SHAPE)), jnp.asarray(rng.random((T, B)) < 0.3)
+    carry = _normal(13, net.initial_carry(cfg, (B,)), 0.5)
+    shapes = jax.eval_shape(lambda k: plain.init(k, carry, obs, resets), jax.random.key(0))
+    params = _normal(14, jax.eval_shape(lambda k: net.init(k, cfg), jax.random.key(0)), 0.3)
+    chex.assert_trees_all_equal_shapes_and_dtypes(shapes["params"], params)
+
+    actions = jnp.asarray(rng.integers(0, cfg.n_actions, (T, B)), jnp.int32)
+    weight = jnp.asarray(rng.random((T, B)), jnp.float32)
+
+    @jax.jit
+    def run_plain(params):
+        variables = {"params": params}
+        final, out = plain.apply(variables, carry, obs, resets)
+        decoded = plain.apply(variables, out.hidden, actions, method=plain.decode)
+        errors = plain.apply(variables, out.hidden, actions, obs, method=plain.frame_errors)
+        return final, out, decoded, jnp.sum(weight * errors)
+
+    @jax.jit
+    def run_fast(params):
+        final, out = net.unroll(params, cfg, carry, obs, resets)
+        loss = net.aux_loss(params, cfg, out.hidden, actions, obs, weight)
+        return final, out, net.decode(params, cfg, out.hidden, actions), loss
+
+    (*plain_out, plain_loss), (*fast_out, fast_loss) = run_plain(params), run_fast(params)
+    outputs = network_error(cfg, T) + network_error(dataclasses.replace(cfg, conv_impl="xla"), T)
+    assert_trees_within(plain_out, fast_out, outputs)
+    pixels = gamma(math.prod(net.OBS_SHAPE)) + gamma(T * B)
+    np.testing.assert_allclose(plain_loss, fast_loss, rtol=outputs + 2 * pixels)
+    assert float(jnp.abs(plain_out[2]).max()) > 0.1  # the decoder output is not trivially zero
+
+
+def test_paper_net_draws_the_documented_distributions():
+    """``PaperActorCritic.init``: orthogonal dense weights with their gains, zero dense biases, convs uniform
+    within PyTorch's bound; symbolic views are refused."""
+    args = (net.initial_carry(SMALL, (B,)), _obs(15, (T, B, *net.OBS_SHAPE)), jnp.zeros((T, B), bool))
+    params = jax.jit(paper_net.PaperActorCritic(SMALL).init)(jax.random.key(3), *args)["params"]
+    fc = np.asarray(params["fc"]["kernel"])
+    np.testing.assert_allclose(fc.T @ fc, 2 * np.eye(SMALL.hidden), atol=1e-5)
+    assert not np.any(params["value"]["out"]["bias"]) and not np.any(params["lstm"]["b"])
+    for layer, fan_in in (("conv1", 3 * 9), ("deconv3", SMALL.conv_channels[0])):  # deconv3: stride 3
+        bound = 1 / np.sqrt(fan_in)
+        assert 0.5 * bound < np.abs(params[layer]["kernel"]).max() <= bound
+    symbolic = paper_net.PaperActorCritic(net.NetworkConfig(obs="symbolic"))
+    with pytest.raises(ValueError, match="pixel views"):
+        symbolic.init(jax.random.key(0), *args)
 
 
 # The params tree of the pre-Flax network (commit 3f6e052) for SMALL, written out so that a change of layout

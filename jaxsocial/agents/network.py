@@ -11,7 +11,10 @@ compiles ~10x faster than one draw per tensor).
 The parts, one job each:
 
 * `network_config`: `NetworkConfig` and the shapes that follow from it.
-* `modules`: the Flax modules (`ActorCritic`, `Encoder`, `LSTM`, `MLP`, `Decoder`, `Conv`, `Embed`, `Dense`).
+* `paper_net`: the network in plain Flax layers (`PaperActorCritic`), the reference to read; its `LSTM`,
+  `MLP` and `Dense` are shared.
+* `modules`: the Flax modules that run (`ActorCritic`, `Encoder`, `Decoder`, `Conv`, `Embed`): the same
+  function of the same params, faster.
 * `initialisers`: each parameter's distribution, and the params drawn from two random buffers.
 * `aux_loss`: the auxiliary frame loss, fused with its gradient.
 * `symbolic`: the symbolic views' vocabulary and their masked cross-entropy.
