@@ -32,7 +32,7 @@ from recipe_sps import RECIPES
 from run_info import metadata, write_results
 
 from jaxsocial import train
-from jaxsocial.agents import experts, rollout
+from jaxsocial.agents import population, rollout
 from jaxsocial.env import core
 from jaxsocial.experiments import recipes
 from jaxsocial.run import config
@@ -59,28 +59,16 @@ def programs(recipe: str) -> tuple[dict, rollout.RunnerState, int]:
             env_states, slots, resets = carry
             k_act, k_expert, k_env = jax.random.split(k, 3)
             actions = jax.random.randint(k_act, (w.num_envs, n_agents), 0, 3)
-            memories = []
+            memory = slots.memory
             if with_experts:  # as `population.act`: cost fields where an episode starts
-                for slot, memory, k_slot in zip(
-                    w.pop.experts, slots.memory, jax.random.split(k_expert, len(w.pop.experts)), strict=True
-                ):
-                    chosen, memory = experts.act_batch(
-                        jax.random.split(k_slot, w.num_envs),
-                        w.pop.slots[slot].expert,
-                        w.env_params,
-                        env_states,
-                        slot,
-                        memory,
-                        slots.reward[:, slot],
-                        resets,
-                    )
-                    actions = actions.at[:, slot].set(chosen)
-                    memories.append(memory)
+                actions, memory = population.expert_actions(
+                    k_expert, w.pop, w.env_params, env_states, memory, slots.reward, resets, actions
+                )
             obs, env_states, reward, _, _, info = core.step_batch(
                 jax.random.split(k_env, w.num_envs), env_states, actions, w.env_params, observed
             )
             if with_experts:
-                slots = slots._replace(memory=tuple(memories), reward=reward)
+                slots = slots._replace(memory=memory, reward=reward)
             return (env_states, slots, info["done"]), (obs, reward)  # kept, as the rollout keeps them
 
         carry = (state.env_states, state.slots, state.resets)

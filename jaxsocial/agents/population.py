@@ -270,22 +270,40 @@ def act(
         logp = jnp.take_along_axis(jax.nn.log_softmax(out.logits), chosen[..., None], -1)[..., 0]
         actions = actions.at[:, jnp.asarray(pop.neural)].set(chosen.T.astype(actions.dtype))
         value = out.value
-    memory = []
-    expert_keys = jax.random.split(k_experts, len(pop.experts))
-    for slot, mem, k in zip(pop.experts, slot_state.memory, expert_keys, strict=True):
+    actions, memory = expert_actions(
+        k_experts, pop, env_params, env_states, slot_state.memory, slot_state.reward, resets, actions
+    )
+    return actions, SlotState(carry, memory, slot_state.reward), logp, value
+
+
+def expert_actions(
+    key: jax.Array,
+    pop: Population,
+    env_params: EnvParams,
+    env_states: EnvState,
+    memory: tuple,
+    reward: jax.Array,
+    resets: jax.Array,
+    actions: jax.Array,
+) -> tuple[jax.Array, tuple]:
+    """`actions` int32[E, N] with every scripted expert slot's action set, and the experts' new memory (one
+    entry per slot of `pop.experts`). env_states: EnvState [E] (what the experts read); reward f32[E, N] the
+    previous step's rewards; resets bool[E] the step starts an episode (the experts' memory is cleared)."""
+    new_memory = []
+    for slot, mem, k in zip(pop.experts, memory, jax.random.split(key, len(pop.experts)), strict=True):
         chosen, mem = experts.act_batch(
-            jax.random.split(k, n_envs),
+            jax.random.split(k, actions.shape[0]),
             pop.slots[slot].expert,
             env_params,
             env_states,
             slot,
             mem,
-            slot_state.reward[:, slot],
+            reward[:, slot],
             resets,
         )
         actions = actions.at[:, slot].set(chosen.astype(actions.dtype))
-        memory.append(mem)
-    return actions, SlotState(carry, tuple(memory), slot_state.reward), logp, value
+        new_memory.append(mem)
+    return actions, tuple(new_memory)
 
 
 def with_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:

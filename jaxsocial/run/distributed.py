@@ -29,6 +29,8 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxsocial.agents import ppo
+
 __all__ = [
     "DATA",
     "ENV_COORDINATOR",
@@ -256,10 +258,11 @@ class DataParallel:
         return jax.shard_map(fn, mesh=self.mesh, in_specs=to_spec(in_axes), out_specs=to_spec(out_axes))
 
 
-def data_parallel(mesh: Mesh | None) -> DataParallel | None:
-    """The DataParallel of `mesh`, or None when there is nothing to split over (no mesh, one device)."""
+def data_parallel(mesh: Mesh | None) -> ppo.Devices:
+    """How the batch is split over `mesh`'s devices: its DataParallel, or `ppo.ONE_DEVICE` when there is
+    nothing to split over (no mesh, one device)."""
     if mesh is None or mesh.size == 1:
-        return None
+        return ppo.ONE_DEVICE
     return DataParallel(mesh)
 
 

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.agents import population, ppo, rollout
+from jaxsocial.agents import population, rollout
 from jaxsocial.agents.rollout import RunnerState
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import distributed, nonfinite
@@ -66,7 +66,7 @@ def make_program(
         program_cfg.num_envs,
         program_cfg.rollout_steps,
     )
-    devices = distributed.data_parallel(mesh) or ppo.ONE_DEVICE
+    devices = distributed.data_parallel(mesh)
 
     def iteration(state: RunnerState, frozen_params):
         key, k_roll, k_update = jax.random.split(state.key, 3)
