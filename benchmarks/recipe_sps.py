@@ -17,8 +17,9 @@ checks REV out in a temporary git worktree and imports jaxsocial from there. ``-
 (repeatable; written with "=", as FLAGS begin with "--") also times this tree with ``$XLA_FLAGS`` set to
 FLAGS, side by side the same way.
 
-A recipe of several seeds (``laptop_rec_2seeds``) compiles them into one program as a run does
-(`loop.over_seeds`) and counts every seed's env-steps.
+A recipe of several seeds (``laptop_rec_2seeds``, or any recipe as ``NAME*K`` for K seeds: ``--recipes
+laptop_rec*1,laptop_rec*8,laptop_rec*64`` is a curve of throughput against seeds per program) compiles them
+into one program as a run does (`loop.over_seeds`) and counts every seed's env-steps.
 
 ``--single-core`` also measures the throughput of two seeds as two processes pinned to one core each
 (XLA:CPU single-threaded), both timing the full program at once, against one process on all cores: for this
@@ -61,10 +62,37 @@ RECIPES = {
 }
 """name -> (scale, condition, extra train flags): the recipe's conditions and the levers that change
 learning (measured for speed only)."""
+
+
+def recipe(name: str) -> tuple[str, str, tuple[str, ...]]:
+    """`RECIPES[name]`, or for ``NAME*K`` that recipe with K seeds vmapped in one program (as a run of K seeds
+    compiles them; e.g. ``laptop_rec*16``). ValueError for an unknown name or a K below 1."""
+    base, _, seeds = name.partition("*")
+    if base not in RECIPES or (seeds and not (seeds.isdigit() and int(seeds) >= 1)):
+        raise ValueError(f"unknown recipe {name!r}; choose from {', '.join(RECIPES)}, each as NAME or NAME*K")
+    scale, condition, extra = RECIPES[base]
+    return scale, condition, (*extra, "--seeds", seeds, "--seed-batching", "vmap") if seeds else extra
+
+
+def parse_recipes(names: str) -> list[str]:
+    """A comma-separated list of `recipe` names, checked (SystemExit naming the unknown ones)."""
+    names = names.split(",")
+    unknown = []
+    for name in names:
+        try:
+            recipe(name)
+        except ValueError:
+            unknown.append(name)
+    if unknown:
+        choices = ", ".join(RECIPES)
+        raise SystemExit(f"unknown recipes {unknown}; choose from {choices}, each as NAME or NAME*K")
+    return names
+
+
 VARIANTS = ("full", "once", "one")
 
 
-def worker(recipe: str) -> None:
+def worker(name: str) -> None:
     """Compile the recipe's variants, print one JSON line, then time a variant per line read from stdin."""
     import jax
 
@@ -77,7 +105,7 @@ def worker(recipe: str) -> None:
     except ImportError:  # a tree from before the run/ package (--against 191032c, the issue's baseline)
         from jaxsocial import config, loop
 
-    scale, condition, extra = RECIPES[recipe]
+    scale, condition, extra = recipe(name)
     flags = [*recipes.condition_flags(recipes.SCALES[scale], condition, 0, 1, "/tmp/unused"), *extra]
     base = train.parse_args(flags)
     static = config.setup(base, load_frozen=False)
@@ -205,7 +233,9 @@ def recomputes(row: dict) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--worker", help=argparse.SUPPRESS)
-    parser.add_argument("--recipes", default="cpu_rec,gpu_rec", help=f"of {', '.join(RECIPES)}")
+    parser.add_argument(
+        "--recipes", default="cpu_rec,gpu_rec", help=f"of {', '.join(RECIPES)}; NAME*K: K seeds a program"
+    )
     parser.add_argument("--against", help="a git revision to time side by side")
     parser.add_argument(
         "--xla-flags", action="append", default=[], metavar="FLAGS",
@@ -217,10 +247,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.worker:
         return worker(args.worker)
-    names = args.recipes.split(",")
-    unknown = [n for n in names if n not in RECIPES]
-    if unknown:
-        parser.error(f"unknown recipes {unknown}; choose from {', '.join(RECIPES)}")
+    names = parse_recipes(args.recipes)
     from run_info import REPO, metadata, write_results
 
     tmp = Path(tempfile.mkdtemp(prefix="recipe_sps-"))

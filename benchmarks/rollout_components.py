@@ -28,7 +28,7 @@ import functools
 import time
 
 import jax
-from recipe_sps import RECIPES
+from recipe_sps import RECIPES, parse_recipes, recipe
 from run_info import metadata, write_results
 
 from jaxsocial import train
@@ -41,10 +41,10 @@ PROGRAMS = ("env", "render", "experts", "rollout", "update")
 COMPONENTS = ("env", "render", "experts", "network", "update")
 
 
-def programs(recipe: str) -> tuple[dict, rollout.RunnerState, int]:
+def programs(name: str) -> tuple[dict, rollout.RunnerState, int]:
     """The recipe's ablation programs (jitted, `PROGRAMS`), the state to start them from and the joint
     env-steps of one rollout."""
-    scale, condition, extra = RECIPES[recipe]
+    scale, condition, extra = recipe(name)
     cfg = train.parse_args(
         [*recipes.condition_flags(recipes.SCALES[scale], condition, 0, 1, "/tmp/unused"), *extra]
     )
@@ -126,18 +126,17 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", help="JSON results path")
     args = parser.parse_args()
-    names = args.recipes.split(",")
-    unknown = [r for r in names if r not in RECIPES]
-    if unknown:
-        raise SystemExit(f"unknown recipes {unknown}; choose from {', '.join(RECIPES)}")
+    names = parse_recipes(args.recipes)
+    if any(recipe(name)[2].count("--seeds") for name in names):
+        raise SystemExit("rollout_components.py times one seed a program; recipe_sps.py times several")
     meta = metadata(args)
     rows = {}
-    for recipe in names:
-        jitted, state, env_steps = programs(recipe)
+    for name in names:
+        jitted, state, env_steps = programs(name)
         compile_s, best = time_programs(jitted, state, args.repeats)
         split = components(best, env_steps)
         total = sum(split.values())
-        rows[recipe] = {
+        rows[name] = {
             "env_steps_per_rollout": env_steps,
             "compile_s": compile_s,
             "best_s": best,
@@ -146,7 +145,7 @@ def main() -> None:
             "env_steps_per_s": 1e6 / total,
         }
         shown = ", ".join(f"{name} {value:.1f} ({value / total:.0%})" for name, value in split.items())
-        print(f"{recipe}: {1e6 / total:,.0f} joint env-steps/s; us per env-step: {shown}", flush=True)
+        print(f"{name}: {1e6 / total:,.0f} joint env-steps/s; us per env-step: {shown}", flush=True)
     if len(names) == 2:
         social, solo = (rows[r]["us_per_env_step"] for r in names)
         ratios = {name: social[name] / solo[name] if solo[name] > 0 else None for name in COMPONENTS}
