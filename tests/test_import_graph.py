@@ -92,3 +92,17 @@ def test_the_environment_learners_and_specs_know_no_training_run():
         if module.startswith(BELOW_RUN):
             run = sorted(d for d in deps if d.startswith(("jaxsocial.run", "jaxsocial.train")))
             assert not run, f"{module} imports {run}"
+
+
+def test_readme_states_the_reading_lists_length():
+    """README's "Reading the agent" lists the learner's files and their line count; both are the tree's."""
+    readme = (PACKAGE.parent / "README.md").read_text()
+    section = readme[readme.index("## Reading the agent") :]
+    section = section[: section.index("\n## ", 1)]
+    stated = re.search(r"is (\w+) files of `jaxsocial/agents/` \(([\d,]+) lines\)", section)
+    assert stated, "README's Reading the agent states the files and their lines"
+    files = re.findall(r"^\d\. `(\w+\.py)`", section, re.MULTILINE)
+    words = {"three": 3, "four": 4, "five": 5}
+    assert len(files) == words[stated.group(1)]
+    lines = sum(len((PACKAGE / "agents" / name).read_text().splitlines()) for name in files)
+    assert lines == int(stated.group(2).replace(",", ""))
