@@ -179,6 +179,26 @@ def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
     assert len(every) == 4 and packed == every - {training.relative_to(runs)}
 
 
+def test_record_command_skips_seeds_not_evaluated_yet(in_repo, tmp_path, capsys):
+    """A seed that finished training but not yet its evaluations (the runner evaluates after training, or
+    `run --no-train` does): `record` names it and leaves it for a later call, so no record lacks them."""
+    runs = tmp_path / "runs"
+    shutil.copytree(REPO / paths.RECORDS / "tiny", runs / "tiny")
+    unevaluated = runs / next(d for d in _record_dirs() if "solo_pred" in str(d)).relative_to(
+        REPO / paths.RECORDS
+    )
+    assert list((unevaluated / "eval").iterdir())
+    shutil.rmtree(unevaluated / "eval")
+    argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
+            "--commands-log", str(_commands_log(tmp_path)), "--device", "a CPU", "--jax", "0.1",
+            "--out-dir", str(tmp_path / "r")]  # fmt: skip
+    cli.main(argv)
+    assert f"{unevaluated} not evaluated yet in " in capsys.readouterr().out
+    packed = {p.parent.relative_to(tmp_path / "r") for p in (tmp_path / "r").rglob(records.PROVENANCE_FILE)}
+    every = {p.parent.relative_to(runs) for p in runs.rglob(records.PROVENANCE_FILE)}
+    assert len(every) == 4 and packed == every - {unevaluated.relative_to(runs)}
+
+
 def test_record_command_skips_seeds_whose_command_has_not_ended(in_repo, tmp_path, capsys):
     """A seed whose training has finished while its `pinned` command has not yet written its run file (the
     runner winding up): `record` names it and leaves it for a later call instead of failing."""

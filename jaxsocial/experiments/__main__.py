@@ -147,7 +147,8 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
 
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
     """Pack every finished seed of the recipe that has no record yet (or every one, with --overwrite); seeds
-    still training are skipped with a note, and everything is checked before the first write."""
+    still training or not evaluated yet (the evaluations the recipe's kind asks for) are skipped with a note,
+    and everything is checked before the first write."""
     commands = records.read_commands_log(args.commands_log) if args.commands_log else None
     runs_dir = Path(args.runs_dir)
     threshold = prereg.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
@@ -164,6 +165,11 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
                 iteration, rows = records.packable(seed_dir)
             except (ValueError, FileNotFoundError) as err:  # still training, or stopped: not a result yet
                 print(f"  {condition}: {err}; skipped")
+                continue
+            outputs = runner.evaluation_outputs(recipe, scale, seed_dir)
+            unevaluated = [spec for _, spec, out in outputs if not out.exists()]
+            if unevaluated:  # a record holds the seed's evaluations: `run --no-train` makes them
+                print(f"  {condition}: {seed_dir} not evaluated yet in {', '.join(unevaluated)}; skipped")
                 continue
             relative = seed_dir.relative_to(runs_dir)
             one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2

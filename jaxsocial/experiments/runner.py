@@ -88,6 +88,18 @@ def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol:
     return result
 
 
+def evaluation_outputs(
+    recipe: Recipe, scale: Scale, seed_dir: Path
+) -> list[tuple[kinds.Evaluation, str, Path]]:
+    """What the recipe's kind evaluates of a finished seed: (evaluation, environment spec, its output file)
+    for each, in order."""
+    return [
+        (evaluation, spec, evaluation.path(seed_dir, spec, scale))
+        for evaluation in kinds.kind_of(recipe).evaluations
+        for spec in evaluation.specs(recipe, scale)
+    ]
+
+
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:
     """'done' (each seed's directory `dirs` logged every iteration), 'partial' (the config's own run
     directory exists, so training resumes it) or 'missing'."""
@@ -176,16 +188,14 @@ def run(
     for name in skipped:
         print(f"  {name}: not trained (--no-train); its unfinished seeds are not evaluated")
     finished = {c: [d for d in dirs[c] if len(logs.read_metrics(d)) >= scale.iterations] for c in programs}
-    for evaluation in kinds.kind_of(recipe).evaluations:  # after training: what the recipe's kind asks
-        for name in finished if not dry_run else ():
-            for spec in evaluation.specs(recipe, scale):
-                for seed_dir in finished[name]:
-                    out = evaluation.path(seed_dir, spec, scale)
-                    if out.exists():
-                        continue
-                    result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
-                    score = evaluation.score(result)
-                    print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {score:.3f}")
+    for name in finished if not dry_run else ():  # after training: what the recipe's kind asks
+        for seed_dir in finished[name]:
+            for evaluation, spec, out in evaluation_outputs(recipe, scale, seed_dir):
+                if out.exists():
+                    continue
+                result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
+                score = evaluation.score(result)
+                print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {score:.3f}")
     if not dry_run:
         where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
         figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
