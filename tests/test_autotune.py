@@ -273,8 +273,9 @@ def test_mixed_layers_compute_what_xla_computes():
     assert_trees_within(g_mix, g_ref, 2 * outputs + 2 * gamma(pixels))
 
 
-def test_a_training_run_records_what_auto_chose(tmp_path, monkeypatch):
-    """The trainer resolves "auto" at start-up (`config.resolve_network`): config.json names every layer."""
+def test_a_training_run_records_what_auto_chose(tmp_path, monkeypatch, counted):
+    """The trainer resolves "auto" at start-up (`config.resolve_network`): config.json names every layer, as
+    the tuning it cached chose (timings made up by `counted`; `test_real_measurements` measures)."""
     from conftest import TINY as TINY_RUN
 
     from jaxsocial import train
@@ -286,4 +287,7 @@ def test_a_training_run_records_what_auto_chose(tmp_path, monkeypatch):
     saved = logs.read_config(run_dir)["net"]
     assert saved["dtype"] == autotune.auto_dtype()
     assert all(f"{layer}=" in saved["conv_impl"] for layer in CONV_LAYERS)  # RGB with a decoder: all six
-    assert "auto" not in saved["conv_impl"] and (tmp_path / "cache" / "autotune.json").is_file()
+    assert set(CONV_LAYERS) <= set(counted)  # every layer measured (made-up times), then the steps
+    entries = json.loads((tmp_path / "cache" / "autotune.json").read_text())["entries"].values()
+    (tuned,) = [entry for entry in entries if "conv_impl" in entry]  # the network's (beside its layers')
+    assert saved["conv_impl"] == tuned["conv_impl"] and "auto" not in saved["conv_impl"]
