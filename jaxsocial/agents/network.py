@@ -69,7 +69,7 @@ from jaxsocial.agents import initialisers
 from jaxsocial.agents.aux_loss import aux_loss
 from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.initialisers import Params
-from jaxsocial.agents.modules import ActorCritic, Carry, Output
+from jaxsocial.agents.modules import ActorCritic
 from jaxsocial.agents.network_config import (
     ATTENTION_CLASSES,
     CONV_IMPLS,
@@ -78,6 +78,7 @@ from jaxsocial.agents.network_config import (
     OBS_SHAPE,
     NetworkConfig,
 )
+from jaxsocial.agents.paper_net import Carry, Output
 from jaxsocial.agents.symbolic import (
     PREDICTED_CLASSES,
     PREDICTED_VOCAB,
