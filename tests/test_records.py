@@ -161,42 +161,46 @@ def test_figures_go_under_runs_unless_asked():
     ).out_dir.startswith("runs/")
 
 
-def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
-    """A design's records are committed seed by seed while the next seeds train: `record` packs the finished
-    seeds and names the unfinished one, which it leaves for a later call."""
+def _record_all_but_one_seed(tmp_path: Path, spoil) -> Path:
+    """Copy the committed tiny records into a runs directory, `spoil(seed_dir)` one solo seed, run `record`
+    over the copy and check that it packed every seed but that one; returns that seed's directory (what
+    `record` printed is the caller's to read from `capsys`)."""
     runs = tmp_path / "runs"
     shutil.copytree(REPO / paths.RECORDS / "tiny", runs / "tiny")
-    training = next(d for d in _record_dirs() if "solo_pred" in str(d))
-    training = runs / training.relative_to(REPO / paths.RECORDS)
-    logs.write_config(training, {**logs.read_config(training), "iterations": 1000})
+    solo = next(d for d in _record_dirs() if "solo_pred" in str(d))
+    spoiled = runs / solo.relative_to(REPO / paths.RECORDS)
+    spoil(spoiled)
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
             "--commands-log", str(_commands_log(tmp_path)), "--device", "a CPU", "--jax", "0.1",
             "--out-dir", str(tmp_path / "r")]  # fmt: skip
     cli.main(argv)
-    assert f"{training} is unfinished: 4 of 1000 iterations logged; skipped" in capsys.readouterr().out
     packed = {p.parent.relative_to(tmp_path / "r") for p in (tmp_path / "r").rglob(records.PROVENANCE_FILE)}
     every = {p.parent.relative_to(runs) for p in runs.rglob(records.PROVENANCE_FILE)}
-    assert len(every) == 4 and packed == every - {training.relative_to(runs)}
+    assert len(every) == 4 and packed == every - {spoiled.relative_to(runs)}
+    return spoiled
+
+
+def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
+    """A design's records are committed seed by seed while the next seeds train: `record` packs the finished
+    seeds and names the unfinished one, which it leaves for a later call."""
+
+    def still_training(seed_dir: Path) -> None:
+        logs.write_config(seed_dir, {**logs.read_config(seed_dir), "iterations": 1000})
+
+    training = _record_all_but_one_seed(tmp_path, still_training)
+    assert f"{training} is unfinished: 4 of 1000 iterations logged; skipped" in capsys.readouterr().out
 
 
 def test_record_command_skips_seeds_not_evaluated_yet(in_repo, tmp_path, capsys):
     """A seed that finished training but not yet its evaluations (the runner evaluates after training, or
     `run --no-train` does): `record` names it and leaves it for a later call, so no record lacks them."""
-    runs = tmp_path / "runs"
-    shutil.copytree(REPO / paths.RECORDS / "tiny", runs / "tiny")
-    unevaluated = runs / next(d for d in _record_dirs() if "solo_pred" in str(d)).relative_to(
-        REPO / paths.RECORDS
-    )
-    assert list((unevaluated / "eval").iterdir())
-    shutil.rmtree(unevaluated / "eval")
-    argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
-            "--commands-log", str(_commands_log(tmp_path)), "--device", "a CPU", "--jax", "0.1",
-            "--out-dir", str(tmp_path / "r")]  # fmt: skip
-    cli.main(argv)
+
+    def not_evaluated(seed_dir: Path) -> None:
+        assert list((seed_dir / "eval").iterdir())
+        shutil.rmtree(seed_dir / "eval")
+
+    unevaluated = _record_all_but_one_seed(tmp_path, not_evaluated)
     assert f"{unevaluated} not evaluated yet in " in capsys.readouterr().out
-    packed = {p.parent.relative_to(tmp_path / "r") for p in (tmp_path / "r").rglob(records.PROVENANCE_FILE)}
-    every = {p.parent.relative_to(runs) for p in runs.rglob(records.PROVENANCE_FILE)}
-    assert len(every) == 4 and packed == every - {unevaluated.relative_to(runs)}
 
 
 def test_record_command_skips_seeds_whose_command_has_not_ended(in_repo, tmp_path, capsys):
