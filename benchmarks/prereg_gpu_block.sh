@@ -20,6 +20,10 @@
 # .prereg/commands.log is the commands log `experiments record --commands-log` reads once the runs end.
 set -euo pipefail
 
+blind() {  # progress lines with iterations and speed only: a design's returns stay unread until it is complete
+  sed -E 's/ return\[[^]]*\]=[^ ]*//g' | { grep -viE 'return|learned|plateau|score' || true; }
+}
+
 prepare() {
   local design=$1
   local commit
@@ -100,7 +104,7 @@ PRUNE
     local condition
     condition=$(basename "$run")
     condition=${condition%-s*}
-    tr '\r' '\n' <"$OUT/$condition.log" | grep -v '^\s*$' | tail -2
+    tr '\r' '\n' <"$OUT/$condition.log" | grep -v '^\s*$' | blind | tail -1
     mv "$OUT/$condition.log" "$run/device-$(date -u +%Y%m%dT%H%M%S).log"
     tar czf "$OUT/$condition.tgz" "$run"
   done
@@ -125,7 +129,7 @@ collect() {
     name=$(basename "$run")
     mkdir -p "$out/$name"
     for log in "$run"device-*.log; do  # progress lines end in carriage returns: one line each
-      if [ -f "$log" ]; then tr '\r' '\n' <"$log" | grep -v '^\s*$' >"$out/$name/$(basename "$log")"; fi
+      if [ -f "$log" ]; then tr '\r' '\n' <"$log" | grep -v '^\s*$' | blind >"$out/$name/$(basename "$log")"; fi
     done
     for seed in "$run"s*/; do
       mkdir -p "$out/$name/$(basename "$seed")"
@@ -138,8 +142,8 @@ collect() {
 import gzip, json, pathlib, statistics, sys
 out = pathlib.Path(sys.argv[1])
 progress = {}
-for run in sorted(p for p in out.iterdir() if p.is_dir()):
-    seeds = sorted(run.glob("s*/"))
+for run in sorted(p for p in out.iterdir() if any(p.glob("s*/config.json"))):  # not state/
+    seeds = sorted(p.parent for p in run.glob("s*/config.json"))
     config = json.loads((seeds[0] / "config.json").read_text())
     rows = [json.loads(line) for line in gzip.open(seeds[0] / "metrics.jsonl.gz", "rt")]
     progress[run.name] = {
