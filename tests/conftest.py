@@ -7,6 +7,7 @@ from pathlib import Path
 
 import jax
 import pytest
+from xdist.scheduler import LoadScopeScheduling
 
 from jaxsocial import train
 from jaxsocial.agents.network import NetworkConfig
@@ -113,14 +114,21 @@ SHARED_RUNS = {"test_cli_errors", "test_inflight", "test_plot", "test_regimes", 
 """Test files that train TINY's programs (`two_seed_run` and single-seed runs of TINY)."""
 
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(items):
-    """With `pytest -n N`, run each test file on one worker (`--dist loadgroup` in pyproject.toml), so
-    that module fixtures and the programs a file compiles are made once, and the files of SHARED_RUNS on
-    the same worker, so that TINY's programs compile once (in-process cache)."""
-    for item in items:
-        name = item.module.__name__
-        item.add_marker(pytest.mark.xdist_group("tiny-runs" if name in SHARED_RUNS else name))
+class FileGroups(LoadScopeScheduling):
+    """With `pytest -n N`, each test file runs on one worker, and the files of SHARED_RUNS together on one,
+    so that module fixtures and the programs a file compiles are made once (TINY's programs once, in the
+    in-process cache). Groups by the file in each test's node id: pytest 9.2 ignores the node-id suffix
+    that xdist's own `--dist loadgroup` writes, which spread every file over both workers."""
+
+    def _split_scope(self, nodeid: str) -> str:
+        path = nodeid.split("::", 1)[0]
+        return "tiny-runs" if Path(path).stem in SHARED_RUNS else path
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """`FileGroups` schedules the tests over the workers."""
+    return FileGroups(config, log)
 
 
 @pytest.fixture(scope="session")
