@@ -145,7 +145,8 @@ class Worker:
     """A worker process for one recipe, importing jaxsocial from `tree`."""
 
     def __init__(self, recipe: str, tree: Path, env: dict[str, str] | None = None, cpus: str | None = None):
-        env = {**os.environ, **(env or {}), "PYTHONPATH": str(tree)}
+        path = os.pathsep.join(p for p in (str(tree), os.environ.get("PYTHONPATH")) if p)  # tree first
+        env = {**os.environ, **(env or {}), "PYTHONPATH": path}
         command = [sys.executable, str(Path(__file__).resolve()), "--worker", recipe]
         if cpus is not None:
             command = ["taskset", "-c", cpus, *command]
