@@ -3,7 +3,9 @@ has (no policies), packed deterministically, unpacked elsewhere and resumed, it 
 uninterrupted run."""
 
 import dataclasses
+import subprocess
 import tarfile
+from pathlib import Path
 
 from conftest import TINY
 
@@ -32,3 +34,21 @@ def test_a_packed_state_resumes_exactly(tmp_path):
     for seed in ("s0", "s1"):
         rows, expected = metrics.read_rows(resumed / seed), metrics.read_rows(whole / seed)
         assert len(rows) == 4 and verify.first_difference(expected, rows) is None
+
+
+def test_a_blocks_progress_output_is_blind():
+    """What a GPU block prints and commits of its runs' progress (`prereg_gpu_block.sh blind`): iterations
+    and speed, no return, while the design runs."""
+    lines = [
+        "gpu/social_rec-s100-103 (4 seeds): compiling the 10-iteration chunk (stage -1) ...",
+        "gpu/social_rec-s100-103 (4 seeds)  110/1920 [  6%] 0.406 it/s env-steps/s=211,003 "
+        "return[0 learner]=0.529 return[1 explorer]=38.9 return[2 explorer]=38.9  eta 1:14:23",
+        "final return (last 10% of the iterations): learner 0.5289",
+    ]
+    script = Path(__file__).parents[1] / "benchmarks" / "prereg_gpu_block.sh"
+    out = subprocess.run(["bash", script, "blind"], input="\n".join(lines) + "\n", capture_output=True,
+                         text=True, check=True).stdout  # fmt: skip
+    assert out.splitlines() == [
+        lines[0],
+        "gpu/social_rec-s100-103 (4 seeds)  110/1920 [  6%] 0.406 it/s env-steps/s=211,003  eta 1:14:23",
+    ]
