@@ -4,6 +4,8 @@ run -> resume/skip -> figure plumbing at the tiny scale (with evaluation during 
 import dataclasses
 import json
 import math
+import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -460,3 +462,20 @@ def test_vmapped_seed_programs_write_one_record_per_seed(tmp_path, capsys):
         assert logs.read_config(record)["seed"] == seed and len(metrics.read_rows(record)) == 4
     with pytest.raises(SystemExit):
         cli.main(["run", "predictions", "--scale", "tiny", "--vmap-seeds", "0", "--dry-run"])
+
+
+def test_a_designs_evaluations_are_written_blind(tmp_path, capsys):
+    """A design at its own scale (runs under `<scale>/prereg-<design>/`) evaluates its finished seeds without
+    showing a score: the committed tiny records, one seed's evaluations deleted, as a design's runs."""
+    recipe = dataclasses.replace(recipes.RECIPES["no_penalty"], design="h1_laptop")
+    scale = dataclasses.replace(recipes.TINY, runs_subdir="prereg-test")
+    records = Path(__file__).parents[1] / "benchmarks" / "results" / "records" / "tiny"
+    shutil.copytree(records, tmp_path / scale.runs_root)
+    seed_dir = tmp_path / scale.runs_root / "solo_pred_nopenalty-s0-1" / "s1"
+    shutil.rmtree(seed_dir / "eval")
+    runner.run(recipe, scale, 0, 2, str(tmp_path), train_missing=False)
+    out = capsys.readouterr().out
+    (evaluation, spec, written), *_ = runner.evaluation_outputs(recipe, scale, seed_dir)
+    assert written.exists()
+    assert f"solo_pred_nopenalty s1 in {spec} ({evaluation.protocol}): written (blind" in out
+    assert not re.search(r"\): -?\d", out)  # no score printed, for any seed

@@ -18,6 +18,9 @@ from jaxsocial.run.config import TrainConfig, setup
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import EnvSpec
 
+BLIND_SCORE = "written (blind until every seed is in)"
+"""What `run` prints for a pre-registered design's evaluation in place of its score."""
+
 
 class TrainingFailed(Exception):
     """A training process (`run` with cores) exited with an error."""
@@ -133,13 +136,14 @@ def run(
     `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
     (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
     process of its own with `cores`, else in this one (default: one per seed with `cores`, else one for all).
-    A design's runs at its own scale train blind (no returns shown while they train).
+    A design's runs at its own scale train and are evaluated blind (no return or score shown).
     """
     per_program = seeds_per_program or (1 if cores else None)
     programs = {
         c: recipes.condition_programs(scale, c, seed, seeds, runs_dir, per_program) for c in recipe.conditions
     }
-    if recipe.design is not None and scale.runs_subdir:  # a design at its own scale: its runs train blind
+    blind = recipe.design is not None and bool(scale.runs_subdir)  # a design at its own scale
+    if blind:
         programs = {c: [dataclasses.replace(cfg, blind=True) for cfg in cfgs] for c, cfgs in programs.items()}
     for cfgs in programs.values():
         for cfg in cfgs:
@@ -194,8 +198,8 @@ def run(
                 if out.exists():
                     continue
                 result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
-                score = evaluation.score(result)
-                print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {score:.3f}")
+                shown = BLIND_SCORE if blind else f"{evaluation.score(result):.3f}"
+                print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {shown}")
     if not dry_run:
         where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
         figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
