@@ -114,11 +114,6 @@ SHARED_RUNS = {"test_cli_errors", "test_inflight", "test_plot", "test_regimes", 
 """Test files that train TINY's programs (`two_seed_run` and single-seed runs of TINY)."""
 
 
-LONGEST_FIRST = ("tests/test_experiments.py", "tests/test_followup.py", "tests/test_learning.py", "tiny-runs",
-                 "tests/test_pinned.py")  # fmt: skip
-"""The work units that take longest, cold (docs/benchmarks.md, "Test-suite time"), longest first."""
-
-
 class FileGroups(LoadScopeScheduling):
     """With `pytest -n N`, each test file runs on one worker, and the files of SHARED_RUNS together on one,
     so that module fixtures and the programs a file compiles are made once (TINY's programs once, in the
@@ -128,13 +123,6 @@ class FileGroups(LoadScopeScheduling):
     def _split_scope(self, nodeid: str) -> str:
         path = nodeid.split("::", 1)[0]
         return "tiny-runs" if Path(path).stem in SHARED_RUNS else path
-
-    def _assign_work_unit(self, node) -> None:
-        """The longest work units first (`LONGEST_FIRST`), the others after them as xdist orders them (most
-        tests first), so that no long file starts last and runs on alone."""
-        for scope in reversed([s for s in LONGEST_FIRST if s in self.workqueue]):
-            self.workqueue.move_to_end(scope, last=False)
-        super()._assign_work_unit(node)
 
 
 @pytest.hookimpl(optionalhook=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from conftest import LONGEST_FIRST, SHARED_RUNS, FileGroups
+from conftest import SHARED_RUNS, FileGroups
 
 
 def test_each_file_is_one_work_unit_and_the_tiny_run_files_one_together():
@@ -18,7 +18,5 @@ def test_each_file_is_one_work_unit_and_the_tiny_run_files_one_together():
     assert len({*one_file, *tiny, scope("tests/test_ppo.py::test_a")}) == 3
 
 
-def test_the_tiny_run_files_and_the_longest_files_exist():
+def test_the_tiny_run_files_exist():
     assert {name for name in SHARED_RUNS if not (Path(__file__).parent / f"{name}.py").exists()} == set()
-    root = Path(__file__).parents[1]
-    assert {unit for unit in LONGEST_FIRST if unit != "tiny-runs" and not (root / unit).exists()} == set()
