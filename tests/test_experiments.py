@@ -13,7 +13,7 @@ import pytest
 
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, kinds, plots, recipes, runner, takeoff
+from jaxsocial.experiments import figures, kinds, paths, plots, recipes, runner, takeoff
 from jaxsocial.run import config, logs, metrics, schedule
 
 
@@ -469,7 +469,7 @@ def test_a_designs_evaluations_are_written_blind(tmp_path, capsys):
     showing a score: the committed tiny records, one seed's evaluations deleted, as a design's runs."""
     recipe = dataclasses.replace(recipes.RECIPES["no_penalty"], design="h1_laptop")
     scale = dataclasses.replace(recipes.TINY, runs_subdir="prereg-test")
-    records = Path(__file__).parents[1] / "benchmarks" / "results" / "records" / "tiny"
+    records = Path(__file__).parents[1] / paths.RECORDS / "tiny"
     shutil.copytree(records, tmp_path / scale.runs_root)
     seed_dir = tmp_path / scale.runs_root / "solo_pred_nopenalty-s0-1" / "s1"
     shutil.rmtree(seed_dir / "eval")
