@@ -36,21 +36,32 @@ def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monke
     assert "first: core 0" in capsys.readouterr().out
     provenance = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
     assert provenance["device"] == "a CPU" and provenance["rc"] == 0 and provenance["cores"] == 1
-    assert (
-        provenance["cpu"] == autotune.cpu_model() and provenance["xla_flags"] == pinned.SINGLE_CORE_XLA_FLAGS
-    )
+    assert provenance["cpu"] == autotune.cpu_model() and provenance["xla_flags"] == pinned.process_xla_flags()
     with pytest.raises(FileNotFoundError, match="not trained by"):
         pinned.run_provenance(tmp_path, "a CPU", "0.0")
     with pytest.raises(ValueError, match="at least one core"):
         pinned.run(jobs, [])
 
 
-def test_the_xla_of_each_process_is_single_threaded(tmp_path, monkeypatch):
+def test_the_xla_of_each_process_is_single_threaded_after_the_callers_flags(tmp_path, monkeypatch):
     monkeypatch.setattr(pinned, "POLL_SECONDS", 0.05)
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
     out = tmp_path / "flags.txt"
     code = f"import os, pathlib; pathlib.Path({str(out)!r}).write_text(os.environ['XLA_FLAGS'])"
-    assert pinned.run([pinned.Job("x", ("-c", code), tmp_path / "x")], [0]) == [0]
-    assert out.read_text() == pinned.SINGLE_CORE_XLA_FLAGS
+    assert pinned.run([_job(tmp_path, "x", code)], [0]) == [0]
+    expected = "--xla_backend_optimization_level=0 --xla_cpu_multi_thread_eigen=false"
+    assert out.read_text() == expected == pinned.process_xla_flags()
+    assert json.loads((tmp_path / "x" / pinned.RUN_FILE).read_text())["xla_flags"] == expected
+    monkeypatch.delenv("XLA_FLAGS")
+    assert pinned.process_xla_flags() == pinned.SINGLE_CORE_XLA_FLAGS
+
+
+def test_a_word_xla_would_ignore_with_every_flag_after_it_is_refused(tmp_path, monkeypatch):
+    """XLA silently skips a word without `--` and all flags after it (a process would train without them)."""
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_max_isa=AVX2 intra_op_parallelism_threads=1")
+    with pytest.raises(ValueError, match="'intra_op_parallelism_threads=1' is not an XLA flag"):
+        pinned.run([_job(tmp_path, "x", "pass")], [0])
+    assert not (tmp_path / "x").exists()  # refused before any process started
 
 
 @pytest.mark.slow

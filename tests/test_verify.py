@@ -10,7 +10,7 @@ import pytest
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import recipes, verify
+from jaxsocial.experiments import recipes, records, verify
 from jaxsocial.run import logs
 
 
@@ -70,3 +70,23 @@ def test_bad_input_is_refused_before_training(tiny_record, tmp_path):
     with pytest.raises(SystemExit):
         cli.main(["verify", str(tiny_record), "--iterations", "0"])
     assert taken.read_text() == "{}"
+
+
+@pytest.mark.parametrize(
+    ("run", "expected"),
+    [
+        ({"cores": 1, "xla_flags": "--xla_cpu_max_isa=AVX2"}, "--xla_cpu_max_isa=AVX2"),  # as recorded
+        ({"cores": 1}, "--xla_cpu_multi_thread_eigen=false"),  # recorded before the flags were
+        ({"cores": 2}, "--from-this-process"),
+    ],
+)
+def test_the_retraining_has_the_records_xla_flags(tiny_record, tmp_path, monkeypatch, run, expected):
+    record = tmp_path / "record"
+    record.mkdir()
+    shutil.copy(tiny_record / logs.CONFIG_FILE, record)
+    (record / records.PROVENANCE_FILE).write_text(json.dumps({"run": run}))
+    monkeypatch.setenv("XLA_FLAGS", "--from-this-process")
+    seen = []
+    monkeypatch.setattr(verify, "train_in_process", lambda cfg, work_dir, flags: seen.append(flags))
+    verify.retrain(record, 2, tmp_path / "work")
+    assert seen == [expected]

@@ -25,7 +25,11 @@ from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import records
 from jaxsocial.run import compile_cache, logs
 
-SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
+"""What each pinned process adds to the caller's $XLA_FLAGS (`process_xla_flags`). Until 2026-11-27 it ended
+in a stray `intra_op_parallelism_threads=1`, which is no XLA flag: XLA ignored it and every flag after it (the
+tests' optimisation level, the settings of benchmarks/reproducibility.py); the numbers it trained are the same
+bit for bit without it (measured on an Intel Xeon family 6 model 167)."""
 RUN_FILE = "process.json"
 MACHINE_FIELDS = ("cpu", "xla_flags")
 """What `RUN_FILE` says of where the run trained, beside `records.RUN_FIELDS`: the CPU (model, family and
@@ -54,13 +58,26 @@ def train_command(flags: list[str]) -> tuple[str, ...]:
     return ("-m", "jaxsocial.train", *flags, *cache)
 
 
+def process_xla_flags() -> str:
+    """$XLA_FLAGS of a pinned process: the caller's, then `SINGLE_CORE_XLA_FLAGS`. ValueError if a word of
+    them is not a `--flag` (XLA would ignore it and, silently, every flag after it)."""
+    flags = f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS}".strip()
+    stray = [word for word in flags.split() if not word.startswith("--")]
+    if stray:
+        raise ValueError(
+            f"$XLA_FLAGS: {stray[0]!r} is not an XLA flag (--name=value); XLA would ignore the rest"
+        )
+    return flags
+
+
 def run(jobs: list[Job], cores: list[int]) -> list[int]:
     """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (with
-    `taskset`, where there is one) with a single-threaded XLA; write `RUN_FILE` into each run directory the
-    process created. Returns the exit codes, in the order of `jobs`."""
+    `taskset`, where there is one) with a single-threaded XLA after the caller's $XLA_FLAGS
+    (`process_xla_flags`); write `RUN_FILE` into each run directory the process created. Returns the exit
+    codes, in the order of `jobs`."""
     if not cores:
         raise ValueError("give at least one core")
-    commit = records.head_commit()
+    commit, xla_flags = records.head_commit(), process_xla_flags()
     pending, active, codes = list(enumerate(jobs)), {}, {}
     free = list(cores)
     while pending or active:
@@ -72,7 +89,7 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
                 [*pin, sys.executable, *job.argv],
                 stdout=job.log.open("w"),
                 stderr=subprocess.STDOUT,
-                env={**os.environ, "XLA_FLAGS": SINGLE_CORE_XLA_FLAGS},
+                env={**os.environ, "XLA_FLAGS": xla_flags},
             )
             active[i] = (proc, core, now())
             print(f"{job.label}: core {core}, log {job.log}", flush=True)
@@ -86,9 +103,7 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
             job = jobs[i]
             if (job.run_dir / logs.CONFIG_FILE).is_file():
                 command = shlex.join(["python", *job.argv])
-                write_run_file(
-                    job.run_dir, command, commit, 1, started, proc.returncode, SINGLE_CORE_XLA_FLAGS
-                )
+                write_run_file(job.run_dir, command, commit, 1, started, proc.returncode, xla_flags)
             print(f"{job.label}: exit {proc.returncode}", flush=True)
     return [codes[i] for i in range(len(jobs))]
 

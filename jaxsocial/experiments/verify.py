@@ -4,9 +4,9 @@
     python -m jaxsocial.experiments verify RECORD --iterations 20 --out verify.json
 
 The record's config.json (read under today's field names) is trained again for its first K iterations in a
-fresh run directory outside the record, in a process of its own with the process settings the record's run
-had (one core, single-threaded XLA, as `pinned` trains, where its provenance says one core), and the two
-metrics logs are compared row by row, every field but the timings (`TIMING_FIELDS`). The report says
+fresh run directory outside the record, in a process of its own with the $XLA_FLAGS the record's run
+had (from its provenance; older records: single-threaded XLA where it says one core, as `pinned` trains), and
+the two metrics logs are compared row by row, every field but the timings (`TIMING_FIELDS`). The report says
 **exact**, or the first row and field that differ with both values and the size of the difference, and
 names the CPU of the record and of this machine: bitwise agreement is expected on the same CPU model and
 commit, not across models (docs/experiments.md). Nothing is written into the record.
@@ -39,12 +39,15 @@ DEFAULT_ITERATIONS = 10
 
 def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
     """Train the first `iterations` of the record's config into `work_dir` in a process of its own, with the
-    single-core XLA flags where its run had one core; return the new run directory."""
+    $XLA_FLAGS its provenance records (a record without them: the single-core flags where its run had one
+    core, else this process's); return the new run directory."""
     cfg = config.config_from_dict(logs.read_config(record_dir))
     if iterations > cfg.iterations:
         raise ValueError(f"--iterations {iterations}: the record trained only {cfg.iterations}")
-    one_core = records.run_field(record_dir, "cores") == 1
-    xla_flags = pinned.SINGLE_CORE_XLA_FLAGS if one_core else os.environ.get("XLA_FLAGS", "")
+    xla_flags = records.run_field(record_dir, "xla_flags")
+    if xla_flags is None:
+        one_core = records.run_field(record_dir, "cores") == 1
+        xla_flags = pinned.SINGLE_CORE_XLA_FLAGS if one_core else os.environ.get("XLA_FLAGS", "")
     return train_in_process(dataclasses.replace(cfg, iterations=iterations), work_dir, xla_flags)
 
 
