@@ -45,16 +45,11 @@ def evidence_eval_path(condition: str) -> Path:
     return paths.EVIDENCE / f"goalcycle4-{condition}.json"
 
 
-def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
-    """Every evidence seed of `condition`: design, seed, takeoff and end (env-steps; takeoff None if it never
-    took off), and its 4-goal score."""
-    scores = logs.read_json(evidence_eval_path(condition))
-    by_dir = {  # keyed by '<design folder>/<seed folder>', wherever the records root is
-        Path(*Path(ck).parts[-2:]): score
-        for ck, score in zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True)
-    }
+def seed_takeoffs(condition: str, designs: tuple[str, ...], records_root: Path) -> list[dict[str, Any]]:
+    """Every recorded laptop seed of `condition` in `designs`: design, seed, takeoff and end (env-steps;
+    takeoff None if it never took off)."""
     seeds = []
-    for design in EVIDENCE_DESIGNS:
+    for design in designs:
         for seed_dir in sorted((records_root / "laptop" / f"prereg-{design}").glob(f"{condition}-s*")):
             config, rows = logs.read_config(seed_dir), metrics.read_rows(seed_dir)
             per_iteration = metrics.steps_per_iteration(config)
@@ -65,10 +60,23 @@ def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
                     "seed": config["seed"],
                     "takeoff": None if lift is None else lift * per_iteration,
                     "end": len(rows) * per_iteration,
-                    "goalcycle4": by_dir[Path(*seed_dir.parts[-2:])],
+                    "record": Path(*seed_dir.parts[-2:]),
                 }
             )
     return seeds
+
+
+def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
+    """Every evidence seed of `condition` (`EVIDENCE_DESIGNS`): `seed_takeoffs`, with its 4-goal score."""
+    scores = logs.read_json(evidence_eval_path(condition))
+    by_dir = {  # keyed by '<design folder>/<seed folder>', wherever the records root is
+        Path(*Path(ck).parts[-2:]): score
+        for ck, score in zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True)
+    }
+    seeds = seed_takeoffs(condition, EVIDENCE_DESIGNS, records_root)
+    return [
+        {k: v for k, v in s.items() if k != "record"} | {"goalcycle4": by_dir[s["record"]]} for s in seeds
+    ]
 
 
 def incidence(seeds: list[dict[str, Any]], grid: np.ndarray) -> np.ndarray:
@@ -165,19 +173,28 @@ def power_table(
     return {"evidence_seeds": {arm: len(v) for arm, v in arms.items()}, "reps": reps, "power": table}
 
 
-POOLED_AT = (4_000_000, 6_000_000, 8_000_000, 20_000_000)
-"""Env-steps at which the pooled summary reads the fraction past the plateau."""
+POOLED_AT = (4_000_000, 6_000_000, 8_000_000, 11_993_088, 20_000_000)
+"""Env-steps at which the pooled summaries read the fraction past the plateau (11,993,088: `experts`'
+budget)."""
+POOLED = {
+    paths.POOLED_SUMMARY: EVIDENCE_DESIGNS,
+    paths.POOLED_ALL_SUMMARY: (*EVIDENCE_DESIGNS, "experts"),
+}
+"""Pooled summary -> the laptop designs it pools: the evidence that chose `experts`, and every fresh seed of
+the laptop PPO + rec learner (the rate the README quotes)."""
 
 
-def pooled_summary(records_root: Path) -> dict[str, Any]:
-    """Every fresh laptop seed of the evidence designs, per condition (social and solo PPO + rec): its
-    takeoff and run end; at each of `POOLED_AT`, how many of the seeds whose run reached it had taken off,
-    how many were still on the plateau (at risk), and the Kaplan-Meier fraction past the plateau there
-    (every seed, censored at its run's end); and the log-rank test of the two conditions (post hoc: these
-    seeds chose the `experts` design)."""
+def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, Any]:
+    """Every fresh laptop seed of `designs`, per condition (social and solo PPO + rec): its takeoff and run
+    end; at each of `POOLED_AT`, how many of the seeds whose run reached it had taken off, how many were still
+    on the plateau (at risk), and the Kaplan-Meier fraction past the plateau there (every seed, censored at
+    its run's end); and the log-rank test of the two conditions (post hoc: it pools designs)."""
     conditions = {}
     for condition in ("social_rec", "solo_rec"):
-        seeds = evidence(condition, records_root)
+        seeds = [
+            {k: v for k, v in s.items() if k != "record"}
+            for s in seed_takeoffs(condition, designs, records_root)
+        ]
         lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
         curve = stats.kaplan_meier(lifts, ends)
         at = {}
@@ -200,7 +217,7 @@ def pooled_summary(records_root: Path) -> dict[str, Any]:
     lift = {c: ([s["takeoff"] for s in v["seed_list"]], [s["end"] for s in v["seed_list"]])
             for c, v in conditions.items()}  # fmt: skip
     return {
-        "designs": list(EVIDENCE_DESIGNS),
+        "designs": list(designs),
         "window_env_steps": takeoff.WINDOW_STEPS,
         "command": "python -m jaxsocial.experiments.takeoff_power",
         "conditions": conditions,
@@ -209,18 +226,21 @@ def pooled_summary(records_root: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Write `paths.POOLED_SUMMARY` from the committed records and evidence evaluations (no arguments)."""
+    """Write the `POOLED` summaries from the committed records (no arguments)."""
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments pooled", description=main.__doc__)
     parser.parse_args(argv)
-    summary = pooled_summary(paths.RECORDS)
-    logs.write_json(paths.POOLED_SUMMARY, summary, indent=1)
-    for c, v in summary["conditions"].items():
-        by = ", ".join(
-            f"{a['took_off']} of {a['seeds_observed']} by {int(s) / 1e6:g}M (KM {a['kaplan_meier']:.2f})"
-            for s, a in v["at"].items()
-        )
-        print(f"{c}: {v['took_off_within_budget']} of {v['seeds']} took off within their budgets; {by}")
-    print(f"wrote {paths.POOLED_SUMMARY}")
+    for path, designs in POOLED.items():
+        summary = pooled_summary(paths.RECORDS, designs)
+        logs.write_json(path, summary, indent=1)
+        print(f"{', '.join(designs)}:")
+        for c, v in summary["conditions"].items():
+            by = ", ".join(
+                f"{a['took_off']} of {a['seeds_observed']} by {int(s) / 1e6:g}M (KM {a['kaplan_meier']:.2f})"
+                for s, a in v["at"].items()
+                if a["seeds_observed"]
+            )
+            print(f"  {c}: {v['took_off_within_budget']} of {v['seeds']} took off within their budgets; {by}")
+        print(f"wrote {path}")
 
 
 if __name__ == "__main__":
