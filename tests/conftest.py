@@ -93,17 +93,28 @@ def metrics_without_speed(run_dir):
     return [{k: v for k, v in row.items() if k not in timing} for row in logs.read_metrics(run_dir)]
 
 
+TEST_XLA_FLAGS = {"xla_backend_optimization_level": "0", "xla_cpu_use_fusion_emitters": "false"}
+"""XLA flags that compile for the tests, not for speed (the programs' HLO is optimised as usual): LLVM at
+optimisation level 0, and XLA's loop emitters in place of its fusion emitters. TINY's training chunk compiles
+in 5.01 s under them, 8.56 s at level 0 alone, 11.98 s with XLA's defaults (benchmarks/compile_flags.py,
+docs/benchmarks.md)."""
+
+RUN_FAST = {"xla_backend_optimization_level": 3, "xla_cpu_use_fusion_emitters": True}
+"""`jax.jit(f, compiler_options=RUN_FAST)`: XLA's default code generation back, for the programs whose run
+time outweighs their compile time: the learning tests' hundreds of iterations run about 3x faster (10 of
+them in 0.46 s against 1.46 s under `TEST_XLA_FLAGS`), for 8 s more compile time."""
+
+
 def pytest_configure(config):
-    """Compile for the tests, not for speed: XLA's backend (LLVM) optimisation level 0 halves the compile
-    time that dominates the suite on CPU (the programs' HLO is optimised as usual; set the level in
-    $XLA_FLAGS to test with another). It applies to this process and the subprocesses the tests start.
+    """Compile for the tests: `TEST_XLA_FLAGS`, each unless $XLA_FLAGS sets it (set one there to test with
+    another value). They apply to this process and the subprocesses the tests start.
 
     One persistent XLA cache for every test process: the pytest-xdist workers (and later runs) load the
     programs another one compiled (the same training programs recur across test files) instead of
     compiling them again. Keyed by program, JAX version, flags and devices, so it is safe to share."""
     flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_backend_optimization_level" not in flags:
-        os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_optimization_level=0".strip()
+    added = [f"--{name}={value}" for name, value in TEST_XLA_FLAGS.items() if name not in flags]
+    os.environ["XLA_FLAGS"] = " ".join([flags, *added]).strip()
     cache = Path(tempfile.gettempdir()) / "jaxsocial-tests-xla-cache"
     os.environ["JAX_COMPILATION_CACHE_DIR"] = str(cache)  # the subprocesses' too (and `experiments` jobs')
     compile_cache.enable(cache, min_compile_seconds=1.0)

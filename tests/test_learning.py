@@ -6,7 +6,7 @@ import functools
 import jax
 import numpy as np
 import pytest
-from conftest import SOLO_LEARNING, mean_return
+from conftest import RUN_FAST, SOLO_LEARNING, mean_return
 
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.fast import precision
@@ -17,11 +17,11 @@ from jaxsocial.train import make_train
 
 @functools.cache
 def solo_learning(dtype: str) -> tuple[float, float]:
-    """`SOLO_LEARNING` in `dtype` from key 0 (trained once per test process): the mean returns of its first
-    and last 20 iterations."""
+    """`SOLO_LEARNING` in `dtype` from key 0 (trained once per test process, compiled to run fast): the mean
+    returns of its first and last 20 iterations."""
     cfg = dataclasses.replace(SOLO_LEARNING, net=dataclasses.replace(SOLO_LEARNING.net, dtype=dtype))
     _, _, train = make_train(cfg)
-    _, metrics = jax.jit(train)(jax.random.key(0))
+    _, metrics = jax.jit(train, compiler_options=RUN_FAST)(jax.random.key(0))
     returns, episodes = np.asarray(metrics["return"])[:, 0], np.asarray(metrics["episodes"])[:, 0]
     return mean_return(returns[:20], episodes[:20]), mean_return(returns[-20:], episodes[-20:])
 
@@ -63,7 +63,7 @@ def test_behaviour_cloning_of_navigators_beats_random():
         bc=BCConfig(lr=3e-3, epochs=4),
     )
     _, _, train = make_train(cfg)
-    _, metrics = jax.jit(train)(jax.random.key(0))
+    _, metrics = jax.jit(train, compiler_options=RUN_FAST)(jax.random.key(0))
     returns, episodes = np.asarray(metrics["return"])[:, 0], np.asarray(metrics["episodes"])[:, 0]
     first, last = mean_return(returns[:20], episodes[:20]), mean_return(returns[-20:], episodes[-20:])
     assert first < 0.06, first
