@@ -149,6 +149,19 @@ def test_the_takeoff_designs_block_tests_its_arms_with_holm():
     assert "primary takeoff: p = " in prereg.verdict(block | {"valid": False})
 
 
+def test_a_tiny_p_value_keeps_its_digits_and_never_reads_zero():
+    assert prereg.round_p(0.000428123) == 0.000428 and prereg.round_p(0.0) == 0.0
+    assert prereg.round_p(1.23456e-14) == 1.23e-14 and prereg.round_p(-2.5e-9) == -2.5e-9
+    design = dataclasses.replace(prereg.load("experts"), seeds=20)
+    ct = ([1.0 + i for i in range(20)], [-1.0 - i for i in range(20)])  # every social seed above every solo
+    summary = takeoff_summary([1] * 20, [None] * 20, 3, [9.0] * 20, [1.0] * 20)
+    for arm, scores in zip(("social_rec", "solo_rec"), ct, strict=True):
+        summary["conditions"][arm]["ct"]["per_seed"] = scores
+    ct_test = prereg.preregistered_takeoff(design, summary, {})["result"]["secondary"]["ct"]
+    expected = scipy_stats.mannwhitneyu(*ct, alternative="greater").pvalue
+    assert 0 < expected < 1e-6 and ct_test["p"] == pytest.approx(expected, rel=1e-2)
+
+
 def test_a_designs_deviations_reach_its_verdict(tmp_path):
     (tmp_path / "x.json").write_text('{"deviations": [{"date": "2026-11-27", "what": "state lost"}]}')
     assert prereg.deviations("x", tmp_path) == [{"date": "2026-11-27", "what": "state lost"}]

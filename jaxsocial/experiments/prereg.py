@@ -171,10 +171,15 @@ def preregistered(
             "treatment_seeds": n["treatment"],
             "control_learned": k["control"],
             "control_seeds": n["control"],
-            "p": round(p, 6),
+            "p": round_p(p),
         },
         "checks": commit_checks(commit, run_commits) | {"seeds_as_designed": n == design.arm_seeds},
     }
+
+
+def round_p(value: float) -> float:
+    """A summary's number to 6 decimals, or to 3 significant digits below 1e-6, so that no p-value reads 0."""
+    return round(value, 6) if abs(value) >= 1e-6 else float(f"{value:.3g}")
 
 
 def commit_checks(commit: str | None, run_commits: dict[str, str | None]) -> dict[str, Any]:
@@ -230,9 +235,9 @@ def preregistered_takeoff(
         known = {name: entry["p"] for name, entry in family.items() if entry["p"] is not None}
         adjusted = stats.holm(known)
         for name, entry in family.items():
-            entry["p_holm"] = None if name not in adjusted else round(adjusted[name], 6)
+            entry["p_holm"] = None if name not in adjusted else round_p(adjusted[name])
             entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
-            entry.update({key: round(v, 6) for key, v in entry.items() if isinstance(v, float)})
+            entry.update({key: round_p(v) for key, v in entry.items() if isinstance(v, float)})
     designed = {arm: design.seeds * len(getattr(design, arm)) for arm in ("treatment", "control")}
     scored = all(
         len(arm[name]) == designed[key] for key, arm in arms.items() for name in ("goalcycle4", "solo3", "ct")
