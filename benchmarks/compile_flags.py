@@ -70,7 +70,7 @@ def measure(program: str) -> dict:
     return {"seconds": seconds, "outputs_sha256": digest.hexdigest()[:16]}
 
 
-def in_process(program: str, flags: str) -> dict:
+def in_fresh_process(program: str, flags: str) -> dict:
     """`measure(program)` in a fresh process with $XLA_FLAGS `flags` and no compilation cache."""
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"} | {"XLA_FLAGS": flags}
     done = subprocess.run(
@@ -98,7 +98,7 @@ def main() -> None:
         runs = {name: [] for name in args.settings}
         for _ in range(args.repeats):
             for name in args.settings:
-                runs[name].append(in_process(program, SETTINGS[name]))
+                runs[name].append(in_fresh_process(program, SETTINGS[name]))
                 took = runs[name][-1]["seconds"]
                 print(f"{program} {name}: compile {took['compile']:.2f} s, run {took['second_run']:.2f} s")
         results[program] = {

@@ -154,9 +154,9 @@ def layer_times(fn, inputs: tuple, hlo: str) -> dict[str, float]:
 def main() -> None:
     args = parse_args()
     if args.cpu is not None:  # before XLA starts its backend (importing jaxsocial starts none)
-        from jaxsocial.experiments.pinned import SINGLE_CORE_XLA_FLAGS
+        from jaxsocial.experiments.pinned import process_xla_flags
 
-        os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS}".strip()
+        os.environ["XLA_FLAGS"] = process_xla_flags()
         os.sched_setaffinity(0, {args.cpu})
     import jax
     import jax.numpy as jnp

@@ -51,15 +51,19 @@ def kind_file(cpu: str) -> Path:
     return OUT_DIR / (re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json")
 
 
+def setting_flags(setting: str) -> str:
+    """The $XLA_FLAGS a setting trains with: the single-core ones, then the setting's."""
+    return f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[setting]}".strip()
+
+
 def rows_of(setting: str, iterations: int) -> tuple[list[dict], float]:
     """The reference record's first `iterations` rows re-trained under `setting`, timings removed, and the
     median env-steps/s of its rows."""
     cfg = config.config_from_dict(logs.read_config(REFERENCE))
     chunk = min(cfg.chunk_iterations, iterations)
     cfg = dataclasses.replace(cfg, iterations=iterations, chunk_iterations=chunk)
-    flags = f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[setting]}".strip()
     with tempfile.TemporaryDirectory(prefix="jaxsocial-repro-") as tmp:
-        rows = metrics.read_rows(verify.train_in_process(cfg, Path(tmp), flags))
+        rows = metrics.read_rows(verify.train_in_process(cfg, Path(tmp), setting_flags(setting)))
     speed = statistics.median(r[metrics.SPEED] for r in rows)
     return [without_timings(r) for r in rows], speed
 
@@ -98,7 +102,7 @@ def main() -> None:
         rows, speed = rows_of(name, args.iterations)
         recorded = [without_timings(r) for r in metrics.read_rows(REFERENCE)[: len(rows)]]
         found["settings"][name] = {
-            "xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[name]}".strip(),
+            "xla_flags": setting_flags(name),
             "against_reference": verify.first_difference(recorded, rows),
             "env_steps_per_s_median": round(speed, 1),
             "load_average": list(os.getloadavg()),

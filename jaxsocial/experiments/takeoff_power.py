@@ -45,24 +45,24 @@ def evidence_eval_path(condition: str) -> Path:
     return paths.EVIDENCE / f"goalcycle4-{condition}.json"
 
 
-def seed_takeoffs(condition: str, designs: tuple[str, ...], records_root: Path) -> list[dict[str, Any]]:
-    """Every recorded laptop seed of `condition` in `designs`: design, seed, takeoff and end (env-steps;
-    takeoff None if it never took off)."""
+def seed_takeoffs(
+    condition: str, designs: tuple[str, ...], records_root: Path
+) -> list[tuple[Path, dict[str, Any]]]:
+    """Every recorded laptop seed of `condition` in `designs`: its record's '<design folder>/<seed folder>',
+    and its design, seed, takeoff and end (env-steps; takeoff None if it never took off)."""
     seeds = []
     for design in designs:
         for seed_dir in sorted((records_root / "laptop" / f"prereg-{design}").glob(f"{condition}-s*")):
             config, rows = logs.read_config(seed_dir), metrics.read_rows(seed_dir)
             per_iteration = metrics.steps_per_iteration(config)
             lift = takeoff.seed_takeoff(rows, per_iteration)
-            seeds.append(
-                {
-                    "design": design,
-                    "seed": config["seed"],
-                    "takeoff": None if lift is None else lift * per_iteration,
-                    "end": len(rows) * per_iteration,
-                    "record": Path(*seed_dir.parts[-2:]),
-                }
-            )
+            seed = {
+                "design": design,
+                "seed": config["seed"],
+                "takeoff": None if lift is None else lift * per_iteration,
+                "end": len(rows) * per_iteration,
+            }
+            seeds.append((Path(*seed_dir.parts[-2:]), seed))
     return seeds
 
 
@@ -74,9 +74,7 @@ def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
         for ck, score in zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True)
     }
     seeds = seed_takeoffs(condition, EVIDENCE_DESIGNS, records_root)
-    return [
-        {k: v for k, v in s.items() if k != "record"} | {"goalcycle4": by_dir[s["record"]]} for s in seeds
-    ]
+    return [seed | {"goalcycle4": by_dir[record]} for record, seed in seeds]
 
 
 def incidence(seeds: list[dict[str, Any]], grid: np.ndarray) -> np.ndarray:
@@ -191,10 +189,7 @@ def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, An
     its run's end); and the log-rank test of the two conditions (post hoc: it pools designs)."""
     conditions = {}
     for condition in ("social_rec", "solo_rec"):
-        seeds = [
-            {k: v for k, v in s.items() if k != "record"}
-            for s in seed_takeoffs(condition, designs, records_root)
-        ]
+        seeds = [seed for _, seed in seed_takeoffs(condition, designs, records_root)]
         lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
         curve = stats.kaplan_meier(lifts, ends)
         at = {}
