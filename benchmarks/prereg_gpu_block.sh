@@ -7,7 +7,8 @@
 #
 #   here:    bash benchmarks/prereg_gpu_block.sh prepare h1_prereg
 #            (.prereg/: the design commit's code, its commands, the state so far; .whl/: tyro's wheels; and
-#            the records left out of git's index, so the tree that travels stays under the device's 64 MiB)
+#            the records and the committed state (copied into .prereg/state) left out of git's index, so the
+#            tree that travels stays under the device's 64 MiB)
 #   device:  run(command="bash .prereg/block.sh device 450", carry=[".prereg", ".whl"], timeout_s=560)
 #   here:    bash benchmarks/prereg_gpu_block.sh collect DIR     (DIR: the files_at of that call)
 #            (the state and commands log back into .prereg/, the records back into the index, and the
@@ -46,10 +47,10 @@ prepare() {
   cp "$0" .prereg/block.sh
   python -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
     --platform manylinux2014_x86_64 -d .whl tyro==1.0.17 docstring-parser==0.18.0 typeguard==4.6.1
-  for path in /.prereg/ /.whl/ /benchmarks/results/records/; do
+  for path in /.prereg/ /.whl/ /benchmarks/results/records/ "/$committed/"; do
     grep -qxF "$path" .git/info/exclude || echo "$path" >>.git/info/exclude
   done
-  git rm -r -q --cached benchmarks/results/records
+  git rm -r -q --cached --ignore-unmatch benchmarks/results/records "$committed"  # .prereg/state has it
   echo "prepared $design at $commit: $(wc -l <.prereg/commands.txt) runs; state: $(ls .prereg/state)"
   echo "the records are out of the index until 'collect' (do not commit before it)"
 }
@@ -114,8 +115,9 @@ PRUNE
 collect() {
   local from=$1 design
   design=$(sed -n 2p .prereg/design.txt)
-  git reset -q -- benchmarks/results/records
-  sed -i '\|^/benchmarks/results/records/$|d' .git/info/exclude
+  local committed=benchmarks/results/inflight/$design-gpu/state
+  git reset -q -- benchmarks/results/records "$committed"
+  sed -i -e '\|^/benchmarks/results/records/$|d' -e "\\|^/$committed/\$|d" .git/info/exclude
   cp "$from"/*.tgz .prereg/state/ && chmod u+w .prereg/state/*.tgz
   cp "$from/commands.log" .prereg/commands.log && chmod u+w .prereg/commands.log
   local out=benchmarks/results/inflight/$design-gpu tmp
