@@ -15,10 +15,11 @@ from jaxsocial.run import metrics
 
 
 def test_a_packed_state_resumes_exactly(tmp_path):
-    whole = train.run(dataclasses.replace(TINY, runs_dir=str(tmp_path / "a"), run_name="run", seeds=2,
-                                          iterations=4, checkpoint_every=2))  # fmt: skip
-    half = train.run(dataclasses.replace(TINY, runs_dir=str(tmp_path / "b"), run_name="run", seeds=2,
-                                         iterations=2, checkpoint_every=2))  # fmt: skip
+    """Two seeds vmapped in one program, as on a GPU (and as `two_seed_run`: the tiny-runs group compiles
+    that program once)."""
+    two_seeds = dataclasses.replace(TINY, run_name="run", seeds=2, seed_batching="vmap")
+    whole = train.run(dataclasses.replace(two_seeds, runs_dir=str(tmp_path / "a")))
+    half = train.run(dataclasses.replace(two_seeds, runs_dir=str(tmp_path / "b"), iterations=2))
     device = tmp_path / "device.tgz"  # what a device block brings back: the runs under their tree
     with tarfile.open(device, "w:gz") as tar:
         tar.add(half.parent, arcname="runs")
@@ -29,8 +30,7 @@ def test_a_packed_state_resumes_exactly(tmp_path):
     assert again.read_bytes() == state.read_bytes()  # deterministic: the same files, the same bytes
     (resumed,) = inflight.unpack(state, tmp_path / "next")
     assert not list(resumed.rglob("policy"))  # policies are left out: a resumed run exports its own
-    train.run(dataclasses.replace(TINY, runs_dir=str(resumed.parent), run_name="run", seeds=2, iterations=4,
-                                  checkpoint_every=2, resume=True))  # fmt: skip
+    train.run(dataclasses.replace(two_seeds, runs_dir=str(resumed.parent), resume=True))
     for seed in ("s0", "s1"):
         rows, expected = metrics.read_rows(resumed / seed), metrics.read_rows(whole / seed)
         assert len(rows) == 4 and verify.first_difference(expected, rows) is None

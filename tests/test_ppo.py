@@ -314,6 +314,7 @@ def test_impossible_configs_are_rejected(changes, steps, envs, message):
         ppo.validate(ppo.PPOConfig(**changes), steps, envs)
 
 
+@pytest.mark.slow  # compiles TINY's chunk twice; the fast path keeps the synthetic-rollout test above
 def test_trainer_records_the_targets_its_recompute_would_compute(monkeypatch):
     """The TINY run's first iteration (episodes end and are truncated inside its rollouts) with minibatch 0
     on the targets the rollout recorded, and with them recomputed: the same losses up to float rounding."""
