@@ -45,25 +45,29 @@ def evidence_eval_path(condition: str) -> Path:
     return paths.EVIDENCE / f"goalcycle4-{condition}.json"
 
 
+def seed_lift(seed_dir: Path) -> dict[str, Any]:
+    """A trained seed's directory (config and metrics): its seed, takeoff and run end (env-steps; takeoff
+    None if it never took off)."""
+    config, rows = logs.read_config(seed_dir), metrics.read_rows(seed_dir)
+    per_iteration = metrics.steps_per_iteration(config)
+    lift = takeoff.seed_takeoff(rows, per_iteration)
+    return {
+        "seed": config["seed"],
+        "takeoff": None if lift is None else lift * per_iteration,
+        "end": len(rows) * per_iteration,
+    }
+
+
 def seed_takeoffs(
     condition: str, designs: tuple[str, ...], records_root: Path
 ) -> list[tuple[Path, dict[str, Any]]]:
     """Every recorded laptop seed of `condition` in `designs`: its record's '<design folder>/<seed folder>',
-    and its design, seed, takeoff and end (env-steps; takeoff None if it never took off)."""
-    seeds = []
-    for design in designs:
-        for seed_dir in sorted((records_root / "laptop" / f"prereg-{design}").glob(f"{condition}-s*")):
-            config, rows = logs.read_config(seed_dir), metrics.read_rows(seed_dir)
-            per_iteration = metrics.steps_per_iteration(config)
-            lift = takeoff.seed_takeoff(rows, per_iteration)
-            seed = {
-                "design": design,
-                "seed": config["seed"],
-                "takeoff": None if lift is None else lift * per_iteration,
-                "end": len(rows) * per_iteration,
-            }
-            seeds.append((Path(*seed_dir.parts[-2:]), seed))
-    return seeds
+    and its design with `seed_lift`."""
+    return [
+        (Path(*seed_dir.parts[-2:]), {"design": design} | seed_lift(seed_dir))
+        for design in designs
+        for seed_dir in sorted((records_root / "laptop" / f"prereg-{design}").glob(f"{condition}-s*"))
+    ]
 
 
 def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
