@@ -302,6 +302,43 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
     assert summary["experts"]["mean"] > 0  # the scripted experts collect tiles
 
 
+def test_conditions_with_other_experts_report_their_own(tmp_path):
+    """The recipe's `experts` are the first social condition's; imperfect experts and a world with
+    distractors report their experts' returns (the expert slots only) beside their condition."""
+    from types import SimpleNamespace
+
+    def rows(*slot_returns):
+        row = {}
+        for slot, r in enumerate(slot_returns):
+            row |= {f"return/{slot}": r, f"episodes/{slot}": 2}
+        return [{"iteration": i + 1, **row} for i in range(10)]
+
+    returns = {  # the learner, its two experts, and the distractors where there are any
+        "solo_pred": (0.9,),
+        "social_pred": (10.0, 40.0, 42.0),
+        "social_pred_imperfect": (8.0, 20.0, 22.0),
+        "social_pred_distractors": (6.0, 38.0, 40.0, -3.0, -5.0),
+    }
+    configs = {c: recipes.condition_config(recipes.TINY, c, 0, 1, str(tmp_path)) for c in returns}
+    seed_rows = {c: [rows(*r)] for c, r in returns.items()}
+    runs = SimpleNamespace(recipe=recipes.RECIPES["imperfect"], rows=seed_rows, configs=configs)
+    summary = kinds.summarise_curves(runs)
+    assert summary["experts"]["final_returns"] == [41.0]
+    assert "experts" not in summary["conditions"]["social_pred"]
+    assert "experts" not in summary["conditions"]["solo_pred"]
+    assert summary["conditions"]["social_pred_imperfect"]["experts"]["final_returns"] == [21.0]
+    assert summary["conditions"]["social_pred_distractors"]["experts"]["final_returns"] == [39.0]
+    plt = plots._pyplot()
+    fig, ax = plt.subplots()
+    plots.draw_finals(ax, runs, summary, plt.get_cmap("tab10").colors)
+    assert [t.get_text() for t in ax.get_xticklabels()][-3:] == [
+        "its scripted experts",
+        "experts: social PPO + aux pred, imperfect experts",
+        "experts: social PPO + aux pred, 2 random distractors",
+    ]
+    plt.close(fig)
+
+
 @pytest.mark.slow
 def test_figure_leaves_out_conditions_not_run(mixing_runs, tmp_path):
     """h1 shares social_pred with mixing; its other conditions were not run here."""

@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxsocial.experiments import plots, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 from jaxsocial.stats import ct_score, kaplan_meier, learned_seed_tests, separations, summary
 
@@ -137,6 +137,14 @@ def takeoffs(runs) -> dict[str, dict[str, Any]]:
 # ----------------------------------------------------------------------------------------------------------
 
 
+def experts_of(cfg) -> tuple[tuple[int, ...], Any]:
+    """A run's scripted-expert slots, and what decides their returns: their specs and every stage's
+    environment (`config.setup`)."""
+    setup = config.setup(cfg, load_frozen=False)
+    experts = setup.pop.experts
+    return experts, (tuple(setup.pop.slots[k] for k in experts), setup.stage_envs)
+
+
 def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
     """Per condition the final return's stats and learned seeds (`mixing`: also each seed's stage switch
     and the final evaluations during training); the experts' final return; CI separations and learned-seed
@@ -152,14 +160,17 @@ def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
             for key in metrics.eval_keys(seed_rows):
                 conditions[c][key] = summary([metrics.final_eval(rows, key) for rows in seed_rows])
     # Scripted experts do not react to the learner, and all conditions of a seed share the environment's
-    # random numbers, so the experts' returns are the same in every social condition: take the first's.
-    social = [c for c in runs.rows if recipes.CONDITIONS[c].env == "goalcycle3"]
-    if social:
-        seed_rows = runs.rows[social[0]]
-        slots = metrics.slots(seed_rows[0][0])[1:]  # the learner is in slot 0
-        out["experts"] = summary(
-            [float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows]
-        )
+    # random numbers, so the experts' returns are the same in every condition with the same experts in the
+    # same environments: the first social condition's are the recipe's `experts`; a condition with other
+    # experts or environments (imperfect experts, distractors, dropout, solo episodes) has its own.
+    seen = set()
+    for c, seed_rows in runs.rows.items():
+        slots, setting = experts_of(runs.configs[c])
+        if not slots or setting in seen:
+            continue
+        finals = summary([float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows])
+        (conditions[c] if seen else out)["experts"] = finals
+        seen.add(setting)
     out["separated_ci95"] = separations(conditions)
     out["learned_seed_tests"] = learned_seed_tests(conditions, runs.recipe.hypotheses)
     out["conditions"] = conditions

@@ -160,11 +160,18 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
 
 
 def draw_finals(ax, runs, summary: dict[str, Any], colors) -> None:
-    """The final-return panel: per condition (and the experts) each seed, the mean and the IQM (`bars`)."""
+    """The final-return panel: per condition (and the experts, and a condition's own experts) each seed, the
+    mean and the IQM (`bars`)."""
     finals = {c: summary["conditions"][c] for c in runs.rows}
+    shades = list(colors[: len(runs.rows)])
     if summary.get("experts", {}).get("mean") is not None:
         finals["experts"] = summary["experts"]
-    bars(ax, finals, [*colors[: len(runs.rows)], "0.3"])
+        shades.append("0.3")
+    for c in runs.rows:  # a condition's own experts (imperfect ones, beside distractors, ...)
+        if "experts" in summary["conditions"][c]:
+            finals[f"experts:{c}"] = summary["conditions"][c]["experts"]
+            shades.append("0.55")
+    bars(ax, finals, shades)
     ax.set(title="final return, per seed", ylabel="learner episode return")
 
 
@@ -298,11 +305,18 @@ def bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
             ax.errorbar(j + 0.25, s["iqm"], iqm_whisker, fmt="D", color="k", ms=4, capsize=3)
         marks = s.get("final_returns") or [slot["mean"] for slot in s.get("per_slot", [])]
         ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
-    labels = [
-        recipes.CONDITIONS[n].label if n in recipes.CONDITIONS else "its scripted experts" for n in names
-    ]
+    labels = [bar_label(n) for n in names]
     ax.set_xticks(range(len(names)), labels, rotation=30, ha="right", fontsize=8)
     ax.legend(handles=_bar_key(), fontsize=7)
+
+
+def bar_label(name: str) -> str:
+    """A bar's label: a condition's, 'its scripted experts' (the recipe's), or 'experts: <condition>' for a
+    condition's own experts ('experts:<condition>')."""
+    if name in recipes.CONDITIONS:
+        return recipes.CONDITIONS[name].label
+    _, _, condition = name.partition(":")
+    return f"experts: {recipes.CONDITIONS[condition].label}" if condition else "its scripted experts"
 
 
 def _whisker(centre: float, interval: list[float] | None) -> list[list[float]] | None:
