@@ -16,7 +16,6 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
 from run_info import metadata, write_results
 
 from jaxsocial import stats
@@ -29,11 +28,8 @@ def fractions(seeds: list[dict]) -> dict:
     fraction past the plateau with its 95% band at each of `takeoff_power.POOLED_AT` their runs reached."""
     lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
     curve = stats.kaplan_meier(lifts, ends)
-    at = {}
-    for steps in takeoff_power.POOLED_AT:
-        if max(ends) >= steps:
-            i = int(np.searchsorted(curve["time"], steps, side="right")) - 1
-            at[str(steps)] = {k: round(curve[k][i], 4) for k in ("learned", "low", "high")}
+    at = {str(steps): takeoff_power.kaplan_meier_at(curve, steps)
+          for steps in takeoff_power.POOLED_AT if max(ends) >= steps}  # fmt: skip
     return {"seeds": len(seeds), "took_off": sum(t is not None for t in lifts), "kaplan_meier": at}
 
 
@@ -69,7 +65,7 @@ def main(argv: list[str] | None = None) -> None:
     result = compare(run_dir)
     for name in ("device", "cpu_pooled"):
         at = ", ".join(
-            f"{int(s) / 1e6:g}M {v['learned']:.2f}" for s, v in result[name]["kaplan_meier"].items()
+            f"{int(s) / 1e6:g}M {v['kaplan_meier']:.2f}" for s, v in result[name]["kaplan_meier"].items()
         )
         print(f"{name}: {result[name]['took_off']} of {result[name]['seeds']} took off; Kaplan-Meier {at}")
     print(f"log-rank, two-sided: {json.dumps(result['logrank_two_sided'])}")

@@ -186,6 +186,16 @@ POOLED = {
 the laptop PPO + rec learner (the rate the README quotes)."""
 
 
+def kaplan_meier_at(curve: dict[str, list[float]], steps: int) -> dict[str, Any]:
+    """A `stats.kaplan_meier` curve read at `steps` env-steps: the fraction past the plateau and its 95% band,
+    rounded as the summaries print them."""
+    index = int(np.searchsorted(curve["time"], steps, side="right")) - 1
+    return {
+        "kaplan_meier": round(curve["learned"][index], 4),
+        "ci95": [round(curve["low"][index], 4), round(curve["high"][index], 4)],
+    }
+
+
 def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, Any]:
     """Every fresh laptop seed of `designs`, per condition (social and solo PPO + rec): its takeoff and run
     end; at each of `POOLED_AT`, how many of the seeds whose run reached it had taken off, how many were still
@@ -199,13 +209,11 @@ def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, An
         at = {}
         for steps in POOLED_AT:
             ran = [s for s in seeds if s["end"] >= steps]  # the seeds whose run reached `steps`
-            index = int(np.searchsorted(curve["time"], steps, side="right")) - 1
             at[str(steps)] = {
                 "took_off": sum(s["takeoff"] is not None and s["takeoff"] <= steps for s in ran),
                 "seeds_observed": len(ran),
                 "at_risk": sum((s["takeoff"] or s["end"]) >= steps for s in seeds if s["end"] >= steps),
-                "kaplan_meier": round(curve["learned"][index], 4),
-                "ci95": [round(curve["low"][index], 4), round(curve["high"][index], 4)],
+                **kaplan_meier_at(curve, steps),
             }
         conditions[condition] = {
             "seeds": len(seeds),
