@@ -26,7 +26,7 @@ from jaxsocial.run import logs
 def fractions(seeds: list[dict]) -> dict:
     """Takeoffs and ends of `seeds` (`takeoff_power.seed_lift`): how many took off, and the Kaplan-Meier
     fraction past the plateau with its 95% band at each of `takeoff_power.POOLED_AT` their runs reached."""
-    lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
+    lifts, ends = takeoff_power.lifts_and_ends(seeds)
     curve = stats.kaplan_meier(lifts, ends)
     at = {str(steps): takeoff_power.kaplan_meier_at(curve, steps)
           for steps in takeoff_power.POOLED_AT if max(ends) >= steps}  # fmt: skip
@@ -41,14 +41,14 @@ def compare(run_dir: Path, records_root: Path = paths.RECORDS) -> dict:
     device = [takeoff_power.seed_lift(d) for d in sorted(run_dir.glob("s[0-9]*")) if d.is_dir()]
     designs = takeoff_power.POOLED[paths.POOLED_ALL_SUMMARY]
     cpu = [seed for _, seed in takeoff_power.seed_takeoffs("social_rec", designs, records_root)]
-    lift = {name: ([s["takeoff"] for s in seeds], [s["end"] for s in seeds])
-            for name, seeds in (("device", device), ("cpu", cpu))}  # fmt: skip
     return {
         "run_dir": str(run_dir),
         "window_env_steps": takeoff.WINDOW_STEPS,
         "device": fractions(device) | {"seed_list": device},
         "cpu_pooled": fractions(cpu) | {"designs": list(designs)},
-        "logrank_two_sided": stats.logrank(lift["device"], lift["cpu"], alternative="two-sided"),
+        "logrank_two_sided": stats.logrank(
+            takeoff_power.lifts_and_ends(device), takeoff_power.lifts_and_ends(cpu), alternative="two-sided"
+        ),
     }
 
 

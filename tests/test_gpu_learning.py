@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "benchmarks"))  # the script and its `run_info`
+sys.path.append(str(REPO / "benchmarks"))  # the script and its `run_info`
 import gpu_learning  # noqa: E402
 
 ITERATIONS = 1464  # `experts`' budget: 11,993,088 env-steps at 8,192 an iteration

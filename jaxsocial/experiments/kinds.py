@@ -166,7 +166,8 @@ def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
     seen = set()
     for c, seed_rows in runs.rows.items():
         slots, setting = experts_of(runs.configs[c])
-        slots = [k for k in slots if k in metrics.slots(seed_rows[0][0])]  # those its metrics report
+        reported = metrics.slots(seed_rows[0][0])
+        slots = [k for k in slots if k in reported]  # those its metrics report
         if not slots or setting in seen:
             continue
         finals = summary([float(np.mean([final_return(rows, k) for k in slots])) for rows in seed_rows])

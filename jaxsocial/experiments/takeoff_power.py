@@ -58,6 +58,12 @@ def seed_lift(seed_dir: Path) -> dict[str, Any]:
     }
 
 
+def lifts_and_ends(seeds: list[dict[str, Any]]) -> tuple[list[float | None], list[float]]:
+    """The takeoffs (None: never) and run ends of `seeds` (`seed_lift`'s), as `stats.logrank` and
+    `stats.kaplan_meier` take them."""
+    return [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
+
+
 def seed_takeoffs(
     condition: str, designs: tuple[str, ...], records_root: Path
 ) -> list[tuple[Path, dict[str, Any]]]:
@@ -83,7 +89,7 @@ def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
 
 def incidence(seeds: list[dict[str, Any]], grid: np.ndarray) -> np.ndarray:
     """float64[G] the modelled fraction of an arm's seeds past the plateau at each env-step of `grid`."""
-    lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
+    lifts, ends = lifts_and_ends(seeds)
     observed = [t if t is not None else e for t, e in zip(lifts, ends, strict=True)]
     horizon = max(g for g in grid if sum(o >= g for o in observed) >= MIN_AT_RISK)
     fit = scipy_stats.ecdf(stats.censored(lifts, ends))
@@ -204,7 +210,7 @@ def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, An
     conditions = {}
     for condition in ("social_rec", "solo_rec"):
         seeds = [seed for _, seed in seed_takeoffs(condition, designs, records_root)]
-        lifts, ends = [s["takeoff"] for s in seeds], [s["end"] for s in seeds]
+        lifts, ends = lifts_and_ends(seeds)
         curve = stats.kaplan_meier(lifts, ends)
         at = {}
         for steps in POOLED_AT:
@@ -221,8 +227,7 @@ def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, An
             "at": at,
             "seed_list": seeds,
         }
-    lift = {c: ([s["takeoff"] for s in v["seed_list"]], [s["end"] for s in v["seed_list"]])
-            for c, v in conditions.items()}  # fmt: skip
+    lift = {c: lifts_and_ends(v["seed_list"]) for c, v in conditions.items()}
     return {
         "designs": list(designs),
         "window_env_steps": takeoff.WINDOW_STEPS,
