@@ -339,6 +339,59 @@ def test_conditions_with_other_experts_report_their_own(tmp_path):
     plt.close(fig)
 
 
+def test_a_curves_recipe_with_transfer_envs_summarises_its_zero_shot_returns(tmp_path):
+    """`distractors` plays every trained seed zero-shot in 4-goal Goal Cycle with and without two random
+    distractors: its summary holds, per environment, each condition's per-seed learner returns and the
+    experts' (the expert slots only, not the distractors), and its figure draws one panel for each."""
+    from types import SimpleNamespace
+
+    recipe, scale = recipes.RECIPES["distractors"], recipes.TINY
+    specs = kinds.transfer_specs(recipe, scale)
+    assert specs == [
+        f"{name}:width=7,height=7,max_steps=20"
+        for name in ("goalcycle4", "goalcycle4-distractors", "goalcycle3-distractors")
+    ]
+    learner = {"solo_pred": [0.5, -1.0], "social_pred": [12.0, 14.0], "social_pred_distractors": [3.0, 9.0]}
+    seed_dirs, rows = {}, {}
+    for c, returns in learner.items():
+        seed_dirs[c] = [tmp_path / c / f"s{seed}" for seed in range(len(returns))]
+        rows[c] = [_rows([r] * 10, [2] * 10) for r in returns]
+        for seed_dir, r in zip(seed_dirs[c], returns, strict=True):
+            for spec in specs:
+                others = [("expert", 40.0, [39.0, 41.0]), ("expert", 44.0, [43.0, 45.0])]
+                if "distractors" in spec:
+                    others += [("random", -2.0, [-3.0, -1.0])] * 2
+                results = [
+                    {"kind": k, "mean_return": m, "ci95": ci} for k, m, ci in [("learner", r, None)] + others
+                ]
+                kinds.eval_path(seed_dir, spec).parent.mkdir(parents=True, exist_ok=True)
+                logs.write_json(kinds.eval_path(seed_dir, spec), {"results": results})
+    configs = {c: recipes.condition_config(scale, c, 0, 1, str(tmp_path)) for c in learner}
+    runs = SimpleNamespace(recipe=recipe, scale=scale, rows=rows, configs=configs, seed_dirs=seed_dirs)
+    summary = kinds.summarise_curves(runs)
+    assert list(summary)[-2:] == ["zero_shot", "conditions"]
+    for spec in specs:
+        per_cond = summary["zero_shot"][spec]
+        for c, returns in learner.items():
+            assert per_cond[c]["final_returns"] == returns
+            assert per_cond[c]["mean"] == pytest.approx(np.mean(returns))
+        assert per_cond["experts"]["mean"] == 42.0
+        assert [slot["mean"] for slot in per_cond["experts"]["per_slot"]] == [40.0, 44.0]
+    assert "zero_shot" not in kinds.summarise_curves(
+        SimpleNamespace(**{**vars(runs), "recipe": recipes.RECIPES["imperfect"]})
+    )
+    plt = plots._pyplot()
+    fig, axes = plt.subplots(1, 3)
+    plots.draw_zero_shot(axes, summary["zero_shot"], plt.get_cmap("tab10").colors)
+    assert [ax.get_title() for ax in axes] == [
+        "4-goal Goal Cycle, 7x7, max steps 20",
+        "4-goal Goal Cycle with distractors, 7x7, max steps 20",
+        "3-goal Goal Cycle with distractors, 7x7, max steps 20",
+    ]
+    assert [t.get_text() for t in axes[1].get_xticklabels()][-1] == "its scripted experts"
+    plt.close(fig)
+
+
 @pytest.mark.slow
 def test_figure_leaves_out_conditions_not_run(mixing_runs, tmp_path):
     """h1 shares social_pred with mixing; its other conditions were not run here."""

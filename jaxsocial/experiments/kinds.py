@@ -148,7 +148,7 @@ def experts_of(cfg) -> tuple[tuple[int, ...], Any]:
 def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
     """Per condition the final return's stats and learned seeds (`mixing`: also each seed's stage switch
     and the final evaluations during training); the experts' final return; CI separations and learned-seed
-    tests."""
+    tests; where the recipe names `transfer_envs`, the zero-shot returns there (`zero_shot_returns`)."""
     out: dict[str, Any] = {}
     conditions: dict[str, Any] = {}
     for c, seed_rows in runs.rows.items():
@@ -175,6 +175,8 @@ def summarise_curves(runs, mixing: bool = False) -> dict[str, Any]:
         seen.add(setting)
     out["separated_ci95"] = separations(conditions)
     out["learned_seed_tests"] = learned_seed_tests(conditions, runs.recipe.hypotheses)
+    if runs.recipe.transfer_envs:
+        out["zero_shot"] = zero_shot_returns(runs)
     out["conditions"] = conditions
     return out
 
@@ -206,6 +208,13 @@ def _rounded(values: list[float]) -> list[float]:
 def summarise_transfer(runs) -> dict[str, Any]:
     """Learner and expert returns in each evaluation environment, and the training returns."""
     training = {c: summary([final_return(rows) for rows in r]) for c, r in runs.rows.items()}
+    return {"training": training, "conditions": zero_shot_returns(runs)}
+
+
+def zero_shot_returns(runs) -> dict[str, Any]:
+    """Per environment spec of the recipe's `transfer_envs`: each condition's learner return after training
+    (stats over its seeds of each seed's mean episode return) and, as 'experts', the environment's scripted
+    experts' (per slot, over episodes; random distractors are not experts)."""
     conditions: dict[str, Any] = {}
     for spec in transfer_specs(runs.recipe, runs.scale):
         per_cond: dict[str, Any] = {
@@ -221,7 +230,7 @@ def summarise_transfer(runs) -> dict[str, Any]:
             "ci_over": "episodes, each slot its own",
         }
         conditions[spec] = per_cond
-    return {"training": training, "conditions": conditions}
+    return conditions
 
 
 ZERO_SHOT = {"goalcycle4": "goalcycle4", "solo3": "goalcycle3-solo"}

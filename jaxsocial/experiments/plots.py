@@ -127,12 +127,15 @@ def _save(plt, fig, path: Path, runs) -> None:
 
 
 def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
-    """Returns through training (and zoomed), the learner's loss, the time to learning, and each seed's final
-    return with the mean and IQM intervals."""
+    """Returns through training (and zoomed), the learner's loss, the time to learning, each seed's final
+    return with the mean and IQM intervals, and the zero-shot returns where the summary has them."""
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
     steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
-    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax, final_ax) = _panels(plt, 5)
+    zero_shot = summary.get("zero_shot", {})
+    fig, (returns_ax, zoom_ax, loss_ax, takeoff_ax, final_ax, *zero_shot_axes) = _panels(
+        plt, 5 + len(zero_shot)
+    )
     used = set()
     for i, (c, seed_rows) in enumerate(runs.rows.items()):
         xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
@@ -156,6 +159,7 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
     returns_ax.legend(fontsize=8)
     draw_takeoffs(takeoff_ax, runs, summary, colors)
     draw_finals(final_ax, runs, summary, colors)
+    draw_zero_shot(zero_shot_axes, zero_shot, colors)
     _save(plt, fig, path, runs)
 
 
@@ -225,13 +229,18 @@ def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
     """Bars of the returns in each evaluation environment, and the time to learning."""
     plt = _pyplot()
     colors = plt.get_cmap("tab10").colors
-    specs = list(summary["conditions"])
-    fig, axes = _panels(plt, len(specs) + 1)
+    fig, axes = _panels(plt, len(summary["conditions"]) + 1)
     draw_takeoffs(axes[-1], runs, summary, colors)
-    for ax, spec in zip(axes[:-1], specs, strict=True):
-        bars(ax, summary["conditions"][spec], colors)
-        ax.set(title=env_title(spec), ylabel="mean episode return")
+    draw_zero_shot(axes[:-1], summary["conditions"], colors)
     _save(plt, fig, path, runs)
+
+
+def draw_zero_shot(axes, per_spec: dict[str, dict[str, Any]], colors) -> None:
+    """One panel per evaluation environment (`kinds.zero_shot_returns`): each condition's and the experts'
+    return there (`bars`)."""
+    for ax, (spec, per_cond) in zip(axes, per_spec.items(), strict=True):
+        bars(ax, per_cond, colors)
+        ax.set(title=env_title(spec), ylabel="mean episode return")
 
 
 def draw_takeoffs(ax, runs, summary: dict[str, Any], colors) -> None:

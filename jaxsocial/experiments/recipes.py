@@ -292,7 +292,8 @@ class Recipe:
     (the cultural-transmission evaluation, `jaxsocial.evaluate --protocol ct`, after training) or 'takeoff'
     (a time-to-takeoff design: the curves, then the zero-shot returns and the CT protocol)."""
     transfer_envs: tuple[str, ...] = ()
-    """Evaluation environments after training ('transfer'); Goal Cycle ones take the scale's env_args."""
+    """Evaluation environments after training, zero-shot (a 'transfer' recipe's bars; a 'curves' recipe
+    summarises them beside its curves); Goal Cycle ones take the scale's env_args."""
     hypotheses: tuple[tuple[str, str], ...] = ()
     """The comparisons the recipe states in advance: (a, b) says a's seeds learn more often than b's. Its
     summary tests these one-sided and every other pair as exploratory (`kinds.learned_seed_tests`)."""
@@ -339,8 +340,9 @@ RECIPES = {
                ("social_pred_nopenalty", "solo_pred_nopenalty"), "transfer", ("goalcycle4",)),
         Recipe("penalty", "Beyond the paper: social and solo learners at penalties 0, 0.5 and 1.5",
                (*PENALTY_CONDITIONS, "social_pred", "solo_pred"), "curves"),
-        Recipe("distractors", "Appendix: random distractors beside the experts",
-               ("social_pred", "social_pred_distractors"), "curves"),
+        Recipe("distractors", "Appendix: random distractors beside the experts, in training and zero-shot",
+               ("solo_pred", "social_pred", "social_pred_distractors"), "curves",
+               ("goalcycle4", "goalcycle4-distractors", "goalcycle3-distractors")),
         Recipe("bc", "Appendix: behaviour cloning training curve", ("bc",), "curves"),
         Recipe("curriculum", "Appendix: expert training through the penalty curriculum",
                ("expert_curriculum", "solo_pred"), "curves",
