@@ -35,13 +35,18 @@ from jaxsocial.run import config, logs, metrics
 SETTINGS = {
     "default": "",
     "max_isa_avx2": "--xla_cpu_max_isa=AVX2",
+    "max_isa_avx512_bf16": "--xla_cpu_max_isa=AVX512_BF16",
+    "no_platform_math": "--xla_cpu_enable_platform_dependent_math=false",
+    "vector_width_256": "--xla_cpu_prefer_vector_width=256",
     "no_xnnpack": "--xla_cpu_use_xnnpack=false",
     "strict_math": "--xla_cpu_strict_dot_conv_math=true --xla_cpu_enable_fast_math=false",
     "portable": "--xla_cpu_max_isa=AVX2 --xla_cpu_use_xnnpack=false --xla_cpu_strict_dot_conv_math=true "
-    "--xla_cpu_enable_fast_math=false",
+    "--xla_cpu_enable_fast_math=false --xla_cpu_enable_platform_dependent_math=false",
 }
 """Setting name -> XLA flags added to the single-core ones: the candidates of issue 50 (the host's instruction
-set, the kernel library chosen at run time, fast-math and FMA contraction in dots and convolutions)."""
+set, capped at AVX2 or at AVX512_BF16, the ceiling of an AMD Zen 4; the kernel library chosen at run time;
+fast-math and FMA contraction in dots and convolutions; XLA's "platform dependent math", which its help says
+trades consistent results across CPUs for speed; the vector width LLVM prefers)."""
 OUT_DIR = REPO / "benchmarks/results/reproducibility"
 REFERENCE = REPO / "benchmarks/results/records/laptop/prereg-h1_early/social_rec-s210-210"
 
