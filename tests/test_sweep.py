@@ -109,17 +109,30 @@ def test_confirmatory_seeds_are_refused(capsys):
 
 
 def test_the_map_pairs_social_and_solo_settings_that_both_have_records():
-    def setting(lifts):
-        seeds = [{"takeoff_env_steps": t, "env_steps": 100} for t in lifts]
+    def setting(lifts, finals, experts):
+        seeds = [
+            {
+                "seed": i,
+                "takeoff_env_steps": t,
+                "env_steps": 20_000_000,
+                "final_return": f,
+                "expert_final_return": e,
+            }
+            for i, (t, f, e) in enumerate(zip(lifts, finals, experts, strict=True))
+        ]
         return {"seeds": seeds, "took_off": sum(t is not None for t in lifts), "n": len(lifts)}
 
-    settings = {"map_g4_rec_7x7": setting([40, None]), "map_g4_solo_rec_7x7": setting([None, None]),
-                "mb8k8_rec_8x8": setting([60])}  # fmt: skip
+    settings = {"map_g4_rec_7x7": setting([4_000_000, None], [9.5, 0.875], [[40.0, 42.0], [44.0, 46.0]]),
+                "map_g4_solo_rec_7x7": setting([None, None], [0.5, 1.25], [[], []]),
+                "mb8k8_rec_8x8": setting([60], [3.0], [[30.0, 30.0]])}  # fmt: skip
     summary = {"window_env_steps": 20, "learned_return": 2.0, "settings": settings}
     found = sweep.summarise_map(summary)
     assert list(found["cells"]) == ["7x7, 4 goals, rec"]  # 8x8 has no solo records here: left out
     cell = found["cells"]["7x7, 4 goals, rec"]
-    assert cell["social"]["takeoff_env_steps"] == [40, None] and cell["solo"]["took_off"] == 0
+    assert cell["social"]["takeoff_env_steps"] == [4_000_000, None] and cell["solo"]["took_off"] == 0
+    assert cell["social"]["seeds"] == [0, 1] and cell["solo"]["final_return"] == [0.5, 1.25]
+    table = sweep.map_table(found)
+    assert table[-1] == "| 7x7, 4 goals, rec | 1 of 2 | 0 of 2 | 4.00, -; -, - | 20.0 | 43.0 |"
     assert all(social.startswith(("map_", "mb8k8_")) and solo for _, social, solo in sweep.MAP_PAIRS)
     assert {name for pair in sweep.MAP_PAIRS for name in pair[1:]} <= set(sweep.SETTINGS)
 

@@ -199,25 +199,54 @@ setting, the solo learners' one with the same loss where there is one)."""
 
 
 def summarise_map(summary: dict[str, Any]) -> dict[str, Any]:
-    """Per map setting with records, the social and solo seeds' takeoffs (env-steps, None: never) and
-    budgets, from the sweep's summary."""
+    """Per map setting with records, the social and solo seeds' takeoffs (env-steps, None: never), budgets
+    and final returns (the experts' too, per seed: one per expert slot), from the sweep's summary."""
     out = {"window_env_steps": summary["window_env_steps"], "learned_return": summary["learned_return"]}
     cells = {}
     for label, social, solo in MAP_PAIRS:
         if social not in summary["settings"] or solo not in summary["settings"]:
             continue
-        cells[label] = {
-            who: {
+        cells[label] = {}
+        for who, name in (("social", social), ("solo", solo)):
+            seeds = summary["settings"][name]["seeds"]
+            cells[label][who] = {
                 "setting": name,
-                "takeoff_env_steps": [x["takeoff_env_steps"] for x in summary["settings"][name]["seeds"]],
-                "env_steps": [x["env_steps"] for x in summary["settings"][name]["seeds"]],
+                "seeds": [x["seed"] for x in seeds],
+                "takeoff_env_steps": [x["takeoff_env_steps"] for x in seeds],
+                "env_steps": [x["env_steps"] for x in seeds],
+                "final_return": [x["final_return"] for x in seeds],
+                "expert_final_return": [x["expert_final_return"] for x in seeds],
                 "took_off": summary["settings"][name]["took_off"],
                 "n": summary["settings"][name]["n"],
             }
-            for who, name in (("social", social), ("solo", solo))
-        }
     out["cells"] = cells
     return out
+
+
+def map_table(found: dict[str, Any]) -> list[str]:
+    """The map (`summarise_map`) as Markdown table lines: per cell, each arm's seeds past the plateau, each
+    seed's takeoff in millions of env-steps ("-": not within its budget), the budget, and the experts' mean
+    final return beside the social learners. (Final returns of learners are left out: a seed past the
+    plateau stops at return `STOP_RETURN`.)"""
+    lines = [
+        "| setting | social learned | solo learned | takeoffs (M env-steps): social; solo "
+        "| budget (M env-steps) | experts |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for label, cell in found["cells"].items():
+        social, solo = cell["social"], cell["solo"]
+        lifts = "; ".join(
+            ", ".join("-" if t is None else f"{t / 1e6:.2f}" for t in arm["takeoff_env_steps"])
+            for arm in (social, solo)
+        )
+        budget = max(max(arm["env_steps"]) for arm in (social, solo))
+        experts = [r for per_seed in social["expert_final_return"] for r in per_seed]
+        mean = f"{sum(experts) / len(experts):.1f}" if experts else "-"
+        lines.append(
+            f"| {label} | {social['took_off']} of {social['n']} | {solo['took_off']} of {solo['n']} "
+            f"| {lifts} | {budget / 1e6:.1f} | {mean} |"
+        )
+    return lines
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -273,10 +302,7 @@ def main(argv: list[str] | None = None) -> None:
         out.parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(out.with_suffix(".json"), found)
         plots.draw_map(found, out.with_suffix(".png"))
-        for label, cell in found["cells"].items():
-            social, solo = cell["social"], cell["solo"]
-            counts = f"social {social['took_off']} of {social['n']}, solo {solo['took_off']} of {solo['n']}"
-            print(f"{label}: {counts}")
+        print("\n".join(map_table(found)))
         print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
         return
     summary = summarise(Path(args.records_dir))
