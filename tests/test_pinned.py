@@ -37,10 +37,37 @@ def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monke
     provenance = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
     assert provenance["device"] == "a CPU" and provenance["rc"] == 0 and provenance["cores"] == 1
     assert provenance["cpu"] == autotune.cpu_model() and provenance["xla_flags"] == pinned.process_xla_flags()
-    with pytest.raises(FileNotFoundError, match="not trained by"):
+    with pytest.raises(pinned.RunNotEnded, match="not trained by"):
         pinned.run_provenance(tmp_path, "a CPU", "0.0")
     with pytest.raises(ValueError, match="at least one core"):
         pinned.run(jobs, [])
+
+
+def test_a_resumed_run_keeps_its_earlier_processes_and_a_running_one_is_not_recorded(tmp_path, monkeypatch):
+    """The process file is written once the run directory exists (no end yet: `run_provenance` refuses it),
+    and a later process of the same run, e.g. one resumed after a killed sitting, keeps it under `earlier`."""
+    monkeypatch.setattr(pinned, "POLL_SECONDS", 0.05)
+    run_dir, seen = tmp_path / "run", tmp_path / "seen.json"
+    run_file = run_dir / pinned.RUN_FILE
+    copy_while_running = (
+        f"import pathlib, shutil, time; f = pathlib.Path({str(run_file)!r})\n"
+        "while not f.is_file(): time.sleep(0.02)\n"
+        f"shutil.copy(f, {str(seen)!r})"
+    )
+    assert pinned.run([_job(tmp_path, "run", copy_while_running)], [0]) == [0]
+    running = json.loads(seen.read_text())
+    assert running["rc"] is None and running["ended"] is None and "earlier" not in running
+    run_file.write_text(seen.read_text())  # as a killed sitting leaves it
+    with pytest.raises(pinned.RunNotEnded, match="has not ended"):
+        pinned.run_provenance(run_dir, "a CPU", "0.0")
+    resumed = pinned.Job("run", ("-c", "import sys; sys.exit(0)"), run_dir)
+    assert pinned.run([resumed, resumed], [0]) == [0, 0]  # resumed twice: the killed process, then the first
+    provenance = pinned.run_provenance(run_dir, "a CPU", "0.0")
+    assert provenance["rc"] == 0 and provenance["command"] == "python -c 'import sys; sys.exit(0)'"
+    killed, first_resume = provenance["earlier"]
+    assert killed["ended"] is None and killed["command"] == running["command"] != provenance["command"]
+    assert first_resume["rc"] == 0 and first_resume["cpu"] == autotune.cpu_model()
+    assert "earlier" not in killed and "earlier" not in first_resume  # flat, oldest first
 
 
 def test_the_xla_of_each_process_is_single_threaded_after_the_callers_flags(tmp_path, monkeypatch):

@@ -3,9 +3,11 @@ a time as cores are given: on 2 cores, two such processes train 1.6x the env-ste
 (docs/performance.md, "The science recipe"). The sweep runs its seeds this way, and `experiments run
 --cores` a recipe's seeds.
 
-Each run directory gets `RUN_FILE`: what the runner knows of its process (command, commit, cores, start,
-end, exit status). Records take it as the run's provenance (`records.pack`); its log goes beside the run
-directory (`<run_dir>.log`).
+Each run directory gets `RUN_FILE`: what the runner knows of its process (command, commit, cores, CPU, start,
+end, exit status), written once the process has made the directory (end and status null until it ends) and
+again when it ends. A run resumed by a later process, maybe on another machine, keeps the earlier processes'
+entries under `earlier`, a killed one's with a null end. Records take it as the run's provenance
+(`records.pack`); its log goes beside the run directory (`<run_dir>.log`).
 """
 
 from __future__ import annotations
@@ -91,21 +93,36 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
                 stderr=subprocess.STDOUT,
                 env={**os.environ, "XLA_FLAGS": xla_flags},
             )
-            active[i] = (proc, core, now())
+            active[i] = (proc, core, now(), None)  # None: its RUN_FILE not written yet
             print(f"{job.label}: core {core}, log {job.log}", flush=True)
         time.sleep(POLL_SECONDS)
-        for i, (proc, core, started) in list(active.items()):
-            if proc.poll() is None:
+        for i, (proc, core, started, earlier) in list(active.items()):
+            job, rc = jobs[i], proc.poll()
+            process = (job.run_dir, shlex.join(["python", *job.argv]), commit, 1, started)
+            made = (job.run_dir / logs.CONFIG_FILE).is_file()
+            if made and earlier is None:  # its directory is there: say so before it ends (or is killed)
+                earlier = earlier_processes(job.run_dir)
+                active[i] = (proc, core, started, earlier)
+                if rc is None:
+                    write_run_file(*process, None, xla_flags, earlier)
+            if rc is None:
                 continue
             del active[i]
             free.append(core)
-            codes[i] = proc.returncode
-            job = jobs[i]
-            if (job.run_dir / logs.CONFIG_FILE).is_file():
-                command = shlex.join(["python", *job.argv])
-                write_run_file(job.run_dir, command, commit, 1, started, proc.returncode, xla_flags)
-            print(f"{job.label}: exit {proc.returncode}", flush=True)
+            codes[i] = rc
+            if made:
+                write_run_file(*process, rc, xla_flags, earlier)
+            print(f"{job.label}: exit {rc}", flush=True)
     return [codes[i] for i in range(len(jobs))]
+
+
+def earlier_processes(run_dir: Path) -> list[dict[str, Any]]:
+    """The processes that trained `run_dir` before (its `RUN_FILE`'s entries, oldest first; [] if none)."""
+    path = Path(run_dir) / RUN_FILE
+    if not path.is_file():
+        return []
+    last = logs.read_json(path)
+    return [*last.pop("earlier", []), last]
 
 
 def write_run_file(
@@ -114,11 +131,13 @@ def write_run_file(
     commit: str | None,
     cores: int | None,
     started: str,
-    rc: int,
+    rc: int | None,
     xla_flags: str | None = None,
+    earlier: list[dict[str, Any]] | None = None,
 ) -> None:
     """Write `RUN_FILE` into `run_dir`: what made it (command, commit, cores), where (this machine's CPU, the
-    process's $XLA_FLAGS: `MACHINE_FIELDS`), when (start, and now as its end) and its exit status."""
+    process's $XLA_FLAGS: `MACHINE_FIELDS`), when (start, and now as its end unless `rc` is None: still
+    running) and its exit status, with the `earlier` processes of a resumed run."""
     info = {
         "command": command,
         "commit": commit,
@@ -126,28 +145,32 @@ def write_run_file(
         "cpu": autotune.cpu_model(),
         "xla_flags": xla_flags,
         "started": started,
-        "ended": now(),
+        "ended": None if rc is None else now(),
         "rc": rc,
     }
-    logs.write_json(Path(run_dir) / RUN_FILE, info)
+    logs.write_json(Path(run_dir) / RUN_FILE, info | ({"earlier": earlier} if earlier else {}))
+
+
+class RunNotEnded(FileNotFoundError):
+    """A run has no `RUN_FILE` of an ended process: not trained by `run`, or its process has not ended."""
 
 
 def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, Any]:
     """The `run` part of a record's provenance from a run's `RUN_FILE`, with the device and jax version it
-    ran on and the cores it had. FileNotFoundError if the run has none."""
+    ran on, the cores it had and the processes before its last (`earlier`, if it was resumed). RunNotEnded
+    if the run has none, or its process has not ended."""
     path = Path(run_dir) / RUN_FILE
     if not path.is_file():
-        raise FileNotFoundError(f"{path} does not exist: the run was not trained by `pinned.run`")
+        raise RunNotEnded(f"{path} does not exist: the run was not trained by `pinned.run`")
     info = logs.read_json(path)
+    if info.get("ended") is None:
+        raise RunNotEnded(f"{path}: its process (started {info.get('started')}) has not ended")
     machine = {k: info[k] for k in MACHINE_FIELDS if k in info}  # runs written before these fields lack them
     return (
         {k: info.get(k) for k in records.RUN_FIELDS}
         | machine
-        | {
-            "device": device,
-            "jax": jax_version,
-            "cores": info.get("cores"),
-        }
+        | {"device": device, "jax": jax_version, "cores": info.get("cores")}
+        | ({"earlier": info["earlier"]} if info.get("earlier") else {})
     )
 
 
