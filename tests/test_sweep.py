@@ -102,6 +102,55 @@ def test_a_seed_on_the_plateau_has_no_takeoff(tmp_path):
     assert sweep.seed_summary(tmp_path / "run")["takeoff_env_steps"] is None  # not above the threshold
 
 
+def test_run_resumes_an_unfinished_seed_and_skips_a_finished_one(tmp_path, monkeypatch):
+    """`run` again after a stopped sitting: a seed with a run directory resumes (`--resume`), a finished
+    one (every iteration, or stopped early past the plateau) does not train, a missing one starts."""
+    setting = dataclasses.replace(sweep.SETTINGS["map_g4_rec_7x7"], iterations=4)
+    started = []
+    monkeypatch.setattr(sweep.pinned, "run", lambda jobs, cores: [started.append(j.argv) or 0 for j in jobs])
+    hand_built_run(tmp_path / f"{setting.name}-s0", [1.0, 1.0, 1.0, 1.0], sps=1.0, cores=1)  # done
+    hand_built_run(tmp_path / f"{setting.name}-s1", [1.0, 1.0], sps=1.0, cores=1)  # partial
+    assert sweep.run(setting, [0, 1, 2], str(tmp_path), [0]) == [0, 0]
+    assert [argv[argv.index("--seed") + 1] for argv in started] == ["1", "2"]
+    assert "--resume" in started[0] and "--resume" not in started[1]
+    assert sweep.seed_state(setting, 2, str(tmp_path)) == "missing"
+
+
+def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, capsys):
+    short = dataclasses.replace(sweep.SETTINGS["map_g4_rec_7x7"], iterations=4)
+    long = dataclasses.replace(sweep.SETTINGS["map_g4_40m_rec_7x7"], iterations=8)
+    runs = str(tmp_path)
+    hand_built_run(tmp_path / f"{short.name}-s0", [1.0] * 4, sps=1.0, cores=1)
+    logs.write_json(tmp_path / f"{short.name}-s0" / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
+    sweep.extend(short, long, [0], runs)
+    copied = tmp_path / f"{long.name}-s0"
+    assert logs.read_json(copied / sweep.pinned.RUN_FILE)["command"] == "first"  # the earlier process
+    assert len(logs.read_metrics(copied)) == 4 and sweep.seed_state(long, 0, runs) == "partial"
+    with pytest.raises(ValueError, match="exists: extend only starts a run"):
+        sweep.extend(short, long, [0], runs)
+    with pytest.raises(ValueError, match="their flags differ"):
+        sweep.extend(sweep.SETTINGS["map_g4_pen1_rec_7x7"], long, [1], runs)
+    with pytest.raises(ValueError, match="not fewer than"):
+        sweep.extend(long, short, [1], runs)
+    hand_built_run(tmp_path / f"{short.name}-s1", [1.0] * 2, sps=1.0, cores=1)  # unfinished
+    with pytest.raises(ValueError, match="not a finished run"):
+        sweep.extend(short, long, [1], runs)
+    hand_built_run(tmp_path / f"{short.name}-s2", [1.0] * 4, sps=1.0, cores=1)  # finished, but not by `run`
+    with pytest.raises(ValueError, match="not a finished run"):
+        sweep.extend(short, long, [2], runs)
+    took_off = tmp_path / f"{short.name}-s3"
+    hand_built_run(took_off, [1.0, 6.0], sps=1.0, cores=1)
+    config = logs.read_config(took_off) | {"stop_at_return": 5.0, "chunk_iterations": 1}
+    logs.write_json(took_off / logs.CONFIG_FILE, config)
+    rows = [r | {"kl/0": 0.0} for r in logs.read_metrics(took_off)]  # slot 0 is a learner
+    (took_off / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    logs.write_json(took_off / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
+    assert sweep.seed_state(short, 3, runs) == "done"  # stopped early at return 6 >= 5
+    with pytest.raises(ValueError, match="stopped early past the plateau"):
+        sweep.extend(short, long, [3], runs)
+    assert not any((tmp_path / f"{long.name}-s{s}").exists() for s in (1, 2, 3))
+
+
 def test_confirmatory_seeds_are_refused(capsys):
     with pytest.raises(SystemExit):
         sweep.main(["run", "mb8k8_rec", "--seeds", "200"])

@@ -11,6 +11,7 @@ it, the fraction of seeds past the plateau against both, and the final returns.
 
     python -m jaxsocial.experiments.sweep list
     python -m jaxsocial.experiments.sweep run mb8k8_rec --seeds 0 1 --cores 0 1   # one process a core
+    python -m jaxsocial.experiments.sweep run map_g4_40m_rec_7x7 --seeds 0 --extend map_g4_rec_7x7
     python -m jaxsocial.experiments.sweep record mb8k8_rec --seeds 0 1 --device "AMD EPYC, 2 cores"
     python -m jaxsocial.experiments.sweep figure                         # every recorded setting
     python -m jaxsocial.experiments.sweep map                            # social against solo, per setting
@@ -18,8 +19,10 @@ it, the fraction of seeds past the plateau against both, and the final returns.
 The settings are data, `sweeps/<name>.json` beside this module (`load_setting`). Those named `mb8k8_*` and
 `map_*` take one gradient sample per env-step, the targets of the rollout only (`--ppo.num-minibatches 8
 --ppo.recompute-every 8`: 2.2x the env-steps/s of the cpu scale's two samples with a recompute every 2
-minibatches, docs/performance.md); every setting runs 2442 iterations of 8,192 env-steps, 20.0M, the sweep
-goal's horizon.
+minibatches, docs/performance.md); every setting runs at least 2442 iterations of 8,192 env-steps, 20.0M,
+the sweep goal's horizon (`*_40m_*`: twice that). `run` again resumes the seeds a sitting stopped; with
+`--extend SHORTER` a seed of a longer budget starts from its finished run of the same setting with a shorter
+one (`extend`).
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ import dataclasses
 import json
 import os
 import shlex
+import shutil
 import sys
 from pathlib import Path
 from typing import Any
@@ -115,15 +119,55 @@ def run_dir(setting: Setting, seed: int, runs_dir: str) -> Path:
     return Path(runs_dir) / f"{setting.name}-s{seed}"
 
 
+def seed_state(setting: Setting, seed: int, runs_dir: str) -> str:
+    """'done' (every iteration of `setting` logged, or stopped early past the plateau), 'partial' (its run
+    directory exists: training resumes it) or 'missing'."""
+    directory = run_dir(setting, seed, runs_dir)
+    if not (directory / logs.CONFIG_FILE).is_file():
+        return "missing"
+    rows = logs.read_metrics(directory) if logs.has_metrics(directory) else []
+    done = len(rows) >= setting.iterations or records.stopped_early(logs.read_config(directory), rows)
+    return "done" if done else "partial"
+
+
 def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> list[int]:
-    """Train `seeds` of `setting`, each in its own process pinned to one of `cores` (`pinned.run`).
-    Returns the exit codes."""
-    jobs = [
-        pinned.Job(f"{setting.name} seed {seed}", pinned.train_command(train_flags(setting, seed, runs_dir)),
-                   run_dir(setting, seed, runs_dir))
-        for seed in seeds
-    ]  # fmt: skip
-    return pinned.run(jobs, cores)
+    """Train `seeds` of `setting` that are not done, each in its own process pinned to one of `cores`
+    (`pinned.run`); an unfinished seed (a sitting stopped it, or `extend` started it) resumes from its latest
+    checkpoint. Returns the exit codes of the processes run."""
+    jobs = []
+    for seed in seeds:
+        state = seed_state(setting, seed, runs_dir)
+        print(f"{setting.name} seed {seed}: {state}")
+        if state != "done":
+            flags = train_flags(setting, seed, runs_dir) + (["--resume"] if state == "partial" else [])
+            label = f"{setting.name} seed {seed}"
+            jobs.append(pinned.Job(label, pinned.train_command(flags), run_dir(setting, seed, runs_dir)))
+    return pinned.run(jobs, cores) if jobs else []
+
+
+def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) -> None:
+    """Start each seed of `setting` as the continuation of its finished run in `shorter`, the same setting
+    with a smaller budget (training has no schedule over iterations, so the continued run is the longer one,
+    bit for bit on one CPU model): the shorter run's directory is copied under `setting`'s name, with its
+    process file, which the record's provenance then lists under `earlier`. `run` trains the rest.
+    ValueError, before anything is copied, if the settings differ otherwise, or a seed's shorter run is
+    unfinished or stopped past the plateau, or its longer run exists."""
+    if (shorter.condition, shorter.flags) != (setting.condition, setting.flags):
+        raise ValueError(f"{setting.name} is not {shorter.name} with another budget: their flags differ")
+    if shorter.iterations >= setting.iterations:
+        raise ValueError(f"{shorter.name} has {shorter.iterations} iterations: not fewer than {setting.name}")
+    for seed in seeds:
+        source, target = run_dir(shorter, seed, runs_dir), run_dir(setting, seed, runs_dir)
+        if target.exists():
+            raise ValueError(f"{target} exists: extend only starts a run")
+        if seed_state(shorter, seed, runs_dir) != "done" or not (source / pinned.RUN_FILE).is_file():
+            raise ValueError(f"{source}: not a finished run of {shorter.name} by `run`; nothing to extend")
+        config, rows = logs.read_config(source), logs.read_metrics(source)
+        if records.stopped_early(config, rows):
+            raise ValueError(f"{source} stopped early past the plateau: nothing to extend")
+    for seed in seeds:
+        shutil.copytree(run_dir(shorter, seed, runs_dir), run_dir(setting, seed, runs_dir))
+        print(f"{setting.name} seed {seed}: starts from {run_dir(shorter, seed, runs_dir)}")
 
 
 def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_version: str) -> None:
@@ -262,6 +306,11 @@ def main(argv: list[str] | None = None) -> None:
         p.add_argument("--runs-dir", default=str(paths.SWEEP_RUNS))
         if name == "run":
             p.add_argument(
+                "--extend",
+                choices=sorted(SETTINGS),
+                help="start each seed from its finished run of this setting, the same with a smaller budget",
+            )
+            p.add_argument(
                 "--cores",
                 type=int,
                 nargs="+",
@@ -289,8 +338,13 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("the sweep is exploratory: seeds must be in 0-99 (confirmatory designs use 200 and up)")
     setting = SETTINGS.get(getattr(args, "setting", None))
     if args.command == "run":
+        if args.extend:
+            try:
+                extend(SETTINGS[args.extend], setting, args.seeds, args.runs_dir)
+            except ValueError as err:
+                parser.error(str(err))
         codes = run(setting, args.seeds, args.runs_dir, args.cores)
-        sys.exit(max(codes))
+        sys.exit(max(codes, default=0))
     if args.command == "record":
         import jax
 
