@@ -180,8 +180,12 @@ def test_the_map_pairs_social_and_solo_settings_that_both_have_records():
     cell = found["cells"]["7x7, 4 goals, rec"]
     assert cell["social"]["takeoff_env_steps"] == [4_000_000, None] and cell["solo"]["took_off"] == 0
     assert cell["social"]["seeds"] == [0, 1] and cell["solo"]["final_return"] == [0.5, 1.25]
+    assert (
+        cell["social"]["expert_mean_final_return"] == 43.0
+        and cell["solo"]["expert_mean_final_return"] is None
+    )
     table = sweep.map_table(found)
-    assert table[-1] == "| 7x7, 4 goals, rec | 1 of 2 | 0 of 2 | 4.00, -; -, - | 20.0 | 43.0 |"
+    assert table[-1] == "| 7x7, 4 goals, rec | 1 of 2 | 0 of 2 | 4.00M, -; -, - | 20.0M | 43.0 |"
     assert all(social.startswith(("map_", "mb8k8_")) and solo for _, social, solo in sweep.MAP_PAIRS)
     assert {name for pair in sweep.MAP_PAIRS for name in pair[1:]} <= set(sweep.SETTINGS)
 

@@ -253,6 +253,7 @@ def summarise_map(summary: dict[str, Any]) -> dict[str, Any]:
         cells[label] = {}
         for who, name in (("social", social), ("solo", solo)):
             seeds = summary["settings"][name]["seeds"]
+            experts = [r for x in seeds for r in x["expert_final_return"]]
             cells[label][who] = {
                 "setting": name,
                 "seeds": [x["seed"] for x in seeds],
@@ -260,6 +261,7 @@ def summarise_map(summary: dict[str, Any]) -> dict[str, Any]:
                 "env_steps": [x["env_steps"] for x in seeds],
                 "final_return": [x["final_return"] for x in seeds],
                 "expert_final_return": [x["expert_final_return"] for x in seeds],
+                "expert_mean_final_return": sum(experts) / len(experts) if experts else None,
                 "took_off": summary["settings"][name]["took_off"],
                 "n": summary["settings"][name]["n"],
             }
@@ -269,26 +271,24 @@ def summarise_map(summary: dict[str, Any]) -> dict[str, Any]:
 
 def map_table(found: dict[str, Any]) -> list[str]:
     """The map (`summarise_map`) as Markdown table lines: per cell, each arm's seeds past the plateau, each
-    seed's takeoff in millions of env-steps ("-": not within its budget), the budget, and the experts' mean
-    final return beside the social learners. (Final returns of learners are left out: a seed past the
-    plateau stops at return `STOP_RETURN`.)"""
+    seed's takeoff in env-steps ("-": not within its budget), the budget, and the experts' mean final return
+    beside the social learners. (Final returns of learners are left out: a seed past the plateau stops at
+    return `STOP_RETURN`.)"""
     lines = [
-        "| setting | social learned | solo learned | takeoffs (M env-steps): social; solo "
-        "| budget (M env-steps) | experts |",
+        "| setting | social learned | solo learned | takeoffs (env-steps): social; solo | budget | experts |",
         "| --- | --- | --- | --- | --- | --- |",
     ]
     for label, cell in found["cells"].items():
         social, solo = cell["social"], cell["solo"]
         lifts = "; ".join(
-            ", ".join("-" if t is None else f"{t / 1e6:.2f}" for t in arm["takeoff_env_steps"])
+            ", ".join("-" if t is None else f"{t / 1e6:.2f}M" for t in arm["takeoff_env_steps"])
             for arm in (social, solo)
         )
         budget = max(max(arm["env_steps"]) for arm in (social, solo))
-        experts = [r for per_seed in social["expert_final_return"] for r in per_seed]
-        mean = f"{sum(experts) / len(experts):.1f}" if experts else "-"
+        experts = social["expert_mean_final_return"]
         lines.append(
             f"| {label} | {social['took_off']} of {social['n']} | {solo['took_off']} of {solo['n']} "
-            f"| {lifts} | {budget / 1e6:.1f} | {mean} |"
+            f"| {lifts} | {budget / 1e6:.1f}M | {'-' if experts is None else f'{experts:.1f}'} |"
         )
     return lines
 
