@@ -99,9 +99,8 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
         for i, (proc, core, started, earlier) in list(active.items()):
             job, rc = jobs[i], proc.poll()
             process = (job.run_dir, shlex.join(["python", *job.argv]), commit, 1, started)
-            made = (job.run_dir / logs.CONFIG_FILE).is_file()
-            if made and earlier is None:  # its directory is there: say so before it ends (or is killed)
-                earlier = earlier_processes(job.run_dir)
+            if earlier is None and (job.run_dir / logs.CONFIG_FILE).is_file():
+                earlier = earlier_processes(job.run_dir)  # its directory is there: say so before it ends
                 active[i] = (proc, core, started, earlier)
                 if rc is None:
                     write_run_file(*process, None, xla_flags, earlier)
@@ -110,7 +109,7 @@ def run(jobs: list[Job], cores: list[int]) -> list[int]:
             del active[i]
             free.append(core)
             codes[i] = rc
-            if made:
+            if earlier is not None:  # it made its run directory
                 write_run_file(*process, rc, xla_flags, earlier)
             print(f"{job.label}: exit {rc}", flush=True)
     return [codes[i] for i in range(len(jobs))]

@@ -156,18 +156,17 @@ def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) 
         raise ValueError(f"{setting.name} is not {shorter.name} with another budget: their flags differ")
     if shorter.iterations >= setting.iterations:
         raise ValueError(f"{shorter.name} has {shorter.iterations} iterations: not fewer than {setting.name}")
-    for seed in seeds:
-        source, target = run_dir(shorter, seed, runs_dir), run_dir(setting, seed, runs_dir)
+    pairs = [(run_dir(shorter, seed, runs_dir), run_dir(setting, seed, runs_dir)) for seed in seeds]
+    for seed, (source, target) in zip(seeds, pairs, strict=True):
         if target.exists():
             raise ValueError(f"{target} exists: extend only starts a run")
         if seed_state(shorter, seed, runs_dir) != "done" or not (source / pinned.RUN_FILE).is_file():
             raise ValueError(f"{source}: not a finished run of {shorter.name} by `run`; nothing to extend")
-        config, rows = logs.read_config(source), logs.read_metrics(source)
-        if records.stopped_early(config, rows):
+        if records.stopped_early(logs.read_config(source), logs.read_metrics(source)):
             raise ValueError(f"{source} stopped early past the plateau: nothing to extend")
-    for seed in seeds:
-        shutil.copytree(run_dir(shorter, seed, runs_dir), run_dir(setting, seed, runs_dir))
-        print(f"{setting.name} seed {seed}: starts from {run_dir(shorter, seed, runs_dir)}")
+    for seed, (source, target) in zip(seeds, pairs, strict=True):
+        shutil.copytree(source, target)
+        print(f"{setting.name} seed {seed}: starts from {source}")
 
 
 def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_version: str) -> None:
