@@ -226,6 +226,7 @@ def summarise(records_root: Path) -> dict[str, Any]:
 MAP_PAIRS = (
     ("7x7, 4 goals, rec", "map_g4_rec_7x7", "map_g4_solo_rec_7x7"),
     ("7x7, 4 goals, rec, 40.0M env-steps", "map_g4_40m_rec_7x7", "map_g4_40m_solo_rec_7x7"),
+    ("7x7, 4 goals, rec, 80.0M env-steps", "map_g4_80m_rec_7x7", "map_g4_80m_solo_rec_7x7"),
     ("7x7, 4 goals, penalty 1.0, rec", "map_g4_pen1_rec_7x7", "map_g4_pen1_solo_rec_7x7"),
     ("7x7, 5 goals, rec", "map_g5_rec_7x7", "map_g5_solo_rec_7x7"),
     ("7x7, 125-step episodes, rec", "map_g3_steps125_rec_7x7", "map_g3_steps125_solo_rec_7x7"),
