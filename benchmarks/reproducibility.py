@@ -32,6 +32,10 @@ from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import pinned, verify
 from jaxsocial.run import config, logs, metrics
 
+NO_YNN = "-individual_dot,-individual_convolution,-dot,-eltwise,-reduce"
+"""Every YNNPACK fusion type removed from XLA's default list: jaxlib 0.10.2 sends dots and reductions to
+YNNPACK by default (139 fusions in the laptop recipe's program), which picks its kernels for the CPU at run
+time; without them, dots go to Eigen and reductions to XLA's own code."""
 SETTINGS = {
     "default": "",
     "max_isa_avx2": "--xla_cpu_max_isa=AVX2",
@@ -40,20 +44,23 @@ SETTINGS = {
     "vector_width_256": "--xla_cpu_prefer_vector_width=256",
     "no_xnnpack": "--xla_cpu_use_xnnpack=false",
     "strict_math": "--xla_cpu_strict_dot_conv_math=true --xla_cpu_enable_fast_math=false",
+    "no_ynn": f"--xla_cpu_experimental_ynn_fusion_type={NO_YNN}",
     "portable": "--xla_cpu_max_isa=AVX2 --xla_cpu_use_xnnpack=false --xla_cpu_strict_dot_conv_math=true "
-    "--xla_cpu_enable_fast_math=false --xla_cpu_enable_platform_dependent_math=false",
+    "--xla_cpu_enable_fast_math=false --xla_cpu_enable_platform_dependent_math=false "
+    f"--xla_cpu_experimental_ynn_fusion_type={NO_YNN}",
 }
 """Setting name -> XLA flags added to the single-core ones: the candidates of issue 50 (the host's instruction
 set, capped at AVX2 or at AVX512_BF16, the ceiling of an AMD Zen 4; the kernel library chosen at run time;
 fast-math and FMA contraction in dots and convolutions; XLA's "platform dependent math", which its help says
-trades consistent results across CPUs for speed; the vector width LLVM prefers)."""
+trades consistent results across CPUs for speed; the vector width LLVM prefers; dots and reductions out of
+YNNPACK, which XLA calls for them by default)."""
 OUT_DIR = REPO / "benchmarks/results/reproducibility"
 REFERENCE = REPO / "benchmarks/results/records/laptop/prereg-h1_early/social_rec-s210-210"
 
 
-def kind_file(cpu: str) -> Path:
-    """This machine kind's JSON: the CPU description as a file name."""
-    return OUT_DIR / (re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json")
+def kind_file(cpu: str, out_dir: Path = OUT_DIR) -> Path:
+    """A machine kind's JSON in `out_dir`: the CPU description as a file name."""
+    return out_dir / (re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json")
 
 
 def setting_flags(setting: str) -> str:
@@ -93,16 +100,24 @@ def compare(mine: dict, other: dict) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        default=OUT_DIR,
+        help="where this kind's JSON goes (e.g. $OUT on a device machine's CPU); other kinds' files are read "
+        "from benchmarks/results/reproducibility",
+    )
     parser.add_argument("--iterations", type=int, default=10)
     args = parser.parse_args()
     if args.iterations < 1:
         parser.error(f"--iterations {args.iterations} must be >= 1")
     cpu = autotune.cpu_model()
-    path = kind_file(cpu)
+    path = kind_file(cpu, args.out_dir)
     found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
     if found.get("reference") != portable(str(REFERENCE)):  # rows of another reference do not compare
         found = {"cpu": cpu, "settings": {}}
     found["reference"] = portable(str(REFERENCE))
+    found["settings"] = {name: entry for name, entry in found["settings"].items() if name in SETTINGS}
     for name in args.settings:
         rows, speed = rows_of(name, args.iterations)
         recorded = [without_timings(r) for r in metrics.read_rows(REFERENCE)[: len(rows)]]
@@ -121,7 +136,7 @@ def main() -> None:
     found["metadata"] = metadata(args)
     found["against"] = {}
     for other_path in sorted(OUT_DIR.glob("*.json")):
-        if other_path != path:
+        if other_path.name != path.name:
             other = logs.read_json(other_path)
             found["against"][other["cpu"]] = compare(found, other)
             for name, c in found["against"][other["cpu"]].items():
@@ -129,7 +144,6 @@ def main() -> None:
                 verdict = "exact" if c["exact"] else f"differs from iteration {d['iteration']} ({d['field']})"
                 print(f"against {other['cpu']}, {name}: {verdict}")
     write_json(path, portable(found))
-    print(f"wrote {path.relative_to(REPO)}")
 
 
 if __name__ == "__main__":

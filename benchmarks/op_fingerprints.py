@@ -1,0 +1,233 @@
+"""Which operations give different bits on two CPU models? (issue 50, item 2)
+
+`reproducibility.py` shows that CPU models disagree from the first iteration of the laptop recipe; this says
+where. Fixed inputs (integers from a seeded PCG64 scaled by a power of two, so every CPU builds the same
+float32 bits) go through the operations the recipe compiles to, and the first iteration of the recipe
+itself runs from a fixed key; each output's SHA-256 (16 hex digits) is recorded:
+
+- `dot_k<K>`: [64, K] @ [K, 64], in YNNPACK by default and in Eigen under `no_ynn`, K on both sides of the
+  contraction blocks that Eigen's heuristic sizes from the L1 cache it reads at run time (about 288 floats
+  with a 32 KiB L1, 432 with 48 KiB); `dot_t_k25088`, the first conv layer's weight gradient (contracting the
+  leading axis, a layout XLA leaves to Eigen);
+- matrix-vector products, which XLA emits itself (`gemv_k<K>`, `vecmat_k1024`, `dot_n1_k64` as in the value
+  head), and the orthogonal initialiser built on them (`gram_schmidt_<shape>`: the first fully connected
+  layer's shape, a square one, three square ones batched as the LSTM's blocks are);
+- reductions, in YNNPACK by default: a long sum (`sum_1m`), `norm`, `log_softmax` (3 actions);
+- elementwise functions on a grid: `sqrt`, `rsqrt`, `divide`, `exp`, `log`, `tanh`, `logistic`, `erf_inv`;
+  `normal` (`jax.random.normal`, threefry bits through erf_inv);
+- `init/<leaf>` and `iteration1/<leaf>`: every leaf of the recipe's training state (params, optimiser and
+  environment state, recurrent carries) after `init` and after one iteration, and
+  `iteration1/metrics/<field>`; `fixed_iteration1/...`: the same iteration from the same state with params
+  built from exact inputs, so that the update's own sensitivity shows apart from the initialiser's.
+  Environment leaves agreeing after iteration 1 mean the rollouts sampled the same actions.
+
+Each XLA setting of `reproducibility.SETTINGS` runs in a process of its own with the single-core flags then
+its own. One JSON per machine kind (`benchmarks/results/op_fingerprints/<cpu>.json`, with the CPU's cache
+sizes): per setting the hashes, the operations that differ from this kind's default, and, against every other
+kind's committed file, the operations that differ there. A run on a second kind thus names what disagrees.
+
+    python benchmarks/op_fingerprints.py                      # every setting
+    python benchmarks/op_fingerprints.py --settings default portable
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from reproducibility import REFERENCE, SETTINGS, kind_file, setting_flags
+from run_info import REPO, metadata, portable, write_json
+
+from jaxsocial.agents.fast import autotune
+from jaxsocial.run import logs
+
+OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
+DOT_KS = (27, 256, 288, 432, 1024, 8192)
+"""Contraction lengths of the synthetic dots: the first conv layer's 27, then either side of Eigen's L1
+blocks."""
+
+
+def exact_inputs(shape: tuple[int, ...], seed: int) -> np.ndarray:
+    """float32 [shape]: integers in [-4096, 4096] from PCG64(seed) divided by 1024, exact on every CPU."""
+    ints = np.random.Generator(np.random.PCG64(seed)).integers(-4096, 4097, size=shape)
+    return ints.astype(np.float32) / np.float32(1024)
+
+
+def digest(array) -> str:
+    """16 hex digits of the SHA-256 of an array's bytes (a PRNG key array by its key data)."""
+    import jax
+
+    if jax.dtypes.issubdtype(array.dtype, jax.dtypes.prng_key):
+        array = jax.random.key_data(array)
+    return hashlib.sha256(np.ascontiguousarray(np.asarray(array)).tobytes()).hexdigest()[:16]
+
+
+def operation_hashes() -> dict[str, str]:
+    """Name -> digest of each synthetic operation's output on its fixed inputs."""
+    import jax
+    import jax.numpy as jnp
+    from jax import lax
+
+    from jaxsocial.agents import initialisers
+
+    grid = exact_inputs((1 << 16,), 1)
+    ops = {
+        f"dot_k{k}": (lambda a, b: a @ b, exact_inputs((64, k), k), exact_inputs((k, 64), k + 1))
+        for k in DOT_KS
+    }
+    ops["dot_t_k25088"] = (lambda a, b: a.T @ b, exact_inputs((25088, 27), 2), exact_inputs((25088, 16), 3))
+    ops |= {
+        f"gemv_k{k}": (lambda a, b: a @ b, exact_inputs((256, k), k), exact_inputs((k,), k + 1))
+        for k in (64, 1024)
+    }
+    ops |= {
+        "vecmat_k1024": (lambda a, b: a @ b, exact_inputs((1024,), 5), exact_inputs((1024, 64), 6)),
+        "dot_n1_k64": (lambda a, b: a @ b, exact_inputs((1024, 64), 7), exact_inputs((64, 1), 8)),
+        "sqrt": (lambda x: jnp.sqrt(jnp.abs(x)), grid),
+        "rsqrt": (lambda x: lax.rsqrt(jnp.abs(x) + 1 / 1024), grid),
+        "divide": (lambda x, y: x / (jnp.abs(y) + 1 / 1024), grid, grid[::-1]),
+        "norm": (lambda x: jnp.linalg.norm(x, axis=0), exact_inputs((64, 256), 9)),
+        "gram_schmidt_288x64": (lambda z: initialisers._orthogonal(z, 1.0), exact_inputs((288, 64), 10)),
+        "gram_schmidt_64x64": (lambda z: initialisers._orthogonal(z, 1.0), exact_inputs((64, 64), 11)),
+        "gram_schmidt_3x64x64": (lambda z: initialisers._orthogonal(z, 1.0), exact_inputs((3, 64, 64), 12)),
+        "exp": (jnp.exp, grid),
+        "log": (lambda x: jnp.log(jnp.abs(x) + 1 / 1024), grid),
+        "tanh": (jnp.tanh, grid),
+        "logistic": (jax.nn.sigmoid, grid),
+        "log_softmax": (lambda x: jax.nn.log_softmax(x.reshape(-1, 2, 3), axis=-1), grid[: 6 << 12]),
+        "erf_inv": (lambda x: jax.scipy.special.erfinv(x / 4.5), grid),
+        "sum_1m": (jnp.sum, exact_inputs((1 << 20,), 4)),
+        "normal": (lambda: jax.random.normal(jax.random.key(0), (1 << 16,)),),
+    }
+    return {name: digest(jax.jit(fn)(*args)) for name, (fn, *args) in ops.items()}
+
+
+def state_hashes(prefix: str, tree) -> dict[str, str]:
+    """`prefix/<leaf path>` -> digest, for every leaf of a pytree."""
+    import jax
+
+    leaves = jax.tree_util.tree_flatten_with_path(tree)[0]
+    return {
+        f"{prefix}/{jax.tree_util.keystr(path, simple=True, separator='/')}": digest(x) for path, x in leaves
+    }
+
+
+def fixed_like(tree, seed: int):
+    """A pytree shaped as `tree` whose float32 leaves are `exact_inputs` / 16 (values in [-0.25, 0.25])."""
+    import jax
+
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    return treedef.unflatten([exact_inputs(x.shape, seed + i) / np.float32(16) for i, x in enumerate(leaves)])
+
+
+def recipe_hashes() -> dict[str, str]:
+    """Digests of the reference record's training state after `init` and after one iteration from it, and of
+    one iteration from the same state with params that every CPU builds alike (`fixed_like`), so that the
+    update's own sensitivity shows apart from the initialiser's."""
+    import jax
+
+    from jaxsocial import train
+    from jaxsocial.run import config, policy_io
+
+    cfg = config.config_from_dict(logs.read_config(REFERENCE))
+    cfg = dataclasses.replace(cfg, iterations=1, chunk_iterations=1, compile_cache=None)
+    init, run_chunk, _ = train.make_train(cfg)
+    frozen = policy_io.load_frozen(config.setup(cfg, load_frozen=False).pop, cfg.net)
+    one_iteration = jax.jit(lambda state: run_chunk(state, frozen, 1))
+    state = jax.jit(init)(jax.random.key(cfg.seed))
+    hashes = state_hashes("init", state)
+    for name, start in (
+        ("iteration1", state),
+        ("fixed_iteration1", state._replace(params=fixed_like(state.params, 100))),
+    ):
+        after, metrics = one_iteration(start)
+        hashes |= state_hashes(name, after) | state_hashes(f"{name}/metrics", metrics)
+    return hashes
+
+
+def child() -> None:
+    """Print this process's digests (operations, then the recipe) as one JSON line."""
+    print(json.dumps(operation_hashes() | recipe_hashes()))
+
+
+def hashes_under(setting: str) -> dict[str, str]:
+    """The digests computed in a process of their own under `setting`'s XLA flags."""
+    env = os.environ | {"XLA_FLAGS": setting_flags(setting), "JAX_PLATFORMS": "cpu"}
+    done = subprocess.run(
+        [sys.executable, __file__, "--child"], env=env, capture_output=True, text=True, check=False, cwd=REPO
+    )
+    if done.returncode != 0:
+        raise RuntimeError(f"{setting}: the fingerprint process failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def differing(mine: dict[str, str], theirs: dict[str, str]) -> list[str]:
+    """The operations both computed whose digests differ, in `mine`'s order."""
+    return [name for name, h in mine.items() if name in theirs and theirs[name] != h]
+
+
+def cache_sizes() -> dict[str, str]:
+    """'L<level><d|i|>' -> size, as Linux reports cpu0's caches (empty where it does not)."""
+    sizes = {}
+    for index in sorted(Path("/sys/devices/system/cpu/cpu0/cache").glob("index*")):
+        kind = (index / "type").read_text().strip()
+        suffix = {"Data": "d", "Instruction": "i"}.get(kind, "")
+        sizes[f"L{(index / 'level').read_text().strip()}{suffix}"] = (index / "size").read_text().strip()
+    return sizes
+
+
+def summary(names: list[str]) -> str:
+    return "exact" if not names else f"{len(names)} differ, first {', '.join(names[:4])}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        default=OUT_DIR,
+        help="where this kind's JSON goes (e.g. $OUT on a device machine's CPU); other kinds' files are read "
+        "from benchmarks/results/op_fingerprints",
+    )
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        return child()
+    cpu = autotune.cpu_model()
+    path = kind_file(cpu, args.out_dir)
+    found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
+    found["settings"] = {name: entry for name, entry in found["settings"].items() if name in SETTINGS}
+    for name in ["default", *(s for s in args.settings if s != "default")]:
+        if name in args.settings or name not in found["settings"]:
+            found["settings"][name] = {"xla_flags": setting_flags(name), "hashes": hashes_under(name)}
+    default = found["settings"]["default"]["hashes"]
+    for name, entry in found["settings"].items():
+        entry["differ_from_default"] = differing(entry["hashes"], default)
+        print(f"{name} against this kind's default: {summary(entry['differ_from_default'])}")
+    found["cache_sizes"] = cache_sizes()
+    found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
+    found["metadata"] = metadata(args)
+    found["against"] = {}
+    for other_path in sorted(OUT_DIR.glob("*.json")):
+        if other_path.name != path.name:
+            other = logs.read_json(other_path)
+            found["against"][other["cpu"]] = {
+                name: differing(entry["hashes"], other["settings"][name]["hashes"])
+                for name, entry in found["settings"].items()
+                if name in other["settings"]
+            }
+            for name, names in found["against"][other["cpu"]].items():
+                print(f"against {other['cpu']}, {name}: {summary(names)}")
+    write_json(path, portable(found))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
