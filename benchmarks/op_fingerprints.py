@@ -5,10 +5,12 @@ where. Fixed inputs (integers from a seeded PCG64 scaled by a power of two, so e
 float32 bits) go through the operations the recipe compiles to, and the first iteration of the recipe
 itself runs from a fixed key; each output's SHA-256 (16 hex digits) is recorded:
 
-- `dot_k<K>`: [64, K] @ [K, 64], in YNNPACK by default and in Eigen under `no_ynn`, K on both sides of the
-  contraction blocks that Eigen's heuristic sizes from the L1 cache it reads at run time (about 288 floats
-  with a 32 KiB L1, 432 with 48 KiB); `dot_t_k25088`, the first conv layer's weight gradient (contracting the
-  leading axis, a layout XLA leaves to Eigen);
+- `dot_k<K>`: [64, K] @ [K, 64], in YNNPACK by default (which sums K in blocks of 512 here, a fixed budget
+  of 128 KiB over N = 64, whatever the CPU) and in Eigen under `no_ynn`, K on both sides of the contraction
+  blocks that Eigen's heuristic sizes from the L1 cache it reads at run time (about 288 floats with a 32 KiB
+  L1, 432 with 48 KiB); `dot_t_k<K>`, shaped as the first conv layer's weight gradient
+  (contracting the leading axis, a layout XLA leaves to Eigen even by default), with that gradient's K of
+  25,088 and two below it, one under either L1 block and one between them;
 - matrix-vector products, which XLA emits itself (`gemv_k<K>`, `vecmat_k1024`, `dot_n1_k64` as in the value
   head), and the orthogonal initialiser built on them (`gram_schmidt_<shape>`: the first fully connected
   layer's shape, a square one, three square ones batched as the LSTM's blocks are);
@@ -52,6 +54,8 @@ OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
 DOT_KS = (27, 256, 288, 432, 1024, 8192)
 """Contraction lengths of the synthetic dots: the first conv layer's 27, then either side of Eigen's L1
 blocks."""
+BLOCKS = (None, 128, 256, 512, 1024)
+"""Contraction block sizes `dot_blocks` tries."""
 
 
 def exact_inputs(shape: tuple[int, ...], seed: int) -> np.ndarray:
@@ -69,6 +73,38 @@ def digest(array) -> str:
     return hashlib.sha256(np.ascontiguousarray(np.asarray(array)).tobytes()).hexdigest()[:16]
 
 
+def dot_inputs(k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The operands of `dot_k<k>`: [64, k] and [k, 64]."""
+    return exact_inputs((64, k), k), exact_inputs((k, 64), k + 1)
+
+
+def fma_chain(a: np.ndarray, b: np.ndarray, block: int | None) -> np.ndarray:
+    """float32 a [M, K] @ b [K, N] as FMA chains over K in blocks of `block` (None: one block), the blocks'
+    sums added in order; emulated in float64, where these inputs' products are exact."""
+    a64, b64 = a.astype(np.float64), b.astype(np.float64)
+    k = a.shape[1]
+    total = np.zeros((a.shape[0], b.shape[1]), np.float32)
+    for start in range(0, k, block or k):
+        part = np.zeros_like(total)
+        for j in range(start, min(k, start + (block or k))):
+            part = (part + np.outer(a64[:, j], b64[j])).astype(np.float32)
+        total = (total + part).astype(np.float32)
+    return total
+
+
+def dot_blocks() -> dict[str, list[int | None]]:
+    """`dot_k<K>` -> the contraction blocks of `BLOCKS` whose `fma_chain` equals the product this process
+    computes, bit for bit (None: one chain over all of K; empty: none does)."""
+    import jax
+
+    out = {}
+    for k in DOT_KS:
+        a, b = dot_inputs(k)
+        product = np.asarray(jax.jit(lambda a, b: a @ b)(a, b))
+        out[f"dot_k{k}"] = [block for block in BLOCKS if np.array_equal(fma_chain(a, b, block), product)]
+    return out
+
+
 def operation_hashes() -> dict[str, str]:
     """Name -> digest of each synthetic operation's output on its fixed inputs."""
     import jax
@@ -78,11 +114,11 @@ def operation_hashes() -> dict[str, str]:
     from jaxsocial.agents import initialisers
 
     grid = exact_inputs((1 << 16,), 1)
-    ops = {
-        f"dot_k{k}": (lambda a, b: a @ b, exact_inputs((64, k), k), exact_inputs((k, 64), k + 1))
-        for k in DOT_KS
+    ops = {f"dot_k{k}": (lambda a, b: a @ b, *dot_inputs(k)) for k in DOT_KS}
+    ops |= {
+        f"dot_t_k{k}": (lambda a, b: a.T @ b, exact_inputs((k, 27), k + 2), exact_inputs((k, 16), k + 3))
+        for k in (256, 384, 25088)
     }
-    ops["dot_t_k25088"] = (lambda a, b: a.T @ b, exact_inputs((25088, 27), 2), exact_inputs((25088, 16), 3))
     ops |= {
         f"gemv_k{k}": (lambda a, b: a @ b, exact_inputs((256, k), k), exact_inputs((k,), k + 1))
         for k in (64, 1024)
@@ -127,10 +163,11 @@ def fixed_like(tree, seed: int):
     return treedef.unflatten([exact_inputs(x.shape, seed + i) / np.float32(16) for i, x in enumerate(leaves)])
 
 
-def recipe_hashes() -> dict[str, str]:
+def recipe_hashes() -> tuple[dict[str, str], int]:
     """Digests of the reference record's training state after `init` and after one iteration from it, and of
     one iteration from the same state with params that every CPU builds alike (`fixed_like`), so that the
-    update's own sensitivity shows apart from the initialiser's."""
+    update's own sensitivity shows apart from the initialiser's; and how many of the iteration's operations
+    XLA handed to YNNPACK (its fusions in the compiled program)."""
     import jax
 
     from jaxsocial import train
@@ -140,8 +177,8 @@ def recipe_hashes() -> dict[str, str]:
     cfg = dataclasses.replace(cfg, iterations=1, chunk_iterations=1, compile_cache=None)
     init, run_chunk, _ = train.make_train(cfg)
     frozen = policy_io.load_frozen(config.setup(cfg, load_frozen=False).pop, cfg.net)
-    one_iteration = jax.jit(lambda state: run_chunk(state, frozen, 1))
     state = jax.jit(init)(jax.random.key(cfg.seed))
+    one_iteration = jax.jit(lambda state: run_chunk(state, frozen, 1)).lower(state).compile()
     hashes = state_hashes("init", state)
     for name, start in (
         ("iteration1", state),
@@ -149,16 +186,23 @@ def recipe_hashes() -> dict[str, str]:
     ):
         after, metrics = one_iteration(start)
         hashes |= state_hashes(name, after) | state_hashes(f"{name}/metrics", metrics)
-    return hashes
+    return hashes, one_iteration.as_text().count('"kind":"__ynn_fusion"')
 
 
 def child() -> None:
-    """Print this process's digests (operations, then the recipe) as one JSON line."""
-    print(json.dumps(operation_hashes() | recipe_hashes()))
+    """Print this process's digests (operations, then the recipe), YNNPACK fusions and `dot_blocks` as one
+    JSON line."""
+    hashes, ynn_fusions = recipe_hashes()
+    print(
+        json.dumps(
+            {"hashes": operation_hashes() | hashes, "ynn_fusions": ynn_fusions, "dot_blocks": dot_blocks()}
+        )
+    )
 
 
-def hashes_under(setting: str) -> dict[str, str]:
-    """The digests computed in a process of their own under `setting`'s XLA flags."""
+def measured_under(setting: str) -> dict:
+    """{"hashes", "ynn_fusions", "dot_blocks"} (`child`) computed in a process of their own under `setting`'s
+    XLA flags."""
     env = os.environ | {"XLA_FLAGS": setting_flags(setting), "JAX_PLATFORMS": "cpu"}
     done = subprocess.run(
         [sys.executable, __file__, "--child"], env=env, capture_output=True, text=True, check=False, cwd=REPO
@@ -192,8 +236,7 @@ def main() -> None:
     parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
     parser.add_argument(
         "--out-dir",
-        type=Path,
-        default=OUT_DIR,
+        default=str(OUT_DIR),
         help="where this kind's JSON goes (e.g. $OUT on a device machine's CPU); other kinds' files are read "
         "from benchmarks/results/op_fingerprints",
     )
@@ -202,16 +245,17 @@ def main() -> None:
     if args.child:
         return child()
     cpu = autotune.cpu_model()
-    path = kind_file(cpu, args.out_dir)
+    path = kind_file(cpu, Path(args.out_dir))
     found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
     found["settings"] = {name: entry for name, entry in found["settings"].items() if name in SETTINGS}
     for name in ["default", *(s for s in args.settings if s != "default")]:
         if name in args.settings or name not in found["settings"]:
-            found["settings"][name] = {"xla_flags": setting_flags(name), "hashes": hashes_under(name)}
+            found["settings"][name] = {"xla_flags": setting_flags(name), **measured_under(name)}
     default = found["settings"]["default"]["hashes"]
     for name, entry in found["settings"].items():
         entry["differ_from_default"] = differing(entry["hashes"], default)
-        print(f"{name} against this kind's default: {summary(entry['differ_from_default'])}")
+        verdict = summary(entry["differ_from_default"])
+        print(f"{name} ({entry['ynn_fusions']} YNNPACK fusions) against this kind's default: {verdict}")
     found["cache_sizes"] = cache_sizes()
     found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
     found["metadata"] = metadata(args)

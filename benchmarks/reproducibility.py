@@ -102,8 +102,7 @@ def main() -> None:
     parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
     parser.add_argument(
         "--out-dir",
-        type=Path,
-        default=OUT_DIR,
+        default=str(OUT_DIR),
         help="where this kind's JSON goes (e.g. $OUT on a device machine's CPU); other kinds' files are read "
         "from benchmarks/results/reproducibility",
     )
@@ -112,7 +111,7 @@ def main() -> None:
     if args.iterations < 1:
         parser.error(f"--iterations {args.iterations} must be >= 1")
     cpu = autotune.cpu_model()
-    path = kind_file(cpu, args.out_dir)
+    path = kind_file(cpu, Path(args.out_dir))
     found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
     if found.get("reference") != portable(str(REFERENCE)):  # rows of another reference do not compare
         found = {"cpu": cpu, "settings": {}}
