@@ -5,12 +5,11 @@ where. Fixed inputs (integers from a seeded PCG64 scaled by a power of two, so e
 float32 bits) go through the operations the recipe compiles to, and the first iteration of the recipe
 itself runs from a fixed key; each output's SHA-256 (16 hex digits) is recorded:
 
-- `dot_k<K>`: [64, K] @ [K, 64], in YNNPACK by default (which sums K in blocks of 512 here, a fixed budget
-  of 128 KiB over N = 64, whatever the CPU) and in Eigen under `no_ynn`, K on both sides of the contraction
-  blocks that Eigen's heuristic sizes from the L1 cache it reads at run time (about 288 floats with a 32 KiB
-  L1, 432 with 48 KiB); `dot_t_k<K>`, shaped as the first conv layer's weight gradient
-  (contracting the leading axis, a layout XLA leaves to Eigen even by default), with that gradient's K of
-  25,088 and two below it, one under either L1 block and one between them;
+- `dot_k<K>`: [64, K] @ [K, 64], in YNNPACK by default (which sums K in blocks of 512 here: `dot_blocks`)
+  and in Eigen under `no_ynn`, whose heuristic sizes its blocks of K from the caches it reads at run time;
+  `dot_t_k<K>`, shaped as the first conv layer's weight gradient (contracting the leading axis, a layout XLA
+  leaves to Eigen even by default), with that gradient's K of 25,088 and two shorter ones: a dependence on
+  the cache shows as a K that agrees across kinds below the smaller kind's block and differs above it;
 - matrix-vector products, which XLA emits itself (`gemv_k<K>`, `vecmat_k1024`, `dot_n1_k64` as in the value
   head), and the orthogonal initialiser built on them (`gram_schmidt_<shape>`: the first fully connected
   layer's shape, a square one, three square ones batched as the LSTM's blocks are);
@@ -25,7 +24,9 @@ itself runs from a fixed key; each output's SHA-256 (16 hex digits) is recorded:
 
 Each XLA setting of `reproducibility.SETTINGS` runs in a process of its own with the single-core flags then
 its own. One JSON per machine kind (`benchmarks/results/op_fingerprints/<cpu>.json`, with the CPU's cache
-sizes): per setting the hashes, the operations that differ from this kind's default, and, against every other
+sizes): per setting the hashes, how many operations of one iteration XLA handed to YNNPACK (`ynn_fusions`),
+how the `dot_k<K>` products sum (`dot_blocks`: the blocks of K whose emulated FMA chains, added in order,
+equal the product bit for bit), the operations that differ from this kind's default, and, against every other
 kind's committed file, the operations that differ there. A run on a second kind thus names what disagrees.
 
     python benchmarks/op_fingerprints.py                      # every setting
@@ -52,8 +53,8 @@ from jaxsocial.run import logs
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
 DOT_KS = (27, 256, 288, 432, 1024, 8192)
-"""Contraction lengths of the synthetic dots: the first conv layer's 27, then either side of Eigen's L1
-blocks."""
+"""Contraction lengths of the synthetic dots: the first conv layer's 27, then lengths that Eigen's and
+YNNPACK's blocks of K split differently."""
 BLOCKS = (None, 128, 256, 512, 1024)
 """Contraction block sizes `dot_blocks` tries."""
 
