@@ -45,7 +45,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from reproducibility import REFERENCE, SETTINGS, kind_file, setting_flags
+from reproducibility import REFERENCE, kind_arguments, other_kinds, setting_flags, this_kind
 from run_info import REPO, metadata, portable, write_json
 
 from jaxsocial.agents.fast import autotune
@@ -234,21 +234,12 @@ def summary(names: list[str]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
-    parser.add_argument(
-        "--out-dir",
-        default=str(OUT_DIR),
-        help="where this kind's JSON goes (e.g. $OUT on a device machine's CPU); other kinds' files are read "
-        "from benchmarks/results/op_fingerprints",
-    )
+    kind_arguments(parser, OUT_DIR)
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         return child()
-    cpu = autotune.cpu_model()
-    path = kind_file(cpu, Path(args.out_dir))
-    found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
-    found["settings"] = {name: entry for name, entry in found["settings"].items() if name in SETTINGS}
+    path, found = this_kind(args.out_dir)
     for name in ["default", *(s for s in args.settings if s != "default")]:
         if name in args.settings or name not in found["settings"]:
             found["settings"][name] = {"xla_flags": setting_flags(name), **measured_under(name)}
@@ -261,16 +252,14 @@ def main() -> None:
     found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
     found["metadata"] = metadata(args)
     found["against"] = {}
-    for other_path in sorted(OUT_DIR.glob("*.json")):
-        if other_path.name != path.name:
-            other = logs.read_json(other_path)
-            found["against"][other["cpu"]] = {
-                name: differing(entry["hashes"], other["settings"][name]["hashes"])
-                for name, entry in found["settings"].items()
-                if name in other["settings"]
-            }
-            for name, names in found["against"][other["cpu"]].items():
-                print(f"against {other['cpu']}, {name}: {summary(names)}")
+    for other in other_kinds(path, OUT_DIR):
+        found["against"][other["cpu"]] = {
+            name: differing(entry["hashes"], other["settings"][name]["hashes"])
+            for name, entry in found["settings"].items()
+            if name in other["settings"]
+        }
+        for name, names in found["against"][other["cpu"]].items():
+            print(f"against {other['cpu']}, {name}: {summary(names)}")
     write_json(path, portable(found))
 
 

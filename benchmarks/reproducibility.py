@@ -63,6 +63,32 @@ def kind_file(cpu: str, out_dir: Path = OUT_DIR) -> Path:
     return out_dir / (re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json")
 
 
+def kind_arguments(parser: argparse.ArgumentParser, committed: Path) -> None:
+    """The options of a per-kind benchmark whose kinds' files are committed in `committed`."""
+    parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    parser.add_argument(
+        "--out-dir",
+        default=str(committed),
+        help="where this kind's JSON goes (e.g. $OUT on a device machine's CPU); other kinds' files are read "
+        f"from {committed.relative_to(REPO)}",
+    )
+
+
+def this_kind(out_dir: str) -> tuple[Path, dict]:
+    """This machine kind's JSON in `out_dir` and what it holds ({"cpu", "settings": {}} where it is new),
+    without the settings `SETTINGS` no longer has."""
+    cpu = autotune.cpu_model()
+    path = kind_file(cpu, Path(out_dir))
+    found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
+    found["settings"] = {name: entry for name, entry in found["settings"].items() if name in SETTINGS}
+    return path, found
+
+
+def other_kinds(path: Path, committed: Path) -> list[dict]:
+    """Every committed kind's JSON in `committed` but the one named as `path`."""
+    return [logs.read_json(other) for other in sorted(committed.glob("*.json")) if other.name != path.name]
+
+
 def setting_flags(setting: str) -> str:
     """The $XLA_FLAGS a setting trains with: the single-core ones, then the setting's."""
     return f"{pinned.SINGLE_CORE_XLA_FLAGS} {SETTINGS[setting]}".strip()
@@ -99,24 +125,15 @@ def compare(mine: dict, other: dict) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
-    parser.add_argument(
-        "--out-dir",
-        default=str(OUT_DIR),
-        help="where this kind's JSON goes (e.g. $OUT on a device machine's CPU); other kinds' files are read "
-        "from benchmarks/results/reproducibility",
-    )
+    kind_arguments(parser, OUT_DIR)
     parser.add_argument("--iterations", type=int, default=10)
     args = parser.parse_args()
     if args.iterations < 1:
         parser.error(f"--iterations {args.iterations} must be >= 1")
-    cpu = autotune.cpu_model()
-    path = kind_file(cpu, Path(args.out_dir))
-    found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
+    path, found = this_kind(args.out_dir)
     if found.get("reference") != portable(str(REFERENCE)):  # rows of another reference do not compare
-        found = {"cpu": cpu, "settings": {}}
+        found = {"cpu": found["cpu"], "settings": {}}
     found["reference"] = portable(str(REFERENCE))
-    found["settings"] = {name: entry for name, entry in found["settings"].items() if name in SETTINGS}
     for name in args.settings:
         rows, speed = rows_of(name, args.iterations)
         recorded = [without_timings(r) for r in metrics.read_rows(REFERENCE)[: len(rows)]]
@@ -134,14 +151,12 @@ def main() -> None:
     found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
     found["metadata"] = metadata(args)
     found["against"] = {}
-    for other_path in sorted(OUT_DIR.glob("*.json")):
-        if other_path.name != path.name:
-            other = logs.read_json(other_path)
-            found["against"][other["cpu"]] = compare(found, other)
-            for name, c in found["against"][other["cpu"]].items():
-                d = c["first_difference"]
-                verdict = "exact" if c["exact"] else f"differs from iteration {d['iteration']} ({d['field']})"
-                print(f"against {other['cpu']}, {name}: {verdict}")
+    for other in other_kinds(path, OUT_DIR):
+        found["against"][other["cpu"]] = compare(found, other)
+        for name, c in found["against"][other["cpu"]].items():
+            d = c["first_difference"]
+            verdict = "exact" if c["exact"] else f"differs from iteration {d['iteration']} ({d['field']})"
+            print(f"against {other['cpu']}, {name}: {verdict}")
     write_json(path, portable(found))
 
 
