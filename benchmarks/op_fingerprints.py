@@ -42,7 +42,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 from reproducibility import REFERENCE, kind_arguments, other_kinds, setting_flags, this_kind
@@ -218,16 +217,6 @@ def differing(mine: dict[str, str], theirs: dict[str, str]) -> list[str]:
     return [name for name, h in mine.items() if name in theirs and theirs[name] != h]
 
 
-def cache_sizes() -> dict[str, str]:
-    """'L<level><d|i|>' -> size, as Linux reports cpu0's caches (empty where it does not)."""
-    sizes = {}
-    for index in sorted(Path("/sys/devices/system/cpu/cpu0/cache").glob("index*")):
-        kind = (index / "type").read_text().strip()
-        suffix = {"Data": "d", "Instruction": "i"}.get(kind, "")
-        sizes[f"L{(index / 'level').read_text().strip()}{suffix}"] = (index / "size").read_text().strip()
-    return sizes
-
-
 def summary(names: list[str]) -> str:
     return "exact" if not names else f"{len(names)} differ, first {', '.join(names[:4])}"
 
@@ -248,7 +237,7 @@ def main() -> None:
         entry["differ_from_default"] = differing(entry["hashes"], default)
         verdict = summary(entry["differ_from_default"])
         print(f"{name} ({entry['ynn_fusions']} YNNPACK fusions) against this kind's default: {verdict}")
-    found["cache_sizes"] = cache_sizes()
+    found["cache_sizes"] = autotune.cache_sizes()
     found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
     found["metadata"] = metadata(args)
     found["against"] = {}

@@ -3,6 +3,7 @@ the processes' own provenance and read back by `figure`."""
 
 import json
 
+import jax
 import pytest
 
 from jaxsocial.agents.fast import autotune
@@ -37,6 +38,10 @@ def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monke
     provenance = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
     assert provenance["device"] == "a CPU" and provenance["rc"] == 0 and provenance["cores"] == 1
     assert provenance["cpu"] == autotune.cpu_model() and provenance["xla_flags"] == pinned.process_xla_flags()
+    environment = {field: provenance[field] for field in pinned.ENVIRONMENT_FIELDS}
+    assert environment == pinned.environment()
+    assert provenance["versions"]["jax"] == jax.__version__
+    assert set(provenance["versions"]) == set(pinned.VERSIONED)
     with pytest.raises(pinned.RunNotEnded, match="not trained by"):
         pinned.run_provenance(tmp_path, "a CPU", "0.0")
     with pytest.raises(ValueError, match="at least one core"):

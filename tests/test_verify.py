@@ -90,3 +90,15 @@ def test_the_retraining_has_the_records_xla_flags(tiny_record, tmp_path, monkeyp
     monkeypatch.setattr(verify, "train_in_process", lambda cfg, work_dir, flags: seen.append(flags))
     verify.retrain(record, 2, tmp_path / "work")
     assert seen == [expected]
+
+
+def test_environment_differences_name_what_differs_and_what_was_not_recorded():
+    here = {"cpu_features": ["avx2", "fma"], "cache_sizes": {"L1d": "48K"}, "versions": {"jax": "0.10.2"}}
+    same = verify.environment_differences(dict(here), here)
+    assert same == []
+    older = {"cpu_features": ["avx2", "fma"], "cache_sizes": {"L1d": "32K"}, "versions": None}
+    lines = verify.environment_differences(older, here)
+    assert lines == [
+        "  cache_sizes differ: record {'L1d': '32K'}; here {'L1d': '48K'}",
+        "  versions: not recorded; here {'jax': '0.10.2'}",
+    ]

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
+import importlib.metadata
 import os
 import shlex
 import shutil
@@ -33,9 +34,14 @@ in a stray `intra_op_parallelism_threads=1`, which is no XLA flag: XLA ignored i
 tests' optimisation level, the settings of benchmarks/reproducibility.py); the numbers it trained are the same
 bit for bit without it (measured on an Intel Xeon family 6 model 167)."""
 RUN_FILE = "process.json"
-MACHINE_FIELDS = ("cpu", "xla_flags")
+ENVIRONMENT_FIELDS = ("cpu_features", "cache_sizes", "versions")
+"""The fields of `environment`."""
+MACHINE_FIELDS = ("cpu", "xla_flags", *ENVIRONMENT_FIELDS)
 """What `RUN_FILE` says of where the run trained, beside `records.RUN_FIELDS`: the CPU (model, family and
-model numbers, `autotune.cpu_model`) and the process's $XLA_FLAGS; records carry them in provenance."""
+model numbers, `autotune.cpu_model`), the process's $XLA_FLAGS and its `environment`; records carry them in
+provenance, and `verify` compares them with the machine it re-trains on."""
+VERSIONED = ("jax", "jaxlib", "flax", "optax", "numpy")
+"""The packages whose versions a run's floats depend on."""
 POLL_SECONDS = 2.0
 
 
@@ -135,19 +141,38 @@ def write_run_file(
     earlier: list[dict[str, Any]] | None = None,
 ) -> None:
     """Write `RUN_FILE` into `run_dir`: what made it (command, commit, cores), where (this machine's CPU, the
-    process's $XLA_FLAGS: `MACHINE_FIELDS`), when (start, and now as its end unless `rc` is None: still
-    running) and its exit status, with the `earlier` processes of a resumed run."""
+    process's $XLA_FLAGS, the `environment`: `MACHINE_FIELDS`), when (start, and now as its end unless `rc` is
+    None: still running) and its exit status, with the `earlier` processes of a resumed run."""
     info = {
         "command": command,
         "commit": commit,
         "cores": cores,
         "cpu": autotune.cpu_model(),
         "xla_flags": xla_flags,
+        **environment(),
         "started": started,
         "ended": None if rc is None else now(),
         "rc": rc,
     }
     logs.write_json(Path(run_dir) / RUN_FILE, info | ({"earlier": earlier} if earlier else {}))
+
+
+def environment() -> dict[str, Any]:
+    """What besides the program and its XLA flags decides the floats a CPU run computes: the instruction sets
+    present (`autotune.NUMERICS_FLAGS`; XLA's code and YNNPACK's kernels follow them), the cache sizes (Eigen
+    sizes its blocks from them) and the versions of the `VERSIONED` packages (None: not installed)."""
+    return {
+        "cpu_features": sorted(autotune.NUMERICS_FLAGS & autotune.cpu_flags()),
+        "cache_sizes": autotune.cache_sizes(),
+        "versions": {package: _version(package) for package in VERSIONED},
+    }
+
+
+def _version(package: str) -> str | None:
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None
 
 
 class RunNotEnded(FileNotFoundError):

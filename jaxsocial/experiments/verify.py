@@ -8,8 +8,9 @@ fresh run directory outside the record, in a process of its own with the $XLA_FL
 had (from its provenance; older records: single-threaded XLA where it says one core, as `pinned` trains), and
 the two metrics logs are compared row by row, every field but the timings (`TIMING_FIELDS`). The report says
 **exact**, or the first row and field that differ with both values and the size of the difference, and
-names the CPU of the record and of this machine: bitwise agreement is expected on the same CPU model and
-commit, not across models (docs/experiments.md). Nothing is written into the record.
+names the CPU of the record and of this machine, and where their instruction sets, cache sizes or package
+versions differ (`pinned.environment`): bitwise agreement is expected on the same CPU model and commit, not
+across models (docs/experiments.md). Nothing is written into the record.
 
 Run it from a worktree of the record's commit for the strict check; on today's code it checks that the
 mathematics did not change since, where the configs map. The laptop and cpu scales have no schedule over
@@ -125,9 +126,26 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
         "first_difference": difference,
         "compared": "every field of every row but " + ", ".join(TIMING_FIELDS),
         "cpu": {"record": records.run_field(record_dir, "device"), "here": autotune.cpu_model()},
+        "environment": {
+            "record": {field: records.run_field(record_dir, field) for field in pinned.ENVIRONMENT_FIELDS},
+            "here": pinned.environment(),
+        },
         "commit": {"record": records.run_field(record_dir, "commit"), "here": records.head_commit()},
         "xla_flags": os.environ.get("XLA_FLAGS", ""),
     }
+
+
+def environment_differences(record: dict, here: dict) -> list[str]:
+    """One line per `pinned.environment` field in which the record's run and this machine differ, for
+    people ('not recorded' where the record predates the field)."""
+    lines = []
+    for field, mine in here.items():
+        theirs = record.get(field)
+        if theirs is None:
+            lines.append(f"  {field}: not recorded; here {mine}")
+        elif theirs != mine:
+            lines.append(f"  {field} differ: record {theirs}; here {mine}")
+    return lines
 
 
 def report(result: dict) -> str:
@@ -146,5 +164,6 @@ def report(result: dict) -> str:
             f"re-trained {d['retrained']!r}{size}"
         )
     lines.append(f"  CPU: record {result['cpu']['record']}; here {result['cpu']['here']}")
+    lines += environment_differences(result["environment"]["record"], result["environment"]["here"])
     lines.append(f"  commit: record {result['commit']['record']}; here {result['commit']['here']}")
     return "\n".join(lines)

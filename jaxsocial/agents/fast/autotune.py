@@ -99,6 +99,12 @@ GIVE_UP = 3.0
 """A candidate whose best time is this many times the best candidate's after a round is timed no further."""
 MACHINE_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
 """The /proc/cpuinfo flags that decide the formulations' relative speed (bfloat16: AVX512-BF16, AMX)."""
+NUMERICS_FLAGS = frozenset(
+    ("sse4_2", "avx", "avx2", "fma", "f16c", "avx512f", "avx512dq", "avx512bw", "avx512vl", "avx512_vnni")
+    + ("avx512_bf16", "avx512_fp16", "amx_tile", "amx_bf16", "amx_int8")
+)
+"""The /proc/cpuinfo flags that choose code and kernels at run time (XLA's LLVM target, YNNPACK's and
+oneDNN's dispatch), so the floats a CPU computes can follow them."""
 
 
 # ------------------------------------------------------------------------------------------ the machine
@@ -121,6 +127,22 @@ def _cpuinfo() -> dict[str, str]:
 def cpu_flags() -> frozenset[str]:
     """The CPU's flags from /proc/cpuinfo (empty where it is missing)."""
     return frozenset(_cpuinfo().get("flags", "").split())
+
+
+def cache_sizes() -> dict[str, str]:
+    """'L<level><d|i|>' -> size as Linux reports the first CPU's caches, e.g. {'L1d': '48K', ...} (empty where
+    it does not): Eigen sizes its blocks of a matrix product's contraction from them."""
+    sizes = {}
+    for index in sorted(Path("/sys/devices/system/cpu/cpu0/cache").glob("index*")):
+        try:
+            kind = (index / "type").read_text().strip()
+            level = (index / "level").read_text().strip()
+            size = (index / "size").read_text().strip()
+        except OSError:
+            continue
+        suffix = {"Data": "d", "Instruction": "i"}.get(kind, "")
+        sizes[f"L{level}{suffix}"] = size
+    return sizes
 
 
 def cpu_model() -> str:
