@@ -76,11 +76,15 @@ def kind_arguments(parser: argparse.ArgumentParser, committed: Path) -> None:
 
 def this_kind(out_dir: str) -> tuple[Path, dict]:
     """This machine kind's JSON in `out_dir` and what it holds ({"cpu", "settings": {}} where it is new),
-    without the settings `SETTINGS` no longer has."""
+    without the settings that `SETTINGS` no longer has or whose flags have changed since they ran."""
     cpu = autotune.cpu_model()
     path = kind_file(cpu, Path(out_dir))
     found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
-    found["settings"] = {name: entry for name, entry in found["settings"].items() if name in SETTINGS}
+    found["settings"] = {
+        name: entry
+        for name, entry in found["settings"].items()
+        if name in SETTINGS and entry["xla_flags"] == setting_flags(name)
+    }
     return path, found
 
 
