@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import importlib.metadata
 import json
 import os
 import platform
@@ -19,6 +18,7 @@ import jax
 import numpy as np
 
 from jaxsocial.agents.fast.autotune import cpu_model  # the model name with its family and model numbers
+from jaxsocial.experiments.pinned import package_version
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -38,13 +38,6 @@ def git_revision() -> dict:
         return {"commit": None, "dirty": None}
 
 
-def _version(package: str) -> str | None:
-    try:
-        return importlib.metadata.version(package)
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
 def metadata(args: argparse.Namespace) -> dict:
     """Versions (python, jax, jaxlib, flax, numpy), devices, CPU, platform, git revision, args, load."""
     return {
@@ -53,8 +46,8 @@ def metadata(args: argparse.Namespace) -> dict:
         "argv": sys.argv,
         "python": platform.python_version(),
         "jax": jax.__version__,
-        "jaxlib": _version("jaxlib"),
-        "flax": _version("flax"),
+        "jaxlib": package_version("jaxlib"),
+        "flax": package_version("flax"),
         "numpy": np.__version__,
         "devices": [f"{d} (platform={d.platform}, kind={d.device_kind})" for d in jax.devices()],
         "cpu_count": os.cpu_count(),

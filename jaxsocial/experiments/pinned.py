@@ -164,11 +164,12 @@ def environment() -> dict[str, Any]:
     return {
         "cpu_features": sorted(autotune.NUMERICS_FLAGS & autotune.cpu_flags()),
         "cache_sizes": autotune.cache_sizes(),
-        "versions": {package: _version(package) for package in VERSIONED},
+        "versions": {package: package_version(package) for package in VERSIONED},
     }
 
 
-def _version(package: str) -> str | None:
+def package_version(package: str) -> str | None:
+    """An installed package's version (None: not installed)."""
     try:
         return importlib.metadata.version(package)
     except importlib.metadata.PackageNotFoundError:
