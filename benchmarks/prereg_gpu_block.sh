@@ -66,6 +66,11 @@ device() {
     if [ -f "$t" ]; then tar xzf "$t"; fi
   done
   cp ../commands.log "$OUT/commands.log" 2>/dev/null || : >"$OUT/commands.log"
+  local machine  # where this block's runs train, $XLA_FLAGS included, for the records' provenance
+  machine=$(PYTHONPATH=$root:/tmp/site python3 -c 'import json, os
+from jaxsocial.experiments import pinned
+print(json.dumps(pinned.machine(os.environ.get("XLA_FLAGS", ""))))') &&
+    echo "$(date -u +%Y-%m-%dT%H:%M:%SZ) machine $machine" >>"$OUT/commands.log"
   nvidia-smi -L
   python3 -c 'import jax, flax, tyro; print("jax", jax.__version__, "flax", flax.__version__, jax.devices())'
   while read -r args; do

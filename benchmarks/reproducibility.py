@@ -40,7 +40,7 @@ SETTINGS = {
     "default": "",
     "max_isa_avx2": "--xla_cpu_max_isa=AVX2",
     "max_isa_avx512_bf16": "--xla_cpu_max_isa=AVX512_BF16",
-    "no_platform_math": "--xla_cpu_enable_platform_dependent_math=false",
+    "no_platform_math": pinned.CROSS_CPU_XLA_FLAGS,  # the pre-registered designs' since 2026-11-28
     "vector_width_256": "--xla_cpu_prefer_vector_width=256",
     "no_xnnpack": "--xla_cpu_use_xnnpack=false",
     "strict_math": "--xla_cpu_strict_dot_conv_math=true --xla_cpu_enable_fast_math=false",

@@ -2,6 +2,7 @@
 designs (their power, their seeds, their commit before the runs')."""
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -9,8 +10,8 @@ import pytest
 
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import paths, prereg, recipes, records, takeoff, takeoff_power
-from jaxsocial.run import config
+from jaxsocial.experiments import paths, pinned, prereg, recipes, records, takeoff, takeoff_power
+from jaxsocial.run import config, logs
 
 
 def test_boschloo_most_extreme_table_has_a_closed_form():
@@ -200,6 +201,31 @@ def test_design_seeds_that_do_not_count_are_named():
     assert prereg.seed_problems(design, {c: [good, good] for c in conditions}, expected) == []
 
 
+def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monkeypatch):
+    """A later value of one of the design's flags would override it, so the flags must end the process's."""
+    wanted = f"{pinned.CROSS_CPU_XLA_FLAGS} --xla_cpu_max_isa=AVX2"  # two flags, as `run` appends them
+    design = dataclasses.replace(prereg.load("h1_prereg"), seeds=1, training_commit=None, xla_flags=wanted)
+    good = {"config": {"iterations": design.iterations}, "rows": design.iterations, "commit": None}
+    runs = {
+        f"{pinned.SINGLE_CORE_XLA_FLAGS} {wanted}": [],
+        wanted: [],
+        None: ["trained with $XLA_FLAGS None"],
+        pinned.SINGLE_CORE_XLA_FLAGS: ["trained with $XLA_FLAGS '--xla_cpu_multi_thread_eigen=false'"],
+        f"{wanted} --xla_cpu_max_isa=AVX512": ["trained with $XLA_FLAGS"],
+        f"--xla_cpu_max_isa=AVX2 {pinned.CROSS_CPU_XLA_FLAGS}": ["trained with $XLA_FLAGS"],
+    }
+    for flags, problems in runs.items():
+        conditions = {c: [good | {"xla_flags": flags}] for c in (*design.treatment, *design.control)}
+        found = prereg.seed_problems(design, conditions, dict.fromkeys(conditions, {}))
+        assert len(found) == len(problems) * len(conditions)
+        assert all(want in got for want, got in zip(problems * len(conditions), found, strict=True))
+    bad = tmp_path / "h1_bad.json"
+    bad.write_text(json.dumps({**logs.read_json(prereg.path_of("h1_prereg")), "xla_flags": "--a=1 b=2"}))
+    monkeypatch.setattr(prereg, "DESIGNS_DIR", tmp_path)
+    with pytest.raises(ValueError, match="design h1_bad's xla_flags: 'b=2' is not an XLA flag"):
+        prereg.load("h1_bad")
+
+
 def test_a_config_with_the_old_field_names_counts_as_the_design_expects():
     """A seed whose config.json was written before `ppo.chunk_length`, `ppo.minibatch_chunks` and
     `net.chunk` were renamed (committed records hold such files) compares equal to the design's expected
@@ -234,7 +260,6 @@ def test_commit_order():
 
 def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
     """At another scale than the design's the block is still written, and says that the scale differs."""
-    from jaxsocial.run import logs
 
     for condition in recipes.RECIPES["h1_prereg"].conditions:
         seed_dir = tmp_path / "runs" / "tiny" / f"{condition}-s0-0"

@@ -1,6 +1,7 @@
 """Runs as pinned single-core processes: the pool (`pinned.run`) and a recipe trained that way, recorded from
 the processes' own provenance and read back by `figure`."""
 
+import dataclasses
 import json
 
 import jax
@@ -8,7 +9,7 @@ import pytest
 
 from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import pinned
+from jaxsocial.experiments import pinned, prereg
 from jaxsocial.run import logs
 
 
@@ -80,9 +81,9 @@ def test_the_xla_of_each_process_is_single_threaded_after_the_callers_flags(tmp_
     monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
     out = tmp_path / "flags.txt"
     code = f"import os, pathlib; pathlib.Path({str(out)!r}).write_text(os.environ['XLA_FLAGS'])"
-    assert pinned.run([_job(tmp_path, "x", code)], [0]) == [0]
-    expected = "--xla_backend_optimization_level=0 --xla_cpu_multi_thread_eigen=false"
-    assert out.read_text() == expected == pinned.process_xla_flags()
+    assert pinned.run([_job(tmp_path, "x", code)], [0], xla_flags="--xla_cpu_max_isa=AVX2") == [0]
+    expected = "--xla_backend_optimization_level=0 --xla_cpu_multi_thread_eigen=false --xla_cpu_max_isa=AVX2"
+    assert out.read_text() == expected == pinned.process_xla_flags("--xla_cpu_max_isa=AVX2")
     assert json.loads((tmp_path / "x" / pinned.RUN_FILE).read_text())["xla_flags"] == expected
     monkeypatch.delenv("XLA_FLAGS")
     assert pinned.process_xla_flags() == pinned.SINGLE_CORE_XLA_FLAGS
@@ -94,6 +95,9 @@ def test_a_word_xla_would_ignore_with_every_flag_after_it_is_refused(tmp_path, m
     with pytest.raises(ValueError, match="'intra_op_parallelism_threads=1' is not an XLA flag"):
         pinned.run([_job(tmp_path, "x", "pass")], [0])
     assert not (tmp_path / "x").exists()  # refused before any process started
+    monkeypatch.delenv("XLA_FLAGS")
+    with pytest.raises(ValueError, match="'AVX2' is not an XLA flag"):
+        pinned.run([_job(tmp_path, "x", "pass")], [0], xla_flags="--xla_cpu_max_isa= AVX2")
 
 
 @pytest.mark.slow
@@ -121,7 +125,8 @@ def test_run_with_cores_trains_seed_by_seed(tmp_path, monkeypatch):
     process is an error naming it, after every process has ended."""
     started = []
 
-    def fake_run(jobs, cores):
+    def fake_run(jobs, cores, xla_flags):
+        assert xla_flags == ""  # not a design's seeds
         started.extend(job.label for job in jobs)
         return [1 if job.label == "social_rec s1" else 0 for job in jobs]
 
@@ -132,6 +137,23 @@ def test_run_with_cores_trains_seed_by_seed(tmp_path, monkeypatch):
         )
     conditions = ["solo_pred", "social_none", "social_rec", "social_pred"]
     assert started == [f"{c} s{s}" for s in (0, 1) for c in conditions]
+
+
+def test_a_designs_seeds_train_with_its_xla_flags(tmp_path, monkeypatch):
+    """With --cores every process gets them after the single-core flags; in this process they must already
+    be in $XLA_FLAGS (XLA reads them once), else nothing trains."""
+    flags, load, given = "--xla_cpu_max_isa=AVX2", prereg.load, []
+    monkeypatch.setattr(prereg, "load", lambda name: dataclasses.replace(load(name), xla_flags=flags))
+    monkeypatch.setattr(
+        pinned, "run", lambda jobs, cores, xla_flags: given.append(xla_flags) or [0] * len(jobs)
+    )
+    command = ["run", "h1_laptop", "--scale", "laptop", "--runs-dir", str(tmp_path)]
+    cli.main([*command, "--cores", "0"])
+    assert given == [flags]
+    monkeypatch.setenv("XLA_FLAGS", pinned.SINGLE_CORE_XLA_FLAGS)
+    with pytest.raises(SystemExit, match=f"trains with \\$XLA_FLAGS ending in '{flags}': train with --cores"):
+        cli.main(command)
+    assert not any(tmp_path.iterdir())  # refused before anything trained
 
 
 def test_seed_processes_share_the_compilation_cache(monkeypatch, tmp_path):

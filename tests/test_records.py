@@ -72,6 +72,7 @@ def test_commands_log(tmp_path):
     log.write_text(
         f"2026-01-01T00:00:00 {commit} python -m jaxsocial.train --seed 0 --run-name cpu/x-s0-2\n"
         "2026-01-01T00:10:00 done x rc=0 600s\n"
+        '2026-01-01T00:10:30 machine {"cpu": "a GPU host", "xla_flags": ""}\n'
         f"2026-01-01T00:11:00 {commit} python -m jaxsocial.train --run-name cpu/y-s0-0\n"
         "2026-01-01T00:12:00 done y rc=1 60s\n"
         "a line that is neither\n"
@@ -83,10 +84,13 @@ def test_commands_log(tmp_path):
         "started": "2026-01-01T00:00:00",
         "ended": "2026-01-01T00:10:00",
         "rc": 0,
+        "machine": {},  # no machine line before its start
     }
     assert runs["cpu/y-s0-0"]["rc"] == 1
     run = records.run_provenance("cpu/x-s0-2", runs, "a CPU", "0.1")
-    assert (run["device"], run["jax"], run["commit"]) == ("a CPU", "0.1", commit)
+    assert (run["device"], run["jax"], run["commit"]) == ("a CPU", "0.1", commit) and "xla_flags" not in run
+    run = records.run_provenance("cpu/y-s0-0", runs, "a GPU", "0.1")
+    assert (run["cpu"], run["xla_flags"], run["rc"]) == ("a GPU host", "", 1)  # no deterministic GPU ops
     with pytest.raises(ValueError, match="no command with --run-name cpu/z"):
         records.run_provenance("cpu/z", runs, None, None)
 

@@ -169,6 +169,7 @@ def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
                 "config": logs.read_config(d) if (d / logs.CONFIG_FILE).is_file() else {},
                 "rows": len(metrics.read_rows(d)),
                 "commit": records.run_field(d, "commit"),
+                "xla_flags": records.run_field(d, "xla_flags"),
             }
             for d in dirs
         ]

@@ -33,6 +33,13 @@ SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
 in a stray `intra_op_parallelism_threads=1`, which is no XLA flag: XLA ignored it and every flag after it (the
 tests' optimisation level, the settings of benchmarks/reproducibility.py); the numbers it trained are the same
 bit for bit without it (measured on an Intel Xeon family 6 model 167)."""
+CROSS_CPU_XLA_FLAGS = "--xla_cpu_enable_platform_dependent_math=false"
+"""XLA's CPU numerics without its "platform dependent math", whose approximate reciprocal square root (in
+the orthogonal initialiser) AMD and Intel CPUs round differently; the training step itself computes the same
+bits on both by default. Pre-registered designs since 2026-11-28 train with it (`prereg.Design.xla_flags`):
+under it the laptop recipe trains bit for bit alike on an Intel Xeon (family 6, model 167) and an AMD EPYC
+(family 26, model 2), at no speed cost (docs/experiments.md, "Does the training re-run?"). Eigen, which
+computes the conv layers' weight gradients, sizes its blocks from the CPU's caches (alike on those two)."""
 RUN_FILE = "process.json"
 ENVIRONMENT_FIELDS = ("cpu_features", "cache_sizes", "versions")
 """The fields of `environment`."""
@@ -66,26 +73,31 @@ def train_command(flags: list[str]) -> tuple[str, ...]:
     return ("-m", "jaxsocial.train", *flags, *cache)
 
 
-def process_xla_flags() -> str:
-    """$XLA_FLAGS of a pinned process: the caller's, then `SINGLE_CORE_XLA_FLAGS`. ValueError if a word of
-    them is not a `--flag` (XLA would ignore it and, silently, every flag after it)."""
-    flags = f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS}".strip()
+def process_xla_flags(extra: str = "") -> str:
+    """$XLA_FLAGS of a pinned process: the caller's, then `SINGLE_CORE_XLA_FLAGS`, then `extra` (e.g. a
+    design's). ValueError if a word of them is not a `--flag` (`check_xla_flags`)."""
+    return check_xla_flags(f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS} {extra}", "$XLA_FLAGS")
+
+
+def check_xla_flags(flags: str, source: str) -> str:
+    """`flags` without surrounding spaces; ValueError naming `source` if a word of them is not a `--flag`
+    (XLA would ignore it and, silently, every flag after it)."""
     stray = [word for word in flags.split() if not word.startswith("--")]
     if stray:
         raise ValueError(
-            f"$XLA_FLAGS: {stray[0]!r} is not an XLA flag (--name=value); XLA would ignore the rest"
+            f"{source}: {stray[0]!r} is not an XLA flag (--name=value); XLA would ignore the rest"
         )
-    return flags
+    return " ".join(flags.split())
 
 
-def run(jobs: list[Job], cores: list[int]) -> list[int]:
+def run(jobs: list[Job], cores: list[int], xla_flags: str = "") -> list[int]:
     """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (with
-    `taskset`, where there is one) with a single-threaded XLA after the caller's $XLA_FLAGS
-    (`process_xla_flags`); write `RUN_FILE` into each run directory the process created. Returns the exit
-    codes, in the order of `jobs`."""
+    `taskset`, where there is one) with a single-threaded XLA after the caller's $XLA_FLAGS and before
+    `xla_flags` (`process_xla_flags`); write `RUN_FILE` into each run directory the process created. Returns
+    the exit codes, in the order of `jobs`."""
     if not cores:
         raise ValueError("give at least one core")
-    commit, xla_flags = records.head_commit(), process_xla_flags()
+    commit, xla_flags = records.head_commit(), process_xla_flags(xla_flags)
     pending, active, codes = list(enumerate(jobs)), {}, {}
     free = list(cores)
     while pending or active:
@@ -147,14 +159,19 @@ def write_run_file(
         "command": command,
         "commit": commit,
         "cores": cores,
-        "cpu": autotune.cpu_model(),
-        "xla_flags": xla_flags,
-        **environment(),
+        **machine(xla_flags),
         "started": started,
         "ended": None if rc is None else now(),
         "rc": rc,
     }
     logs.write_json(Path(run_dir) / RUN_FILE, info | ({"earlier": earlier} if earlier else {}))
+
+
+def machine(xla_flags: str | None) -> dict[str, Any]:
+    """Where a process with $XLA_FLAGS `xla_flags` trains (`MACHINE_FIELDS`): this CPU (`autotune.cpu_model`),
+    the flags and the `environment`. A GPU block logs it in its commands log (`records.read_commands_log`):
+    its flags say whether `--xla_gpu_deterministic_ops` was on."""
+    return {"cpu": autotune.cpu_model(), "xla_flags": xla_flags, **environment()}
 
 
 def environment() -> dict[str, Any]:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, records
+from jaxsocial.experiments import paths, pinned, records
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
@@ -78,6 +78,11 @@ class Design:
     training_commit: str | None = None
     """The commit every run is trained at (from a worktree of it): `figure` requires each record's commit to
     be this one. None (designs before this field): each run's commit must follow the design's."""
+    xla_flags: str | None = None
+    """XLA flags every training process of the design adds after the single-core ones, and every seed's
+    recorded flags must hold (`seed_problems`): `pinned.CROSS_CPU_XLA_FLAGS` for designs since 2026-11-28, so
+    that a seed trains bit for bit alike on the CPU kinds measured. None (designs before this field): XLA's
+    defaults, whose bits differ between CPU models."""
 
     @property
     def arm_seeds(self) -> dict[str, int]:
@@ -112,6 +117,8 @@ def load(name: str) -> Design:
         raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {tests}")
     if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
         raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
+    if design.xla_flags is not None:
+        pinned.check_xla_flags(design.xla_flags, f"design {name}'s xla_flags")
     return design
 
 
@@ -258,11 +265,11 @@ def seed_problems(
 ) -> list[str]:
     """What keeps each design seed from counting: missing, unfinished, trained for other iterations or with
     other run or program settings than `expected` (each condition's config.json values of the design's
-    command), or at another commit than `design.training_commit`.
+    command), at another commit than `design.training_commit`, or without the design's `xla_flags`.
 
     conditions: per condition the seeds design.seed.. in order, each None (no run holds it) or
-    {'config': its config.json, 'rows': metrics rows logged, 'commit': its record's commit or None}; a
-    config.json with fields renamed since is read under today's names (`config.modern_keys`)."""
+    {'config': its config.json, 'rows': metrics rows logged, 'commit' and 'xla_flags': its record's, or
+    None}; a config.json with fields renamed since is read under today's names (`config.modern_keys`)."""
     problems = []
     for c in (*design.treatment, *design.control):
         seeds = conditions.get(c, [])
@@ -281,7 +288,18 @@ def seed_problems(
                 problems.append(f"{c} seed {s}: trained with other settings ({', '.join(differ)})")
             if design.training_commit and run["commit"] != design.training_commit:
                 problems.append(f"{c} seed {s}: trained at {run['commit']}, not {design.training_commit}")
+            if design.xla_flags and not flags_hold(run.get("xla_flags"), design.xla_flags):
+                problems.append(
+                    f"{c} seed {s}: trained with $XLA_FLAGS {run.get('xla_flags')!r}, not the design's"
+                )
     return problems
+
+
+def flags_hold(process_flags: str | None, wanted: str) -> bool:
+    """Whether a process's $XLA_FLAGS end in `wanted` (later flags override earlier ones, so a flag of
+    `wanted` followed by another value of it would not hold)."""
+    words, tail = (process_flags or "").split(), wanted.split()
+    return words[len(words) - len(tail) :] == tail
 
 
 def verdict(block: dict[str, Any]) -> str:

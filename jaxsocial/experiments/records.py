@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import datetime
 import gzip
+import json
 import re
 import shutil
 import subprocess
@@ -68,15 +69,20 @@ def read_commands_log(path: str | Path) -> dict[str, dict[str, Any]]:
 
     A line `<ISO date> <40-hex commit> <command>` starts a run; a later line
     `<ISO date> done <condition> rc=<k> [<seconds>s]` ends the last started run of that condition (whose run
-    name is `<scale>/<condition>-s<first>-<last>`). Returns {run name: {'command', 'commit', 'started',
-    'ended', 'rc'}}; a run started twice keeps its last start (a resumed run continues its directory)."""
+    name is `<scale>/<condition>-s<first>-<last>`); a line `<ISO date> machine <JSON object>` says where the
+    runs started after it train (`pinned.machine`: CPU, $XLA_FLAGS, instruction sets, versions). Returns
+    {run name: {'command', 'commit', 'started', 'ended', 'rc', 'machine'}} ('machine' {} where no line said
+    it); a run started twice keeps its last start (a resumed run continues its directory)."""
     runs: dict[str, dict[str, Any]] = {}
+    machine: dict[str, Any] = {}
     for line in Path(path).read_text().splitlines():
         parts = line.split()
         if len(parts) < 3:
             continue
         date, second, rest = parts[0], parts[1], line.split(maxsplit=2)[2]
-        if re.fullmatch(r"[0-9a-f]{40}", second):
+        if second == "machine":
+            machine = json.loads(rest)
+        elif re.fullmatch(r"[0-9a-f]{40}", second):
             name = re.search(r"--run-name[ =](\S+)", rest)
             if name:
                 runs.pop(name[1], None)  # re-inserted last: the latest start
@@ -86,6 +92,7 @@ def read_commands_log(path: str | Path) -> dict[str, dict[str, Any]]:
                     "started": date,
                     "ended": None,
                     "rc": None,
+                    "machine": machine,
                 }
         elif second == "done" and len(parts) >= 4 and parts[3].startswith("rc="):
             started = [
@@ -100,11 +107,12 @@ def run_provenance(
     run_name: str, commands: dict[str, dict[str, Any]], device: str | None, jax_version: str | None
 ) -> dict[str, Any]:
     """The `run` part of a record's provenance: the commands log's entry for `run_name` (its `--run-name`)
-    with the device and jax version it ran on. ValueError if the log has no such run."""
+    with the device and jax version it ran on, and the machine its last start logged. ValueError if the log
+    has no such run."""
     if run_name not in commands:
         raise ValueError(f"the commands log has no command with --run-name {run_name}")
     entry = {**dict.fromkeys(RUN_FIELDS), **commands[run_name], "device": device, "jax": jax_version}
-    return {k: entry[k] for k in RUN_FIELDS}
+    return {k: entry[k] for k in RUN_FIELDS} | entry.get("machine", {})
 
 
 CHECKPOINT_CHOICES = ("learned", "all")

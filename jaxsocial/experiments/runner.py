@@ -5,13 +5,14 @@ lands in run directories; figures are drawn from them (`jaxsocial.experiments.fi
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 import shlex
 from pathlib import Path
 from typing import Any
 
 from jaxsocial import evaluate, train
-from jaxsocial.experiments import kinds, paths, pinned, recipes
+from jaxsocial.experiments import kinds, paths, pinned, prereg, recipes
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import logs, outputs, rundir
 from jaxsocial.run.config import TrainConfig, setup
@@ -136,13 +137,22 @@ def run(
     `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
     (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
     process of its own with `cores`, else in this one (default: one per seed with `cores`, else one for all).
-    A design's runs at its own scale train and are evaluated blind (no return or score shown).
+    A design's runs at its own scale train and are evaluated blind (no return or score shown), with its
+    `xla_flags` (ValueError if it has them and no `cores` are given, unless this process's $XLA_FLAGS end in
+    them: they must be set before XLA starts).
     """
     per_program = seeds_per_program or (1 if cores else None)
     programs = {
         c: recipes.condition_programs(scale, c, seed, seeds, runs_dir, per_program) for c in recipe.conditions
     }
     blind = recipe.design is not None and bool(scale.runs_subdir)  # a design at its own scale
+    xla_flags = (prereg.load(recipe.design).xla_flags if blind else None) or ""
+    in_process = train_missing and not cores and not dry_run
+    if xla_flags and in_process and not prereg.flags_hold(os.environ.get("XLA_FLAGS"), xla_flags):
+        raise ValueError(
+            f"the design {recipe.design} trains with $XLA_FLAGS ending in {xla_flags!r}: train with --cores, "
+            "or set them before starting this process"
+        )
     if blind:
         programs = {c: [dataclasses.replace(cfg, blind=True) for cfg in cfgs] for c, cfgs in programs.items()}
     for cfgs in programs.values():
@@ -185,7 +195,8 @@ def run(
     if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves
         # whole seeds done rather than one condition's
         jobs = [job for _, job in sorted(jobs, key=lambda pair: pair[0])]
-        failed = [job.label for job, rc in zip(jobs, pinned.run(jobs, list(cores)), strict=True) if rc != 0]
+        codes = pinned.run(jobs, list(cores), xla_flags)
+        failed = [job.label for job, rc in zip(jobs, codes, strict=True) if rc != 0]
         if failed:
             raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
         dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
