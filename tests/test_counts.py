@@ -226,6 +226,17 @@ def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monk
         prereg.load("h1_bad")
 
 
+def test_designs_since_the_cross_cpu_flags_name_them():
+    """A new design trains with `pinned.CROSS_CPU_XLA_FLAGS`, so its seeds agree across the CPU kinds
+    measured; the designs committed before the field keep XLA's defaults (their files may not change)."""
+    before = {"experts", "h1_early", "h1_laptop", "h1_prereg", "h1_sooner"}
+    names = sorted(path.stem for path in prereg.DESIGNS_DIR.glob("*.json"))
+    assert before <= set(names)
+    for name in names:
+        flags = prereg.load(name).xla_flags
+        assert flags is None if name in before else flags == pinned.CROSS_CPU_XLA_FLAGS, name
+
+
 def test_a_config_with_the_old_field_names_counts_as_the_design_expects():
     """A seed whose config.json was written before `ppo.chunk_length`, `ppo.minibatch_chunks` and
     `net.chunk` were renamed (committed records hold such files) compares equal to the design's expected
