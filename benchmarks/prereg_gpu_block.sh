@@ -44,6 +44,8 @@ prepare() {
   (cd .prereg/code && PYTHONPATH=$PWD python -m jaxsocial.experiments run "$design" --scale gpu --dry-run) |
     grep "python -m jaxsocial.train" | sed 's/^ *python -m jaxsocial.train //' >.prereg/commands.txt
   printf '%s\n%s\n' "$commit" "$design" >.prereg/design.txt
+  python -c "from jaxsocial.experiments import prereg; print(prereg.load('$design').xla_flags or '')" \
+    >.prereg/xla_flags.txt  # the design's own (designs since 2026-11-28), set on the device for every run
   cp "$0" .prereg/block.sh
   python -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
     --platform manylinux2014_x86_64 -d .whl tyro==1.0.17 docstring-parser==0.18.0 typeguard==4.6.1
@@ -66,6 +68,8 @@ device() {
     if [ -f "$t" ]; then tar xzf "$t"; fi
   done
   cp ../commands.log "$OUT/commands.log" 2>/dev/null || : >"$OUT/commands.log"
+  export XLA_FLAGS
+  XLA_FLAGS=$(cat ../xla_flags.txt 2>/dev/null)
   local machine  # where this block's runs train, $XLA_FLAGS included, for the records' provenance
   machine=$(PYTHONPATH=$root:/tmp/site python3 -c 'import json, os
 from jaxsocial.experiments import pinned
