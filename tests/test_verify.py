@@ -10,7 +10,7 @@ import pytest
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import recipes, records, verify
+from jaxsocial.experiments import pinned, recipes, records, verify
 from jaxsocial.run import logs
 
 
@@ -89,7 +89,28 @@ def test_the_retraining_has_the_records_xla_flags(tiny_record, tmp_path, monkeyp
     seen = []
     monkeypatch.setattr(verify, "train_in_process", lambda cfg, work_dir, flags: seen.append(flags))
     verify.retrain(record, 2, tmp_path / "work")
-    assert seen == [expected]
+    assert seen == [expected] == [verify.retraining_flags(record)]
+
+
+def test_a_difference_without_the_cross_cpu_flags_points_to_them():
+    result = {
+        "record": "r",
+        "iterations": 1,
+        "exact": False,
+        "rows": [1, 1],
+        "first_difference": {"iteration": 1, "field": "kl/0", "record": 1.0, "retrained": 2.0},
+        "cpu": {"record": "one CPU", "here": "another"},
+        "environment": {"record": {}, "here": {}},
+        "commit": {"record": "a", "here": "a"},
+        "xla_flags": pinned.SINGLE_CORE_XLA_FLAGS,
+        "compared": "every field",
+    }
+    said = verify.report(result)
+    assert f"XLA flags (the record's): {pinned.SINGLE_CORE_XLA_FLAGS}" in said
+    assert "platform-dependent math" in said and pinned.CROSS_CPU_XLA_FLAGS in said
+    crossed = {**result, "xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"}
+    assert "platform-dependent" not in verify.report(crossed)
+    assert "platform-dependent" not in verify.report({**result, "exact": True})
 
 
 def test_environment_differences_name_what_differs_and_what_was_not_recorded():

@@ -9,8 +9,9 @@ had (from its provenance; older records: single-threaded XLA where it says one c
 the two metrics logs are compared row by row, every field but the timings (`TIMING_FIELDS`). The report says
 **exact**, or the first row and field that differ with both values and the size of the difference, and
 names the CPU of the record and of this machine, and where their instruction sets, cache sizes or package
-versions differ (`pinned.environment`): bitwise agreement is expected on the same CPU model and commit, not
-across models (docs/experiments.md). Nothing is written into the record.
+versions differ (`pinned.environment`): bitwise agreement is expected on the same CPU model and commit, and
+across the models measured only for a record trained with `pinned.CROSS_CPU_XLA_FLAGS`, which the report
+points to where a record without them differs (docs/experiments.md). Nothing is written into the record.
 
 Run it from a worktree of the record's commit for the strict check; on today's code it checks that the
 mathematics did not change since, where the configs map. The laptop and cpu scales have no schedule over
@@ -29,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.agents.fast import autotune
-from jaxsocial.experiments import pinned, records
+from jaxsocial.experiments import pinned, prereg, records
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.flags import config_flags
 
@@ -39,17 +40,23 @@ DEFAULT_ITERATIONS = 10
 
 
 def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
-    """Train the first `iterations` of the record's config into `work_dir` in a process of its own, with the
-    $XLA_FLAGS its provenance records (a record without them: the single-core flags where its run had one
-    core, else this process's); return the new run directory."""
+    """Train the first `iterations` of the record's config into `work_dir` in a process of its own, with
+    `retraining_flags`; return the new run directory."""
     cfg = config.config_from_dict(logs.read_config(record_dir))
     if iterations > cfg.iterations:
         raise ValueError(f"--iterations {iterations}: the record trained only {cfg.iterations}")
+    cfg = dataclasses.replace(cfg, iterations=iterations)
+    return train_in_process(cfg, work_dir, retraining_flags(record_dir))
+
+
+def retraining_flags(record_dir: Path) -> str:
+    """The $XLA_FLAGS the record's provenance records (a record without them: the single-core flags where its
+    run had one core, else this process's)."""
     xla_flags = records.run_field(record_dir, "xla_flags")
     if xla_flags is None:
         one_core = records.run_field(record_dir, "cores") == 1
         xla_flags = pinned.SINGLE_CORE_XLA_FLAGS if one_core else os.environ.get("XLA_FLAGS", "")
-    return train_in_process(dataclasses.replace(cfg, iterations=iterations), work_dir, xla_flags)
+    return xla_flags
 
 
 def train_in_process(cfg: config.TrainConfig, work_dir: Path, xla_flags: str) -> Path:
@@ -131,7 +138,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
             "here": pinned.environment(),
         },
         "commit": {"record": records.run_field(record_dir, "commit"), "here": records.head_commit()},
-        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+        "xla_flags": retraining_flags(record_dir),
     }
 
 
@@ -164,6 +171,13 @@ def report(result: dict) -> str:
             f"re-trained {d['retrained']!r}{size}"
         )
     lines.append(f"  CPU: record {result['cpu']['record']}; here {result['cpu']['here']}")
+    lines.append(f"  XLA flags (the record's): {result['xla_flags'] or 'none'}")
+    if not result["exact"] and not prereg.flags_hold(result["xla_flags"], pinned.CROSS_CPU_XLA_FLAGS):
+        lines.append(
+            "  where the CPU models differ that is expected: the record trained with XLA's platform-dependent"
+            f" math, whose bits differ across them ({pinned.CROSS_CPU_XLA_FLAGS} removes it; "
+            "docs/experiments.md)"
+        )
     lines += environment_differences(result["environment"]["record"], result["environment"]["here"])
     lines.append(f"  commit: record {result['commit']['record']}; here {result['commit']['here']}")
     return "\n".join(lines)
