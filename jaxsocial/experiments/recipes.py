@@ -174,7 +174,20 @@ TINY = Scale(
     caveat="plumbing only: it learns nothing",
 )
 
-SCALES = {s.name: s for s in (CPU, LAPTOP, GPU, PAPER, TINY)}
+LAPTOP8 = Scale(
+    name="laptop8",
+    config=dataclasses.replace(LAPTOP.config, env_args=(("width", 8), ("height", 8))),
+    eval_every=LAPTOP.eval_every,
+    eval_episodes=LAPTOP.eval_episodes,
+    note=(
+        "The laptop scale in an 8x8 Goal Cycle (6x6 interior), as the sweep's `mb8k8_*_8x8` settings "
+        "without their early stop: there, with the prediction loss, 3 of 7 social seeds and none of 7 solo "
+        "seeds left the one-tile plateau within 20.0M env-steps (docs/experiments.md). The scale of the "
+        "`pred8` design."
+    ),
+)
+
+SCALES = {s.name: s for s in (CPU, LAPTOP, LAPTOP8, GPU, PAPER, TINY)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -329,6 +342,9 @@ RECIPES = {
         Recipe("experts", "Experts, pre-registered: PPO + aux rec beside the experts and alone, time to "
                "takeoff and zero-shot returns beside new experts", ("solo_rec", "social_rec"), "takeoff",
                ("goalcycle4", "goalcycle3-solo"), hypotheses=(("social_rec", "solo_rec"),), design="experts"),
+        Recipe("pred8", "The prediction loss in 8x8, pre-registered: PPO + pred beside the experts and alone",
+               ("solo_pred", "social_pred"), "curves", hypotheses=(("social_pred", "solo_pred"),),
+               design="pred8"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves",
                hypotheses=(("social_pred", "solo_pred"), ("social_pred_imperfect", "solo_pred"))),
