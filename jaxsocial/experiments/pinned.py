@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.agents.fast import autotune
-from jaxsocial.experiments import records
+from jaxsocial.experiments import records, xla_flags
 from jaxsocial.run import compile_cache, logs
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
@@ -75,19 +75,8 @@ def train_command(flags: list[str]) -> tuple[str, ...]:
 
 def process_xla_flags(extra: str = "") -> str:
     """$XLA_FLAGS of a pinned process: the caller's, then `SINGLE_CORE_XLA_FLAGS`, then `extra` (e.g. a
-    design's). ValueError if a word of them is not a `--flag` (`check_xla_flags`)."""
-    return check_xla_flags(f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS} {extra}", "$XLA_FLAGS")
-
-
-def check_xla_flags(flags: str, source: str) -> str:
-    """`flags` without surrounding spaces; ValueError naming `source` if a word of them is not a `--flag`
-    (XLA would ignore it and, silently, every flag after it)."""
-    stray = [word for word in flags.split() if not word.startswith("--")]
-    if stray:
-        raise ValueError(
-            f"{source}: {stray[0]!r} is not an XLA flag (--name=value); XLA would ignore the rest"
-        )
-    return " ".join(flags.split())
+    design's). ValueError if a word of them is not a `--flag` (`xla_flags.check`)."""
+    return xla_flags.check(f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS} {extra}", "$XLA_FLAGS")
 
 
 def run(jobs: list[Job], cores: list[int], xla_flags: str = "") -> list[int]:

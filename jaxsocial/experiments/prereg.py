@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, pinned, records
+from jaxsocial.experiments import paths, records, xla_flags
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
@@ -118,7 +118,7 @@ def load(name: str) -> Design:
     if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
         raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
     if design.xla_flags is not None:
-        pinned.check_xla_flags(design.xla_flags, f"design {name}'s xla_flags")
+        xla_flags.check(design.xla_flags, f"design {name}'s xla_flags")
     return design
 
 
@@ -288,18 +288,11 @@ def seed_problems(
                 problems.append(f"{c} seed {s}: trained with other settings ({', '.join(differ)})")
             if design.training_commit and run["commit"] != design.training_commit:
                 problems.append(f"{c} seed {s}: trained at {run['commit']}, not {design.training_commit}")
-            if design.xla_flags and not flags_hold(run.get("xla_flags"), design.xla_flags):
+            if design.xla_flags and not xla_flags.hold(run.get("xla_flags"), design.xla_flags):
                 problems.append(
                     f"{c} seed {s}: trained with $XLA_FLAGS {run.get('xla_flags')!r}, not the design's"
                 )
     return problems
-
-
-def flags_hold(process_flags: str | None, wanted: str) -> bool:
-    """Whether a process's $XLA_FLAGS end in `wanted` (later flags override earlier ones, so a flag of
-    `wanted` followed by another value of it would not hold)."""
-    words, tail = (process_flags or "").split(), wanted.split()
-    return words[len(words) - len(tail) :] == tail
 
 
 def verdict(block: dict[str, Any]) -> str:

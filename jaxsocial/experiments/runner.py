@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import evaluate, train
-from jaxsocial.experiments import kinds, paths, pinned, prereg, recipes
+from jaxsocial.experiments import kinds, paths, pinned, prereg, recipes, xla_flags
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import logs, outputs, rundir
 from jaxsocial.run.config import TrainConfig, setup
@@ -146,12 +146,12 @@ def run(
         c: recipes.condition_programs(scale, c, seed, seeds, runs_dir, per_program) for c in recipe.conditions
     }
     blind = recipe.design is not None and bool(scale.runs_subdir)  # a design at its own scale
-    xla_flags = (prereg.load(recipe.design).xla_flags if blind else None) or ""
+    design_flags = (prereg.load(recipe.design).xla_flags if blind else None) or ""
     in_process = train_missing and not cores and not dry_run
-    if xla_flags and in_process and not prereg.flags_hold(os.environ.get("XLA_FLAGS"), xla_flags):
+    if design_flags and in_process and not xla_flags.hold(os.environ.get("XLA_FLAGS"), design_flags):
         raise ValueError(
-            f"the design {recipe.design} trains with $XLA_FLAGS ending in {xla_flags!r}: train with --cores, "
-            "or set them before starting this process"
+            f"the design {recipe.design} trains with $XLA_FLAGS ending in {design_flags!r}: train with "
+            "--cores, or set them before starting this process"
         )
     if blind:
         programs = {c: [dataclasses.replace(cfg, blind=True) for cfg in cfgs] for c, cfgs in programs.items()}
@@ -195,7 +195,7 @@ def run(
     if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves
         # whole seeds done rather than one condition's
         jobs = [job for _, job in sorted(jobs, key=lambda pair: pair[0])]
-        codes = pinned.run(jobs, list(cores), xla_flags)
+        codes = pinned.run(jobs, list(cores), design_flags)
         failed = [job.label for job, rc in zip(jobs, codes, strict=True) if rc != 0]
         if failed:
             raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")

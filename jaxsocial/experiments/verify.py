@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.agents.fast import autotune
-from jaxsocial.experiments import pinned, prereg, records
+from jaxsocial.experiments import pinned, records, xla_flags
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.flags import config_flags
 
@@ -172,7 +172,7 @@ def report(result: dict) -> str:
         )
     lines.append(f"  CPU: record {result['cpu']['record']}; here {result['cpu']['here']}")
     lines.append(f"  XLA flags (the record's): {result['xla_flags'] or 'none'}")
-    if not result["exact"] and not prereg.flags_hold(result["xla_flags"], pinned.CROSS_CPU_XLA_FLAGS):
+    if not result["exact"] and not xla_flags.hold(result["xla_flags"], pinned.CROSS_CPU_XLA_FLAGS):
         lines.append(
             "  where the CPU models differ that is expected: the record trained with XLA's platform-dependent"
             f" math, whose bits differ across them ({pinned.CROSS_CPU_XLA_FLAGS} removes it; "
