@@ -81,7 +81,7 @@ def test_the_xla_of_each_process_is_single_threaded_after_the_callers_flags(tmp_
     monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
     out = tmp_path / "flags.txt"
     code = f"import os, pathlib; pathlib.Path({str(out)!r}).write_text(os.environ['XLA_FLAGS'])"
-    assert pinned.run([_job(tmp_path, "x", code)], [0], xla_flags="--xla_cpu_max_isa=AVX2") == [0]
+    assert pinned.run([_job(tmp_path, "x", code)], [0], extra_xla_flags="--xla_cpu_max_isa=AVX2") == [0]
     expected = "--xla_backend_optimization_level=0 --xla_cpu_multi_thread_eigen=false --xla_cpu_max_isa=AVX2"
     assert out.read_text() == expected == pinned.process_xla_flags("--xla_cpu_max_isa=AVX2")
     assert json.loads((tmp_path / "x" / pinned.RUN_FILE).read_text())["xla_flags"] == expected
@@ -97,7 +97,7 @@ def test_a_word_xla_would_ignore_with_every_flag_after_it_is_refused(tmp_path, m
     assert not (tmp_path / "x").exists()  # refused before any process started
     monkeypatch.delenv("XLA_FLAGS")
     with pytest.raises(ValueError, match="'AVX2' is not an XLA flag"):
-        pinned.run([_job(tmp_path, "x", "pass")], [0], xla_flags="--xla_cpu_max_isa= AVX2")
+        pinned.run([_job(tmp_path, "x", "pass")], [0], extra_xla_flags="--xla_cpu_max_isa= AVX2")
 
 
 @pytest.mark.slow

@@ -79,14 +79,14 @@ def process_xla_flags(extra: str = "") -> str:
     return xla_flags.check(f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS} {extra}", "$XLA_FLAGS")
 
 
-def run(jobs: list[Job], cores: list[int], xla_flags: str = "") -> list[int]:
+def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[int]:
     """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (with
     `taskset`, where there is one) with a single-threaded XLA after the caller's $XLA_FLAGS and before
-    `xla_flags` (`process_xla_flags`); write `RUN_FILE` into each run directory the process created. Returns
-    the exit codes, in the order of `jobs`."""
+    `extra_xla_flags` (`process_xla_flags`); write `RUN_FILE` into each run directory the process created.
+    Returns the exit codes, in the order of `jobs`."""
     if not cores:
         raise ValueError("give at least one core")
-    commit, xla_flags = records.head_commit(), process_xla_flags(xla_flags)
+    commit, process_flags = records.head_commit(), process_xla_flags(extra_xla_flags)
     pending, active, codes = list(enumerate(jobs)), {}, {}
     free = list(cores)
     while pending or active:
@@ -98,7 +98,7 @@ def run(jobs: list[Job], cores: list[int], xla_flags: str = "") -> list[int]:
                 [*pin, sys.executable, *job.argv],
                 stdout=job.log.open("w"),
                 stderr=subprocess.STDOUT,
-                env={**os.environ, "XLA_FLAGS": xla_flags},
+                env={**os.environ, "XLA_FLAGS": process_flags},
             )
             active[i] = (proc, core, now(), None)  # None: its RUN_FILE not written yet
             print(f"{job.label}: core {core}, log {job.log}", flush=True)
@@ -110,14 +110,14 @@ def run(jobs: list[Job], cores: list[int], xla_flags: str = "") -> list[int]:
                 earlier = earlier_processes(job.run_dir)  # its directory is there: say so before it ends
                 active[i] = (proc, core, started, earlier)
                 if rc is None:
-                    write_run_file(*process, None, xla_flags, earlier)
+                    write_run_file(*process, None, process_flags, earlier)
             if rc is None:
                 continue
             del active[i]
             free.append(core)
             codes[i] = rc
             if earlier is not None:  # it made its run directory
-                write_run_file(*process, rc, xla_flags, earlier)
+                write_run_file(*process, rc, process_flags, earlier)
             print(f"{job.label}: exit {rc}", flush=True)
     return [codes[i] for i in range(len(jobs))]
 
