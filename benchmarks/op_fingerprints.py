@@ -44,8 +44,8 @@ import subprocess
 import sys
 
 import numpy as np
-from reproducibility import REFERENCE, kind_arguments, other_kinds, setting_flags, this_kind
-from run_info import REPO, metadata, portable, write_json
+from reproducibility import REFERENCE, describe_kind, kind_arguments, other_kinds, setting_flags, this_kind
+from run_info import REPO, portable, write_json
 
 from jaxsocial.agents.fast import autotune
 from jaxsocial.run import logs
@@ -238,8 +238,7 @@ def main() -> None:
         verdict = summary(entry["differ_from_default"])
         print(f"{name} ({entry['ynn_fusions']} YNNPACK fusions) against this kind's default: {verdict}")
     found["cache_sizes"] = autotune.cache_sizes()
-    found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
-    found["metadata"] = metadata(args)
+    describe_kind(found, args)
     found["against"] = {}
     for other in other_kinds(path, OUT_DIR):
         found["against"][other["cpu"]] = {

@@ -88,6 +88,12 @@ def this_kind(out_dir: str) -> tuple[Path, dict]:
     return path, found
 
 
+def describe_kind(found: dict, args: argparse.Namespace) -> None:
+    """Add to a kind's JSON the instruction sets present (`autotune.MACHINE_FLAGS`) and the run's metadata."""
+    found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
+    found["metadata"] = metadata(args)
+
+
 def other_kinds(path: Path, committed: Path) -> list[dict]:
     """Every committed kind's JSON in `committed` but the one named as `path`."""
     return [logs.read_json(other) for other in sorted(committed.glob("*.json")) if other.name != path.name]
@@ -152,8 +158,7 @@ def main() -> None:
         against = "exact" if d is None else f"differs from iteration {d['iteration']} ({d['field']})"
         load = os.getloadavg()[0]
         print(f"{name}: {speed:,.0f} env-steps/s (load {load:.2f}); against the record: {against}")
-    found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
-    found["metadata"] = metadata(args)
+    describe_kind(found, args)
     found["against"] = {}
     for other in other_kinds(path, OUT_DIR):
         found["against"][other["cpu"]] = compare(found, other)
