@@ -1,0 +1,476 @@
+"""Pre-registered designs over committed records: which records' final policies play which environments,
+zero-shot, and how the arms are compared, fixed in `evaluation_designs/<name>.json` before any of its
+evaluations runs. Nothing trains: the material is a finished design's records, every seed of its two arms.
+
+    python -m jaxsocial.experiments.evaluation_design power transfer      # the design and its power
+    python -m jaxsocial.experiments.evaluation_design run transfer        # play what is missing (blind)
+    python -m jaxsocial.experiments.evaluation_design figure transfer     # summary, tests and figure
+
+Every evaluation plays all of an arm's records in one `jaxsocial.evaluate` call (the same `episodes`
+episodes, evaluation seed `eval_seed`, for each record); its result, whose slot 0 holds each record's mean
+learner return per episode (`per_seed_mean`), is written to `<out>/<env tag>-<arm or reference>.json` and
+the process that made it to `<out>/provenance.jsonl` (commit, date, machine). A test is a one-sided (or
+two-sided) Mann-Whitney U test of the treatment's per-seed scores against the control's in one environment;
+the primary tests are Holm-corrected at `alpha` as a family, the secondary ones among themselves. References
+(e.g. a random walker, behaviour cloning) are played in every tested environment and only reported.
+
+The power is simulated from a pilot on other records (`power_table`): each arm's per-seed scores in the
+primary environments, resampled per seed, the treatment's shrunk toward the control's by a discount.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxsocial import stats
+from jaxsocial.experiments import paths, pinned, prereg, records
+from jaxsocial.run import logs
+from jaxsocial.specs import EnvSpec
+
+DESIGNS_DIR = Path(__file__).parent / "evaluation_designs"
+PROVENANCE = "provenance.jsonl"
+ALTERNATIVES = ("greater", "less", "two-sided")
+
+
+@dataclasses.dataclass(frozen=True)
+class Test:
+    """One comparison of the arms: their per-seed scores in `env` (NAME[:field=value,...])."""
+
+    env: str
+    alternative: str
+    statement: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Reference:
+    """A row played in every tested environment and only reported: a record's policy (`ckpt`, relative to
+    the records root) in the learner slot, or a scripted slot in its place (`slot`, e.g. 'random'), the
+    environment's other slots as they are."""
+
+    ckpt: str | None = None
+    slot: str | None = None
+    label: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class EvaluationDesign:
+    """See the module docstring."""
+
+    name: str
+    records: str
+    """The material: a folder of the records root holding `<condition>-s<k>-<k>` records."""
+    treatment: str
+    control: str
+    seed: int
+    seeds: int
+    """Every seed seed..seed+seeds-1 of both conditions, none left out."""
+    episodes: int
+    eval_seed: int
+    alpha: float
+    primary: dict[str, Test]
+    secondary: dict[str, Test]
+    references: dict[str, Reference]
+    power: float
+    power_simulation: dict[str, Any]
+    rationale: str
+
+    def record_dirs(self, condition: str, records_root: Path = paths.RECORDS) -> list[Path]:
+        """The records of `condition`, seed by seed."""
+        folder = records_root / self.records
+        return [folder / f"{condition}-s{s}-{s}" for s in range(self.seed, self.seed + self.seeds)]
+
+    @property
+    def tests(self) -> dict[str, Test]:
+        return {**self.primary, **self.secondary}
+
+
+def path_of(name: str) -> Path:
+    return DESIGNS_DIR / f"{name}.json"
+
+
+def load(name: str) -> EvaluationDesign:
+    """The design `evaluation_designs/<name>.json` (FileNotFoundError if none; ValueError if invalid)."""
+    path = path_of(name)
+    if not path.is_file():
+        known = sorted(p.stem for p in DESIGNS_DIR.glob("*.json"))
+        raise FileNotFoundError(f"no evaluation design {path}; the designs are {known}")
+    raw = logs.read_json(path)
+    for family in ("primary", "secondary"):
+        raw[family] = {k: Test(**v) for k, v in raw[family].items()}
+    raw["references"] = {k: Reference(**v) for k, v in raw["references"].items()}
+    design = EvaluationDesign(**raw)
+    for name_, test in design.tests.items():
+        EnvSpec.parse(test.env).env_params()  # ValueError for an unknown environment or field
+        if test.alternative not in ALTERNATIVES:
+            raise ValueError(f"design {name}: test {name_}'s alternative must be one of {ALTERNATIVES}")
+    for name_, ref in design.references.items():
+        if (ref.ckpt is None) == (ref.slot is None):
+            raise ValueError(f"design {name}: reference {name_} needs exactly one of ckpt and slot")
+    if not design.primary or design.treatment == design.control:
+        raise ValueError(f"design {name}: it needs primary tests and two different arms")
+    return design
+
+
+def env_tag(env: str) -> str:
+    """A file-name-safe form of an environment spec (as `kinds.eval_path` writes evaluations)."""
+    return env.rstrip(":").replace(":", "_").replace(",", "_")
+
+
+def out_dir(design: EvaluationDesign, science: Path = paths.SCIENCE) -> Path:
+    return science / design.name
+
+
+def envs(design: EvaluationDesign) -> list[str]:
+    """Every environment the design plays, once each, in the order its tests name them."""
+    return list(dict.fromkeys(t.env for t in design.tests.values()))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Launch: play what is missing
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Evaluation:
+    """One `jaxsocial.evaluate` call of the design: who plays (`ckpts`, or a scripted `slot`) where."""
+
+    env: str
+    player: str
+    """The arm's condition or the reference's name."""
+    ckpts: tuple[str, ...]
+    slot: str | None
+
+    def path(self, out: Path) -> Path:
+        return out / f"{env_tag(self.env)}-{self.player}.json"
+
+
+def evaluations(design: EvaluationDesign, records_root: Path = paths.RECORDS) -> list[Evaluation]:
+    """What the design plays: both arms and every reference in every environment its tests name."""
+    out = []
+    for env in envs(design):
+        for condition in (design.treatment, design.control):
+            ckpts = tuple(str(d) for d in design.record_dirs(condition, records_root))
+            out.append(Evaluation(env, condition, ckpts, None))
+        for name, ref in design.references.items():
+            ckpts = (str(records_root / ref.ckpt),) if ref.ckpt else ()
+            out.append(Evaluation(env, name, ckpts, ref.slot))
+    return out
+
+
+def missing_records(design: EvaluationDesign, records_root: Path = paths.RECORDS) -> list[str]:
+    """The design's records (and reference records) that hold no final policy."""
+    wanted = [d for c in (design.treatment, design.control) for d in design.record_dirs(c, records_root)]
+    wanted += [records_root / r.ckpt for r in design.references.values() if r.ckpt]
+    return [str(d) for d in wanted if not (d / "policy").is_dir()]
+
+
+def run(design: EvaluationDesign, records_root: Path = paths.RECORDS, science: Path = paths.SCIENCE) -> None:
+    """Play every evaluation of the design that has no result yet, blind (no score is printed), and log each
+    process's commit, date and machine in `<out>/provenance.jsonl`. Nothing runs if a record is missing."""
+    from jaxsocial import evaluate
+    from jaxsocial.agents import population
+
+    missing = missing_records(design, records_root)
+    if missing:
+        raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
+    out = out_dir(design, science)
+    todo = [e for e in evaluations(design, records_root) if not e.path(out).exists()]
+    print(f"[{design.name}] {len(todo)} of {len(evaluations(design, records_root))} evaluations to play")
+    for e in todo:
+        spec, slots = EnvSpec.parse(e.env), ()
+        if e.slot:  # in the learner's place, beside the environment's own slots
+            others = population.default_slots(spec.env_params()).split(",")[1:]
+            slots = population.parse_slot_list(",".join([e.slot, *others]))
+        config = evaluate.EvalConfig(
+            ckpt=e.ckpts,
+            env=spec.name,
+            env_args=spec.args,
+            episodes=design.episodes,
+            seed=design.eval_seed,
+            slots=slots,
+        )
+        started = pinned.now()
+        result = evaluate.evaluate(config)
+        out.mkdir(parents=True, exist_ok=True)
+        logs.write_json(e.path(out), result)
+        when = {
+            "file": e.path(out).name,
+            "commit": records.head_commit(),
+            "started": started,
+            "ended": pinned.now(),
+        }
+        line = when | pinned.machine(None)
+        with (out / PROVENANCE).open("a") as f:
+            f.write(json.dumps(line) + "\n")
+        print(f"[{design.name}] {e.env} {e.player}: played ({len(e.ckpts) or 1} policies)", flush=True)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Analyse: scores, tests, checks
+# ----------------------------------------------------------------------------------------------------------
+
+
+def scores(result: dict[str, Any]) -> list[float]:
+    """Each policy's mean learner (slot 0) return per episode in an evaluation's result."""
+    return [float(v) for v in result["results"][0]["per_seed_mean"]]
+
+
+def experts_return(result: dict[str, Any]) -> float | None:
+    """The mean return of the evaluation's scripted experts over their slots (None: there are none)."""
+    experts = [s["mean_return"] for s in result["results"] if s["kind"] == "expert"]
+    return round(float(np.mean(experts)), 4) if experts else None
+
+
+def tested(
+    design: EvaluationDesign, family: dict[str, Test], by_player: dict[tuple[str, str], list[float] | None]
+) -> dict[str, dict[str, Any]]:
+    """Each test of `family` on the per-policy scores `by_player[env, player]` (None: not played),
+    Holm-corrected among themselves at the design's alpha."""
+    out = {}
+    for name, test in family.items():
+        t, c = by_player[test.env, design.treatment], by_player[test.env, design.control]
+        out[name] = stats.mann_whitney(t or [], c or [], test.alternative) | {"env": test.env}
+    known = {name: entry["p"] for name, entry in out.items() if entry["p"] is not None}
+    adjusted = stats.holm(known)
+    for name, entry in out.items():
+        entry["p_holm"] = prereg.round_p(adjusted[name]) if name in adjusted else None
+        entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
+        entry.update({k: prereg.round_p(v) for k, v in entry.items() if isinstance(v, float)})
+    return out
+
+
+def read_results(
+    design: EvaluationDesign, out: Path, records_root: Path = paths.RECORDS
+) -> dict[Evaluation, dict[str, Any] | None]:
+    """Every evaluation of the design and its result (None: not played yet)."""
+    return {
+        e: logs.read_json(e.path(out)) if e.path(out).exists() else None
+        for e in evaluations(design, records_root)
+    }
+
+
+def read_provenance(out: Path) -> list[dict[str, Any]]:
+    """The processes that played the design's evaluations (`run`), oldest first."""
+    path = out / PROVENANCE
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+
+def played_as_designed(design: EvaluationDesign, results: dict[Evaluation, dict[str, Any] | None]) -> bool:
+    """Whether every evaluation was played, with the design's episodes and evaluation seed, by its records in
+    order (compared by record name, wherever the records root was)."""
+    return all(
+        r is not None
+        and r["episodes_per_checkpoint"] == design.episodes
+        and r["seed"] == design.eval_seed
+        and [Path(c).name for c in r["checkpoints"]] == [Path(c).name for c in e.ckpts]
+        for e, r in results.items()
+    )
+
+
+def summarise(
+    design: EvaluationDesign, records_root: Path = paths.RECORDS, science: Path = paths.SCIENCE
+) -> dict[str, Any]:
+    """The design's summary: per environment each arm's and reference's scores (`stats.summary` over
+    policies, with every seed's) and the experts' return there; the tests; and the checks that make it
+    valid (the design committed before every evaluation, every evaluation played as designed)."""
+    out = out_dir(design, science)
+    results = read_results(design, out, records_root)
+    by_player = {(e.env, e.player): None if r is None else scores(r) for e, r in results.items()}
+    per_env = {}
+    for env in envs(design):
+        players = (design.treatment, design.control, *design.references)
+        per_env[env] = {
+            p: None if by_player[env, p] is None else stats.summary(by_player[env, p]) for p in players
+        }
+        played = [r for e, r in results.items() if e.env == env and r is not None]
+        per_env[env]["experts"] = experts_return(played[0]) if played else None
+    commit, evaluated = design_commit(design.name), read_provenance(out)
+    checks = prereg.commit_checks(commit, {line["file"]: line["commit"] for line in evaluated})
+    checks["played_as_designed"] = played_as_designed(design, results)
+    block = {
+        "commit": commit,
+        "alpha": design.alpha,
+        "primary": tested(design, design.primary, by_player),
+        "secondary": tested(design, design.secondary, by_player),
+        "checks": checks,
+        "valid": all(v for v in checks.values() if isinstance(v, bool)),
+    }
+    material = {"records": design.records, "treatment": design.treatment, "control": design.control}
+    return {
+        "design": design.name,
+        "material": material | {"seeds": [design.seed, design.seed + design.seeds - 1]},
+        "episodes": design.episodes,
+        "environments": per_env,
+        "preregistered": block,
+        "machines": sorted({line["cpu"] for line in evaluated}),
+        "command": f"python -m jaxsocial.experiments.evaluation_design figure {design.name}",
+    }
+
+
+def design_commit(name: str) -> str | None:
+    """The last commit that touched the design's file (None if it is not committed)."""
+    out = records.git("log", "-1", "--format=%H", "--", path_of(name).name, cwd=DESIGNS_DIR)
+    return out.stdout.strip() or None if out.returncode == 0 else None
+
+
+def verdict(summary: dict[str, Any]) -> str:
+    """The summary's tests and checks, for people."""
+    block, arms = summary["preregistered"], (summary["material"]["treatment"], summary["material"]["control"])
+    lines = [
+        f"{summary['design']}: {arms[0]} against {arms[1]}, alpha {block['alpha']:g}, Holm in each family"
+    ]
+    for family in ("primary", "secondary"):
+        for name, entry in block[family].items():
+            rows = summary["environments"][entry["env"]]
+            means = ", ".join(f"{a} {'-' if rows[a] is None else rows[a]['mean']}" for a in arms)
+            p = "not played" if entry["p"] is None else f"p = {entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
+            rejected = ", rejected" if entry["rejected"] else ""
+            lines.append(f"  {family} {name} ({entry['env']}): mean {means}; {p}{rejected}")
+    lines += [
+        f"  {name}: {'yes' if ok else 'NO'}" for name, ok in block["checks"].items() if isinstance(ok, bool)
+    ]
+    if not block["valid"]:
+        lines.append("NOT VALID: the result above does not test the design (see the checks)")
+    return "\n".join(lines)
+
+
+def draw(summary: dict[str, Any], path: Path) -> None:
+    """One panel per environment: a bar per arm and reference (mean, t 95% interval), a cross per policy,
+    and the environment's experts as a dashed line; each panel titled with its test's Holm p-value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxsocial.experiments import plots
+
+    block = summary["preregistered"]
+    test_of = {
+        e["env"]: (family, name, e)
+        for family in ("primary", "secondary")
+        for name, e in block[family].items()
+    }
+    per_env = summary["environments"]
+    fig, axes = plt.subplots(1, len(per_env), figsize=(3.4 * len(per_env), 3.8), squeeze=False)
+    colors = plt.get_cmap("tab10").colors
+    for ax, (env, rows) in zip(axes[0], per_env.items(), strict=True):
+        players = [p for p in rows if p != "experts" and rows[p] is not None]
+        for j, p in enumerate(players):
+            s = rows[p]
+            yerr = None if s["ci95"] is None else [[s["mean"] - s["ci95"][0]], [s["ci95"][1] - s["mean"]]]
+            ax.bar(j, s["mean"], color=colors[j], yerr=yerr, capsize=3)
+            ax.scatter(
+                [j] * len(s["final_returns"]), s["final_returns"], color="k", marker="x", s=10, zorder=3
+            )
+        if rows["experts"] is not None:
+            ax.axhline(rows["experts"], color="k", ls="--", lw=1, label=f"its experts {rows['experts']:.2f}")
+            ax.legend(fontsize=7)
+        ax.set_xticks(range(len(players)), players, rotation=30, ha="right", fontsize=8)
+        family, name, entry = test_of[env]
+        p = "not played" if entry["p"] is None else f"Holm p = {entry['p_holm']:.3g}"
+        ax.set_title(f"{env}\n{family}: {p}", fontsize=9)
+        ax.set_ylabel("learner return per episode")
+    fig.suptitle(f"{summary['design']}: zero-shot, {summary['episodes']} episodes a policy", fontsize=10)
+    plots.save_png(fig, path)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Plan: the power, simulated from a pilot
+# ----------------------------------------------------------------------------------------------------------
+
+
+def power_table(
+    pilot: dict[str, tuple[list[float], list[float]]],
+    seeds: int,
+    alpha: float,
+    discounts: tuple[float, ...] = (1.0, 0.75, 0.5),
+    reps: int = 2000,
+    rng_seed: int = 0,
+) -> dict[str, dict[str, float]]:
+    """The power of one-sided Mann-Whitney U tests (treatment greater), Holm-corrected at `alpha` as one
+    family, with `seeds` policies an arm. pilot: per primary test, (treatment, control) per-seed scores.
+    A simulated treatment seed scores `c0 + d * (t - c0)` for a pilot treatment score t and control score c0
+    drawn independently (the effect shrunk by the discount d); a control seed, a pilot control score.
+    Returns per discount each test's probability of rejection and that of rejecting all of them."""
+    from scipy import stats as scipy_stats
+
+    rng = np.random.default_rng(rng_seed)
+    names = list(pilot)
+    table = {}
+    for d in discounts:
+        rejected = np.zeros((reps, len(names)), bool)
+        for r in range(reps):
+            p = []
+            for t_scores, c_scores in (pilot[n] for n in names):
+                t = rng.choice(t_scores, seeds)
+                c0, c = rng.choice(c_scores, seeds), rng.choice(c_scores, seeds)
+                p.append(scipy_stats.mannwhitneyu(c0 + d * (t - c0), c, alternative="greater").pvalue)
+            rejected[r] = stats.holm_rejects(np.array(p), alpha)
+        table[f"discount {d:g}"] = {n: round(float(rejected[:, i].mean()), 3) for i, n in enumerate(names)}
+        table[f"discount {d:g}"]["all"] = round(float(rejected.all(axis=1).mean()), 3)
+    return table
+
+
+def pilot_scores(design: EvaluationDesign, pilot_dir: Path) -> dict[str, tuple[list[float], list[float]]]:
+    """Per primary test, the pilot's (treatment, control) per-seed scores in its environment:
+    `<pilot_dir>/<env tag>-<condition>.json`, from the arms' conditions of other records."""
+    sim = design.power_simulation
+    return {
+        name: tuple(
+            scores(logs.read_json(pilot_dir / f"{env_tag(test.env)}-{condition}.json"))
+            for condition in (sim["pilot_treatment"], sim["pilot_control"])
+        )
+        for name, test in design.primary.items()
+    }
+
+
+def describe(design: EvaluationDesign) -> str:
+    """The design, its tests and its power, for people."""
+    sim = design.power_simulation
+    lines = [
+        f"{design.name}: the records {design.records}, {design.treatment} against {design.control}, seeds "
+        f"{design.seed}..{design.seed + design.seeds - 1}; {design.episodes} episodes an evaluation",
+        f"  primary (Holm at {design.alpha:g}):",
+        *(f"    {n}: {t.env}, Mann-Whitney {t.alternative}" for n, t in design.primary.items()),
+        "  secondary (Holm among themselves):",
+        *(f"    {n}: {t.env}, Mann-Whitney {t.alternative}" for n, t in design.secondary.items()),
+        f"  references: {', '.join(design.references)}",
+        f"  power by simulation from {sim.get('pilot')} ({sim.get('reps')} simulated designs):",
+        *(
+            f"    {case}: " + ", ".join(f"{k} {v:.3f}" for k, v in p.items())
+            for case, p in sim["power"].items()
+        ),
+        f"  power: {design.power:.3f} (every primary test, discount {sim.get('planning_discount')})",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.evaluation_design")
+    parser.add_argument("action", choices=("power", "run", "figure"))
+    parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. transfer)")
+    parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
+    parser.add_argument("--science", default=str(paths.SCIENCE), help="where results and summaries go")
+    args = parser.parse_args(argv)
+    design = load(args.design)
+    records_root, science = Path(args.records), Path(args.science)
+    if args.action == "power":
+        print(describe(design))
+    elif args.action == "run":
+        run(design, records_root, science)
+    else:
+        summary = summarise(design, records_root, science)
+        logs.write_json(science / f"{design.name}.json", summary)
+        draw(summary, science / f"{design.name}.png")
+        print(verdict(summary))
+        print(f"wrote {science / design.name}.json and .png")
+
+
+if __name__ == "__main__":
+    main()
