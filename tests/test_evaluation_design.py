@@ -4,6 +4,7 @@ their Holm correction, the checks that make a summary valid, the power simulatio
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -177,3 +178,35 @@ def test_run_refuses_a_design_whose_records_are_missing(designs_dir, tmp_path):
     with pytest.raises(FileNotFoundError, match="material is incomplete.*social_rec-s900-900"):
         ed.run(design, tmp_path / "records", tmp_path / "science")
     assert not (tmp_path / "science").exists()
+
+
+@pytest.mark.parametrize("name", sorted(p.stem for p in ed.DESIGNS_DIR.glob("*.json")))
+def test_a_committed_design_names_its_material_and_its_pilot(name):
+    design = ed.load(name)
+    if not (paths.RECORDS / design.records).is_dir():
+        pytest.skip(f"needs the committed records {paths.RECORDS / design.records}")
+    assert ed.missing_records(design) == []
+    pilot = ed.pilot_scores(design)
+    assert set(pilot) == set(design.primary) and all(len(t) and len(c) for t, c in pilot.values())
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(p.stem for p in ed.DESIGNS_DIR.glob("*.json")))
+def test_a_committed_design_has_the_power_it_states(name):
+    """The whole power table, recomputed from the committed pilot with the design's seed of the simulation."""
+    design = ed.load(name)
+    if not Path(design.power_simulation["pilot"]).is_dir():
+        pytest.skip(f"needs the committed pilot {design.power_simulation['pilot']}")
+    table = ed.stated_power(design)
+    assert table == design.power_simulation["power"]
+    assert design.power == table[f"discount {design.power_simulation['planning_discount']:g}"]["any"]
+
+
+def test_a_weighted_pool_draws_each_group_with_its_weight():
+    pool = ed.weighted_pool(
+        [(np.array([1.0, 2.0]), 0.775), (np.array([5.0, 6.0, 7.0]), 0.225), (np.array([9.0]), 0.0)]
+    )
+    values = np.array(pool)
+    assert np.mean(values < 3) == pytest.approx(0.775) and 9.0 not in values
+    assert np.sum(values == 1.0) == np.sum(values == 2.0)  # uniform within a group
+    assert np.sum(values == 5.0) == np.sum(values == 7.0)
