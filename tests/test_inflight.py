@@ -20,11 +20,14 @@ def test_a_packed_state_resumes_exactly(tmp_path):
     two_seeds = dataclasses.replace(TINY, run_name="run", seeds=2, seed_batching="vmap")
     whole = train.run(dataclasses.replace(two_seeds, runs_dir=str(tmp_path / "a")))
     half = train.run(dataclasses.replace(two_seeds, runs_dir=str(tmp_path / "b"), iterations=2))
+    progress = "run (2 seeds)  2/4 [ 50%] 0.5 it/s env-steps/s=64 return[0 learner]=0.25 eta 0:00:04\n"
+    (half / "device-20261127T122903.log").write_text(progress)  # as a device block leaves its log
     device = tmp_path / "device.tgz"  # what a device block brings back: the runs under their tree
     with tarfile.open(device, "w:gz") as tar:
         tar.add(half.parent, arcname="runs")
     (state,) = inflight.slim_states([device], tmp_path / "state")
     assert state.name == "run.tgz"
+    assert not progress_logs(state)  # blind: no progress line with returns in git
     again = tmp_path / "again.tgz"
     inflight.pack(*inflight.unpack(state, tmp_path / "check"), again)
     assert again.read_bytes() == state.read_bytes()  # deterministic: the same files, the same bytes
@@ -34,6 +37,22 @@ def test_a_packed_state_resumes_exactly(tmp_path):
     for seed in ("s0", "s1"):
         rows, expected = metrics.read_rows(resumed / seed), metrics.read_rows(whole / seed)
         assert len(rows) == 4 and verify.first_difference(expected, rows) is None
+
+
+def progress_logs(tgz: Path) -> list[str]:
+    """The members of a packed state that are progress logs, or hold a progress line's return."""
+    with tarfile.open(tgz) as tar:
+        return [
+            m.name
+            for m in tar.getmembers()
+            if Path(m.name).match(inflight.PROGRESS_LOGS)
+            or (m.isfile() and not m.name.endswith(".jsonl") and b"return[" in tar.extractfile(m).read())
+        ]
+
+
+def test_the_committed_states_hold_no_progress_log():
+    states = sorted((Path(__file__).parents[1] / "benchmarks/results/inflight").glob("*/state/*.tgz"))
+    assert states and {str(s): progress_logs(s) for s in states} == {str(s): [] for s in states}
 
 
 def test_a_blocks_progress_output_is_blind():

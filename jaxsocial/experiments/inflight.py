@@ -1,11 +1,13 @@
 """The resume state of a design's runs that have not finished (a GPU design's blocks), kept in git so that the
 next lent GPU can continue them from any workspace.
 
-A run's state is its directory with only the latest checkpoint every seed has, and no exported policy (a
-resumed run exports the policy of the checkpoint it restores), packed as one deterministic .tgz per run
-(`pack`: sorted members, no times or owners). `benchmarks/prereg_gpu_block.sh collect` slims the state a
-device block brings back into `benchmarks/results/inflight/<design>-gpu/state/`, replacing the copy there,
-so the tree holds one state per run:
+A run's state is its directory with only the latest checkpoint every seed has, no exported policy (a
+resumed run exports the policy of the checkpoint it restores) and no progress log (`PROGRESS_LOGS`: a
+device block's raw log of a run prints its returns, which a design's committed files keep unread until it
+is complete; the block's script commits them blinded beside the state), packed as one deterministic .tgz
+per run (`pack`: sorted members, no times or owners). `benchmarks/prereg_gpu_block.sh collect` slims the
+state a device block brings back into `benchmarks/results/inflight/<design>-gpu/state/`, replacing the copy
+there, so the tree holds one state per run:
 
     python -m jaxsocial.experiments.inflight STATE.tgz ... --out benchmarks/results/inflight/DESIGN-gpu/state
 """
@@ -23,10 +25,14 @@ from pathlib import Path
 from jaxsocial.run import checkpoint, logs, metrics, policy_io
 from jaxsocial.run.rundir import CHECKPOINTS_DIR as CHECKPOINTS
 
+PROGRESS_LOGS = "device-*.log"
+"""The raw training logs a device block leaves in a run directory (benchmarks/prereg_gpu_block.sh), one per
+block: progress lines with the learners' returns. Resuming needs none of them."""
+
 
 def slim(run_dir: Path) -> int:
-    """Keep only the latest checkpoint every seed of `run_dir` has and drop the exported policies; returns
-    that checkpoint's step (ValueError if the seeds share none)."""
+    """Keep only the latest checkpoint every seed of `run_dir` has, drop the exported policies and the
+    `PROGRESS_LOGS`; returns that checkpoint's step (ValueError if the seeds share none)."""
     seeds = metrics.seed_dirs(run_dir)
     common = set.intersection(*(set(checkpoint.all_steps(d / CHECKPOINTS)) for d in seeds))
     if not common:
@@ -37,6 +43,8 @@ def slim(run_dir: Path) -> int:
             if step_dir.name != str(keep):
                 shutil.rmtree(step_dir) if step_dir.is_dir() else step_dir.unlink()
         shutil.rmtree(d / policy_io.POLICY_DIR, ignore_errors=True)
+    for log in run_dir.glob(PROGRESS_LOGS):
+        log.unlink()
     return keep
 
 
