@@ -23,14 +23,18 @@ itself runs from a fixed key; each output's SHA-256 (16 hex digits) is recorded:
   Environment leaves agreeing after iteration 1 mean the rollouts sampled the same actions.
 
 Each XLA setting of `reproducibility.SETTINGS` runs in a process of its own with the single-core flags then
-its own. One JSON per machine kind (`benchmarks/results/op_fingerprints/<cpu>.json`, with the CPU's cache
-sizes): per setting the hashes, how many operations of one iteration XLA handed to YNNPACK (`ynn_fusions`),
+its own, pinned to one core as the records trained (`reproducibility.ONE_CORE`). `--all-cores` also runs
+the default setting in a process that sees every core of the machine (`all_cores`: what differs from the
+pinned default, which is why a record re-trains bit for bit only where the process sees as many cores).
+One JSON per machine kind (`benchmarks/results/op_fingerprints/<cpu>.json`, with the CPU's cache sizes): per
+setting the hashes, how many operations of one iteration XLA handed to YNNPACK (`ynn_fusions`),
 how the `dot_k<K>` products sum (`dot_blocks`: the blocks of K whose emulated FMA chains, added in order,
 equal the product bit for bit), the operations that differ from this kind's default, and, against every other
 kind's committed file, the operations that differ there. A run on a second kind thus names what disagrees.
 
     python benchmarks/op_fingerprints.py                      # every setting
     python benchmarks/op_fingerprints.py --settings default portable
+    python benchmarks/op_fingerprints.py --settings default --all-cores
 """
 
 from __future__ import annotations
@@ -44,10 +48,20 @@ import subprocess
 import sys
 
 import numpy as np
-from reproducibility import REFERENCE, describe_kind, kind_arguments, other_kinds, setting_flags, this_kind
+from reproducibility import (
+    ONE_CORE,
+    REFERENCE,
+    describe_kind,
+    kind_arguments,
+    other_kinds,
+    seen_one_core,
+    setting_flags,
+    this_kind,
+)
 from run_info import REPO, portable, write_json
 
 from jaxsocial.agents.fast import autotune
+from jaxsocial.experiments import pinned
 from jaxsocial.run import logs
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
@@ -200,16 +214,21 @@ def child() -> None:
     )
 
 
-def measured_under(setting: str) -> dict:
-    """{"hashes", "ynn_fusions", "dot_blocks"} (`child`) computed in a process of their own under `setting`'s
-    XLA flags."""
+def measured_under(setting: str, cores: list[int] | None = ONE_CORE) -> dict:
+    """{"visible_cores", "hashes", "ynn_fusions", "dot_blocks"} (`child`) computed in a process of their own
+    under `setting`'s XLA flags, pinned to `cores` (None: seeing every core of this process)."""
     env = os.environ | {"XLA_FLAGS": setting_flags(setting), "JAX_PLATFORMS": "cpu"}
     done = subprocess.run(
-        [sys.executable, __file__, "--child"], env=env, capture_output=True, text=True, check=False, cwd=REPO
+        [*pinned.pin(cores), sys.executable, __file__, "--child"],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=False,
+        cwd=REPO,
     )
     if done.returncode != 0:
         raise RuntimeError(f"{setting}: the fingerprint process failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return {"visible_cores": pinned.cores_seen(cores), **json.loads(done.stdout.strip().splitlines()[-1])}
 
 
 def differing(mine: dict[str, str], theirs: dict[str, str]) -> list[str]:
@@ -225,6 +244,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     kind_arguments(parser, OUT_DIR)
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--all-cores", action="store_true", help="also the default setting seeing every core (`all_cores`)"
+    )
     args = parser.parse_args()
     if args.child:
         return child()
@@ -237,6 +259,12 @@ def main() -> None:
         entry["differ_from_default"] = differing(entry["hashes"], default)
         verdict = summary(entry["differ_from_default"])
         print(f"{name} ({entry['ynn_fusions']} YNNPACK fusions) against this kind's default: {verdict}")
+    if args.all_cores:
+        entry = {"xla_flags": setting_flags("default"), **measured_under("default", None)}
+        entry["differ_from_default"] = differing(entry["hashes"], default)
+        found["all_cores"] = entry
+        verdict = summary(entry["differ_from_default"])
+        print(f"default seeing {entry['visible_cores']} cores against one: {verdict}")
     found["cache_sizes"] = autotune.cache_sizes()
     describe_kind(found, args)
     found["against"] = {}
@@ -244,7 +272,7 @@ def main() -> None:
         found["against"][other["cpu"]] = {
             name: differing(entry["hashes"], other["settings"][name]["hashes"])
             for name, entry in found["settings"].items()
-            if name in other["settings"]
+            if name in other["settings"] and seen_one_core(other["settings"][name])
         }
         for name, names in found["against"][other["cpu"]].items():
             print(f"against {other['cpu']}, {name}: {summary(names)}")

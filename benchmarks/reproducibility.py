@@ -3,13 +3,14 @@
 Trains the first K iterations of a reference record's config (`REFERENCE`: the laptop recipe's social PPO +
 rec, seed 210 of `h1_early`, trained on an AMD EPYC family 25 model 17 with the default single-core flags)
 once per setting, each in a single-core process as the designs train (`pinned.SINGLE_CORE_XLA_FLAGS`, then
-the setting's flags), and keeps every metrics field but the timings. Each setting's rows are compared with
-the record's (the first row and field that differ, `verify.first_difference`) and go to one JSON per machine
-kind (`benchmarks/results/reproducibility/<cpu>.json`, named from the CPU's model and family/model numbers);
-each run also compares its rows with every other kind's committed file, setting by setting: a setting with
-no difference across the kinds seen makes the laptop recipe bitwise reproducible across them. The
-env-steps/s of each setting is recorded with the load average, so the speed cost is read on a quiet machine
-only.
+the setting's flags, the process pinned to one core as `pinned.run` pins the records': XLA's bits depend on
+the cores a process sees), and keeps every metrics field but the timings. Each setting's rows are compared
+with the record's (the first row and field that differ, `verify.first_difference`) and go to one JSON per
+machine kind (`benchmarks/results/reproducibility/<cpu>.json`, named from the CPU's model and family/model
+numbers, each setting with the cores its process saw: `visible_cores`); each run also compares its rows with
+every other kind's committed file, setting by setting where both saw one core: a setting with no
+difference across the kinds seen makes the laptop recipe bitwise reproducible across them. The env-steps/s
+of each setting is recorded with the load average, so the speed cost is read on a quiet machine only.
 
     python benchmarks/reproducibility.py                     # every setting, 10 iterations
     python benchmarks/reproducibility.py --settings default max_isa_avx2 --iterations 20
@@ -56,6 +57,8 @@ trades consistent results across CPUs for speed; the vector width LLVM prefers; 
 YNNPACK, which XLA calls for them by default)."""
 OUT_DIR = REPO / "benchmarks/results/reproducibility"
 REFERENCE = REPO / "benchmarks/results/records/laptop/prereg-h1_early/social_rec-s210-210"
+ONE_CORE = verify.retraining_cores(1)
+"""The core each setting's process is pinned to, as verify pins the re-training of a one-core record."""
 
 
 def kind_file(cpu: str, out_dir: Path = OUT_DIR) -> Path:
@@ -76,16 +79,22 @@ def kind_arguments(parser: argparse.ArgumentParser, committed: Path) -> None:
 
 def this_kind(out_dir: str) -> tuple[Path, dict]:
     """This machine kind's JSON in `out_dir` and what it holds ({"cpu", "settings": {}} where it is new),
-    without the settings that `SETTINGS` no longer has or whose flags have changed since they ran."""
+    without the settings that `SETTINGS` no longer has, whose flags have changed since they ran, or that ran
+    seeing other than one core (before 2026-11-28 they ran seeing every core)."""
     cpu = autotune.cpu_model()
     path = kind_file(cpu, Path(out_dir))
     found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
     found["settings"] = {
         name: entry
         for name, entry in found["settings"].items()
-        if name in SETTINGS and entry["xla_flags"] == setting_flags(name)
+        if name in SETTINGS and entry["xla_flags"] == setting_flags(name) and seen_one_core(entry)
     }
     return path, found
+
+
+def seen_one_core(entry: dict) -> bool:
+    """Whether a setting's entry was measured by a process that saw one core, as the records trained."""
+    return entry.get("visible_cores") == 1
 
 
 def describe_kind(found: dict, args: argparse.Namespace) -> None:
@@ -111,7 +120,7 @@ def rows_of(setting: str, iterations: int) -> tuple[list[dict], float]:
     chunk = min(cfg.chunk_iterations, iterations)
     cfg = dataclasses.replace(cfg, iterations=iterations, chunk_iterations=chunk)
     with tempfile.TemporaryDirectory(prefix="jaxsocial-repro-") as tmp:
-        rows = metrics.read_rows(verify.train_in_process(cfg, Path(tmp), setting_flags(setting)))
+        rows = metrics.read_rows(verify.train_in_process(cfg, Path(tmp), setting_flags(setting), ONE_CORE))
     speed = statistics.median(r[metrics.SPEED] for r in rows)
     return [without_timings(r) for r in rows], speed
 
@@ -121,11 +130,12 @@ def without_timings(row: dict) -> dict:
 
 
 def compare(mine: dict, other: dict) -> dict:
-    """Per setting both kinds ran: 'exact' or the first difference (`verify.first_difference`)."""
+    """Per setting both kinds ran seeing one core: 'exact' or the first difference
+    (`verify.first_difference`)."""
     out = {}
     for name, entry in mine["settings"].items():
         theirs = other["settings"].get(name)
-        if theirs is None:
+        if theirs is None or not seen_one_core(theirs):
             continue
         n = min(len(entry["rows"]), len(theirs["rows"]))
         difference = verify.first_difference(theirs["rows"][:n], entry["rows"][:n])
@@ -149,6 +159,7 @@ def main() -> None:
         recorded = [without_timings(r) for r in metrics.read_rows(REFERENCE)[: len(rows)]]
         found["settings"][name] = {
             "xla_flags": setting_flags(name),
+            "visible_cores": pinned.cores_seen(ONE_CORE),
             "against_reference": verify.first_difference(recorded, rows),
             "env_steps_per_s_median": round(speed, 1),
             "load_average": list(os.getloadavg()),

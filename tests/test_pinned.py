@@ -33,12 +33,14 @@ def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monke
     first, second = (json.loads((tmp_path / n / pinned.RUN_FILE).read_text()) for n in ("first", "second"))
     assert second["started"] >= first["ended"]  # one core: the second waited for the first
     assert first["rc"] == 0 and second["rc"] == 3 and first["cores"] == 1
+    assert first["visible_cores"] == ([0] if pinned.pin([0]) else pinned.visible_cores())  # what it could see
     assert first["command"].startswith("python -c ")
     assert not (tmp_path / "never_made").exists()  # no run directory: no provenance written
     assert "first: core 0" in capsys.readouterr().out
     provenance = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
     assert provenance["device"] == "a CPU" and provenance["rc"] == 0 and provenance["cores"] == 1
     assert provenance["cpu"] == autotune.cpu_model() and provenance["xla_flags"] == pinned.process_xla_flags()
+    assert provenance["visible_cores"] == first["visible_cores"]
     environment = {field: provenance[field] for field in pinned.ENVIRONMENT_FIELDS}
     assert environment == pinned.environment()
     assert provenance["versions"]["jax"] == jax.__version__

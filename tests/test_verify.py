@@ -1,17 +1,22 @@
 """`experiments verify`: a record re-trained on the same machine and code equals its rows up to where a row
-was changed, which it names; bad input is refused before anything trains; nothing is written into the
-record."""
+was changed, which it names, in a process that sees as many cores as the record's did; bad input is refused
+before anything trains; nothing is written into the record."""
 
 import dataclasses
 import json
 import shutil
 
+import jax
 import pytest
+from conftest import TINY
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import pinned, recipes, records, verify
-from jaxsocial.run import logs
+from jaxsocial.run import config, logs, metrics
+from jaxsocial.run.flags import config_flags
+
+TWO_CORES = len(pinned.visible_cores() or []) >= 2
 
 
 @pytest.fixture(scope="module")
@@ -87,12 +92,12 @@ def test_the_retraining_has_the_records_xla_flags(tiny_record, tmp_path, monkeyp
     (record / records.PROVENANCE_FILE).write_text(json.dumps({"run": run}))
     monkeypatch.setenv("XLA_FLAGS", "--from-this-process")
     seen = []
-    monkeypatch.setattr(verify, "train_in_process", lambda cfg, work_dir, flags: seen.append(flags))
+    monkeypatch.setattr(verify, "train_in_process", lambda cfg, work_dir, flags, cores: seen.append(flags))
     verify.retrain(record, 2, tmp_path / "work")
     assert seen == [expected] == [verify.retraining_flags(record)]
 
 
-def test_a_difference_without_the_cross_cpu_flags_points_to_them():
+def test_a_difference_names_its_possible_causes_and_how_to_reproduce():
     result = {
         "record": "r",
         "iterations": 1,
@@ -104,13 +109,23 @@ def test_a_difference_without_the_cross_cpu_flags_points_to_them():
         "commit": {"record": "a", "here": "a"},
         "xla_flags": pinned.SINGLE_CORE_XLA_FLAGS,
         "compared": "every field",
+        "cores": {"record": 1, "here": 1},
     }
     said = verify.report(result)
     assert f"XLA flags (the record's): {pinned.SINGLE_CORE_XLA_FLAGS}" in said
     assert "platform-dependent math" in said and pinned.CROSS_CPU_XLA_FLAGS in said
+    assert "cores seen: record 1 core; re-training 1 core" in said and "counts of cores differ" not in said
+    assert said.splitlines()[-1] == (
+        f"  bit for bit it re-trains from commit a, with $XLA_FLAGS '{pinned.SINGLE_CORE_XLA_FLAGS}', in a "
+        "process that sees 1 core (verify pins itself so), on a one CPU, with the same package versions"
+    )
     crossed = {**result, "xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"}
     assert "platform-dependent" not in verify.report(crossed)
+    assert "any of the CPU models measured alike" in verify.report(crossed).splitlines()[-1]
     assert "platform-dependent" not in verify.report({**result, "exact": True})
+    unpinned = {**result, "cores": {"record": 1, "here": 2}}
+    assert "counts of cores differ that is expected" in verify.report(unpinned)
+    assert "counts of cores" not in verify.report({**unpinned, "exact": True})
 
 
 def test_environment_differences_name_what_differs_and_what_was_not_recorded():
@@ -123,3 +138,61 @@ def test_environment_differences_name_what_differs_and_what_was_not_recorded():
         "  cache_sizes differ: record {'L1d': '32K'}; here {'L1d': '48K'}",
         "  versions: not recorded; here {'jax': '0.10.2'}",
     ]
+
+
+LONG_PRODUCTS = dataclasses.replace(
+    TINY,
+    num_envs=32,
+    ppo=dataclasses.replace(TINY.ppo, minibatch_segments=64, num_minibatches=1),
+    seed=0,
+    seeds=1,
+)
+"""TINY with every sample of an iteration in one minibatch, so that the conv layers' weight gradients
+contract over 32 x 8 samples' positions: products that long give other bits seeing two cores than one
+(at TINY's 16 samples a minibatch they do not: docs/experiments.md, "Does the training re-run?")."""
+
+
+@pytest.fixture(scope="module")
+def one_core_record(tmp_path_factory):
+    """`LONG_PRODUCTS` trained as the designs train (`pinned.run`, on this process's first core) and packed
+    as a record with the provenance `pinned` wrote."""
+    tmp = tmp_path_factory.mktemp("one_core")
+    name = "tiny/pinned-s0-0"
+    cfg = dataclasses.replace(LONG_PRODUCTS, runs_dir=str(tmp), run_name=name)
+    fresh_cache = ["--compile-cache", str(tmp / "cache")]  # compiled seeing one core, as the designs' seeds
+    job = pinned.Job("pinned", pinned.train_command([*config_flags(cfg), *fresh_cache]), tmp / name)
+    assert pinned.run([job], pinned.visible_cores()[:1]) == [0]
+    provenance = pinned.run_provenance(job.run_dir, "this CPU", jax.__version__)
+    return records.pack(job.run_dir, tmp / "record", provenance, name)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not TWO_CORES, reason="needs a process that sees two cores")
+def test_a_one_core_record_is_exact_from_a_process_that_sees_two(one_core_record, tmp_path):
+    """The record's provenance says its process saw one core; verify, seeing two, re-trains pinned to one and
+    is exact. Re-trained seeing both cores (as verify did before), the same rows differ."""
+    assert records.run_field(one_core_record, "visible_cores") == pinned.visible_cores()[:1]
+    result = verify.verify(one_core_record, iterations=4)
+    assert result["exact"] and result["cores"] == {"record": 1, "here": 1}
+    assert "cores seen: record 1 core; re-training 1 core" in verify.report(result)
+    cfg = config.config_from_dict(logs.read_config(one_core_record))
+    both = verify.train_in_process(cfg, tmp_path, verify.retraining_flags(one_core_record), cores=None)
+    assert verify.first_difference(metrics.read_rows(one_core_record), metrics.read_rows(both)) is not None
+
+
+@pytest.mark.parametrize(
+    ("run", "cores"),
+    [
+        ({"visible_cores": [3], "cores": 1, "device": "2 cores"}, 1),  # as measured
+        ({"visible_cores": [0, 1, 2]}, 3),
+        ({"cores": 1, "device": "Intel Xeon, 2 cores, one core per seed"}, 1),  # the runner's rule, before
+        ({"cores": None, "device": "AMD EPYC, 2 cores, one core per branch"}, 1),
+        ({"device": "CPU (AMD EPYC, 2 cores)"}, 2),  # trained unpinned: every core of its machine
+        ({"device": "an H100"}, None),
+    ],
+)
+def test_the_cores_a_records_process_saw(tmp_path, monkeypatch, run, cores):
+    (tmp_path / records.PROVENANCE_FILE).write_text(json.dumps({"run": run}))
+    assert verify.record_cores(tmp_path) == cores
+    monkeypatch.setattr(pinned, "visible_cores", lambda pid=0: [4, 5])
+    assert verify.retraining_cores(cores) == ([4] if cores == 1 else None)  # 2 or 3: as many or more here

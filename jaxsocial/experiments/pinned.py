@@ -3,11 +3,11 @@ a time as cores are given: on 2 cores, two such processes train 1.6x the env-ste
 (docs/performance.md, "The science recipe"). The sweep runs its seeds this way, and `experiments run
 --cores` a recipe's seeds.
 
-Each run directory gets `RUN_FILE`: what the runner knows of its process (command, commit, cores, CPU, start,
-end, exit status), written once the process has made the directory (end and status null until it ends) and
-again when it ends. A run resumed by a later process, maybe on another machine, keeps the earlier processes'
-entries under `earlier`, a killed one's with a null end. Records take it as the run's provenance
-(`records.pack`); its log goes beside the run directory (`<run_dir>.log`).
+Each run directory gets `RUN_FILE`: what the runner knows of its process (command, commit, cores, the cores
+it could see, CPU, start, end, exit status), written once the process has made the directory (end and
+status null until it ends) and again when it ends. A run resumed by a later process, maybe on another
+machine, keeps the earlier processes' entries under `earlier`, a killed one's with a null end. Records take
+it as the run's provenance (`records.pack`); its log goes beside the run directory (`<run_dir>.log`).
 """
 
 from __future__ import annotations
@@ -43,10 +43,11 @@ computes the conv layers' weight gradients, sizes its blocks from the CPU's cach
 RUN_FILE = "process.json"
 ENVIRONMENT_FIELDS = ("cpu_features", "cache_sizes", "versions")
 """The fields of `environment`."""
-MACHINE_FIELDS = ("cpu", "xla_flags", *ENVIRONMENT_FIELDS)
+MACHINE_FIELDS = ("cpu", "xla_flags", "visible_cores", *ENVIRONMENT_FIELDS)
 """What `RUN_FILE` says of where the run trained, beside `records.RUN_FIELDS`: the CPU (model, family and
-model numbers, `autotune.cpu_model`), the process's $XLA_FLAGS and its `environment`; records carry them in
-provenance, and `verify` compares them with the machine it re-trains on."""
+model numbers, `autotune.cpu_model`), the process's $XLA_FLAGS, the cores it could run on (`visible_cores`:
+XLA's CPU bits depend on how many) and its `environment`; records carry them in provenance, and `verify`
+compares them with the machine it re-trains on, and re-trains on as many cores."""
 VERSIONED = ("jax", "jaxlib", "flax", "optax", "numpy")
 """The packages whose versions a run's floats depend on."""
 POLL_SECONDS = 2.0
@@ -73,6 +74,25 @@ def train_command(flags: list[str]) -> tuple[str, ...]:
     return ("-m", "jaxsocial.train", *flags, *cache)
 
 
+def visible_cores(pid: int = 0) -> list[int] | None:
+    """The CPU cores process `pid` (0: this one) may run on, sorted (`os.sched_getaffinity`; None where the OS
+    has no such call)."""
+    return sorted(os.sched_getaffinity(pid)) if hasattr(os, "sched_getaffinity") else None
+
+
+def pin(cores: list[int] | None) -> list[str]:
+    """The argv prefix that starts a process on `cores` only (`taskset -c`, Linux's util-linux; [] where there
+    is none, or no `cores`: the process then sees the caller's)."""
+    return ["taskset", "-c", ",".join(map(str, cores))] if cores and shutil.which("taskset") else []
+
+
+def cores_seen(cores: list[int] | None) -> int | None:
+    """How many cores a process started after `pin(cores)` sees (None: not known here)."""
+    if cores and pin(cores):
+        return len(cores)
+    return len(visible_cores() or []) or None
+
+
 def process_xla_flags(extra: str = "") -> str:
     """$XLA_FLAGS of a pinned process: the caller's, then `SINGLE_CORE_XLA_FLAGS`, then `extra` (e.g. a
     design's). ValueError if a word of them is not a `--flag` (`xla_flags.check`)."""
@@ -80,9 +100,9 @@ def process_xla_flags(extra: str = "") -> str:
 
 
 def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[int]:
-    """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (with
-    `taskset`, where there is one) with a single-threaded XLA after the caller's $XLA_FLAGS and before
-    `extra_xla_flags` (`process_xla_flags`); write `RUN_FILE` into each run directory the process created.
+    """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (`pin`) with a
+    single-threaded XLA after the caller's $XLA_FLAGS and before `extra_xla_flags` (`process_xla_flags`);
+    write `RUN_FILE`, with the cores the process could see, into each run directory the process created.
     Returns the exit codes, in the order of `jobs`."""
     if not cores:
         raise ValueError("give at least one core")
@@ -93,31 +113,32 @@ def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[in
         while pending and free:
             (i, job), core = pending.pop(0), free.pop(0)
             job.log.parent.mkdir(parents=True, exist_ok=True)
-            pin = ["taskset", "-c", str(core)] if shutil.which("taskset") else []  # Linux (util-linux)
             proc = subprocess.Popen(
-                [*pin, sys.executable, *job.argv],
+                [*pin([core]), sys.executable, *job.argv],
                 stdout=job.log.open("w"),
                 stderr=subprocess.STDOUT,
                 env={**os.environ, "XLA_FLAGS": process_flags},
             )
-            active[i] = (proc, core, now(), None)  # None: its RUN_FILE not written yet
+            active[i] = (proc, core, now(), None, None)  # None: its RUN_FILE not written yet
             print(f"{job.label}: core {core}, log {job.log}", flush=True)
         time.sleep(POLL_SECONDS)
-        for i, (proc, core, started, earlier) in list(active.items()):
-            job, rc = jobs[i], proc.poll()
+        for i, (proc, core, started, earlier, seen) in list(active.items()):
+            job = jobs[i]
             process = (job.run_dir, shlex.join(["python", *job.argv]), commit, 1, started)
             if earlier is None and (job.run_dir / logs.CONFIG_FILE).is_file():
                 earlier = earlier_processes(job.run_dir)  # its directory is there: say so before it ends
-                active[i] = (proc, core, started, earlier)
-                if rc is None:
-                    write_run_file(*process, None, process_flags, earlier)
+                seen = visible_cores(proc.pid)  # python itself runs, pinned; `poll` has not reaped it
+                active[i] = (proc, core, started, earlier, seen)
+                if proc.poll() is None:
+                    write_run_file(*process, None, process_flags, earlier, seen)
+            rc = proc.poll()
             if rc is None:
                 continue
             del active[i]
             free.append(core)
             codes[i] = rc
             if earlier is not None:  # it made its run directory
-                write_run_file(*process, rc, process_flags, earlier)
+                write_run_file(*process, rc, process_flags, earlier, seen)
             print(f"{job.label}: exit {rc}", flush=True)
     return [codes[i] for i in range(len(jobs))]
 
@@ -140,15 +161,18 @@ def write_run_file(
     rc: int | None,
     xla_flags: str | None = None,
     earlier: list[dict[str, Any]] | None = None,
+    seen: list[int] | None = None,
 ) -> None:
     """Write `RUN_FILE` into `run_dir`: what made it (command, commit, cores), where (this machine's CPU, the
-    process's $XLA_FLAGS, the `environment`: `MACHINE_FIELDS`), when (start, and now as its end unless `rc` is
-    None: still running) and its exit status, with the `earlier` processes of a resumed run."""
+    process's $XLA_FLAGS, the cores it could see (`seen`, None: not measured), the `environment`:
+    `MACHINE_FIELDS`), when (start, and now as its end unless `rc` is None: still running) and its exit
+    status, with the `earlier` processes of a resumed run."""
     info = {
         "command": command,
         "commit": commit,
         "cores": cores,
         **machine(xla_flags),
+        "visible_cores": seen,
         "started": started,
         "ended": None if rc is None else now(),
         "rc": rc,
@@ -158,9 +182,11 @@ def write_run_file(
 
 def machine(xla_flags: str | None) -> dict[str, Any]:
     """Where a process with $XLA_FLAGS `xla_flags` trains (`MACHINE_FIELDS`): this CPU (`autotune.cpu_model`),
-    the flags and the `environment`. A GPU block logs it in its commands log (`records.read_commands_log`):
-    its flags say whether `--xla_gpu_deterministic_ops` was on."""
-    return {"cpu": autotune.cpu_model(), "xla_flags": xla_flags, **environment()}
+    the flags, the cores this process sees (`visible_cores`: a process it starts sees the same unless pinned)
+    and the `environment`. A GPU block logs it in its commands log (`records.read_commands_log`): its flags
+    say whether `--xla_gpu_deterministic_ops` was on."""
+    seen = visible_cores()
+    return {"cpu": autotune.cpu_model(), "xla_flags": xla_flags, "visible_cores": seen, **environment()}
 
 
 def environment() -> dict[str, Any]:

@@ -5,13 +5,17 @@
 
 The record's config.json (read under today's field names) is trained again for its first K iterations in a
 fresh run directory outside the record, in a process of its own with the $XLA_FLAGS the record's run
-had (from its provenance; older records: single-threaded XLA where it says one core, as `pinned` trains), and
-the two metrics logs are compared row by row, every field but the timings (`TIMING_FIELDS`). The report says
-**exact**, or the first row and field that differ with both values and the size of the difference, and
-names the CPU of the record and of this machine, and where their instruction sets, cache sizes or package
-versions differ (`pinned.environment`): bitwise agreement is expected on the same CPU model and commit, and
-across the models measured only for a record trained with `pinned.CROSS_CPU_XLA_FLAGS`, which the report
-points to where a record without them differs (docs/experiments.md). Nothing is written into the record.
+had (from its provenance; older records: single-threaded XLA where it says one core, as `pinned` trains)
+and seeing as many CPU cores as the record's process saw (`record_cores`): pinned to one where the record's
+was, since XLA's CPU bits depend on how many cores a process sees even single-threaded (docs/experiments.md,
+"Does the training re-run?"). The two metrics logs are compared row by row, every field but the timings
+(`TIMING_FIELDS`). The report says **exact**, or the first row and field that differ with both values and
+the size of the difference, and names the CPU of the record and of this machine, the cores each process
+saw, and where their instruction sets, cache sizes or package versions differ (`pinned.environment`):
+bitwise agreement is expected on the same CPU model, commit and count of cores, and across the models
+measured only for a record trained with `pinned.CROSS_CPU_XLA_FLAGS`, which the report points to where a
+record without them differs; it ends with what re-trains the record bit for bit (`how_to_reproduce`).
+Nothing is written into the record.
 
 Run it from a worktree of the record's commit for the strict check; on today's code it checks that the
 mathematics did not change since, where the configs map. The laptop and cpu scales have no schedule over
@@ -23,9 +27,11 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -41,12 +47,36 @@ DEFAULT_ITERATIONS = 10
 
 def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
     """Train the first `iterations` of the record's config into `work_dir` in a process of its own, with
-    `retraining_flags`; return the new run directory."""
+    `retraining_flags`, on `retraining_cores`; return the new run directory."""
     cfg = config.config_from_dict(logs.read_config(record_dir))
     if iterations > cfg.iterations:
         raise ValueError(f"--iterations {iterations}: the record trained only {cfg.iterations}")
     cfg = dataclasses.replace(cfg, iterations=iterations)
-    return train_in_process(cfg, work_dir, retraining_flags(record_dir))
+    cores = retraining_cores(record_cores(record_dir))
+    return train_in_process(cfg, work_dir, retraining_flags(record_dir), cores)
+
+
+def record_cores(record_dir: Path) -> int | None:
+    """How many CPU cores the record's training process could see: its provenance's `visible_cores`; for a
+    record from before that field, the runner's rule: one where `pinned.run` gave it a core (`cores` 1) or
+    its device says "one core per" seed or branch, else all the "N cores" of its device (None: not said)."""
+    visible = records.run_field(record_dir, "visible_cores")
+    if visible:
+        return len(visible)
+    if records.run_field(record_dir, "cores") == 1:
+        return 1
+    device = records.run_field(record_dir, "device") or ""
+    if "one core per" in device:
+        return 1
+    count = re.search(r"(\d+) cores", device)
+    return int(count[1]) if count else None
+
+
+def retraining_cores(count: int | None) -> list[int] | None:
+    """The cores to pin a re-training of a record whose process saw `count` to: the first `count` of this
+    process's where it sees more (None: no pinning, where it sees as many, fewer, or `count` is unknown)."""
+    mine = pinned.visible_cores()
+    return mine[:count] if count and mine and count < len(mine) else None
 
 
 def retraining_flags(record_dir: Path) -> str:
@@ -54,15 +84,18 @@ def retraining_flags(record_dir: Path) -> str:
     run had one core, else this process's)."""
     xla_flags = records.run_field(record_dir, "xla_flags")
     if xla_flags is None:
-        one_core = records.run_field(record_dir, "cores") == 1
+        one_core = record_cores(record_dir) == 1
         xla_flags = pinned.SINGLE_CORE_XLA_FLAGS if one_core else os.environ.get("XLA_FLAGS", "")
     return xla_flags
 
 
-def train_in_process(cfg: config.TrainConfig, work_dir: Path, xla_flags: str) -> Path:
+def train_in_process(
+    cfg: config.TrainConfig, work_dir: Path, xla_flags: str, cores: list[int] | None = None
+) -> Path:
     """Train `cfg` (its seeds, iterations and program as they are) as run 'verify' under `work_dir`, in a
-    process of its own with $XLA_FLAGS `xla_flags`, no logger, progress line or compilation cache; return
-    the run directory (RuntimeError, with the log's tail, if training fails)."""
+    process of its own with $XLA_FLAGS `xla_flags`, pinned to `cores` (`pinned.pin`; None: this process's),
+    no logger, progress line or compilation cache; return the run directory (RuntimeError, with the log's
+    tail, if training fails)."""
     cfg = dataclasses.replace(
         cfg,
         runs_dir=str(work_dir),
@@ -76,15 +109,21 @@ def train_in_process(cfg: config.TrainConfig, work_dir: Path, xla_flags: str) ->
     log = work_dir / "verify.log"
     with log.open("w") as out:
         done = subprocess.run(
-            [sys.executable, "-m", "jaxsocial.train", *config_flags(cfg)],
+            [*pinned.pin(cores), sys.executable, "-m", "jaxsocial.train", *config_flags(cfg)],
             stdout=out,
             stderr=subprocess.STDOUT,
-            env={**os.environ, "XLA_FLAGS": xla_flags},
+            env=_uncached(os.environ) | {"XLA_FLAGS": xla_flags},
         )
     if done.returncode != 0:
         tail = "\n".join(log.read_text().splitlines()[-15:])
         raise RuntimeError(f"re-training failed (exit {done.returncode}):\n{tail}")
     return work_dir / "verify"
+
+
+def _uncached(env: Mapping[str, str]) -> dict[str, str]:
+    """`env` without $JAX_COMPILATION_CACHE_DIR: a program compiled by another process (maybe seeing other
+    cores) is not loaded."""
+    return {k: v for k, v in env.items() if k != "JAX_COMPILATION_CACHE_DIR"}
 
 
 def first_difference(
@@ -121,6 +160,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
     recorded = metrics.read_rows(record_dir)[:iterations]
     if len(recorded) < iterations:
         raise ValueError(f"--iterations {iterations}: the record logged only {len(recorded)} rows")
+    cores = record_cores(record_dir)
     with tempfile.TemporaryDirectory(prefix="jaxsocial-verify-") as tmp:
         run_dir = retrain(record_dir, iterations, Path(work_dir or tmp))
         retrained = metrics.read_rows(run_dir)
@@ -139,6 +179,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
         },
         "commit": {"record": records.run_field(record_dir, "commit"), "here": records.head_commit()},
         "xla_flags": retraining_flags(record_dir),
+        "cores": {"record": cores, "here": pinned.cores_seen(retraining_cores(cores))},
     }
 
 
@@ -172,12 +213,40 @@ def report(result: dict) -> str:
         )
     lines.append(f"  CPU: record {result['cpu']['record']}; here {result['cpu']['here']}")
     lines.append(f"  XLA flags (the record's): {result['xla_flags'] or 'none'}")
+    cores = result["cores"]
+    lines.append(f"  cores seen: record {_count(cores['record'])}; re-training {_count(cores['here'])}")
     if not result["exact"] and not xla_flags.hold(result["xla_flags"], pinned.CROSS_CPU_XLA_FLAGS):
         lines.append(
             "  where the CPU models differ that is expected: the record trained with XLA's platform-dependent"
             f" math, whose bits differ across them ({pinned.CROSS_CPU_XLA_FLAGS} removes it; "
             "docs/experiments.md)"
         )
+    if not result["exact"] and (cores["record"] is None or cores["record"] != cores["here"]):
+        lines.append(
+            "  where the counts of cores differ that is expected: XLA's CPU bits depend on how many cores a"
+            " process sees, even single-threaded (docs/experiments.md)"
+        )
     lines += environment_differences(result["environment"]["record"], result["environment"]["here"])
     lines.append(f"  commit: record {result['commit']['record']}; here {result['commit']['here']}")
+    lines.append(how_to_reproduce(result))
     return "\n".join(lines)
+
+
+def _count(cores: int | None) -> str:
+    return "not recorded" if cores is None else f"{cores} core{'s' * (cores != 1)}"
+
+
+def how_to_reproduce(result: dict) -> str:
+    """What re-trains the record bit for bit, as measured (docs/experiments.md, "Does the training
+    re-run?")."""
+    flags, cores, cpu = result["xla_flags"], result["cores"]["record"], result["cpu"]["record"]
+    if xla_flags.hold(flags, pinned.CROSS_CPU_XLA_FLAGS):
+        cpus = "any of the CPU models measured alike (docs/experiments.md)"
+    else:
+        cpus = f"a {cpu}" if cpu else "its CPU model (not recorded)"
+    seen = "as many cores as its process did (not recorded)" if cores is None else _count(cores)
+    return (
+        f"  bit for bit it re-trains from commit {result['commit']['record'] or '(not recorded)'}, with "
+        f"$XLA_FLAGS '{flags}', in a process that sees {seen} (verify pins itself so), on {cpus}, with the "
+        "same package versions"
+    )
