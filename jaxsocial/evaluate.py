@@ -39,7 +39,15 @@ from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import logs, policy_io
 from jaxsocial.run.metrics import LEARNED_RETURN
-from jaxsocial.specs import ENV_ARGS, EnvArgsFlag, EnvSpec, PolicyFlag, PolicyRef, check_eval_envs
+from jaxsocial.specs import (
+    ENV_ARGS,
+    EnvArgsFlag,
+    EnvSpec,
+    PolicyFlag,
+    PolicyRef,
+    check_eval_envs,
+    join_env_in,
+)
 from jaxsocial.stats import mean_ci95
 
 
@@ -51,7 +59,7 @@ class EvalConfig:
     """Run directories of the agent under test (RUN_DIR or RUN_DIR#k), one per training seed."""
     env: str = "goalcycle3"
     """Environment preset: goalcycle3, goalcycle4, fourrooms, maze, each also as NAME-solo and
-    NAME-distractors."""
+    NAME-distractors; NAME or NAME:field=value,... (the overrides join --env-args)."""
     env_args: EnvArgsFlag = ()
     """EnvParams overrides, e.g. 'penalty=0.5,solo_prob=1.0'."""
     slots: population.SlotsFlag = ()
@@ -71,6 +79,7 @@ class EvalConfig:
     def __post_init__(self):  # text or paths given to the constructor are parsed here, once
         object.__setattr__(self, "ckpt", tuple(PolicyRef.of(c) for c in self.ckpt))
         ENV_ARGS.parse_in(self, "env_args")
+        join_env_in(self)  # NAME:ARGS is NAME with --env-args ARGS
         population.SLOTS.parse_in(self, "slots")
 
 
@@ -390,22 +399,40 @@ def outcome(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
             experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
             lines.append(verdict(learner, experts, EnvSpec(eval_cfg.env, eval_cfg.env_args).env_params()))
-    if eval_cfg.ckpt:
-        env = f"--env {eval_cfg.env}" + (
-            f" --env-args {ENV_ARGS.format(eval_cfg.env_args)}" if eval_cfg.env_args else ""
-        )
-        lines.append(
-            f"next: python -m jaxsocial.render --ckpt {eval_cfg.ckpt[0]} {env}   # writes into the run"
-        )
+    lines += _next(result, eval_cfg)
     if not eval_cfg.out:
         lines.append("      add --out FILE to keep every number above (and the per-seed values) as JSON")
     return lines
 
 
+def _next(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
+    """The command to run after an evaluation of a saved learner: the CT protocol where it applies (the
+    learner first, beside experts, solo_agents 1), then a designed comparison over seeds (`render` points
+    here, so this points onwards)."""
+    if not eval_cfg.ckpt:
+        return []
+    env = EnvSpec(eval_cfg.env, eval_cfg.env_args)
+    slots = result.get("results", ())
+    if result.get("protocol") != "ct" and slots and slots[0]["kind"] == "learner" and any(
+        s["kind"] == "expert" for s in slots
+    ) and env.env_params().solo_agents == 1:  # fmt: skip
+        ckpts = " ".join(str(c) for c in eval_cfg.ckpt)
+        return [
+            "next: does it learn from the experts, and keep it once they leave? python -m "
+            f"jaxsocial.evaluate --ckpt {ckpts} --env {env} --protocol ct"
+        ]
+    return ["next: compare conditions over fresh seeds, with a test: docs/your-experiment.md"]
+
+
 def main(argv: list[str] | None = None) -> None:
     import tyro
 
-    eval_cfg = tyro.cli(EvalConfig, args=sys.argv[1:] if argv is None else argv, description=__doc__)
+    eval_cfg = tyro.cli(
+        EvalConfig,
+        args=sys.argv[1:] if argv is None else argv,
+        description=__doc__,
+        prog="python -m jaxsocial.evaluate",
+    )
     if eval_cfg.out and Path(eval_cfg.out).exists() and not eval_cfg.overwrite:
         raise SystemExit(f"error: {eval_cfg.out} exists; pass --overwrite to replace it")
     try:

@@ -2,8 +2,9 @@
 
 * ``field=value,...``: EnvParams overrides (`ENV_ARGS`; held as pairs, values Python literals), the syntax
   of `--env-args`, of a stage's overrides (`run.schedule`) and of an `EnvSpec`'s;
-* `EnvSpec`: an environment, ``NAME`` or ``NAME:field=value,...`` (evaluation environments, `--env` of the
-  tools); `check_eval_envs` checks a training run's;
+* `EnvSpec`: an environment, ``NAME`` or ``NAME:field=value,...`` (evaluation environments, `--env` of
+  training and the tools, where ``--env NAME:ARGS`` is ``--env NAME --env-args ARGS``); `check_eval_envs`
+  checks a training run's;
 * `PolicyRef`: a learner's exported policy, ``RUN_DIR`` (its first learner) or ``RUN_DIR#k`` (its k-th), for
   frozen slots, trained experts (`expert:ckpt=`), `evaluate --ckpt` and `render --ckpt`;
 * `CheckpointRef`: a training checkpoint, ``RUN_DIR`` (its latest) or ``RUN_DIR@ITERATION``, for
@@ -48,6 +49,17 @@ class EnvSpec:
         """The environment's parameters; ValueError for an unknown name or field."""
         return jaxsocial.make(self.name, **dict(self.args))[1]
 
+    def extended(self, env_args: tuple[tuple[str, Any], ...]) -> EnvSpec:
+        """This spec with the overrides `env_args` (`--env-args`) added: ``--env NAME:a=1 --env-args b=2`` is
+        ``NAME:a=1,b=2``. ValueError for a field set in both (a silent override would hide one)."""
+        both = sorted(set(dict(self.args)) & set(dict(env_args)))
+        if both:
+            raise ValueError(
+                f"--env {self} and --env-args {ENV_ARGS.format(env_args)} both set {', '.join(both)}: "
+                "give each field once, in either"
+            )
+        return EnvSpec(self.name, self.args + tuple(env_args))
+
     @property
     def env_args(self) -> str:
         """The overrides as `--env-args` text."""
@@ -55,6 +67,14 @@ class EnvSpec:
 
     def __str__(self) -> str:
         return f"{self.name}:{self.env_args}" if self.args else self.name
+
+
+def join_env_in(obj: Any) -> None:
+    """Move the overrides of a frozen dataclass's `env` (``NAME:ARGS``) into its `env_args` (parsed pairs), in
+    place (`EnvSpec.extended`): `env` is then a name alone."""
+    env = EnvSpec.parse(obj.env).extended(obj.env_args)
+    object.__setattr__(obj, "env", env.name)
+    object.__setattr__(obj, "env_args", env.args)
 
 
 def check_eval_envs(specs: tuple[EnvSpec, ...], net_cfg, episodes: int) -> list[tuple[EnvSpec, EnvParams]]:

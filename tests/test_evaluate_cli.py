@@ -58,7 +58,8 @@ def _interval(mean: float, half: float = 0.01) -> dict:
     return {"mean": mean, "ci95": [mean - half, mean + half]}
 
 
-RENDER = "next: python -m jaxsocial.render --ckpt runs/a --env goalcycle3 --env-args width=9,height=9   # writes into the run"  # noqa: E501
+CT = "next: does it learn from the experts, and keep it once they leave? python -m jaxsocial.evaluate --ckpt runs/a runs/b --env goalcycle3:width=9,height=9 --protocol ct"  # noqa: E501
+ONWARDS = "next: compare conditions over fresh seeds, with a test: docs/your-experiment.md"
 
 
 def test_the_outcome_says_what_the_evaluation_shows():
@@ -67,7 +68,7 @@ def test_the_outcome_says_what_the_evaluation_shows():
     ct = {"protocol": "ct", "ct": _interval(0.125), "recall": _interval(0.0, 0.05)}
     said = evaluate.outcome(ct, cfg)
     assert "follows them rather than having learned the task" in said[0]
-    assert said[1] == RENDER
+    assert said[1] == ONWARDS  # after the CT protocol: onwards (render points back here)
     assert "--out FILE" in said[2]
     kept = evaluate.outcome({**ct, "recall": _interval(0.2)}, cfg)[0]
     assert "keeps part of it after they leave" in kept
@@ -81,14 +82,23 @@ def test_the_outcome_says_what_the_evaluation_shows():
     assert said == [
         "the learner scored 3.00 per episode beside experts scoring 31.00",
         "past the one-tile plateau (return > 2): it completes the cycle here, 10% of the experts' return",
-        RENDER,
+        CT,
     ]
+    randoms = [{**s, "kind": "random"} if s["kind"] == "expert" else s for s in slots]
+    assert evaluate.outcome({"results": randoms}, dataclasses.replace(cfg, out="x.json")) == [ONWARDS]
     four = evaluate.EnvSpec("goalcycle4").env_params()
     below = evaluate.verdict(-4.93, 45.5, four)
     assert below.startswith("on the one-tile plateau (return <= 2): it does not complete the 4-goal cycle")
     assert below.endswith("; below 0 it pays more wrong-tile penalties than it earns")
     rooms = evaluate.EnvSpec("fourrooms").env_params()
     assert evaluate.verdict(0.5, 0.9, rooms) == "that is 56% of the experts' return"
+
+
+def test_a_mistyped_flag_names_the_module_to_ask_for_help(capsys):
+    with pytest.raises(SystemExit):
+        evaluate.main(["--episode", "3"])
+    err = capsys.readouterr().err
+    assert "--episodes" in err and "python -m jaxsocial.evaluate --help" in err and "evaluate.py" not in err
 
 
 def test_the_command_line_gives_parsed_policies():

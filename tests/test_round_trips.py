@@ -12,7 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxsocial
-from jaxsocial import syntax, train
+from jaxsocial import evaluate, syntax, train
 from jaxsocial.agents import experts, network_config, population
 from jaxsocial.run import config, flags, logs, schedule
 from jaxsocial.run.flags import config_flags
@@ -238,3 +238,27 @@ def test_a_config_json_with_the_old_field_names_reads_as_today():
         record["ppo"]["chunk_length"],
         record["ppo"]["minibatch_chunks"],
     )
+
+
+@pytest.mark.parametrize("preset", ["small", "laptop"])
+def test_an_environment_with_overrides_is_one_syntax(preset, capsys):
+    """`--env NAME:ARGS` is `--env NAME --env-args ARGS` (replacing a preset's overrides, as --env-args
+    does) for training and evaluation; with `--env-args` as well, the fields join; a field in both errs."""
+    flag = ["--preset", preset, "--env", "goalcycle4", "--env-args", "penalty=1.0,width=9"]
+    as_flag = train.parse_args(flag)
+    assert train.parse_args(["--preset", preset, "--env", "goalcycle4:penalty=1.0,width=9"]) == as_flag
+    assert (as_flag.env, as_flag.env_args) == ("goalcycle4", (("penalty", 1.0), ("width", 9)))
+    split = ["--preset", preset, "--env=goalcycle4:penalty=1.0", "--env-args", "width=9"]
+    assert train.parse_args(split) == as_flag
+    with pytest.raises(SystemExit):
+        train.parse_args(["--preset", preset, "--env", "goalcycle4:width=9", "--env-args", "width=7"])
+    assert "both set width: give each field once" in capsys.readouterr().err.replace("\n", " ")
+    assert evaluate.EvalConfig(env="goalcycle4:penalty=1.0", env_args="width=9") == evaluate.EvalConfig(
+        env="goalcycle4", env_args="penalty=1.0,width=9"
+    )
+
+
+def test_an_unknown_environment_shows_both_forms():
+    with pytest.raises(ValueError, match="unknown environment") as err:
+        EnvSpec.parse("goalcycle9:penalty=1.0").env_params()
+    assert "(goalcycle3:penalty=1.0,width=7), or in --env-args" in str(err.value)

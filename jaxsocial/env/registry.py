@@ -53,7 +53,11 @@ def make(name: str, **overrides) -> tuple[Env, EnvParams]:
     Raises ValueError for an unknown name or field, or an impossible combination, before compiling anything.
     """
     if name not in PRESETS:
-        raise ValueError(f"unknown environment {name!r}; choose one of: {', '.join(registered_envs())}")
+        raise ValueError(
+            f"unknown environment {name!r}; choose one of: {', '.join(registered_envs())}. Overrides go "
+            "after a ':' (goalcycle3:penalty=1.0,width=7), or in --env-args (--env goalcycle3 --env-args "
+            "penalty=1.0,width=7): the two are one"
+        )
     unknown = sorted(set(overrides) - set(PARAM_FIELDS))
     if unknown:
         raise ValueError(f"unknown EnvParams field(s) {unknown}; valid fields: {', '.join(PARAM_FIELDS)}")

@@ -49,7 +49,8 @@ class RunConfig:
     validated (`Setup`)."""
 
     env: str = "goalcycle3"
-    """Environment preset (see `jaxsocial.registered_envs()`)."""
+    """Environment preset (see `jaxsocial.registered_envs()`), NAME or NAME:field=value,... (the overrides
+    join --env-args: NAME:penalty=0.5 is NAME with --env-args penalty=0.5)."""
     env_args: specs.EnvArgsFlag = ()
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
     slots: population.SlotsFlag = ()
@@ -76,6 +77,7 @@ class RunConfig:
             if hasattr(self, name):
                 parsed = tuple(field.parse(v) if isinstance(v, str) else v for v in getattr(self, name))
                 object.__setattr__(self, name, parsed)
+        specs.join_env_in(self)  # NAME:ARGS is NAME with --env-args ARGS
 
 
 @dataclasses.dataclass(frozen=True)
