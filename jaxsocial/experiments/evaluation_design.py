@@ -341,8 +341,9 @@ def verdict(summary: dict[str, Any]) -> str:
 
 
 def draw(summary: dict[str, Any], path: Path) -> None:
-    """One panel per environment: a bar per arm and reference (mean, t 95% interval), a cross per policy,
-    and the environment's experts as a dashed line; each panel titled with its test's Holm p-value."""
+    """One panel per environment, four to a row: a bar per arm and reference (mean, t 95% interval over
+    policies), a cross per policy, and the environment's experts as a dashed line; each panel titled with its
+    test's family and Holm p-value."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -357,9 +358,13 @@ def draw(summary: dict[str, Any], path: Path) -> None:
         for name, e in block[family].items()
     }
     per_env = summary["environments"]
-    fig, axes = plt.subplots(1, len(per_env), figsize=(3.4 * len(per_env), 3.8), squeeze=False)
+    columns = min(4, len(per_env))
+    panel_rows = -(-len(per_env) // columns)
+    fig, axes = plt.subplots(panel_rows, columns, figsize=(3.6 * columns, 3.6 * panel_rows), squeeze=False)
+    for ax in axes.flat[len(per_env) :]:
+        ax.set_visible(False)
     colors = plt.get_cmap("tab10").colors
-    for ax, (env, rows) in zip(axes[0], per_env.items(), strict=True):
+    for ax, (env, rows) in zip(axes.flat[: len(per_env)], per_env.items(), strict=True):
         players = [p for p in rows if p != "experts" and rows[p] is not None]
         for j, p in enumerate(players):
             s = rows[p]
