@@ -23,6 +23,7 @@ DECLARED = {
     ("README.md", "jaxsocial"),
     ("README.md", "The headline result"),
     ("README.md", "Social learning on a laptop"),
+    ("README.md", "The paper, finding by finding"),
     ("docs/experiments.md", "The sample-efficiency sweep (exploratory)"),
     ("docs/experiments.md", "Results"),
     ("docs/experiments.md", "The GPU scale: social learning appears in some seeds *(no records)*"),
