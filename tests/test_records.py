@@ -1,6 +1,7 @@
 """Run records: the committed tiny record set re-derives its committed summary with no training, records
 read like run directories, and packing checks everything before it writes."""
 
+import functools
 import json
 import shutil
 from pathlib import Path
@@ -9,7 +10,7 @@ import pytest
 
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, paths, pinned, recipes, records
+from jaxsocial.experiments import figures, followup, paths, pinned, recipes, records, sweep, takeoff_power
 from jaxsocial.run import logs, metrics, policy_io
 
 REPO = Path(__file__).resolve().parents[1]
@@ -239,3 +240,54 @@ def test_a_record_keeps_its_checkpoint_only_with_a_reason():
     assert records.checkpoint_reason("learned", 4.9, 5.0) is None
     assert "final return 30.00 > 5" in records.checkpoint_reason("learned", 30.0, 5.0)
     assert "--final-checkpoint all" in records.checkpoint_reason("all", -3.0, 5.0)
+
+
+def _rederivations() -> dict[str, functools.partial]:
+    """Every committed summary made from the committed records alone (file name) -> the command that writes
+    it, run from the repository root: the `figure` command it names, the follow-ups', the sweep's and its
+    map, and the pooled summaries."""
+    science = REPO / paths.SCIENCE
+    out = {}
+    for path in sorted(science.glob("*.json")):
+        summary = logs.read_json(path)
+        command = summary.get("command") or ""
+        if command.startswith("python -m jaxsocial.experiments figure ") and str(paths.RECORDS) in command:
+            out[path.name] = functools.partial(cli.main, command.split()[3:])
+        elif path.name.startswith("followup-"):
+            out[path.name] = functools.partial(followup.main, ["figure", summary["design"]])
+    out[paths.SWEEP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["figure"])
+    committed = ["--summary", str(science / "sweep.json")]
+    out[paths.MAP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["map", *committed])
+    for pooled in takeoff_power.POOLED:
+        out[pooled.name] = functools.partial(takeoff_power.main, [])
+    return out
+
+
+def test_every_committed_summary_is_rederived_or_from_runs_not_committed():
+    """A summary the test below does not re-derive names a command that trains (`run`): its runs were not
+    recorded."""
+    rederived = _rederivations()
+    for path in sorted((REPO / paths.SCIENCE).glob("*.json")):
+        if path.name not in rederived:
+            assert logs.read_json(path)["command"].startswith("python -m jaxsocial.experiments run "), path
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(_rederivations()))
+def test_a_committed_summary_rederives_byte_for_byte_at_head(name, tmp_path, monkeypatch):
+    """What the README promises: run a summary's command and `git status` shows nothing changed. It runs, as
+    written, in a copy of the repository's results whose summaries are not there yet (everything else is
+    linked), and its JSON must equal the committed bytes (the figures' PNG bytes depend on the plotting
+    library's version)."""
+    results = REPO / paths.RESULTS
+    for entry in results.iterdir():
+        if entry.name != paths.SCIENCE.name:
+            (tmp_path / paths.RESULTS / entry.name).parent.mkdir(parents=True, exist_ok=True)
+            (tmp_path / paths.RESULTS / entry.name).symlink_to(entry)
+    for entry in (REPO / paths.SCIENCE).iterdir():
+        if entry.is_dir():  # evaluations some summaries read
+            (tmp_path / paths.SCIENCE).mkdir(parents=True, exist_ok=True)
+            (tmp_path / paths.SCIENCE / entry.name).symlink_to(entry)
+    monkeypatch.chdir(tmp_path)
+    _rederivations()[name]()
+    assert (tmp_path / paths.SCIENCE / name).read_bytes() == (REPO / paths.SCIENCE / name).read_bytes()
