@@ -26,6 +26,7 @@ DECLARED = {
     ("README.md", "The paper, finding by finding"),
     ("docs/experiments.md", "The sample-efficiency sweep (exploratory)"),
     ("docs/experiments.md", "Results"),
+    ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
     ("docs/experiments.md", "The GPU scale: social learning appears in some seeds *(no records)*"),
     ("docs/experiments.md", "Pre-registration"),
     (
