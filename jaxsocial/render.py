@@ -99,40 +99,46 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     args = parser.parse_args(argv)
+    try:
+        check_args(args)
+    except (ValueError, RuntimeError) as err:  # one line: the usage is for flags argparse cannot read
+        raise SystemExit(f"{parser.prog}: error: {err}") from None
+    return args
 
-    # Everything is checked before JAX compiles anything.
+
+def check_args(args: argparse.Namespace) -> None:
+    """Check the parsed flags and complete them (the output path, the episode set-up), before JAX compiles
+    anything; ValueError or RuntimeError says what is wrong."""
     if args.ckpt is None and args.env is None:
-        parser.error("give --env (random actions) or --ckpt RUN_DIR (a trained learner)")
+        raise ValueError("give --env (random actions) or --ckpt RUN_DIR (a trained learner)")
     if args.ckpt is None and args.slots is not None:
-        parser.error("--slots needs --ckpt")
+        raise ValueError("--slots needs --ckpt")
     if args.ckpt is not None and args.policy is not None:
-        parser.error("--policy is for random actions; with --ckpt the saved policy acts")
+        raise ValueError("--policy is for random actions; with --ckpt the saved policy acts")
     if args.out is None and args.ckpt is None:
-        parser.error("give --out FILE (.gif or .mp4): without --ckpt there is no run directory to write into")
+        raise ValueError(
+            "give --out FILE (.gif or .mp4): without --ckpt there is no run directory to write into"
+        )
     if args.out is None:
         name = "learner.gif" if args.env is None else f"learner-{gif_name(args.env)}.gif"
         args.out = os.path.join(args.ckpt, name)
     if os.path.exists(args.out) and not args.overwrite:
-        parser.error(f"{args.out} already exists; pass --overwrite to replace it")
+        raise ValueError(f"{args.out} already exists; pass --overwrite to replace it")
     if args.steps is not None and args.steps < 1:
-        parser.error(f"--steps {args.steps} must be >= 1")
+        raise ValueError(f"--steps {args.steps} must be >= 1")
     if args.fps <= 0:
-        parser.error(f"--fps {args.fps} must be > 0")
+        raise ValueError(f"--fps {args.fps} must be > 0")
     if args.tile < 3:
-        parser.error(f"--tile {args.tile} must be >= 3")
+        raise ValueError(f"--tile {args.tile} must be >= 3")
     if args.scale < 1:
-        parser.error(f"--scale {args.scale} must be an integer >= 1")
+        raise ValueError(f"--scale {args.scale} must be an integer >= 1")
     args.tile *= args.scale
-    try:
-        check_video_path(args.out)
-        if args.ckpt is None:
-            args.env_params = EnvSpec.parse(args.env).env_params()
-        else:
-            args.setup, args.env, args.decoder = learner_setup(args.ckpt, args.env, args.slots)
-            args.env_params = args.setup.env_params
-    except (ValueError, RuntimeError) as e:
-        parser.error(str(e))
-    return args
+    check_video_path(args.out)
+    if args.ckpt is None:
+        args.env_params = EnvSpec.parse(args.env).env_params()
+    else:
+        args.setup, args.env, args.decoder = learner_setup(args.ckpt, args.env, args.slots)
+        args.env_params = args.setup.env_params
 
 
 def gif_name(env: str) -> str:
@@ -183,10 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.ckpt is None:
         print("next: watch a trained learner instead: --ckpt RUN_DIR (one seed's run directory)")
     else:
-        env = EnvSpec.parse(args.env)
-        env_args = f" --env-args {env.env_args}" if env.args else ""
         print(f"next: its return over many episodes: python -m jaxsocial.evaluate --ckpt {args.ckpt} "
-              f"--env {env.name}{env_args}")  # fmt: skip
+              f"--env {EnvSpec.parse(args.env)}")  # fmt: skip
     return 0
 
 

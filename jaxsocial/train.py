@@ -25,6 +25,7 @@ from jaxsocial.agents import population
 from jaxsocial.run import (
     compile_cache,
     config,
+    cost,
     distributed,
     flags,
     init_from,
@@ -100,6 +101,8 @@ def run(cfg: TrainConfig) -> Path:
     run_dir = run_path(cfg)
     if branching:  # RUN_DIR@ITERATION in config.json
         cfg = dataclasses.replace(cfg, init_from=init_from.pin(cfg.init_from, numbers, run_dir))
+    if distributed.is_main():
+        print(cost.estimate(cfg), flush=True)  # before "auto" measures the machine and before compiling
     cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)
@@ -191,24 +194,34 @@ def _resume_from(argv: list[str]) -> tuple[TrainConfig | None, list[str]]:
     return None, argv
 
 
+def _flag_value(argv: list[str], flag: str) -> str | None:
+    """The value of the last '--flag VALUE' or '--flag=VALUE' in `argv` ('' for a flag ending it), or None."""
+    value = None
+    for i, arg in enumerate(argv):
+        if arg == flag:
+            value = argv[i + 1] if i + 1 < len(argv) else ""
+        elif arg.startswith(flag + "="):
+            value = arg.removeprefix(flag + "=")
+    return value
+
+
 def parse_args(argv: list[str]) -> TrainConfig:
     """Parse the CLI: `--preset NAME` picks the defaults, every TrainConfig field is a flag; `--resume
-    RUN_DIR` starts from the run's saved config instead (flags given with it still apply). The old flags of
-    renamed fields (`flags.LEGACY_FLAGS`) still work, with a deprecation message."""
+    RUN_DIR` starts from the run's saved config instead (flags given with it still apply). `--env NAME:ARGS`
+    is `--env NAME --env-args ARGS`: its overrides replace the preset's, and join those of `--env-args`. The
+    old flags of renamed fields (`flags.LEGACY_FLAGS`) still work, with a deprecation message."""
     import tyro
 
     saved, argv = _resume_from(flags.modern_flags(argv))
     default = saved
     if saved is None:
-        preset = "small"
-        for i, arg in enumerate(argv):  # '--preset NAME' or '--preset=NAME' (the last one counts)
-            if arg == "--preset":
-                preset = argv[i + 1] if i + 1 < len(argv) else ""
-            elif arg.startswith("--preset="):
-                preset = arg.removeprefix("--preset=")
+        preset = _flag_value(argv, "--preset")
+        preset = "small" if preset is None else preset
         if preset not in PRESETS:
             raise SystemExit(f"unknown --preset {preset!r}; choose one of {sorted(PRESETS)}")
         default = PRESETS[preset]
+    if ":" in (_flag_value(argv, "--env") or ""):  # NAME:ARGS is NAME with --env-args ARGS, not the preset's
+        default = dataclasses.replace(default, env_args=())
     usage = USAGE.format(envs=", ".join(jaxsocial.registered_envs()))
     cfg = tyro.cli(
         TrainConfig, default=default, args=argv, description=usage, prog="python -m jaxsocial.train"

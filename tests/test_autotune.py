@@ -67,7 +67,9 @@ def test_auto_resolves_every_layer_and_caches(tmp_path, counted, capsys):
     path = tmp_path / "cache" / "autotune.json"
     cfg = dataclasses.replace(TINY, conv_impl="auto")
     resolved = autotune.resolve(cfg, BATCH, path=path)
-    assert f"autotune: measuring the {len(CONV_LAYERS)} 'auto' layers" in capsys.readouterr().err  # says so
+    said = capsys.readouterr().err
+    assert f"autotune: measuring the {len(CONV_LAYERS)} 'auto' layers" in said  # says so, and where
+    assert f"the choice is cached in {path}" in said
     expected = "conv1=xla,conv2=matmul,conv3=matmul,deconv1=matmul,deconv2=im2col,deconv3=matmul"
     assert resolved.conv_impl == expected and not resolved.unresolved
     assert dataclasses.replace(resolved, conv_impl="auto") == cfg  # nothing else changed

@@ -204,23 +204,28 @@ def test_cli_scale_draws_every_panel_larger(tmp_path):
     assert cli.parse_args(["--env", "goalcycle3", "--out", str(tmp_path / "x.gif")]).tile == 3 * TILE
 
 
+def refused(argv: list[str]) -> str:
+    """The one-line error `render` exits with on `argv` (no usage text: the flags parsed)."""
+    with pytest.raises(SystemExit) as e:
+        cli.main(argv)
+    message = str(e.value)
+    assert message.startswith("python -m jaxsocial.render: error: ") and "usage" not in message, message
+    return message
+
+
 def test_cli_unknown_env(tmp_path):
     result = run_cli("--env", "nope", "--out", str(tmp_path / "x.gif"), cwd=tmp_path)
-    assert result.returncode == 2
+    assert result.returncode == 1 and "usage" not in result.stderr
     assert "unknown environment 'nope'" in result.stderr and "goalcycle3" in result.stderr
     assert not (tmp_path / "x.gif").exists()
 
 
-def test_cli_refuses_to_overwrite_and_bad_extension(tmp_path, capsys):
+def test_cli_refuses_to_overwrite_and_bad_extension(tmp_path):
     out = tmp_path / "exists.gif"
     out.write_bytes(b"keep me")
-    with pytest.raises(SystemExit) as e:
-        cli.main(["--env", "goalcycle3", "--out", str(out)])
-    assert e.value.code == 2 and "--overwrite" in capsys.readouterr().err
+    assert "--overwrite" in refused(["--env", "goalcycle3", "--out", str(out)])
     assert out.read_bytes() == b"keep me"
-    with pytest.raises(SystemExit):
-        cli.main(["--env", "goalcycle3", "--out", str(tmp_path / "x.avi")])
-    assert ".gif or .mp4" in capsys.readouterr().err
+    assert ".gif or .mp4" in refused(["--env", "goalcycle3", "--out", str(tmp_path / "x.avi")])
 
 
 @pytest.fixture
@@ -238,7 +243,7 @@ def test_cli_plays_a_saved_learner_with_the_runs_slots(learner_run, tmp_path, ca
     assert "steps: 6 (time limit)" in stdout and "wrote 6 frames" in stdout
     # it ends with the command that measures the learner over many episodes, in the run's environment
     assert f"next: its return over many episodes: python -m jaxsocial.evaluate --ckpt {learner_run / 's0'} " \
-        f"--env {TINY.env} --env-args {TINY_ENV_ARGS}" in stdout  # fmt: skip
+        f"--env {TINY.env}:{TINY_ENV_ARGS}" in stdout  # fmt: skip
     frames = iio.imread(out, index=None)
     assert frames.shape[0] == 6
     assert cli.main(["--env", TINY.env + ":" + TINY_ENV_ARGS, "--out", str(random_out), "--steps", "5"]) == 0
@@ -263,9 +268,7 @@ def test_cli_writes_into_the_run_by_default_so_pictures_never_collide(
     spec = f"{TINY.env}:{TINY_ENV_ARGS}"
     assert cli.main(["--ckpt", str(run), "--env", spec, "--steps", "3"]) == 0
     assert (run / f"learner-{cli.gif_name(spec)}.gif").is_file()
-    with pytest.raises(SystemExit):
-        cli.main(["--env", TINY.env])
-    assert "give --out FILE" in capsys.readouterr().err
+    assert "give --out FILE" in refused(["--env", TINY.env])
     assert [cli.counted(n, "reward") for n in (0, 1, 2)] == ["0 rewards", "1 reward", "2 rewards"]
     assert cli.counted(1, "penalty", "penalties") == "1 penalty"
 
@@ -320,14 +323,13 @@ def test_predicted_view_beside_the_learners_view(learner_run):
         (["--env", "goalcycle3", "--slots", "learner,random,random"], "--slots needs --ckpt"),
     ],
 )
-def test_cli_ckpt_errors_before_compiling(learner_run, tmp_path, capsys, monkeypatch, args, message):
+def test_cli_ckpt_errors_before_compiling(learner_run, tmp_path, monkeypatch, args, message):
     def must_not_run(*_):
         raise AssertionError("played an episode")
 
     monkeypatch.setattr(playback, "_play", must_not_run)
     monkeypatch.setattr(cli, "rollout_episode", must_not_run)
     out = tmp_path / "x.gif"
-    with pytest.raises(SystemExit) as e:
-        cli.main([a.format(tmp=tmp_path, run=learner_run) for a in args] + ["--out", str(out)])
-    assert e.value.code == 2 and message.format(run=learner_run) in capsys.readouterr().err
+    error = refused([a.format(tmp=tmp_path, run=learner_run) for a in args] + ["--out", str(out)])
+    assert message.format(run=learner_run) in error
     assert not out.exists()

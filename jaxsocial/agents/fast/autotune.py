@@ -486,7 +486,7 @@ def tune(net_cfg: NetworkConfig, batch: int, *, path: str | Path | None = None, 
 
     print(
         f"autotune: measuring the {len(auto)} 'auto' layers on this machine ({net_cfg.dtype}, {frames} "
-        "frames), once: the choice is cached in {path}",
+        f"frames), once: the choice is cached in {path}",
         file=sys.stderr,
         flush=True,
     )
