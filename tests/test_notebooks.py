@@ -63,10 +63,20 @@ def test_social_learning_notebook_shows_committed_results_without_training(
         result = laptop["preregistered"]["result"]  # the design's test, as the summary carries it
         assert (
             f"treatment {result['treatment_learned']}/{result['treatment_seeds']} learned, control "
-            f"{result['control_learned']}/{result['control_seeds']}, p = {result['p']:.4f}; valid"
+            f"{result['control_learned']}/{result['control_seeds']}, p = {result['p']:.4g}"
         ) in printed
+    experts = json.loads((REPO / "benchmarks/results/science/experts-laptop.json").read_text())
+    for test, result in experts["preregistered"]["result"]["primary"].items():  # takeoff, then 4-goal returns
+        assert f"primary {test}: p = {result['p']:.4g}" in printed
+    for condition, c in experts["conditions"].items():
+        mean, (low, high) = c["goalcycle4"]["mean"], c["goalcycle4"]["ci95"]
+        assert f"{condition:<24} beside new experts, 4 goals: {mean:6.2f} [{low:6.2f}, {high:6.2f}]" in (
+            printed
+        )
     assert f"No committed learner at {tmp_path / 'no-record'}" in printed and ns["record_episode"] is None
-    assert "No cpu-scale runs under" in printed and ns["runs"] is None and not (tmp_path / "runs").exists()
+    hint = "run predictions --scale laptop --seeds 2 --cores 0 1"  # the scale where learners learn
+    assert "No laptop-scale runs under" in printed and hint in printed
+    assert ns["runs"] is None and not (tmp_path / "runs").exists()
 
 
 @pytest.mark.slow  # trains a tiny run (about a minute of compiling), then plays it as the record

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 from jaxsocial.experiments import figures, paths, pinned, prereg, recipes, records, runner, verify
-from jaxsocial.run import logs
+from jaxsocial.run import logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
 
@@ -92,8 +92,18 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 help="log of the training commands: '<ISO date> <commit> <command with --run-name>' lines "
                 f"(default: each run's {pinned.RUN_FILE}, which `run --cores` writes)",
             )
-            p.add_argument("--device", required=True, help="the device the runs trained on, in words")
-            p.add_argument("--jax", required=True, help="the jax version the runs trained with")
+            p.add_argument(
+                "--device",
+                default=None,
+                help="the device the runs trained on, in words (default: the CPU each run's process file "
+                f"measured, {pinned.RUN_FILE}; required with --commands-log, whose runs trained elsewhere)",
+            )
+            p.add_argument(
+                "--jax",
+                default=None,
+                help="the jax version the runs trained with (default: the version each run's process file "
+                "recorded; required with --commands-log)",
+            )
             p.add_argument("--overwrite", action="store_true", help="replace existing records")
             p.add_argument(
                 "--final-checkpoint",
@@ -105,19 +115,28 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             )
     for name, (_, help_) in DELEGATED.items():
         sub.add_parser(name, help=help_ + f" (python -m jaxsocial.experiments {name} --help)", add_help=False)
-    p = sub.add_parser("power", help="a pre-registered design and its power")
-    p.add_argument("recipe", choices=sorted(r.name for r in recipes.RECIPES.values() if r.design))
+    designed = sorted(r.name for r in recipes.RECIPES.values() if r.design)
+    power = f"a pre-registered design and its power (recipes with a design: {', '.join(designed)})"
+    p = sub.add_parser("power", help=power, description=power)
+    p.add_argument("recipe", choices=designed)
     p = sub.add_parser(
         "verify", help="re-train a record's first iterations and compare its metrics rows (timings aside)"
     )
     p.add_argument("record", help="a record (or run) directory of one seed")
-    p.add_argument("--iterations", type=int, default=verify.DEFAULT_ITERATIONS, help="iterations to re-train")
+    p.add_argument(
+        "--iterations",
+        type=int,
+        default=None,
+        help=f"iterations to re-train (default: {verify.DEFAULT_ITERATIONS}, or the record's rows if fewer)",
+    )
     p.add_argument("--out", default=None, help="also write the result as JSON here (never into the record)")
     args = parser.parse_args(argv)
-    if args.command == "verify" and args.iterations < 1:
+    if args.command == "verify" and args.iterations is not None and args.iterations < 1:
         parser.error(f"--iterations {args.iterations} must be >= 1")
     if args.command in helps:
         _seed_range(parser, args)
+    if args.command == "record" and args.commands_log and None in (args.device, args.jax):
+        parser.error("--commands-log: give --device and --jax, what its runs trained on (not measured here)")
     return args
 
 
@@ -180,6 +199,7 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
                 except FileNotFoundError as err:  # its command has not ended yet (or was not `pinned`)
                     print(f"  {condition}: {err}; skipped")
                     continue
+                run = with_measured(run, args.device, args.jax, seed_dir)
             else:
                 run = records.run_provenance(str(run_name), commands, args.device, args.jax)
             if run["rc"] not in (None, 0):
@@ -201,6 +221,22 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
         )
 
 
+def with_measured(run: dict, device: str | None, jax_version: str | None, seed_dir: Path) -> dict:
+    """`run` (`pinned.run_provenance`) with `device` and `jax_version`, or where not given, what its process
+    file measured (`pinned.machine`): the CPU (one core per seed where pinned) and the jax it had. ValueError
+    naming the flags to give where the file lacks them (written before it held them)."""
+    cpu, cores = run.get("cpu"), run.get("cores")
+    pinned_to = "" if cores is None else ", one core per seed" if cores == 1 else f", {cores} cores"
+    run = run | {
+        "device": device or (cpu and cpu + pinned_to),
+        "jax": jax_version or (run.get("versions") or {}).get("jax"),
+    }
+    unknown = [f"--{key}" for key in ("device", "jax") if not run[key]]
+    if unknown:
+        raise ValueError(f"{seed_dir}: its {pinned.RUN_FILE} does not say; give {' and '.join(unknown)}")
+    return run
+
+
 def run_verify(args: argparse.Namespace) -> None:
     """`verify`: checked before anything trains (the record, the --out file), then re-trained and reported."""
     out = Path(args.out) if args.out else None
@@ -208,8 +244,10 @@ def run_verify(args: argparse.Namespace) -> None:
         raise SystemExit(f"error: {out} exists; choose another --out")
     if out is not None and out.resolve().is_relative_to(Path(args.record).resolve()):
         raise SystemExit(f"error: --out {out} is inside the record; verify writes nothing there")
+    record_dir = Path(args.record)
     try:
-        result = verify.verify(Path(args.record), args.iterations)
+        iterations = args.iterations or min(verify.DEFAULT_ITERATIONS, len(metrics.read_rows(record_dir)))
+        result = verify.verify(record_dir, iterations)
     except (ValueError, FileNotFoundError, RuntimeError) as err:
         raise SystemExit(f"error: {err}") from err
     print(verify.report(result))
