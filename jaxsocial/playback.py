@@ -132,16 +132,19 @@ def episode_video(
     title: str = pictures.PREDICTED_TITLE,
 ) -> list[np.ndarray]:
     """uint8 frames of a `learner_episode`, one per step (the map and every agent's view;
-    `pictures.render_frame`), with `predicted` uint8[T, 21, 21, 3] (`predicted_views`) beside the learner's
-    view under `title` (`pictures.DECODER_TITLES` by the network's frame loss)."""
+    `pictures.render_frame`), each view titled with its slot's kind ('learner 0', 'expert 1', ...) and return
+    so far, with `predicted` uint8[T, 21, 21, 3] (`predicted_views`) beside the learner's view under `title`
+    (`pictures.DECODER_TITLES` by the network's frame loss)."""
+    names = [f"{slot.kind} {i}" for i, slot in enumerate(episode["pop"].slots)]
     frames = []
     for t in range(len(episode["actions"])):
         state = jax.tree.map(lambda x, t=t: x[t], episode["states"])
         reward = episode["rewards"][t - 1] if t else None
         extra = None if predicted is None else {episode["learner"]: predicted[t]}
+        titles = pictures.agent_titles(names, episode["rewards"][:t])
         frames.append(
             pictures.render_frame(
-                state, episode["obs"][t], episode["env_params"], reward, tile, extra, predicted_title=title
+                state, episode["obs"][t], episode["env_params"], reward, tile, extra, titles, title
             )
         )
     return frames

@@ -1,4 +1,5 @@
-"""Learning curves of training runs, one row of panels per learner slot and the other slots' returns below.
+"""Learning curves of training runs: every slot's return on one axis first (the learner against its experts),
+then one row of panels per learner slot and the other slots' returns below.
 
     python -m jaxsocial.plot runs/goalcycle3-s0-2                     # runs/goalcycle3-s0-2/curves.png
     python -m jaxsocial.plot runs/a-s0 runs/a-s1 runs/b-s0 --out compare.pdf
@@ -7,8 +8,9 @@ A learner's row shows its episode return (episode-weighted, in `--points` blocks
 losses it logged per iteration (auxiliary, attention, behaviour cloning), KL and entropy, against env steps;
 the other slots' (experts', distractors') returns sit side by side below. Seeds of the same config (every
 setting but the seed and the driver's, e.g. `iterations`) form one group, whether they come from one
-`--seeds N` run or from separate runs: each seed is a faint line, the mean a thick one, with a 95% Student-t
-band over the seeds.
+`--seeds N` run or from separate runs, and are labelled by the runs' name without its seed part and by their
+seeds ('social_rec (seeds 0-3)'): each seed is a faint line, the mean a thick one, with a 95% Student-t band
+over the seeds.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import argparse
 import dataclasses
 import json
 import os
+import re
 import sys
 from pathlib import Path
 from typing import Any
@@ -71,6 +74,24 @@ class Group:
     rows: list[list[dict[str, Any]]]
     slots: list[str]
     steps_per_iteration: int
+    seeds: list[int]
+
+    @property
+    def legend(self) -> str:
+        """'social_rec (seeds 0-3)', 'tiny (seeds 0, 1)', 'goalcycle3 (seed 0)': the runs and their seeds."""
+        return f"{self.label} ({seed_list(self.seeds)})"
+
+
+def seed_list(seeds: list[int]) -> str:
+    """'seed 3', 'seeds 0, 1', 'seeds 300-339', 'seeds 0, 2-4': consecutive seeds as a range."""
+    ordered, spans = sorted(seeds), []
+    for seed in ordered:
+        if spans and seed == spans[-1][1] + 1:
+            spans[-1][1] = seed
+        else:
+            spans.append([seed, seed])
+    text = ", ".join(str(a) if a == b else f"{a}, {b}" if b == a + 1 else f"{a}-{b}" for a, b in spans)
+    return f"seed{'s' if len(ordered) > 1 else ''} {text}"
 
 
 def slot_labels(config: dict[str, Any]) -> list[str]:
@@ -84,11 +105,20 @@ def _group_key(config: dict[str, Any]) -> str:
     return json.dumps({k: v for k, v in config.items() if k not in NOT_GROUPED}, sort_keys=True)
 
 
+SEED_SUFFIX = re.compile(r"(/s\d+|-s\d+(-\d+)?)$")
+"""What names a run's seeds: '/s3' (one seed of a multi-seed run), '-s0' (train's default name), '-s0-5'
+(the experiments' `<condition>-s<first>-<last>`)."""
+
+
 def _label(run_dir: Path) -> str:
-    """A run's name in legends: its directory name, 'RUN/sK' for one seed of a multi-seed run."""
+    """A run's name in legends, without what names its seeds: 'social_rec' for 'social_rec-s0-0' and for
+    one seed of it, 'social_rec-s0-5/s3'."""
     one_seed = metrics.one_seed_of_many(logs.read_config(run_dir))
     run_dir = run_dir.resolve()
-    return f"{run_dir.parent.name}/{run_dir.name}" if one_seed else run_dir.name
+    name = f"{run_dir.parent.name}/{run_dir.name}" if one_seed else run_dir.name
+    while SEED_SUFFIX.search(name):
+        name = SEED_SUFFIX.sub("", name)
+    return name
 
 
 def load_groups(run_dirs: list[str | Path]) -> list[Group]:
@@ -121,11 +151,12 @@ def load_groups(run_dirs: list[str | Path]) -> list[Group]:
         config = members[0][2]
         groups.append(
             Group(
-                label=labels[0] if len(labels) == 1 else f"{labels[0]} +{len(labels) - 1}",
+                label=" / ".join(labels),
                 seed_dirs=[d for _, d, _ in members],
                 rows=rows,
                 slots=slot_labels(config),
                 steps_per_iteration=metrics.steps_per_iteration(config),
+                seeds=[c["seed"] for _, _, c in members],
             )
         )
     return groups
@@ -186,15 +217,14 @@ def draw(groups: list[Group], points: int = metrics.CURVE_POINTS, together: bool
                 else:
                     k = metrics.key(key, slot)
                     xs, ys = zip(*(metrics.metric_curve(r, k) for r in g.rows), strict=True)
-                label = f"{g.label} ({len(g.rows)} seed{'s' if len(g.rows) > 1 else ''})"
                 xs = [x * g.steps_per_iteration for x in xs]
-                band(ax, xs, list(ys), label, colors[i % len(colors)])
+                band(ax, xs, list(ys), g.legend, colors[i % len(colors)])
             names = sorted({g.slots[slot] for g in groups if slot < len(g.slots)})
             ax.set_title(f"slot {slot} ({' / '.join(names)}): {PANELS[key]}", fontsize=9)
             ax.set_ylabel(Y_LABELS[key], fontsize=8)
             steps_axis(ax)
             ax.tick_params(labelsize=7)
-    axes[0, 0].legend(fontsize=7)
+    axes[int(together), 0].legend(fontsize=7)  # the runs and their seeds (the together panel has its own)
     fig.tight_layout()
     return fig
 
@@ -223,7 +253,7 @@ def summary(groups: list[Group]) -> list[str]:
     for g in groups:
         shortest, longest = min(map(len, g.rows)), max(map(len, g.rows))
         iterations = f"{shortest}" if shortest == longest else f"{shortest} to {longest}"
-        lines.append(f"{g.label}: {len(g.rows)} seed(s), {iterations} iterations")
+        lines.append(f"{g.legend}: {iterations} iterations")
         for slot, name in enumerate(g.slots):
             s = stats.summary([metrics.final_return(r, slot) for r in g.rows])
             if s["mean"] is None:
@@ -246,8 +276,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     parser.add_argument(
         "--together",
-        action="store_true",
-        help="add a first panel with every slot's return on one axis (the learner beside the experts)",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="a first panel with every slot's return on one axis, so the gap between the learner and the "
+        "experts shows (default; --no-together leaves it out)",
     )
     parser.add_argument(
         "--points",

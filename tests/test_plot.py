@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import TINY_ENV_ARGS
 
-from jaxsocial import axes, plot
+from jaxsocial import axes, curves, plot
 from jaxsocial.run import logs, metrics
 
 
@@ -58,7 +58,7 @@ def test_two_seeds_panels_mean_and_band(run_dir):
     assert band[:, 1].min() <= mean.min() and band[:, 1].max() >= mean.max()
     kl = [r["kl/0"] for r in group.rows[1]]
     np.testing.assert_allclose(fig.axes[2].lines[1].get_ydata(), kl)  # seed 1's KL, per iteration
-    assert [t.get_text() for t in returns.get_legend().get_texts()] == ["tiny (2 seeds)"]
+    assert [t.get_text() for t in returns.get_legend().get_texts()] == ["tiny (seeds 0, 1)"]
     # env steps on every x axis, as "64k", "1.2M", at most nbins + 1 = 6 ticks so their labels do not overlap
     assert all(ax.xaxis.get_major_formatter().func is axes.format_steps for ax in fig.axes)
     assert all(len(ax.get_xticks()) <= 6 for ax in fig.axes)
@@ -76,7 +76,7 @@ def test_seeds_group_by_config(run_dir, tmp_path):
     other = copy_seed(run_dir / "s0", tmp_path / "other", env_args=f"{TINY_ENV_ARGS},penalty=0.5")
     # The whole run, one of its seeds again (counted once) and a run of another config.
     groups = plot.load_groups([run_dir / "s1", run_dir, other])
-    assert [(g.label, len(g.rows)) for g in groups] == [("tiny/s1 +1", 2), ("other", 1)]
+    assert [(g.legend, len(g.rows)) for g in groups] == [("tiny (seeds 0, 1)", 2), ("other (seed 0)", 1)]
     fig = plot.draw(groups)
     returns = fig.axes[0]
     assert len(returns.lines) == 3 + 2 and len(returns.collections) == 1  # one seed: no band
@@ -85,13 +85,36 @@ def test_seeds_group_by_config(run_dir, tmp_path):
         plot.load_groups([run_dir, twin])
 
 
+def test_runs_of_one_condition_are_labelled_by_it_and_their_seeds(run_dir, tmp_path):
+    runs = [copy_seed(run_dir / f"s{s}", tmp_path / f"social_rec_pen1-s{s}-{s}", seed=s) for s in (0, 1)]
+    (group,) = plot.load_groups(runs)
+    assert group.legend == "social_rec_pen1 (seeds 0, 1)"
+    assert [plot.seed_list(s) for s in ([3], [1, 0], [*range(300, 340)], [0, 2, 3, 4, 9])] == [
+        "seed 3", "seeds 0, 1", "seeds 300-339", "seeds 0, 2-4, 9"
+    ]  # fmt: skip
+
+
+def test_a_zoomed_panel_spans_the_means_not_the_seeds():
+    from matplotlib.figure import Figure
+
+    ax = Figure().subplots()
+    x = np.arange(5.0)
+    curves.band(ax, [x, x], [np.full(5, -10.0), np.full(5, 12.0)], "wide", "C0")  # mean 1
+    curves.band(ax, [x], [np.linspace(0.0, 2.0, 5)], "narrow", "C1")
+    assert ax.get_ylim()[0] < -10 and ax.get_ylim()[1] > 12
+    curves.zoom_to_means(ax)
+    np.testing.assert_allclose(ax.get_ylim(), (-0.2, 2.2))
+
+
 def test_together_puts_every_slots_return_on_one_axis(run_dir):
     groups = plot.load_groups([run_dir])
     first = plot.draw(groups, together=True).axes[0]
     assert first.get_title() == "every slot's episode return, one axis"
     labels = [line.get_label() for line in first.lines if not line.get_label().startswith("_")]
     assert labels == [f"tiny: slot {i} {name}" for i, name in enumerate(groups[0].slots)]
-    assert len(plot.draw(groups, together=True).axes) == len(plot.draw(groups).axes) + 1
+    together = plot.draw(groups, together=True).axes
+    assert len(together) == len(plot.draw(groups).axes) + 1
+    assert [t.get_text() for t in together[1].get_legend().get_texts()] == ["tiny (seeds 0, 1)"]
 
 
 def test_cli_writes_into_the_first_run_by_default(run_dir, tmp_path):
@@ -108,7 +131,7 @@ def test_cli_writes_image_and_refuses_to_overwrite(run_dir, tmp_path):
     cmd = [sys.executable, "-m", "jaxsocial.plot", str(run_dir), "--out", str(out)]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert "tiny: 2 seed(s), 4 iterations" in done.stdout and "slot 0 learner: final return" in done.stdout
+    assert "tiny (seeds 0, 1): 4 iterations" in done.stdout and "slot 0 learner: final return" in done.stdout
     image = iio.imread(out)
     assert image.ndim == 3 and image.shape[1] > image.shape[0] > 100
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=120)

@@ -14,10 +14,11 @@ from conftest import TINY, TINY_ENV_ARGS, TINY_SLOTS
 import jaxsocial
 from jaxsocial import playback
 from jaxsocial import render as cli
-from jaxsocial.env import sprites
+from jaxsocial.env import pictures, sprites
 from jaxsocial.env.pictures import (
     DECODER_TITLES,
     TITLE_COLOR,
+    agent_titles,
     episode_frames,
     render_frame,
     render_map,
@@ -154,6 +155,20 @@ def test_render_frame_and_rollout():
     assert np.all(frame[differs] >= np.minimum(untitled[differs], TITLE_COLOR))
     with pytest.raises(ValueError, match="2 titles for 3 agents"):
         render_frame(state, obs, params, tile=TILE, titles=["a", "b"])
+
+
+def test_each_frame_names_its_step_and_every_agents_return_so_far(monkeypatch):
+    assert agent_titles(["learner 0", "expert 1"], np.array([[1.0, 0.0], [0.0, -1.5]])) == [
+        "learner 0: +1.0", "expert 1: -1.5"
+    ]  # fmt: skip
+    assert agent_titles(["agent 0"], np.zeros((0, 1))) == ["agent 0: +0.0"]  # before the first step
+    _, params = jaxsocial.make("goalcycle3", max_steps=4)
+    episode = rollout_episode(jax.random.key(0), params, "random-move")
+    seen = []
+    monkeypatch.setattr(pictures, "render_frame", lambda *a, titles, **k: seen.append(titles))
+    episode_frames(episode, params, tile=TILE)
+    assert seen[-1] == [f"agent {i}: {r:+.1f}" for i, r in enumerate(episode["returns"])]
+    assert seen[0] == [f"agent {i}: +0.0" for i in range(3)]
 
 
 def test_save_episode_checks_extension(tmp_path):

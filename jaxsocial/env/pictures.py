@@ -5,12 +5,14 @@
 `render_frame` puts the map next to each agent's egocentric view (and, optionally, a learner's predicted
 view); `rollout_episode` plays one episode and `save_episode` writes a GIF or an MP4.
 
-Each panel has a title ("map", "agent i" or "learner's view", "predicted next view"). Each agent's field
-of view is outlined on the map, and a strip above its view, in its identity colour (marlgrid's default agent
-colours: red, blue, purple, orange, olive, pink, by index). A view's border turns green on a step with a
-positive reward and red on a penalty. A predicted view has a striped strip. A cell holding several agents
-shows one of them (as the observations do) and a strip along its top with a segment per agent, in their
-current colours. A grey bar along the bottom of a frame shows the elapsed fraction of `max_steps`.
+Each panel has a title: the map's gives the step ("step t of T"), a view's its agent ("agent i", "learner's
+view", or as the caller names them: `agent_titles` adds each agent's return so far), "predicted next view".
+Each agent's field of view is outlined on the map, and a strip above its view, in its identity colour
+(marlgrid's default agent colours: red, blue, purple, orange, olive, pink, by index). A view's border turns
+green on a step with a positive reward and red on a penalty. A predicted view has a striped strip. A cell
+holding several agents shows one of them (as the observations do) and a strip along its top with a segment
+per agent, in their current colours. A grey bar along the bottom of a frame shows the elapsed fraction of
+`max_steps`.
 """
 
 from __future__ import annotations
@@ -224,7 +226,7 @@ def render_frame(
     frame = np.empty((height, width, 3), np.uint8)
     frame[:] = BACKGROUND
     frame[gap + label : gap + label + map_h, gap : gap + map_w] = world
-    placed = [((gap, gap), "map")]
+    placed = [((gap, gap), f"step {int(np.asarray(state.time))} of {env_params.max_steps}")]
 
     for k, ((_, strip_colors, border_color, title), view) in enumerate(zip(panels, views, strict=True)):
         r, c = divmod(k, cols)
@@ -317,12 +319,23 @@ def rollout_episode(
     }
 
 
+def agent_titles(names: Sequence[str], rewards: np.ndarray) -> list[str]:
+    """Each agent's view title: its name and its return so far, the sum of `rewards` float[t, N] (the steps
+    before the frame): 'expert 1: +12.5'."""
+    returns = np.asarray(rewards, np.float64).reshape(-1, len(names)).sum(0)
+    return [f"{name}: {value:+.1f}" for name, value in zip(names, returns, strict=True)]
+
+
 def episode_frames(episode: dict[str, Any], env_params: EnvParams, tile: int = 12) -> list[np.ndarray]:
-    """`render_frame` for every state of a `rollout_episode` result (T+1 uint8 frames)."""
-    rewards = [None, *episode["rewards"]]
+    """`render_frame` for every state of a `rollout_episode` result (T+1 uint8 frames), each agent titled
+    with its return so far."""
+    rewards = np.asarray(episode["rewards"]).reshape(-1, env_params.n_agents)
+    names = [f"agent {i}" for i in range(env_params.n_agents)]
     return [
-        render_frame(s, o, env_params, r, tile)
-        for s, o, r in zip(episode["states"], episode["obs"], rewards, strict=True)
+        render_frame(
+            s, o, env_params, rewards[t - 1] if t else None, tile, titles=agent_titles(names, rewards[:t])
+        )
+        for t, (s, o) in enumerate(zip(episode["states"], episode["obs"], strict=True))
     ]
 
 

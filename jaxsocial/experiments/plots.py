@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial.axes import format_steps, steps_axis
-from jaxsocial.curves import band
+from jaxsocial.curves import band, zoom_to_means
 from jaxsocial.experiments import recipes, takeoff
 from jaxsocial.run import metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, metric_curve
@@ -151,7 +151,8 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
     if "experts" in summary and summary["experts"]["mean"] is not None:
         returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
     returns_ax.set(ylabel="learner episode return", title="the learners' returns")
-    zoom_ax.set(title="the learners' returns, zoomed")
+    zoom_to_means(zoom_ax)
+    zoom_ax.set(title="the learners' mean returns, zoomed (seeds and bands cut)")
     names = " / ".join(LOSS_PANEL[n] for n in LOSS_PANEL if n in used)
     loss_ax.set(ylabel=names, title="training loss")
     for ax in (returns_ax, zoom_ax, loss_ax):
