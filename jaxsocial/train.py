@@ -101,8 +101,9 @@ def run(cfg: TrainConfig) -> Path:
     run_dir = run_path(cfg)
     if branching:  # RUN_DIR@ITERATION in config.json
         cfg = dataclasses.replace(cfg, init_from=init_from.pin(cfg.init_from, numbers, run_dir))
-    if distributed.is_main():
-        print(cost.estimate(cfg), flush=True)  # before "auto" measures the machine and before compiling
+    done = cost.done_iterations(cfg, run_dir)
+    if distributed.is_main() and done < cfg.iterations:  # before "auto" measures the machine, and compiling
+        print(cost.estimate(cfg, done), flush=True)
     cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)

@@ -14,7 +14,7 @@ import dataclasses
 import json
 from pathlib import Path
 
-from jaxsocial.run import config
+from jaxsocial.run import checkpoint, config, rundir
 from jaxsocial.run.config import PRESETS, TrainConfig
 
 REPO = Path(__file__).resolve().parents[2]
@@ -98,12 +98,21 @@ def duration(seconds: float) -> str:
     return f"{seconds / 86400:.1f} days"
 
 
-def estimate(cfg: TrainConfig, repo: Path = REPO) -> str:
-    """The cost line a run prints before it compiles (see the module docstring)."""
+def done_iterations(cfg: TrainConfig, run_dir: Path) -> int:
+    """The iterations a run resumed from `run_dir` has done: its first seed's latest checkpoint (0 for a new
+    run, or one that saved none)."""
+    first = rundir.checkpoints(rundir.seed_dirs(run_dir, cfg.seed, cfg.seeds)[0])
+    return (checkpoint.latest_step(first) or 0) if cfg.resume and first.is_dir() else 0
+
+
+def estimate(cfg: TrainConfig, done: int = 0, repo: Path = REPO) -> str:
+    """The cost line a run prints before it compiles (see the module docstring), for the iterations left
+    after `done`."""
     per_iteration = cfg.num_envs * cfg.rollout_steps * cfg.seeds
-    steps = cfg.iterations * per_iteration
-    resumed = ", less what a resumed run has done" if cfg.resume else ""
-    head = f"cost: {cfg.iterations:,} iterations x {per_iteration:,} env-steps = {steps:,} env-steps"
+    left = cfg.iterations - done
+    steps = left * per_iteration
+    resumed = f" (of {cfg.iterations:,}: {done:,} done)" if done else ""
+    head = f"cost: {left:,} iterations{resumed} x {per_iteration:,} env-steps = {steps:,} env-steps"
     measured = measured_for(cfg)
     rate = None if measured is None else read_rate(measured, repo)
     if rate is None:
@@ -113,10 +122,10 @@ def estimate(cfg: TrainConfig, repo: Path = REPO) -> str:
             else f"no committed benchmark measured these settings (only the {', '.join(MEASURED)} presets "
             "unchanged)"
         )
-        return f"{head}{resumed}; no time estimate: {why}. The progress line gives the rate once it runs"
+        return f"{head}; no time estimate: {why}. The progress line gives the rate once it runs"
     seconds = steps / rate.env_steps_per_s + rate.compile_s
     line = (
-        f"{head}{resumed}: about {duration(seconds)} at {rate.env_steps_per_s:,.0f} env-steps/s, the rate "
+        f"{head}: about {duration(seconds)} at {rate.env_steps_per_s:,.0f} env-steps/s, the rate "
         f"of the {cfg.preset} preset on {rate.machine} ({rate.source}); another machine's differs"
     )
     if seconds > LONG_S:
