@@ -10,7 +10,17 @@ import pytest
 
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, followup, paths, pinned, recipes, records, sweep, takeoff_power
+from jaxsocial.experiments import (
+    evaluation_design,
+    figures,
+    followup,
+    paths,
+    pinned,
+    recipes,
+    records,
+    sweep,
+    takeoff_power,
+)
 from jaxsocial.run import logs, metrics, policy_io
 
 REPO = Path(__file__).resolve().parents[1]
@@ -255,6 +265,8 @@ def _rederivations() -> dict[str, functools.partial]:
             out[path.name] = functools.partial(cli.main, command.split()[3:])
         elif path.name.startswith("followup-"):
             out[path.name] = functools.partial(followup.main, ["figure", summary["design"]])
+        elif command.startswith("python -m jaxsocial.experiments.evaluation_design figure "):
+            out[path.name] = functools.partial(evaluation_design.main, command.split()[3:])
     out[paths.SWEEP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["figure"])
     committed = ["--summary", str(science / "sweep.json")]
     out[paths.MAP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["map", *committed])
