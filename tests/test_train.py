@@ -87,6 +87,7 @@ def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, c
 
 
 def test_the_run_ends_with_its_outcome():
+    from jaxsocial.agents.population import parse_slot_list
     from jaxsocial.run.outputs import outcome
 
     def rows(learner_return):
@@ -104,6 +105,12 @@ def test_the_run_ends_with_its_outcome():
     unfinished = outcome([{**rows(0.0)[0], "episodes/0": 0}], social, 5_120)  # no learner episode ended
     assert "learner nan" in unfinished and "plateau" not in unfinished
     assert "no episode of the learner ended in the last 10% of the iterations (5,120 env-steps" in unfinished
+    learners_only = dataclasses.replace(PRESETS["small"], slots=parse_slot_list("learner,learner,learner"))
+    three = outcome(rows(0.9), config.setup(learners_only, load_frozen=False), 512_000)
+    assert (
+        "on the one-tile plateau" in three and "beside experts" not in three
+    )  # no experts: no such expectation
+    assert three.endswith("after 512,000 env-steps under the 1.5 penalty")
     no_penalty = config.setup(dataclasses.replace(PRESETS["small"], env_args="penalty=0"), load_frozen=False)
     assert "plateau" not in outcome(rows(0.9), no_penalty, 512_000)
     # a run stopped by --stop-at-return: its last chunk, not the diluted final window, says what happened

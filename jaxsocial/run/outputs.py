@@ -264,7 +264,7 @@ def outcome(
             f"in all; an episode lasts {env.max_steps} steps), so there is no final return to judge: train "
             "more iterations"
         )
-    if env.layout != "goalcycle" or env.penalty == 0 or not static.pop.experts:
+    if env.layout != "goalcycle" or env.penalty == 0:
         return text
     if ret > metrics.LEARNED_RETURN:
         return text + f"\nthe learner left the one-tile plateau (return > {metrics.LEARNED_RETURN:g})"
@@ -272,7 +272,7 @@ def outcome(
         f"\nthe learner is on the one-tile plateau (return <= {metrics.LEARNED_RETURN:g}: the free first "
         f"tile, then no more)"
     )
-    if env_steps < SMALL_BUDGET:
+    if env_steps < SMALL_BUDGET and static.pop.experts:
         return text + (
             f": expected at this budget ({env_steps:,} env-steps) under the {env.penalty:g} penalty; "
             "learners that leave it beside experts take millions of env-steps (docs/experiments.md)"
