@@ -132,7 +132,9 @@ collect() {
   local out=benchmarks/results/inflight/$design-gpu tmp
   tmp=$(mktemp -d)
   for t in .prereg/state/*.tgz; do tar xzf "$t" -C "$tmp"; done
-  rm -rf "$out" && mkdir -p "$out"
+  # Earlier blocks' blinded logs stay (device-<UTC time>.log, one a block): the committed state no longer
+  # carries the raw logs, so a block resumed from git brings back only its own.
+  rm -rf "$out/state" && mkdir -p "$out"
   cp .prereg/commands.log "$out/commands.log"
   python -m jaxsocial.experiments.inflight .prereg/state/*.tgz --out "$out/state"  # the resume state, in git
   for run in "$tmp"/runs/experiments/gpu/*/; do
