@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -124,6 +125,19 @@ def test_the_run_ends_with_its_outcome():
     seeds = [SeedRun(s, Path(f"s{s}"), {}) for s in (4, 5, 6)]
     line = over_seeds([rows(0.9), rows(12.0), rows(0.3)], seeds, social)
     assert line.endswith("over the 3 seeds (last 10% of the iterations): mean 4.4 (s4 0.9, s5 12, s6 0.3)")
+
+
+def test_the_run_says_how_it_re_trains_bit_for_bit(monkeypatch):
+    """The closing line names what `verify` re-trains under: this process's $XLA_FLAGS and visible cores."""
+    from jaxsocial.run.outputs import reproduce_line
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    line = reproduce_line(Path("runs/x"))
+    assert "$XLA_FLAGS '--xla_cpu_multi_thread_eigen=false', in a process that sees 1 core(s)" in line
+    assert line.endswith(
+        "jaxsocial.experiments verify runs/x checks it (docs/experiments.md names the kinds that agree)"
+    )
 
 
 def test_same_seed_same_run(tiny_runs):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -200,6 +201,7 @@ class Outputs:
             return
         where = f" ({len(self.seeds)} seeds: s{self.cfg.seed}/ ...)" if len(self.seeds) > 1 else ""
         print(f"wrote {run_dir}{where} ({it} iterations)")
+        print(reproduce_line(run_dir))
         if self.cfg.blind:
             print("blind run (a pre-registered design's): no return is shown until every seed is in")
             return
@@ -219,6 +221,18 @@ class Outputs:
             count, first = len(self.nonfinite_iterations), self.nonfinite_iterations[0]
             print(f"warning: {count} iterations had non-finite values (the first: {first}), marked "
                   f"'{nonfinite.ROW_KEY}' in metrics.jsonl", file=sys.stderr)  # fmt: skip
+
+
+def reproduce_line(run_dir: Path) -> str:
+    """How the run re-trains bit for bit (docs/experiments.md, "Does the training re-run?"): the same commit
+    and package versions, a CPU of a kind that agrees with this one, this process's $XLA_FLAGS and as many
+    visible cores; `experiments verify` re-trains it so and says whether it is exact."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (
+        f"bit for bit it re-trains from this commit on this CPU kind, with $XLA_FLAGS "
+        f"'{os.environ.get('XLA_FLAGS', '')}', in a process that sees {cores} core(s): python -m "
+        f"jaxsocial.experiments verify {run_dir} checks it (docs/experiments.md names the kinds that agree)"
+    )
 
 
 def over_seeds(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], static: config.Setup) -> str:
