@@ -290,7 +290,7 @@ def summarise(
         }
         played = [r for e, r in results.items() if e.env == env and r is not None]
         per_env[env]["experts"] = experts_return(played[0]) if played else None
-    commit, evaluated = design_commit(design.name), read_provenance(out)
+    commit, evaluated = prereg.file_commit(path_of(design.name)), read_provenance(out)
     checks = prereg.commit_checks(commit, {line["file"]: line["commit"] for line in evaluated})
     checks["played_as_designed"] = played_as_designed(design, results)
     block = {
@@ -311,12 +311,6 @@ def summarise(
         "machines": sorted({line["cpu"] for line in evaluated}),
         "command": f"python -m jaxsocial.experiments.evaluation_design figure {design.name}",
     }
-
-
-def design_commit(name: str) -> str | None:
-    """The last commit that touched the design's file (None if it is not committed)."""
-    out = records.git("log", "-1", "--format=%H", "--", path_of(name).name, cwd=DESIGNS_DIR)
-    return out.stdout.strip() or None if out.returncode == 0 else None
 
 
 def verdict(summary: dict[str, Any]) -> str:

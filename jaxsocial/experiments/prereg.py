@@ -137,7 +137,12 @@ def power_of(design: Design, env_steps_per_run: int) -> float:
 
 def design_commit(name: str) -> str | None:
     """The last commit that touched the design's file (None if it is not committed)."""
-    out = records.git("log", "-1", "--format=%H", "--", path_of(name).name, cwd=DESIGNS_DIR)
+    return file_commit(path_of(name))
+
+
+def file_commit(path: Path) -> str | None:
+    """The last commit that touched the file `path` (None if it is not committed)."""
+    out = records.git("log", "-1", "--format=%H", "--", path.name, cwd=path.parent)
     return out.stdout.strip() or None if out.returncode == 0 else None
 
 
