@@ -101,6 +101,8 @@ def run(cfg: TrainConfig) -> Path:
     run_dir = run_path(cfg)
     if branching:  # RUN_DIR@ITERATION in config.json
         cfg = dataclasses.replace(cfg, init_from=init_from.pin(cfg.init_from, numbers, run_dir))
+        if distributed.is_main() and init_from.params_only(cfg.init_from, numbers):
+            print(f"--init-from {cfg.init_from}: the params of its policy (no checkpoint), a fresh optimiser")
     done = cost.done_iterations(cfg, run_dir)
     if distributed.is_main() and done < cfg.iterations:  # before "auto" measures the machine, and compiling
         print(cost.estimate(cfg, done), flush=True)

@@ -10,8 +10,9 @@ import pytest
 from conftest import TINY
 
 from jaxsocial import train
+from jaxsocial.agents import ppo
 from jaxsocial.experiments import records
-from jaxsocial.run import checkpoint, config, driver, init_from, logs, loop
+from jaxsocial.run import checkpoint, config, driver, init_from, logs, loop, policy_io
 from jaxsocial.specs import CheckpointRef
 
 
@@ -121,8 +122,7 @@ def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path)
     run = dict.fromkeys(records.RUN_FIELDS)
     plain = records.pack(source, tmp_path / "plain", run, "tiny/source")
     assert logs.read_json(plain / records.PROVENANCE_FILE)["record"]["checkpoint_reason"] is None
-    with pytest.raises(FileNotFoundError, match="hold checkpoints"):
-        _check(_branch(tmp_path, str(plain)))
+    assert not (plain / "checkpoints").exists()
     reason = records.checkpoint_reason("all", 0.0, 5.0)
     record = records.pack(source, tmp_path / "record", run, "tiny/source", checkpoint_reason=reason)
     assert checkpoint.all_steps(record / "checkpoints") == [TINY.iterations]
@@ -141,3 +141,34 @@ def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path)
     shutil.rmtree(partial / "checkpoints" / str(TINY.iterations))
     with pytest.raises(FileNotFoundError, match="no checkpoint of its final iteration"):
         records.pack(partial, tmp_path / "p", run, "tiny/partial", checkpoint_reason=reason)
+
+
+def test_a_record_without_checkpoints_gives_its_policys_params_and_a_fresh_optimiser(source, tmp_path):
+    """A record that kept only its exported policy (no `--final-checkpoint`) is a params-only source: the
+    new run starts from the policy's params of the iteration it names, with the optimiser state a fresh run
+    has (Adam's moments zero, step 0: what `optimizer.init` gives for the loaded params too)."""
+    plain = records.pack(source, tmp_path / "plain", dict.fromkeys(records.RUN_FIELDS), "tiny/source")
+    cfg = _branch(tmp_path, str(plain), seed=7)
+    _check(cfg)
+    assert init_from.params_only(cfg.init_from, [7])
+    assert _pin(cfg, tmp_path / "branch") == CheckpointRef(plain, TINY.iterations)
+    with pytest.raises(FileNotFoundError, match=r"no checkpoint of iteration 3 \(policy exports"):
+        _check(_branch(tmp_path, f"{plain}@3"))
+    static = config.setup(cfg)
+    program = loop.compiled(cfg.program, loop.data_mesh(cfg.program, 0), static.stage(-1), static.pop)
+    fresh = program.init(np.int32(cfg.seed))
+    state = driver.load_source_learners(cfg.init_from, [cfg.seed], fresh, program)
+    saved = policy_io.load_learners(plain, fresh.params)
+    jax.tree.map(np.testing.assert_array_equal, state.params, saved)
+    jax.tree.map(np.testing.assert_array_equal, state.opt_state, fresh.opt_state)
+    restarted = jax.vmap(ppo.make_optimizer(cfg.ppo).init)(state.params)
+    jax.tree.map(np.testing.assert_array_equal, state.opt_state, restarted)
+    assert not jax.tree.all(jax.tree.map(np.array_equal, state.params, fresh.params))
+    mixed = tmp_path / "mixed"
+    shutil.copytree(source, mixed / "s7")
+    shutil.copytree(plain, mixed / "s8")
+    with pytest.raises(ValueError, match="some seeds hold checkpoints and some only a policy"):
+        init_from.params_only(CheckpointRef(mixed), [7, 8])
+    branch = train.run(dataclasses.replace(cfg, iterations=1))
+    assert logs.read_config(branch)["init_from"] == f"{plain}@{TINY.iterations}"
+    assert [r["iteration"] for r in logs.read_metrics(branch)] == [1]

@@ -75,15 +75,21 @@ def load_source_learners(
     source: CheckpointRef | None, seeds: list[int], state: RunnerState, program: Program
 ) -> RunnerState:
     """The freshly initialised `state` of the run's `seeds` ([K, ...] for K > 1 seeds) with the learners'
-    params and optimiser state of `source` (`--init-from`, `jaxsocial.run.init_from`), placed as `program`
-    places its state; `state` itself without a source. Called only for a state at iteration 0 (a resumed
-    run with a checkpoint keeps its own)."""
+    params and optimiser state of `source` (`--init-from`, `jaxsocial.run.init_from`; of a `params_only`
+    source its policy's params and `state`'s own fresh optimiser state), placed as `program` places its
+    state; `state` itself without a source. Called only for a state at iteration 0 (a resumed run with a
+    checkpoint keeps its own)."""
     if not source:
         return state
-    iteration = init_from.source_iteration(source, seeds)
-    loaded = [source_state(d, iteration) for d in init_from.source_dirs(source, seeds)]
-    learned: Any = [(s.params, s.opt_state) for s in loaded]
-    params, opt_state = learned[0] if len(seeds) == 1 else population.stack(learned)
+    iteration, dirs = init_from.source_iteration(source, seeds), init_from.source_dirs(source, seeds)
+    if init_from.params_only(source, seeds):  # the policy's params; the optimiser as `state` starts it
+        seed_axis = 1 if len(seeds) > 1 else 0
+        template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[seed_axis:], x.dtype), state.params)
+        loaded = [policy_io.load_learners(d, template, iteration) for d in dirs]
+        params, opt_state = loaded[0] if len(seeds) == 1 else population.stack(loaded), state.opt_state
+    else:
+        learned: Any = [(s.params, s.opt_state) for s in (source_state(d, iteration) for d in dirs)]
+        params, opt_state = learned[0] if len(seeds) == 1 else population.stack(learned)
     ours = jax.tree.map(lambda x: (x.shape, x.dtype), (state.params, state.opt_state))
     theirs = jax.tree.map(lambda x: (x.shape, x.dtype), (params, opt_state))
     if ours != theirs:

@@ -1,7 +1,10 @@
 """`--init-from RUN_DIR[@ITERATION]`: start a new run from another run's learners.
 
 The new run gets the source's learner params and optimiser state (Adam moments and step count) from its
-checkpoint of ITERATION (default: the latest every source seed has); everything else is the new run's own:
+checkpoint of ITERATION (default: the latest every source seed has). A source without checkpoints, such as a
+record that kept only its exported policy, gives the params of its `policy/` export of ITERATION, and the
+optimiser starts fresh (the new run's own initial state: Adam's zero moments and step 0, which do not depend
+on the params); every source seed must be of one kind (`params_only`). Everything else is the new run's own:
 fresh environments, LSTM states and random keys from its seed, its flags, stages and `--iterations`. Its
 iteration counter starts at 0, so `--iterations N` trains N more iterations and stages are counted from the
 branch point; the source and the iteration are in its `config.json` (`init_from`: `RUN_DIR@ITERATION`), so the
@@ -27,38 +30,63 @@ from jaxsocial.run.config import RunConfig, TrainConfig
 from jaxsocial.specs import CheckpointRef
 
 
+def _has_learners(seed_dir: Path) -> bool:
+    """Whether `seed_dir` holds checkpoints or an exported policy."""
+    return rundir.checkpoints(seed_dir).is_dir() or (seed_dir / policy_io.POLICY_DIR).is_dir()
+
+
+def _saved_steps(seed_dir: Path) -> set[int]:
+    """The iterations a seed directory's learners can be loaded from: its checkpoints' or, without any, its
+    policy exports'."""
+    if rundir.checkpoints(seed_dir).is_dir():
+        return set(checkpoint.all_steps(rundir.checkpoints(seed_dir)))
+    return set(checkpoint.all_steps(seed_dir / policy_io.POLICY_DIR))
+
+
 def source_dirs(source: CheckpointRef, seeds: list[int]) -> list[Path]:
     """The seed directory of `source` each of the run's `seeds` starts from. FileNotFoundError if there is
     none."""
     run_dir = source.run
     if not run_dir.is_dir():
         raise FileNotFoundError(f"--init-from {source}: no directory {run_dir}")
-    if rundir.checkpoints(run_dir).is_dir():
+    if _has_learners(run_dir):
         return [run_dir] * len(seeds)
     dirs = [run_dir / rundir.seed_name(seed) for seed in seeds]
-    missing = [str(d) for d in dirs if not rundir.checkpoints(d).is_dir()]
+    missing = [str(d) for d in dirs if not _has_learners(d)]
     if missing:
         raise FileNotFoundError(
-            f"--init-from {source}: neither {run_dir} nor {missing} hold checkpoints; pass one seed's "
-            "run directory (e.g. RUN_DIR/s0) or a run holding every seed of this one"
+            f"--init-from {source}: neither {run_dir} nor {missing} hold checkpoints or a policy; pass one "
+            "seed's run directory (e.g. RUN_DIR/s0) or a run holding every seed of this one"
         )
     return dirs
 
 
+def params_only(source: CheckpointRef, seeds: list[int]) -> bool:
+    """Whether the run of `seeds` loads only params from `source` (its seeds hold a policy export and no
+    checkpoints), with a fresh optimiser state. ValueError if some of its seeds hold checkpoints and some
+    do not."""
+    kinds = {not rundir.checkpoints(d).is_dir() for d in source_dirs(source, seeds)}
+    if len(kinds) > 1:
+        raise ValueError(f"--init-from {source}: some seeds hold checkpoints and some only a policy")
+    return kinds.pop()
+
+
 def source_iteration(source: CheckpointRef, seeds: list[int]) -> int:
-    """The checkpoint iteration the run of `seeds` starts from: `source.iteration`, or the latest every
-    source seed has. FileNotFoundError if a source lacks it."""
+    """The iteration the run of `seeds` starts from: `source.iteration`, or the latest every source seed
+    has (checkpoints, or policy exports for a `params_only` source). FileNotFoundError if a source lacks
+    it."""
     dirs = source_dirs(source, seeds)
-    steps = [set(checkpoint.all_steps(rundir.checkpoints(d))) for d in dirs]
+    params_only(source, seeds)
+    steps = [_saved_steps(d) for d in dirs]
     common = set.intersection(*steps)
     if source.iteration is None:
         if not common:
             raise FileNotFoundError(f"--init-from {source}: no checkpoint that every source seed has")
         return max(common)
     if source.iteration not in common:
+        saved = "policy exports" if params_only(source, seeds) else "checkpoints"
         raise FileNotFoundError(
-            f"--init-from {source}: no checkpoint of iteration {source.iteration} (checkpoints: "
-            f"{sorted(common)})"
+            f"--init-from {source}: no checkpoint of iteration {source.iteration} ({saved}: {sorted(common)})"
         )
     return source.iteration
 

@@ -106,8 +106,15 @@ def load_policy(policy: PolicyRef | str | Path, net_cfg: network.NetworkConfig):
     template = jax.eval_shape(
         jax.vmap(lambda k: network.init(k, net_cfg)), jax.random.split(jax.random.key(0), n_saved)
     )
-    params = checkpoint.restore(directory, {"params": template})["params"]
-    return jax.tree.map(lambda x: x[k], params)
+    return jax.tree.map(lambda x: x[k], load_learners(policy.run, template))
+
+
+def load_learners(run_dir: str | Path, template: Any, step: int | None = None) -> Any:
+    """Every learner's params (stacked [S_l, ...], like `template`: arrays or `jax.ShapeDtypeStruct`s) of
+    the policy export `step` (None: the latest) in `run_dir`. ValueError if it has no policy;
+    FileNotFoundError if not that step."""
+    directory = _policy_dir(PolicyRef.of(run_dir))
+    return checkpoint.restore(directory, {"params": template}, step)["params"]
 
 
 def load_frozen(pop: population.Population, net_cfg: network.NetworkConfig) -> Any:
