@@ -328,7 +328,7 @@ def test_conditions_with_other_experts_report_their_own(tmp_path):
     assert "experts" not in summary["conditions"]["solo_pred"]
     assert summary["conditions"]["social_pred_imperfect"]["experts"]["final_returns"] == [21.0]
     assert summary["conditions"]["social_pred_distractors"]["experts"]["final_returns"] == [39.0]
-    plt = plots._pyplot()
+    plt = plots.pyplot()
     fig, ax = plt.subplots()
     plots.draw_finals(ax, runs, summary, plt.get_cmap("tab10").colors)
     assert [t.get_text() for t in ax.get_xticklabels()][-3:] == [
@@ -380,7 +380,7 @@ def test_a_curves_recipe_with_transfer_envs_summarises_its_zero_shot_returns(tmp
     assert "zero_shot" not in kinds.summarise_curves(
         SimpleNamespace(**{**vars(runs), "recipe": recipes.RECIPES["imperfect"]})
     )
-    plt = plots._pyplot()
+    plt = plots.pyplot()
     fig, axes = plt.subplots(1, 3)
     plots.draw_zero_shot(axes, summary["zero_shot"], plt.get_cmap("tab10").colors)
     assert [ax.get_title() for ax in axes] == [

@@ -338,13 +338,9 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     """One panel per environment, four to a row: a bar per arm and reference (mean, t 95% interval over
     policies), a cross per policy, and the environment's experts as a dashed line; each panel titled with its
     test's family and Holm p-value."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from jaxsocial.experiments import plots
 
+    plt = plots.pyplot()
     block = summary["preregistered"]
     test_of = {
         e["env"]: (family, name, e)
@@ -362,8 +358,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
         players = [p for p in rows if p != "experts" and rows[p] is not None]
         for j, p in enumerate(players):
             s = rows[p]
-            yerr = None if s["ci95"] is None else [[s["mean"] - s["ci95"][0]], [s["ci95"][1] - s["mean"]]]
-            ax.bar(j, s["mean"], color=colors[j], yerr=yerr, capsize=3)
+            ax.bar(j, s["mean"], color=colors[j], yerr=plots.whisker(s["mean"], s["ci95"]), capsize=3)
             ax.scatter(
                 [j] * len(s["final_returns"]), s["final_returns"], color="k", marker="x", s=10, zorder=3
             )

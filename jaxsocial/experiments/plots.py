@@ -21,7 +21,8 @@ from jaxsocial.specs import EnvSpec
 from jaxsocial.stats import ct_score, fraction_learned
 
 
-def _pyplot():
+def pyplot():
+    """matplotlib.pyplot with the file-only Agg backend."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -129,7 +130,7 @@ def _save(plt, fig, path: Path, runs) -> None:
 def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
     """Returns through training (and zoomed), the learner's loss, the time to learning, each seed's final
     return with the mean and IQM intervals, and the zero-shot returns where the summary has them."""
-    plt = _pyplot()
+    plt = pyplot()
     colors = plt.get_cmap("tab10").colors
     steps_per_iteration = {c: cfg.num_envs * cfg.rollout_steps for c, cfg in runs.configs.items()}
     zero_shot = summary.get("zero_shot", {})
@@ -183,7 +184,7 @@ def draw_finals(ax, runs, summary: dict[str, Any], colors) -> None:
 def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
     """Returns through training and in each evaluation environment, with each seed's switch; the time to
     learning; the final returns (`draw_finals`)."""
-    plt = _pyplot()
+    plt = pyplot()
     colors = plt.get_cmap("tab10").colors
     keys = metrics.eval_keys(r for rows in runs.rows.values() for r in rows)
     fig, axes = _panels(plt, 3 + len(keys))
@@ -210,7 +211,7 @@ def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
 
 def draw_ct(runs, summary: dict[str, Any], path: Path) -> None:
     """Bars of the final training return, the CT score and recall per condition."""
-    plt = _pyplot()
+    plt = pyplot()
     colors = plt.get_cmap("tab10").colors
     panels = {
         "final": "final training return",
@@ -228,7 +229,7 @@ def draw_ct(runs, summary: dict[str, Any], path: Path) -> None:
 
 def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
     """Bars of the returns in each evaluation environment, and the time to learning."""
-    plt = _pyplot()
+    plt = pyplot()
     colors = plt.get_cmap("tab10").colors
     fig, axes = _panels(plt, len(summary["conditions"]) + 1)
     draw_takeoffs(axes[-1], runs, summary, colors)
@@ -271,7 +272,7 @@ TAKEOFF_PANELS = {
 def draw_takeoff(runs, summary: dict[str, Any], path: Path) -> None:
     """The Kaplan-Meier curves of the takeoffs with their 95% bands, the learners' returns through training,
     and per condition each seed's zero-shot scores and CT score (`TAKEOFF_PANELS`)."""
-    plt = _pyplot()
+    plt = pyplot()
     colors = plt.get_cmap("tab10").colors
     fig, axes = _panels(plt, 2 + len(TAKEOFF_PANELS))
     km_ax, returns_ax, *score_axes = axes
@@ -309,9 +310,9 @@ def bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
         s = per_cond[name]
         if s["mean"] is None:
             continue
-        ax.bar(j, s["mean"], color=colors[j], yerr=_whisker(s["mean"], s.get("ci95")), capsize=4)
+        ax.bar(j, s["mean"], color=colors[j], yerr=whisker(s["mean"], s.get("ci95")), capsize=4)
         if s.get("iqm") is not None:
-            iqm_whisker = _whisker(s["iqm"], s["iqm_ci95"])
+            iqm_whisker = whisker(s["iqm"], s["iqm_ci95"])
             ax.errorbar(j + 0.25, s["iqm"], iqm_whisker, fmt="D", color="k", ms=4, capsize=3)
         marks = s.get("final_returns") or [slot["mean"] for slot in s.get("per_slot", [])]
         ax.scatter([j] * len(marks), marks, color="k", marker="x", zorder=3)
@@ -329,7 +330,8 @@ def bar_label(name: str) -> str:
     return f"experts: {recipes.CONDITIONS[condition].label}" if condition else "its scripted experts"
 
 
-def _whisker(centre: float, interval: list[float] | None) -> list[list[float]] | None:
+def whisker(centre: float, interval: list[float] | None) -> list[list[float]] | None:
+    """A 95% interval as matplotlib's `yerr` for one bar at `centre` (None: no interval)."""
     return None if interval is None else [[centre - interval[0]], [interval[1] - centre]]
 
 
@@ -352,7 +354,7 @@ def _bar_key() -> list:
 def draw_sweep(summary: dict[str, Any], path: Path) -> None:
     """The fraction of seeds past the plateau against env-steps and against CPU-minutes, per setting, and
     each seed's learning curve."""
-    plt = _pyplot()
+    plt = pyplot()
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 5.2))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -386,7 +388,7 @@ def draw_sweep(summary: dict[str, Any], path: Path) -> None:
 def draw_map(summary: dict[str, Any], path: Path) -> None:
     """One panel per map setting: the fraction of its social and solo seeds past the plateau against
     env-steps (a seed stopped early at return 5 stays counted past the plateau)."""
-    plt = _pyplot()
+    plt = pyplot()
 
     cells = summary["cells"]
     cols = min(4, len(cells))
@@ -419,7 +421,7 @@ def draw_followup(
     """Three panels, one point per learned seed, coloured by its condition: zero-shot returns per
     environment (experts' mean as a bar), CT score and recall, and the branches (social against mixed, one
     line per seed) in each evaluation environment."""
-    plt = _pyplot()
+    plt = pyplot()
 
     seeds = summary["seeds"]
     colours = {c: f"C{i}" for i, c in enumerate(summary.get("conditions", {}))}
