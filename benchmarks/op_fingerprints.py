@@ -60,9 +60,8 @@ from reproducibility import (
 )
 from run_info import REPO, portable, write_json
 
-from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import pinned
-from jaxsocial.run import logs
+from jaxsocial.run import autotune, logs
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
 DOT_KS = (27, 256, 288, 432, 1024, 8192)

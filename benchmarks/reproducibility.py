@@ -29,9 +29,8 @@ from pathlib import Path
 
 from run_info import REPO, metadata, portable, write_json
 
-from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import pinned, verify
-from jaxsocial.run import config, logs, metrics
+from jaxsocial.run import autotune, config, logs, metrics
 
 NO_YNN = "-individual_dot,-individual_convolution,-dot,-eltwise,-reduce"
 """Every YNNPACK fusion type removed from XLA's default list: jaxlib 0.10.2 sends dots and reductions to

@@ -19,7 +19,7 @@ float32 ``jnp.dot`` measured in the same run. XLA's ``cost_analysis`` counts a l
 once per iteration, so it only cross-checks the forward count on a loop-free call (T=1, B=64).
 
 ``--impls auto`` (and ``--dtypes auto``) resolves the config first
-(`jaxsocial.agents.fast.autotune.resolve`, at the minibatch's ``--seq * --batch`` frames: per-layer choices
+(`jaxsocial.run.autotune.resolve`, at the minibatch's ``--seq * --batch`` frames: per-layer choices
 measured, or read from the autotune cache, ``--autotune-cache``); the row records the resolved per-layer
 `conv_impl` and dtype, what was asked for (`requested`) and each layer's measured candidates (`autotune`).
 
@@ -77,7 +77,8 @@ import numpy as np
 from run_info import REPO, metadata, write_results
 
 from jaxsocial.agents import network
-from jaxsocial.agents.fast import autotune, conv
+from jaxsocial.agents.fast import conv
+from jaxsocial.run import autotune
 from jaxsocial.run.config import PRESETS
 
 TORCH_SCRIPT = Path(__file__).resolve().parent / "pytorch_paper_net.py"
@@ -570,7 +571,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--autotune-cache",
-        help="the autotune's cache file (default: jaxsocial.agents.fast.autotune.cache_path())",
+        help="the autotune's cache file (default: jaxsocial.run.autotune.cache_path())",
     )
     parser.add_argument(
         "--presets", default="small,small-random,paper", help=f"section train: {', '.join(TRAIN_RUNS)}"

@@ -12,9 +12,8 @@ import pytest
 from float_bounds import assert_trees_within, gamma, network_error
 
 from jaxsocial.agents import network as net
-from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network_config import CONV_LAYERS
-from jaxsocial.run import config
+from jaxsocial.run import autotune, config
 
 TINY = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
 BATCH = 4  # frames per call (tiny shapes: every candidate compiles and runs in milliseconds)

@@ -7,10 +7,9 @@ import json
 import jax
 import pytest
 
-from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import pinned, prereg
-from jaxsocial.run import logs
+from jaxsocial.run import autotune, logs
 
 
 def _job(tmp_path, name: str, code: str) -> pinned.Job:

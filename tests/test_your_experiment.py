@@ -8,10 +8,9 @@ from pathlib import Path
 import jax
 import pytest
 
-from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import paths, pinned, records, verify
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import autotune, logs, metrics
 
 REPO = Path(__file__).resolve().parents[1]
 TINY_RECORDS = REPO / paths.RECORDS / "tiny"

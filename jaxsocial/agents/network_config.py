@@ -7,8 +7,8 @@
 
 `conv_impl` names one implementation for every conv layer ("matmul"), or one per layer
 ("conv1=xla,conv2=matmul,..."; `CONV_LAYERS`, `parse_conv_impl`). "auto" (for every layer, or for some:
-"conv2=auto") and ``dtype="auto"`` are choices left to the machine: `autotune.resolve` replaces them with
-concrete ones (measured, and cached), which is what a run's config.json records.
+"conv2=auto") and ``dtype="auto"`` are choices left to the machine: `jaxsocial.run.autotune.resolve`
+replaces them with concrete ones (measured, and cached), which is what a run's config.json records.
 """
 
 from __future__ import annotations

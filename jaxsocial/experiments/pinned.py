@@ -24,9 +24,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import records, xla_flags
-from jaxsocial.run import compile_cache, logs
+from jaxsocial.run import autotune, compile_cache, logs
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
 """What each pinned process adds to the caller's $XLA_FLAGS (`process_xla_flags`). Until 2026-11-27 it ended

@@ -35,9 +35,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.agents.fast import autotune
 from jaxsocial.experiments import pinned, records, xla_flags
-from jaxsocial.run import config, logs, metrics
+from jaxsocial.run import autotune, config, logs, metrics
 from jaxsocial.run.flags import config_flags
 
 TIMING_FIELDS = (metrics.SPEED, metrics.COMPILE_S)

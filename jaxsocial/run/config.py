@@ -19,11 +19,10 @@ import jaxsocial
 from jaxsocial import specs
 from jaxsocial.agents import network_config, population, ppo
 from jaxsocial.agents.bc import BCConfig
-from jaxsocial.agents.fast import autotune
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
-from jaxsocial.run import logs, policy_io, schedule
+from jaxsocial.run import autotune, logs, policy_io, schedule
 from jaxsocial.specs import CheckpointRef, EnvFlag, TextField
 
 STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VALUE,...;...")
