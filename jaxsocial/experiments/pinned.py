@@ -68,7 +68,7 @@ class Job:
 def train_command(flags: list[str]) -> tuple[str, ...]:
     """The argv of `python -m jaxsocial.train FLAGS` after the interpreter, with the persistent compilation
     cache (`compile_cache.default_dir()`) unless FLAGS name one: the seeds of a condition are one program, so
-    every process after the first loads it (benchmarks/compile_cache.py measures what that saves)."""
+    every process after the first loads it (benchmarks/compile_time.py measures what that saves)."""
     cache = [] if "--compile-cache" in flags else ["--compile-cache", str(compile_cache.default_dir())]
     return ("-m", "jaxsocial.train", *flags, *cache)
 

@@ -1,9 +1,10 @@
-"""What the persistent compilation cache saves a recipe's seeds: each seed trains as its own process (as
-`experiments run --cores` and the sweep train them), the first with an empty cache, the others loading the
-programs the first stored. Reports each process's compile time (the `compile_s` of its first metrics row: the
-chunk program and the state's initialiser), apart from its steps/s.
+"""What the persistent compilation cache (`jaxsocial.run.compile_cache`, through train's ``--compile-cache``)
+saves a recipe's seeds: each seed trains as its own process (as `experiments run --cores` and the sweep train
+them), the first with an empty cache, the others loading the programs the first stored. Reports each process's
+compile time (the `compile_s` of its first metrics row: the chunk program and the state's initialiser), apart
+from its steps/s.
 
-    python benchmarks/compile_cache.py --scale laptop --condition social_rec --seeds 3 \
+    python benchmarks/compile_time.py --scale laptop --condition social_rec --seeds 3 \
         --out benchmarks/results/compile_cache.json
 
 Writes JSON with the CPU model, the commit and the load average (`run_info.metadata`).
