@@ -29,7 +29,7 @@ def test_record_takes_the_device_each_runs_process_measured(tmp_path, monkeypatc
     assert len(provenances) == 4
     assert {p["device"] for p in provenances} == {f"{autotune.cpu_model()}, one core per seed"}
     assert {p["jax"] for p in provenances} == {jax.__version__}
-    assert cli.with_measured({"cpu": "X", "cores": 2}, None, "1", runs)["device"] == "X, 2 cores"
+    assert pinned.with_measured({"cpu": "X", "cores": 2}, None, "1", runs)["device"] == "X, 2 cores"
     for run_dir in (runs / "tiny").iterdir():  # a run file written before it held the machine
         info = logs.read_json(run_dir / pinned.RUN_FILE)
         logs.write_json(run_dir / pinned.RUN_FILE, {k: v for k, v in info.items() if k != "versions"})

@@ -199,7 +199,7 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
                 except FileNotFoundError as err:  # its command has not ended yet (or was not `pinned`)
                     print(f"  {condition}: {err}; skipped")
                     continue
-                run = with_measured(run, args.device, args.jax, seed_dir)
+                run = pinned.with_measured(run, args.device, args.jax, seed_dir)
             else:
                 run = records.run_provenance(str(run_name), commands, args.device, args.jax)
             if run["rc"] not in (None, 0):
@@ -219,22 +219,6 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB"
             f"{with_checkpoint})"
         )
-
-
-def with_measured(run: dict, device: str | None, jax_version: str | None, seed_dir: Path) -> dict:
-    """`run` (`pinned.run_provenance`) with `device` and `jax_version`, or where not given, what its process
-    file measured (`pinned.machine`): the CPU (one core per seed where pinned) and the jax it had. ValueError
-    naming the flags to give where the file lacks them (written before it held them)."""
-    cpu, cores = run.get("cpu"), run.get("cores")
-    pinned_to = "" if cores is None else ", one core per seed" if cores == 1 else f", {cores} cores"
-    run = run | {
-        "device": device or (cpu and cpu + pinned_to),
-        "jax": jax_version or (run.get("versions") or {}).get("jax"),
-    }
-    unknown = [f"--{key}" for key in ("device", "jax") if not run[key]]
-    if unknown:
-        raise ValueError(f"{seed_dir}: its {pinned.RUN_FILE} does not say; give {' and '.join(unknown)}")
-    return run
 
 
 def run_verify(args: argparse.Namespace) -> None:

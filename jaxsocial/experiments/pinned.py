@@ -230,6 +230,22 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     )
 
 
+def with_measured(run: dict, device: str | None, jax_version: str | None, seed_dir: Path) -> dict:
+    """`run` (`run_provenance`) with `device` and `jax_version`, or where not given, what its process
+    file measured (`machine`): the CPU (one core per seed where pinned) and the jax it had. ValueError
+    naming the flags to give where the file lacks them (written before it held them)."""
+    cpu, cores = run.get("cpu"), run.get("cores")
+    pinned_to = "" if cores is None else ", one core per seed" if cores == 1 else f", {cores} cores"
+    run = run | {
+        "device": device or (cpu and cpu + pinned_to),
+        "jax": jax_version or (run.get("versions") or {}).get("jax"),
+    }
+    unknown = [f"--{key}" for key in ("device", "jax") if not run[key]]
+    if unknown:
+        raise ValueError(f"{seed_dir}: its {RUN_FILE} does not say; give {' and '.join(unknown)}")
+    return run
+
+
 def now() -> str:
     """The current UTC time, ISO 8601 to the second (what `RUN_FILE` records)."""
     return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")

@@ -1,0 +1,566 @@
+"""Pre-registered designs that train on from committed records: every source seed's final policy starts one
+run per arm, each arm for the same iterations in its own environment, fixed in `branch_designs/<name>.json`
+before any of its runs.
+
+    python -m jaxsocial.experiments.branch_design power mixing              # the design and its power
+    python -m jaxsocial.experiments.branch_design run mixing --cores 0 1    # train what is missing (blind)
+    python -m jaxsocial.experiments.branch_design record mixing             # pack the finished runs
+    python -m jaxsocial.experiments.branch_design figure mixing             # summary, tests and figure
+
+Run k of an arm starts from the record `<records>/<source>-s<seed+k>-<seed+k>` of the arm's source condition
+(`--init-from`: a record keeps its policy, not its optimiser, so every arm starts with the policy's params
+and a fresh optimiser state), trains with the source's config in the arm's environment for `iterations`
+with seed `branch_seed + k` (every arm of one source seed the same seed: paired arms differ only in their
+environment), blind, one process pinned to each core with the design's `xla_flags`, and is evaluated at its
+end in every environment of `eval_envs` (`episodes` each). Its run directory is `<runs>/<out>/<arm>-s<seed+k>`
+and its record mirrors it. A test compares two arms' per-seed final evaluations in one environment: the
+Wilcoxon signed-rank test where both arms branch the same records (paired by source seed), Mann-Whitney U
+otherwise; the primary tests are Holm-corrected at `alpha` as a family, the secondary ones among themselves.
+
+The power is simulated from a pilot (`pilot_scores`): paired differences and each arm's scores, the effect
+diluted by a discount (`power_table`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxsocial import stats
+from jaxsocial.experiments import paths, pinned, plots, prereg, records
+from jaxsocial.run import config, logs, metrics
+from jaxsocial.run.config import TrainConfig
+from jaxsocial.run.flags import config_flags
+from jaxsocial.specs import CheckpointRef, EnvSpec
+
+DESIGNS_DIR = Path(__file__).parent / "branch_designs"
+ALTERNATIVES = ("greater", "less", "two-sided")
+
+
+@dataclasses.dataclass(frozen=True)
+class Arm:
+    """Where one arm trains on: the records of condition `source`, in the environment `env`
+    (NAME[:field=value,...])."""
+
+    source: str
+    env: str
+    statement: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Test:
+    """One comparison: `treatment`'s per-seed final evaluation in `env` against `control`'s."""
+
+    env: str
+    treatment: str
+    control: str
+    alternative: str
+    statement: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class BranchDesign:
+    """See the module docstring."""
+
+    name: str
+    records: str
+    """The material: a folder of the records root holding `<condition>-s<k>-<k>` records."""
+    out: str
+    """The design's folder under the runs root and the records root."""
+    seed: int
+    seeds: int
+    """Every source seed seed..seed+seeds-1 of every arm's source, none left out."""
+    branch_seed: int
+    iterations: int
+    arms: dict[str, Arm]
+    eval_envs: tuple[str, ...]
+    episodes: int
+    alpha: float
+    primary: dict[str, Test]
+    secondary: dict[str, Test]
+    xla_flags: str
+    power: float
+    power_simulation: dict[str, Any]
+    rationale: str
+
+    @property
+    def tests(self) -> dict[str, Test]:
+        return {**self.primary, **self.secondary}
+
+    def paired(self, test: Test) -> bool:
+        """Whether `test`'s arms branch the same records (seed k of one pairs with seed k of the other)."""
+        return self.arms[test.treatment].source == self.arms[test.control].source
+
+    def source_seeds(self) -> range:
+        return range(self.seed, self.seed + self.seeds)
+
+    def source_dir(self, arm: str, seed: int, records_root: Path = paths.RECORDS) -> Path:
+        """The record run `seed` of `arm` starts from."""
+        return records_root / self.records / f"{self.arms[arm].source}-s{seed}-{seed}"
+
+    def run_name(self, arm: str, seed: int) -> str:
+        """The run name of `arm`'s branch of source seed `seed` (under a runs root or a records root)."""
+        return f"{self.out}/{arm}-s{seed}"
+
+
+def path_of(name: str, designs_dir: Path = DESIGNS_DIR) -> Path:
+    return designs_dir / f"{name}.json"
+
+
+def load(name: str, designs_dir: Path = DESIGNS_DIR) -> BranchDesign:
+    """The design `<designs_dir>/<name>.json` (FileNotFoundError if none; ValueError if invalid)."""
+    path = path_of(name, designs_dir)
+    if not path.is_file():
+        known = sorted(p.stem for p in designs_dir.glob("*.json"))
+        raise FileNotFoundError(f"no branch design {path}; the designs are {known}")
+    raw = logs.read_json(path)
+    raw["arms"] = {k: Arm(**v) for k, v in raw["arms"].items()}
+    for family in ("primary", "secondary"):
+        raw[family] = {k: Test(**v) for k, v in raw[family].items()}
+    raw["eval_envs"] = tuple(raw["eval_envs"])
+    design = BranchDesign(**raw)
+    for arm in design.arms.values():
+        EnvSpec.parse(arm.env).env_params()  # ValueError for an unknown environment or field
+    for env in design.eval_envs:
+        EnvSpec.parse(env).env_params()
+    for test_name, test in design.tests.items():
+        problems = [
+            f"arm {a!r} is not one of {sorted(design.arms)}"
+            for a in (test.treatment, test.control)
+            if a not in design.arms
+        ]
+        if test.env not in design.eval_envs:
+            problems.append(f"{test.env} is not among eval_envs")
+        if test.alternative not in ALTERNATIVES:
+            problems.append(f"the alternative must be one of {ALTERNATIVES}")
+        if problems:
+            raise ValueError(f"design {name}, test {test_name}: {'; '.join(problems)}")
+    if not design.primary or design.iterations < 1 or design.seeds < 1:
+        raise ValueError(f"design {name}: it needs primary tests, iterations and seeds")
+    return design
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Launch: train what is missing, record what finished
+# ----------------------------------------------------------------------------------------------------------
+
+
+def branch_config(
+    design: BranchDesign, arm: str, seed: int, runs_root: Path, records_root: Path = paths.RECORDS
+) -> TrainConfig:
+    """The training config of `arm`'s branch of source seed `seed`: the source record's own config in the
+    arm's environment, from the record's policy, for the design's iterations with its branch seed, evaluated
+    at its end, blind."""
+    source = design.source_dir(arm, seed, records_root)
+    cfg = config.config_from_dict(logs.read_config(source))
+    spec = EnvSpec.parse(design.arms[arm].env)
+    return dataclasses.replace(
+        cfg,
+        env=spec.name,
+        env_args=spec.args,
+        iterations=design.iterations,
+        seed=design.branch_seed + seed - design.seed,
+        seeds=1,
+        init_from=CheckpointRef(source),
+        eval_envs=tuple(EnvSpec.parse(e) for e in design.eval_envs),
+        eval_every=design.iterations,
+        eval_episodes=design.episodes,
+        run_name=design.run_name(arm, seed),
+        runs_dir=str(runs_root),
+        resume=False,
+        overwrite=False,
+        blind=True,
+    )
+
+
+def missing_sources(design: BranchDesign, records_root: Path = paths.RECORDS) -> list[str]:
+    """The design's source records that hold no final policy."""
+    wanted = {design.source_dir(a, s, records_root) for a in design.arms for s in design.source_seeds()}
+    return sorted(str(d) for d in wanted if not (d / "policy").is_dir())
+
+
+def run_state(design: BranchDesign, run_dir: Path) -> str:
+    """'done' (every iteration logged), 'partial' (begun) or 'missing'."""
+    rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
+    return "done" if rows >= design.iterations else "partial" if run_dir.is_dir() else "missing"
+
+
+def run(
+    design: BranchDesign,
+    runs_root: Path,
+    cores: list[int],
+    records_root: Path = paths.RECORDS,
+    dry_run: bool = False,
+) -> list[int]:
+    """Train every branch not done yet, seed by seed (each source seed's arms before the next seed), one
+    process a core; a begun branch resumes. Nothing starts if a source record is missing. Returns the exit
+    codes."""
+    missing = missing_sources(design, records_root)
+    if missing:
+        raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
+    jobs, counts = [], {"done": 0, "partial": 0, "missing": 0}
+    for seed in design.source_seeds():
+        for arm in design.arms:
+            cfg = branch_config(design, arm, seed, runs_root, records_root)
+            run_dir, state = runs_root / cfg.run_name, run_state(design, runs_root / cfg.run_name)
+            counts[state] += 1
+            flags = config_flags(cfg) + (["--resume"] if state == "partial" else [])
+            if dry_run:
+                print(f"  {cfg.run_name}: {state}\n    python -m jaxsocial.train {' '.join(flags)}")
+            elif state != "done":
+                jobs.append(pinned.Job(cfg.run_name, pinned.train_command(flags), run_dir))
+    print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
+    if dry_run or not jobs:
+        return []
+    return pinned.run(jobs, cores, design.xla_flags)
+
+
+def record(design: BranchDesign, runs_root: Path, records_root: Path = paths.RECORDS) -> list[Path]:
+    """Pack every finished branch under `runs_root` that has no record yet into the records root, with its
+    process's provenance (the machine it measured); every one is checked before the first is written."""
+    packing = []
+    for seed in design.source_seeds():
+        for arm in design.arms:
+            name = design.run_name(arm, seed)
+            run_dir, target = runs_root / name, records_root / name
+            if target.exists():
+                continue
+            if run_state(design, run_dir) != "done":
+                print(f"  {name}: not finished, not recorded")
+                continue
+            try:
+                run_info = pinned.run_provenance(run_dir, None, None)
+            except pinned.RunNotEnded as err:
+                print(f"  {name}: {err}; not recorded")
+                continue
+            records.packable(run_dir)
+            packing.append((run_dir, target, pinned.with_measured(run_info, None, None, run_dir), name))
+    for run_dir, _, run_info, _ in packing:
+        if run_info["rc"] != 0:
+            raise ValueError(f"{run_dir}: its process exited with {run_info['rc']}; not a result to record")
+    for run_dir, target, run_info, name in packing:
+        records.pack(run_dir, target, run_info, name)
+        print(f"recorded {run_dir} -> {target}")
+    return [target for _, target, _, _ in packing]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Analyse: scores, tests, checks
+# ----------------------------------------------------------------------------------------------------------
+
+
+def final_scores(design: BranchDesign, records_root: Path = paths.RECORDS) -> dict[str, dict[str, list]]:
+    """Per arm, per evaluation environment, every source seed's final evaluation (None: not recorded)."""
+    out: dict[str, dict[str, list]] = {arm: {env: [] for env in design.eval_envs} for arm in design.arms}
+    for arm in design.arms:
+        for seed in design.source_seeds():
+            record_dir = records_root / design.run_name(arm, seed)
+            rows = logs.read_metrics(record_dir) if logs.has_metrics(record_dir) else None
+            for env in design.eval_envs:
+                key = metrics.eval_key(str(EnvSpec.parse(env)))  # as `train` logs it
+                value = None if rows is None else metrics.final_eval(rows, key)
+                out[arm][env].append(None if value is None or np.isnan(value) else round(value, 4))
+    return out
+
+
+def compare(test: Test, paired: bool, scores: dict[str, dict[str, list]]) -> dict[str, Any]:
+    """One test on the seeds both arms have (paired: by source seed): its p-value (None without data)."""
+    a, b = scores[test.treatment][test.env], scores[test.control][test.env]
+    if paired:
+        pairs = [(x, y) for x, y in zip(a, b, strict=True) if x is not None and y is not None]
+        diff = np.array([x - y for x, y in pairs], np.float64)
+        entry: dict[str, Any] = {"test": "wilcoxon", "n": len(pairs)}
+        if len(pairs) >= 2 and np.any(diff != 0):
+            from scipy import stats as scipy_stats
+
+            entry["p"] = float(scipy_stats.wilcoxon(diff, alternative=test.alternative).pvalue)
+            entry["mean_difference"] = round(float(diff.mean()), 4)
+        else:
+            entry["p"] = None
+        return entry
+    kept = [[v for v in values if v is not None] for values in (a, b)]
+    return {"test": "mann-whitney"} | stats.mann_whitney(kept[0], kept[1], test.alternative)
+
+
+def tested(design: BranchDesign, family: dict[str, Test], scores: dict[str, dict[str, list]]) -> dict:
+    """Each test of `family`, Holm-corrected among themselves at the design's alpha."""
+    out = {
+        name: {"env": t.env, "arms": [t.treatment, t.control], "alternative": t.alternative}
+        | compare(t, design.paired(t), scores)
+        for name, t in family.items()
+    }
+    known = {name: entry["p"] for name, entry in out.items() if entry["p"] is not None}
+    adjusted = stats.holm(known)
+    for name, entry in out.items():
+        entry["p_holm"] = adjusted.get(name)
+        entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
+        entry.update({k: prereg.round_p(v) for k, v in entry.items() if isinstance(v, float)})
+    return out
+
+
+def as_designed(design: BranchDesign, records_root: Path = paths.RECORDS) -> dict[str, Any]:
+    """Which recorded branches differ from the design (iterations, seed, environment, source) and whether
+    every branch is recorded."""
+    differing, recorded = [], 0
+    for seed in design.source_seeds():
+        for arm in design.arms:
+            record_dir = records_root / design.run_name(arm, seed)
+            if not (record_dir / logs.CONFIG_FILE).is_file():
+                continue
+            recorded += 1
+            got = logs.read_config(record_dir)
+            spec = EnvSpec.parse(design.arms[arm].env)
+            want = {
+                "iterations": design.iterations,
+                "seed": design.branch_seed + seed - design.seed,
+                "env": spec.name,
+                "env_args": spec.env_args,
+                "source": design.source_dir(arm, seed, Path()).name,
+            }
+            have = {k: got.get(k) for k in want if k != "source"}
+            have["source"] = Path(str(got.get("init_from", "")).rpartition("@")[0]).name
+            if have != want:
+                differing.append(record_dir.name)
+    every = design.seeds * len(design.arms)
+    return {"every_branch_recorded": recorded == every, "recorded": recorded, "differing": differing}
+
+
+def summarise(
+    design: BranchDesign, records_root: Path = paths.RECORDS, designs_dir: Path = DESIGNS_DIR
+) -> dict[str, Any]:
+    """The design's summary: per environment each arm's per-seed scores (`stats.summary`), the tests, and the
+    checks that make it valid (the design committed before every run, every branch recorded as designed)."""
+    scores = final_scores(design, records_root)
+    per_env = {
+        env: {
+            arm: stats.summary([v for v in scores[arm][env] if v is not None])
+            | {"per_seed": scores[arm][env]}
+            for arm in design.arms
+        }
+        for env in design.eval_envs
+    }
+    recorded = [records_root / design.run_name(a, s) for a in design.arms for s in design.source_seeds()]
+    provenance = {
+        str(d.relative_to(records_root)): logs.read_json(d / records.PROVENANCE_FILE)
+        for d in recorded
+        if (d / records.PROVENANCE_FILE).is_file()
+    }
+    commit = prereg.file_commit(path_of(design.name, designs_dir))
+    checks = prereg.commit_checks(commit, {name: p["run"]["commit"] for name, p in provenance.items()})
+    designed = as_designed(design, records_root)
+    checks |= {"every_branch_recorded": designed["every_branch_recorded"], "differing": designed["differing"]}
+    checks["branches_as_designed"] = not designed["differing"]
+    block = {
+        "commit": commit,
+        "alpha": design.alpha,
+        "primary": tested(design, design.primary, scores),
+        "secondary": tested(design, design.secondary, scores),
+        "checks": checks,
+        "valid": all(v for v in checks.values() if isinstance(v, bool)),
+    }
+    return {
+        "design": design.name,
+        "material": {"records": design.records, "seeds": [design.seed, design.seed + design.seeds - 1]},
+        "arms": {name: dataclasses.asdict(arm) for name, arm in design.arms.items()},
+        "iterations": design.iterations,
+        "episodes": design.episodes,
+        "recorded": designed["recorded"],
+        "environments": per_env,
+        "preregistered": block,
+        "machines": sorted({p["run"].get("device") or "unknown" for p in provenance.values()}),
+        "command": f"python -m jaxsocial.experiments.branch_design figure {design.name}",
+    }
+
+
+def verdict(summary: dict[str, Any]) -> str:
+    """The summary's tests and checks, for people."""
+    block = summary["preregistered"]
+    lines = [f"{summary['design']}: {summary['recorded']} branches recorded; alpha {block['alpha']:g}, Holm"]
+    for family in ("primary", "secondary"):
+        for name, entry in block[family].items():
+            rows = summary["environments"][entry["env"]]
+            means = ", ".join(f"{a} {rows[a]['mean']}" for a in entry["arms"])
+            p = "no data" if entry["p"] is None else f"p = {entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
+            rejected = ", rejected" if entry["rejected"] else ""
+            lines.append(f"  {family} {name} ({entry['test']}, {entry['env']}): mean {means}; {p}{rejected}")
+    lines += [f"  {k}: {'yes' if ok else 'NO'}" for k, ok in block["checks"].items() if isinstance(ok, bool)]
+    if not block["valid"]:
+        lines.append("NOT VALID: the result above does not test the design (see the checks)")
+    return "\n".join(lines)
+
+
+def draw(summary: dict[str, Any], path: Path) -> None:
+    """One panel per evaluation environment: each arm's mean with its 95% interval over seeds, a cross per
+    seed, and a grey line joining the paired arms' seeds (same source); titled with the tests there."""
+    plt = plots.pyplot()
+    per_env, block = summary["environments"], summary["preregistered"]
+    fig, axes = plt.subplots(1, len(per_env), figsize=(4.0 * len(per_env), 3.8), squeeze=False)
+    for ax, (env, rows) in zip(axes[0], per_env.items(), strict=True):
+        arms = list(rows)
+        for j, arm in enumerate(arms):
+            s = rows[arm]
+            if s["mean"] is None:
+                continue
+            ax.bar(j, s["mean"], color=f"C{j}", yerr=plots.whisker(s["mean"], s["ci95"]), capsize=3)
+            values = [v for v in s["per_seed"] if v is not None]
+            ax.scatter([j] * len(values), values, color="k", marker="x", s=8, zorder=3)
+        tests = [
+            f"{name}: Holm p = {e['p_holm']:.3g}" if e["p"] is not None else f"{name}: no data"
+            for family in ("primary", "secondary")
+            for name, e in block[family].items()
+            if e["env"] == env
+        ]
+        ax.set_xticks(range(len(arms)), arms)
+        ax.set_title("\n".join([env, *tests]), fontsize=8)
+        ax.set_ylabel("learner return per episode")
+    fig.suptitle(
+        f"{summary['design']}: {summary['iterations']} iterations from each record's policy, "
+        f"{summary['episodes']} episodes an evaluation",
+        fontsize=10,
+    )
+    plots.save_png(fig, path)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Plan: the power, simulated from a pilot
+# ----------------------------------------------------------------------------------------------------------
+
+
+def pilot_scores(design: BranchDesign) -> dict[str, dict[str, list[float]]]:
+    """Per primary test, the pilot's evidence: for a paired test the per-seed differences (treatment minus
+    control) of the exploratory follow-up's branches of its social seeds (`pilot_branches`); otherwise the
+    treatment's per-seed scores there and the control's from a committed summary (`pilot_control`: where
+    the arm's source records ended, before any further training)."""
+    sim = design.power_simulation
+    branches = logs.read_json(Path(sim["pilot_branches"]))
+    sources = [s for s in branches["seeds"].values() if s["condition"].startswith(sim["pilot_sources"])]
+    out = {}
+    for name, test in design.primary.items():
+        treatment = [s["branches"][test.treatment][test.env] for s in sources]
+        if design.paired(test):
+            control = [s["branches"][test.control][test.env] for s in sources]
+            out[name] = {"differences": [t - c for t, c in zip(treatment, control, strict=True)]}
+        else:
+            where = sim["pilot_control"]
+            summary = logs.read_json(Path(where["summary"]))
+            control = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
+            out[name] = {"treatment": treatment, "control": control}
+    return out
+
+
+def power_table(
+    pilot: dict[str, dict[str, list[float]]],
+    seeds: int,
+    alpha: float,
+    discounts: tuple[float, ...],
+    reps: int,
+    rng_seed: int = 0,
+) -> dict[str, dict[str, float]]:
+    """The power of the primary tests (one-sided, greater), Holm-corrected at `alpha` as one family, with
+    `seeds` source seeds. A paired test (`differences`) is Wilcoxon's on `seeds` differences, each with
+    probability d (the discount) a pilot difference, else one of the pilot's magnitudes with a random sign
+    (no effect); an unpaired one is Mann-Whitney's on `seeds` scores an arm, a treatment score with
+    probability d a pilot treatment score, else a control one. Returns per discount each test's probability
+    of rejection, and that of rejecting all and any of them."""
+    from scipy import stats as scipy_stats
+
+    rng = np.random.default_rng(rng_seed)
+    names = list(pilot)
+    table = {}
+    for d in discounts:
+        rejected = np.zeros((reps, len(names)), bool)
+        for r in range(reps):
+            p = []
+            for name in names:
+                evidence = {k: np.asarray(v, np.float64) for k, v in pilot[name].items()}
+                keep = rng.random(seeds) < d
+                if "differences" in evidence:
+                    diff = rng.choice(evidence["differences"], seeds)
+                    diff = np.where(keep, diff, np.abs(diff) * rng.choice([-1.0, 1.0], seeds))
+                    stat = scipy_stats.wilcoxon(diff, alternative="greater") if np.any(diff) else None
+                    p.append(1.0 if stat is None else stat.pvalue)
+                else:
+                    t, c = evidence["treatment"], evidence["control"]
+                    drawn = np.where(keep, rng.choice(t, seeds), rng.choice(c, seeds))
+                    p.append(
+                        scipy_stats.mannwhitneyu(drawn, rng.choice(c, seeds), alternative="greater").pvalue
+                    )
+            rejected[r] = stats.holm_rejects(np.array(p), alpha)
+        row = {n: round(float(rejected[:, i].mean()), 3) for i, n in enumerate(names)}
+        table[f"discount {d:g}"] = row | {
+            "all": round(float(rejected.all(axis=1).mean()), 3),
+            "any": round(float(rejected.any(axis=1).mean()), 3),
+        }
+    return table
+
+
+def stated_power(design: BranchDesign) -> dict[str, dict[str, float]]:
+    """The design's power table, recomputed from its pilot as its `power_simulation` says."""
+    sim = design.power_simulation
+    pilot = pilot_scores(design)
+    return power_table(pilot, design.seeds, design.alpha, tuple(sim["discounts"]), sim["reps"])
+
+
+def describe(design: BranchDesign) -> str:
+    """The design, its tests and its power, for people."""
+    sim = design.power_simulation
+    last = design.seed + design.seeds - 1
+    lines = [
+        f"{design.name}: from the records {design.records}, seeds {design.seed}..{last}, "
+        f"{design.iterations} iterations an arm, branch seeds from {design.branch_seed}, "
+        f"$XLA_FLAGS {design.xla_flags!r}",
+        *(f"  arm {n}: from {a.source} in {a.env}" for n, a in design.arms.items()),
+        f"  evaluated at the end in {', '.join(design.eval_envs)}, {design.episodes} episodes each",
+    ]
+    for family, tests in (("primary", design.primary), ("secondary", design.secondary)):
+        lines.append(f"  {family} (Holm at {design.alpha:g}):")
+        for n, t in tests.items():
+            kind = "Wilcoxon, paired" if design.paired(t) else "Mann-Whitney"
+            lines.append(f"    {n}: {t.treatment} against {t.control} in {t.env}, {kind}, {t.alternative}")
+    lines.append(f"  power by simulation ({sim['reps']} simulated designs a discount):")
+    lines += [
+        f"    {case}: " + ", ".join(f"{k} {v:.3f}" for k, v in p.items()) for case, p in sim["power"].items()
+    ]
+    lines.append(
+        f"  power: {design.power:.3f} ({sim['planning_test']}, discount {sim['planning_discount']:g})"
+    )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.branch_design")
+    parser.add_argument("action", choices=("power", "run", "record", "figure"))
+    parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. mixing)")
+    parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
+    parser.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
+    parser.add_argument("--science", default=str(paths.SCIENCE), help="where the summary and figure go")
+    parser.add_argument("--cores", type=int, nargs="+", default=[0], help="one training process a core")
+    parser.add_argument("--dry-run", action="store_true", help="print each branch's state and command")
+    args = parser.parse_args(argv)
+    try:
+        design = load(args.design)
+        records_root, runs_root, science = Path(args.records), Path(args.runs_dir), Path(args.science)
+        if args.action == "power":
+            print(describe(design))
+        elif args.action == "run":
+            codes = run(design, runs_root, args.cores, records_root, args.dry_run)
+            raise SystemExit(max(codes, default=0))
+        elif args.action == "record":
+            record(design, runs_root, records_root)
+        else:
+            summary = summarise(design, records_root)
+            science.mkdir(parents=True, exist_ok=True)
+            logs.write_json(science / f"{design.name}.json", summary)
+            draw(summary, science / f"{design.name}.png")
+            print(verdict(summary))
+            print(f"wrote {science / design.name}.json and .png")
+    except (ValueError, FileNotFoundError) as err:
+        raise SystemExit(f"error: {err}") from err
+
+
+if __name__ == "__main__":
+    main()

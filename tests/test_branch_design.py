@@ -1,0 +1,174 @@
+"""Branch designs (`experiments.branch_design`): the committed `mixing` design, its runs' commands, the
+analysis of recorded branches against scipy, and a refused design."""
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import TINY, TINY_ENV_ARGS
+from scipy import stats as scipy_stats
+
+from jaxsocial import train
+from jaxsocial.experiments import branch_design, paths, pinned, records
+from jaxsocial.run import logs, metrics
+from jaxsocial.run.flags import config_flags
+from jaxsocial.specs import CheckpointRef
+
+MIXING = branch_design.load("mixing")
+RUNS = Path("runs-nowhere")
+
+
+def test_the_mixing_design_branches_every_experts_record_in_its_arm():
+    assert not branch_design.missing_sources(MIXING)
+    assert [MIXING.paired(t) for t in MIXING.primary.values()] == [True, False]
+    for arm, k in (("mixed", 0), ("social", 7), ("alone", 39)):
+        seed = MIXING.seed + k
+        cfg = branch_design.branch_config(MIXING, arm, seed, RUNS)
+        source = paths.RECORDS / "laptop/prereg-experts" / f"{MIXING.arms[arm].source}-s{seed}-{seed}"
+        assert cfg.init_from == CheckpointRef(source)
+        assert (cfg.seed, cfg.seeds, cfg.iterations, cfg.eval_every) == (400 + k, 1, 610, 610)
+        assert cfg.blind and not cfg.resume and cfg.eval_episodes == 256
+        assert cfg.run_name == f"laptop/prereg-mixing/{arm}-s{seed}"
+        assert f"{cfg.env}:{','.join(f'{k}={v}' for k, v in cfg.env_args)}" == MIXING.arms[arm].env
+        assert [str(e) for e in cfg.eval_envs] == list(MIXING.eval_envs)
+        assert train.parse_args(config_flags(cfg)) == cfg  # the command `run` starts trains exactly this
+    social = branch_design.branch_config(MIXING, "social", MIXING.seed, RUNS)
+    mixed = branch_design.branch_config(MIXING, "mixed", MIXING.seed, RUNS)
+    assert dataclasses.replace(mixed, env_args=social.env_args, run_name=social.run_name) == social
+
+
+@pytest.mark.slow
+def test_the_mixing_design_has_the_power_it_states():
+    assert branch_design.stated_power(MIXING) == MIXING.power_simulation["power"]
+    planning = MIXING.power_simulation["power"][f"discount {MIXING.power_simulation['planning_discount']:g}"]
+    assert MIXING.power == planning[MIXING.power_simulation["planning_test"]]
+
+
+def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path):
+    raw = logs.read_json(branch_design.path_of("mixing"))
+    raw["primary"]["mixed_vs_alone"]["control"] = "solo"
+    raw["secondary"]["social_skill"]["env"] = "goalcycle4"
+    (tmp_path / "bad.json").write_text(json.dumps(raw))
+    with pytest.raises(ValueError, match=r"arm 'solo' is not one of \['alone', 'mixed', 'social'\]"):
+        branch_design.load("bad", tmp_path)
+    with pytest.raises(FileNotFoundError, match=r"the designs are \['bad'\]"):
+        branch_design.load("mixing", tmp_path)
+
+
+def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, float]) -> None:
+    """A record of `arm`'s branch of `seed` with its final evaluations `scores` (env -> return) and the
+    config and provenance `summarise` reads."""
+    cfg = branch_design.branch_config(design, arm, seed, RUNS)
+    directory = root / design.run_name(arm, seed)
+    directory.mkdir(parents=True)
+    config = {"iterations": cfg.iterations, "seed": cfg.seed, "env": cfg.env}
+    config |= {
+        "env_args": ",".join(f"{k}={v}" for k, v in cfg.env_args),
+        "init_from": f"{cfg.init_from.run}@1464",
+    }
+    logs.write_json(directory / logs.CONFIG_FILE, config)
+    row = {metrics.ITERATION: design.iterations} | {metrics.eval_key(e): v for e, v in scores.items()}
+    (directory / logs.METRICS_FILE).write_text(json.dumps(row) + "\n")
+    provenance = {"run": dict.fromkeys(records.RUN_FIELDS) | {"commit": "0" * 40, "device": "a CPU"}}
+    logs.write_json(directory / records.PROVENANCE_FILE, provenance)
+
+
+def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path):
+    design = dataclasses.replace(MIXING, seeds=6)
+    rng = np.random.default_rng(1)
+    solo3, gc4, gc3 = design.eval_envs
+    centres = {"mixed": 9.0, "social": 5.0, "alone": 6.0}
+    values = {
+        arm: {env: rng.normal(c, 3, 6).round(2) for env in design.eval_envs} for arm, c in centres.items()
+    }
+    for arm in design.arms:
+        for k, seed in enumerate(design.source_seeds()):
+            if (arm, k) != ("alone", 5):  # one branch not recorded yet
+                _fake_record(
+                    tmp_path, design, arm, seed, {e: float(values[arm][e][k]) for e in design.eval_envs}
+                )
+    summary = branch_design.summarise(design, tmp_path)
+    block = summary["preregistered"]
+    paired = scipy_stats.wilcoxon(
+        values["mixed"][solo3] - values["social"][solo3], alternative="greater"
+    ).pvalue
+    unpaired = scipy_stats.mannwhitneyu(
+        values["mixed"][solo3], values["alone"][solo3][:5], alternative="greater"
+    )
+    assert block["primary"]["mixed_vs_social"]["p"] == pytest.approx(paired, rel=1e-5)
+    assert block["primary"]["mixed_vs_alone"]["p"] == pytest.approx(unpaired.pvalue, rel=1e-5)
+    assert block["primary"]["mixed_vs_alone"]["n"] == [6, 5]
+    ps = sorted([paired, unpaired.pvalue])
+    assert sorted(e["p_holm"] for e in block["primary"].values()) == pytest.approx(
+        [min(1, 2 * ps[0]), min(1, max(2 * ps[0], ps[1]))], rel=1e-5
+    )
+    two_sided = scipy_stats.wilcoxon(values["mixed"][gc4] - values["social"][gc4]).pvalue
+    assert block["secondary"]["social_skill"]["p"] == pytest.approx(two_sided, rel=1e-5)
+    assert summary["environments"][gc3]["alone"]["per_seed"][5] is None
+    assert summary["environments"][solo3]["mixed"]["mean"] == pytest.approx(
+        values["mixed"][solo3].mean(), abs=1e-3
+    )
+    checks = block["checks"]
+    assert not checks["every_branch_recorded"] and checks["branches_as_designed"] and not block["valid"]
+    assert not checks["design_precedes_every_run"]  # commit 000... is no ancestor of the design
+    assert "NOT VALID" in branch_design.verdict(summary)
+    shutil.rmtree(tmp_path / design.run_name("mixed", design.seed + 2))
+    _fake_record(tmp_path, dataclasses.replace(design, iterations=5), "mixed", design.seed + 2, {solo3: 1.0})
+    assert branch_design.summarise(design, tmp_path)["preregistered"]["checks"]["differing"] == ["mixed-s302"]
+    branch_design.draw(summary, tmp_path / "mixing.png")
+    assert (tmp_path / "mixing.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path):
+    """The path a design's run takes, in this process: a TINY run packed as a record without checkpoint is
+    the material; a branch trains from it with `branch_config`, and once it has the process file `pinned.run`
+    writes, `record` packs it with the machine the file measured and `summarise` finds it as designed."""
+    source = train.run(dataclasses.replace(TINY, runs_dir=str(tmp_path / "material-runs"), run_name="source"))
+    records_root, runs_root = tmp_path / "records", tmp_path / "runs"
+    run = dict.fromkeys(records.RUN_FIELDS)
+    records.pack(source, records_root / "tiny/material/social-s0-0", run, "tiny/source")
+    env, solo = f"goalcycle3:{TINY_ENV_ARGS}", f"goalcycle3-solo:{TINY_ENV_ARGS}"
+    test = {"env": solo, "treatment": "mixed", "control": "social", "alternative": "greater"}
+    raw = {
+        "name": "tiny",
+        "records": "tiny/material",
+        "out": "tiny/branches",
+        "seed": 0,
+        "seeds": 1,
+        "branch_seed": 400,
+        "iterations": 2,
+        "arms": {
+            "mixed": {"source": "social", "env": f"{env},solo_prob=0.5"},
+            "social": {"source": "social", "env": env},
+        },
+        "eval_envs": [solo],
+        "episodes": 4,
+        "alpha": 0.05,
+        "primary": {"solo": test},
+        "secondary": {},
+        "xla_flags": "",
+        "power": 0.0,
+        "power_simulation": {},
+        "rationale": "",
+    }
+    (tmp_path / "tiny.json").write_text(json.dumps(raw))
+    design = branch_design.load("tiny", tmp_path)
+    cfg = branch_design.branch_config(design, "mixed", 0, runs_root, records_root)
+    run_dir = train.run(cfg)
+    assert (
+        logs.read_config(run_dir)["init_from"]
+        == f"{records_root}/tiny/material/social-s0-0@{TINY.iterations}"
+    )
+    assert branch_design.record(design, runs_root, records_root) == []  # no process file yet
+    pinned.write_run_file(run_dir, "python -m jaxsocial.train", records.head_commit(), 1, pinned.now(), rc=0)
+    assert branch_design.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
+    provenance = logs.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
+    assert provenance["run"]["device"].endswith(", one core per seed")
+    summary = branch_design.summarise(design, records_root, tmp_path)
+    assert summary["recorded"] == 1 and summary["preregistered"]["checks"]["differing"] == []
+    assert summary["environments"][solo]["mixed"]["per_seed"][0] is not None
+    assert summary["environments"][solo]["social"]["per_seed"] == [None]
