@@ -103,9 +103,9 @@ def run(cfg: TrainConfig) -> Path:
         cfg = dataclasses.replace(cfg, init_from=init_from.pin(cfg.init_from, numbers, run_dir))
         if distributed.is_main() and init_from.params_only(cfg.init_from, numbers):
             print(f"--init-from {cfg.init_from}: the params of its policy (no checkpoint), a fresh optimiser")
-    done = cost.done_iterations(cfg, run_dir)
-    if distributed.is_main() and done < cfg.iterations:  # before "auto" measures the machine, and compiling
-        print(cost.estimate(cfg, done), flush=True)
+    trained = cost.trained_iterations(cfg, run_dir)
+    if distributed.is_main() and trained < cfg.iterations:  # before "auto" measures the machine and compiling
+        print(cost.estimate(cfg, trained), flush=True)
     cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)

@@ -63,12 +63,12 @@ def test_settings_no_benchmark_measured_get_no_invented_time(argv):
 
 def test_a_resumed_run_is_costed_for_what_is_left(tmp_path):
     cfg = train.parse_args(["--preset", "laptop", "--iterations", "3000"])
-    line = cost.estimate(cfg, done=2000)
+    line = cost.estimate(cfg, trained=2000)
     rate, compile_s = committed("laptop")
     steps = 1000 * cfg.num_envs * cfg.rollout_steps
     assert line.startswith(f"cost: 1,000 iterations (of 3,000: 2,000 done) x 8,192 env-steps = {steps:,}")
     assert f"about {cost.duration(steps / rate + compile_s)} at" in line
-    assert cost.done_iterations(cfg, tmp_path) == 0  # a new run
+    assert cost.trained_iterations(cfg, tmp_path) == 0  # a new run
 
 
 def test_a_checkout_without_the_benchmarks_says_so(tmp_path):

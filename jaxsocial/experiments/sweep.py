@@ -126,8 +126,8 @@ def seed_state(setting: Setting, seed: int, runs_dir: str) -> str:
     if not (directory / logs.CONFIG_FILE).is_file():
         return "missing"
     rows = logs.read_metrics(directory) if logs.has_metrics(directory) else []
-    done = len(rows) >= setting.iterations or records.stopped_early(logs.read_config(directory), rows)
-    return "done" if done else "partial"
+    finished = len(rows) >= setting.iterations or records.stopped_early(logs.read_config(directory), rows)
+    return "done" if finished else "partial"
 
 
 def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> list[int]:

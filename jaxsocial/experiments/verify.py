@@ -107,15 +107,15 @@ def train_in_process(
     )
     log = work_dir / "verify.log"
     with log.open("w") as out:
-        done = subprocess.run(
+        process = subprocess.run(
             [*pinned.pin(cores), sys.executable, "-m", "jaxsocial.train", *config_flags(cfg)],
             stdout=out,
             stderr=subprocess.STDOUT,
             env=_uncached(os.environ) | {"XLA_FLAGS": xla_flags},
         )
-    if done.returncode != 0:
+    if process.returncode != 0:
         tail = "\n".join(log.read_text().splitlines()[-15:])
-        raise RuntimeError(f"re-training failed (exit {done.returncode}):\n{tail}")
+        raise RuntimeError(f"re-training failed (exit {process.returncode}):\n{tail}")
     return work_dir / "verify"
 
 

@@ -98,20 +98,20 @@ def duration(seconds: float) -> str:
     return f"{seconds / 86400:.1f} days"
 
 
-def done_iterations(cfg: TrainConfig, run_dir: Path) -> int:
-    """The iterations a run resumed from `run_dir` has done: its first seed's latest checkpoint (0 for a new
-    run, or one that saved none)."""
+def trained_iterations(cfg: TrainConfig, run_dir: Path) -> int:
+    """The iterations a run resumed from `run_dir` has trained: its first seed's latest checkpoint (0 for a
+    new run, or one that saved none)."""
     first = rundir.checkpoints(rundir.seed_dirs(run_dir, cfg.seed, cfg.seeds)[0])
     return (checkpoint.latest_step(first) or 0) if cfg.resume and first.is_dir() else 0
 
 
-def estimate(cfg: TrainConfig, done: int = 0, repo: Path = REPO) -> str:
+def estimate(cfg: TrainConfig, trained: int = 0, repo: Path = REPO) -> str:
     """The cost line a run prints before it compiles (see the module docstring), for the iterations left
-    after `done`."""
+    after `trained`."""
     per_iteration = cfg.num_envs * cfg.rollout_steps * cfg.seeds
-    left = cfg.iterations - done
+    left = cfg.iterations - trained
     steps = left * per_iteration
-    resumed = f" (of {cfg.iterations:,}: {done:,} done)" if done else ""
+    resumed = f" (of {cfg.iterations:,}: {trained:,} done)" if trained else ""
     head = f"cost: {left:,} iterations{resumed} x {per_iteration:,} env-steps = {steps:,} env-steps"
     measured = measured_for(cfg)
     rate = None if measured is None else read_rate(measured, repo)

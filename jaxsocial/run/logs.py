@@ -303,8 +303,8 @@ class Progress:
         parts = [self.desc] if self.desc else []
         pct = f" [{100 * n / self.total:3.0f}%]" if self.total > 0 else ""
         parts.append(f"{n:>{width}}/{self.total}{pct}")
-        done = n - self.initial
-        rate = done / elapsed if elapsed > 0 and done > 0 else None
+        advanced = n - self.initial
+        rate = advanced / elapsed if elapsed > 0 and advanced > 0 else None
         if rate is not None:
             scaled = rate * self.unit_scale
             parts.append(f"{scaled:,.0f} {self.unit}/s" if scaled >= 100 else f"{scaled:.3g} {self.unit}/s")

@@ -313,9 +313,10 @@ def chunk_rows(
     return rows
 
 
-def nothing_to_train(done: int, iterations: int) -> str:
+def nothing_to_train(trained: int, iterations: int) -> str:
     """What a resumed run that has already reached `iterations` says (it trains nothing)."""
-    where = f"{done} of {iterations}" if done == iterations else f"{done} (--iterations is {iterations})"
+    given = f"(--iterations is {iterations})"
+    where = f"{trained} of {iterations}" if trained == iterations else f"{trained} {given}"
     return (
         f"Run already at {where} iterations; nothing to train. Pass a larger --iterations (the total) to "
         "continue."
