@@ -13,112 +13,135 @@ from jaxsocial.experiments import figures, paths, pinned, prereg, recipes, recor
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
+RECIPE_COMMANDS = {
+    "run": "train and evaluate what a recipe needs",
+    "figure": "summarise and draw",
+    "record": "pack a recipe's run directories into records (config, metrics, final policy, evaluations)",
+}
+"""The subcommands that act on a recipe's conditions and seeds, and their help."""
+
 
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="the recipes, their conditions and the scales")
-    helps = {
-        "run": "train and evaluate what a recipe needs",
-        "figure": "summarise and draw",
-        "record": "pack a recipe's run directories into records (config, metrics, final policy, evaluations)",
-    }
-    for name, help_ in helps.items():
-        p = sub.add_parser(name, help=help_)
-        p.add_argument("recipe", choices=sorted(recipes.RECIPES))
-        p.add_argument("--scale", default="cpu", choices=sorted(recipes.SCALES))
-        seeds_help = {
-            "run": "seeds per condition, trained in one program",
-            "figure": "seeds per condition, each read from whichever of the condition's runs holds it",
-            "record": "seeds per condition to pack (those without metrics are skipped)",
-        }
-        p.add_argument(
-            "--seeds", type=int, default=None, help=seeds_help[name] + " (default 3, or the recipe's design)"
-        )
-        p.add_argument(
-            "--seed", type=int, default=None, help="first seed (default 0, or the recipe's design)"
-        )
-        p.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
-        p.add_argument(
-            "--pick",
-            action="append",
-            default=[],
-            metavar="RUN",
-            help="the run to read a seed from when several runs of its condition hold it (a run directory "
-            "name, e.g. social_rec-s0-5; repeatable)",
-        )
-        if name == "run":
-            p.add_argument("--dry-run", action="store_true", help="print the training commands and states")
-            p.add_argument(
-                "--no-train",
-                action="store_true",
-                help="train nothing: evaluate the conditions already trained (e.g. on another machine)",
-            )
-            p.add_argument(
-                "--cores",
-                type=int,
-                nargs="+",
-                default=[],
-                metavar="CORE",
-                help="train every seed as a one-seed program in its own single-threaded process pinned to "
-                "one of these CPU cores, one per core at a time (e.g. --cores 0 1; default: each condition's "
-                "seeds in one program, in this process)",
-            )
-            p.add_argument(
-                "--vmap-seeds",
-                type=int,
-                default=None,
-                metavar="K",
-                help="train each K consecutive seeds of a condition as one vmapped program, one record per "
-                "seed as before (a GPU's way; a design fixes its own, `seeds_per_program`)",
-            )
-        elif name == "figure":
-            p.add_argument(
-                "--out-dir", default=str(paths.FIGURES), help="where <recipe>-<scale>.json/.png go"
-            )
-            p.add_argument(
-                "--interim",
-                action="store_true",
-                help="summarise a pre-registered design before every seed is in (by default its results stay "
-                "blind until then: figure says how many runs are in and writes nothing)",
-            )
-        else:
-            p.add_argument(
-                "--out-dir", default=str(paths.RECORDS_OUT), help="root of the records (mirrors --runs-dir)"
-            )
-            p.add_argument(
-                "--commands-log",
-                default=None,
-                help="log of the training commands: '<ISO date> <commit> <command with --run-name>' lines "
-                f"(default: each run's {pinned.RUN_FILE}, which `run --cores` writes)",
-            )
-            p.add_argument(
-                "--device",
-                default=None,
-                help="the device the runs trained on, in words (default: the CPU each run's process file "
-                f"measured, {pinned.RUN_FILE}; required with --commands-log, whose runs trained elsewhere)",
-            )
-            p.add_argument(
-                "--jax",
-                default=None,
-                help="the jax version the runs trained with (default: the version each run's process file "
-                "recorded; required with --commands-log)",
-            )
-            p.add_argument("--overwrite", action="store_true", help="replace existing records")
-            p.add_argument(
-                "--final-checkpoint",
-                choices=records.CHECKPOINT_CHOICES,
-                default=None,
-                help="also keep the final checkpoint (params and optimiser state) of the seeds that learned "
-                f"(final return > the design's threshold, else {LEARNED_RETURN:g}) or of all, so later "
-                "sittings can branch from the records (default: none)",
-            )
+    options = {"run": _run_options, "figure": _figure_options, "record": _record_options}
+    for name, help_ in RECIPE_COMMANDS.items():
+        options[name](_recipe_parser(sub, name, help_))
     for name, (_, help_) in DELEGATED.items():
         sub.add_parser(name, help=help_ + f" (python -m jaxsocial.experiments {name} --help)", add_help=False)
     designed = sorted(r.name for r in recipes.RECIPES.values() if r.design)
     power = f"a pre-registered design and its power (recipes with a design: {', '.join(designed)})"
     p = sub.add_parser("power", help=power, description=power)
     p.add_argument("recipe", choices=designed)
+    _verify_parser(sub)
+    args = parser.parse_args(argv)
+    if args.command == "verify" and args.iterations is not None and args.iterations < 1:
+        parser.error(f"--iterations {args.iterations} must be >= 1")
+    if args.command in RECIPE_COMMANDS:
+        _seed_range(parser, args)
+    if args.command == "record" and args.commands_log and None in (args.device, args.jax):
+        parser.error("--commands-log: give --device and --jax, what its runs trained on (not measured here)")
+    return args
+
+
+def _recipe_parser(sub, name: str, help_: str) -> argparse.ArgumentParser:
+    """The subcommand `name` with the options every recipe command has: the recipe, scale, seeds, runs."""
+    p = sub.add_parser(name, help=help_)
+    p.add_argument("recipe", choices=sorted(recipes.RECIPES))
+    p.add_argument("--scale", default="cpu", choices=sorted(recipes.SCALES))
+    seeds_help = {
+        "run": "seeds per condition, trained in one program",
+        "figure": "seeds per condition, each read from whichever of the condition's runs holds it",
+        "record": "seeds per condition to pack (those without metrics are skipped)",
+    }
+    p.add_argument(
+        "--seeds", type=int, default=None, help=seeds_help[name] + " (default 3, or the recipe's design)"
+    )
+    p.add_argument("--seed", type=int, default=None, help="first seed (default 0, or the recipe's design)")
+    p.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
+    p.add_argument(
+        "--pick",
+        action="append",
+        default=[],
+        metavar="RUN",
+        help="the run to read a seed from when several runs of its condition hold it (a run directory "
+        "name, e.g. social_rec-s0-5; repeatable)",
+    )
+    return p
+
+
+def _run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--dry-run", action="store_true", help="print the training commands and states")
+    p.add_argument(
+        "--no-train",
+        action="store_true",
+        help="train nothing: evaluate the conditions already trained (e.g. on another machine)",
+    )
+    p.add_argument(
+        "--cores",
+        type=int,
+        nargs="+",
+        default=[],
+        metavar="CORE",
+        help="train every seed as a one-seed program in its own single-threaded process pinned to "
+        "one of these CPU cores, one per core at a time (e.g. --cores 0 1; default: each condition's "
+        "seeds in one program, in this process)",
+    )
+    p.add_argument(
+        "--vmap-seeds",
+        type=int,
+        default=None,
+        metavar="K",
+        help="train each K consecutive seeds of a condition as one vmapped program, one record per "
+        "seed as before (a GPU's way; a design fixes its own, `seeds_per_program`)",
+    )
+
+
+def _figure_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out-dir", default=str(paths.FIGURES), help="where <recipe>-<scale>.json/.png go")
+    p.add_argument(
+        "--interim",
+        action="store_true",
+        help="summarise a pre-registered design before every seed is in (by default its results stay "
+        "blind until then: figure says how many runs are in and writes nothing)",
+    )
+
+
+def _record_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--out-dir", default=str(paths.RECORDS_OUT), help="root of the records (mirrors --runs-dir)"
+    )
+    p.add_argument(
+        "--commands-log",
+        default=None,
+        help="log of the training commands: '<ISO date> <commit> <command with --run-name>' lines "
+        f"(default: each run's {pinned.RUN_FILE}, which `run --cores` writes)",
+    )
+    p.add_argument(
+        "--device",
+        default=None,
+        help="the device the runs trained on, in words (default: the CPU each run's process file "
+        f"measured, {pinned.RUN_FILE}; required with --commands-log, whose runs trained elsewhere)",
+    )
+    p.add_argument(
+        "--jax",
+        default=None,
+        help="the jax version the runs trained with (default: the version each run's process file "
+        "recorded; required with --commands-log)",
+    )
+    p.add_argument("--overwrite", action="store_true", help="replace existing records")
+    p.add_argument(
+        "--final-checkpoint",
+        choices=records.CHECKPOINT_CHOICES,
+        default=None,
+        help="also keep the final checkpoint (params and optimiser state) of the seeds that learned "
+        f"(final return > the design's threshold, else {LEARNED_RETURN:g}) or of all, so later "
+        "sittings can branch from the records (default: none)",
+    )
+
+
+def _verify_parser(sub) -> None:
     p = sub.add_parser(
         "verify", help="re-train a record's first iterations and compare its metrics rows (timings aside)"
     )
@@ -130,14 +153,6 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         help=f"iterations to re-train (default: {verify.DEFAULT_ITERATIONS}, or the record's rows if fewer)",
     )
     p.add_argument("--out", default=None, help="also write the result as JSON here (never into the record)")
-    args = parser.parse_args(argv)
-    if args.command == "verify" and args.iterations is not None and args.iterations < 1:
-        parser.error(f"--iterations {args.iterations} must be >= 1")
-    if args.command in helps:
-        _seed_range(parser, args)
-    if args.command == "record" and args.commands_log and None in (args.device, args.jax):
-        parser.error("--commands-log: give --device and --jax, what its runs trained on (not measured here)")
-    return args
 
 
 def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -257,13 +272,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     args = parse_args(argv)
     if args.command == "list":
-        for r in recipes.RECIPES.values():
-            print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")
-        for s in recipes.SCALES.values():
-            per_run = s.iterations * s.config.num_envs * s.config.rollout_steps
-            unmeasured = "seconds" if s.name == "tiny" else "no measured CPU rate (meant for GPUs)"
-            cost = recipes.cost(s, 1, per_run, 1) or unmeasured
-            print(f"scale {s.name}: {s.iterations} iterations; one run: {cost}\n  {s.note}")
+        list_recipes()
         return
     if args.command == "verify":
         run_verify(args)
@@ -293,27 +302,42 @@ def main(argv: list[str] | None = None) -> None:
         elif args.command == "record":
             record(args, recipe, scale)
         else:
-            runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
-            blind = figures.incomplete_design(runs)
-            if blind and not args.interim:
-                print(f"{blind}; its results stay blind until every seed is in (--interim shows them now)")
-                return
-            json_path, png_path = figures.write(runs, args.out_dir)
-            print(f"wrote {json_path}\nwrote {png_path}")
-            summary = logs.read_json(json_path)
-            print("\n".join(figures.outcome_lines(summary)))
-            committed = paths.SCIENCE / json_path.name
-            if committed.is_file() and committed.resolve() != json_path.resolve():
-                print(f"against the committed summary {committed}:")
-                print(
-                    "\n".join(
-                        f"  {line}" for line in figures.against_committed(summary, logs.read_json(committed))
-                    )
-                )
-            if recipe.design is not None:
-                print(prereg.verdict(logs.read_json(json_path)["preregistered"]))
+            figure(args, recipe, scale)
     except (ValueError, FileExistsError, FileNotFoundError, runner.TrainingFailed) as err:
         raise SystemExit(f"error: {err}") from err
+
+
+def list_recipes() -> None:
+    """`list`: every recipe with its conditions, and every scale with the cost of one run."""
+    for r in recipes.RECIPES.values():
+        print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")
+    for s in recipes.SCALES.values():
+        per_run = s.iterations * s.config.num_envs * s.config.rollout_steps
+        unmeasured = "seconds" if s.name == "tiny" else "no measured CPU rate (meant for GPUs)"
+        cost = recipes.cost(s, 1, per_run, 1) or unmeasured
+        print(f"scale {s.name}: {s.iterations} iterations; one run: {cost}\n  {s.note}")
+
+
+def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
+    """`figure`: the recipe's summary and figure (a design's stay blind until every seed is in, unless
+    --interim), its outcome, how it compares with the committed summary, and a design's verdict."""
+    runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
+    blind = figures.incomplete_design(runs)
+    if blind and not args.interim:
+        print(f"{blind}; its results stay blind until every seed is in (--interim shows them now)")
+        return
+    json_path, png_path = figures.write(runs, args.out_dir)
+    print(f"wrote {json_path}\nwrote {png_path}")
+    summary = logs.read_json(json_path)
+    print("\n".join(figures.outcome_lines(summary)))
+    committed = paths.SCIENCE / json_path.name
+    if committed.is_file() and committed.resolve() != json_path.resolve():
+        print(f"against the committed summary {committed}:")
+        print(
+            "\n".join(f"  {line}" for line in figures.against_committed(summary, logs.read_json(committed)))
+        )
+    if recipe.design is not None:
+        print(prereg.verdict(summary["preregistered"]))
 
 
 if __name__ == "__main__":
