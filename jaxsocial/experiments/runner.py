@@ -164,22 +164,61 @@ def run(
         for name, cfgs in programs.items()
         for cfg in cfgs
     }
-    to_train = [cfg for name, cfgs in programs.items() for cfg in cfgs if states[name, cfg.seed] != "done"]
-    if to_train and train_missing:
-        runs = sum(cfg.seeds for cfg in to_train)
-        steps = to_train[0].iterations * to_train[0].num_envs * to_train[0].rollout_steps
-        estimate = recipes.cost(scale, runs, steps, len(cores) or 1) or f"{runs} runs (no measured CPU rate)"
-        mode = (
-            "" if cores else " (the rate is one seed a process, as --cores trains; in one process it differs)"
+    if train_missing:
+        print_cost(
+            recipe, scale, [c for n, cs in programs.items() for c in cs if states[n, c.seed] != "done"], cores
         )
-        print(f"[{recipe.name}/{scale.name}] to train: {estimate}{mode}")
+    prefix = f"[{recipe.name}/{scale.name}]"
+    jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
+    if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves
+        # whole seeds done rather than one condition's
+        jobs = [job for _, job in sorted(jobs, key=lambda pair: pair[0])]
+        codes = pinned.run(jobs, list(cores), design_flags)
+        failed = [job.label for job, rc in zip(jobs, codes, strict=True) if rc != 0]
+        if failed:
+            raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
+        dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
+    for name in skipped:
+        print(f"  {name}: not trained (--no-train); its unfinished seeds are not evaluated")
+    if dry_run:
+        return
+    evaluate_finished(recipe, scale, dirs, blind)
+    where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
+    figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
+    print(f"next: python -m jaxsocial.experiments {figure}   # the summary and figure, tests over seeds")
+
+
+def print_cost(recipe: Recipe, scale: Scale, to_train: list[TrainConfig], cores: tuple[int, ...]) -> None:
+    """The cost line of the programs `to_train` (nothing if none), on `cores` (or in this process)."""
+    if not to_train:
+        return
+    runs = sum(cfg.seeds for cfg in to_train)
+    steps = to_train[0].iterations * to_train[0].num_envs * to_train[0].rollout_steps
+    estimate = recipes.cost(scale, runs, steps, len(cores) or 1) or f"{runs} runs (no measured CPU rate)"
+    mode = "" if cores else " (the rate is one seed a process, as --cores trains; in one process it differs)"
+    print(f"[{recipe.name}/{scale.name}] to train: {estimate}{mode}")
+
+
+def train_programs(
+    prefix: str,
+    programs: dict[str, list[TrainConfig]],
+    states: dict[tuple[str, int], str],
+    dirs: dict[str, list[Path]],
+    seed: int,
+    dry_run: bool,
+    train_missing: bool,
+    cores: tuple[int, ...],
+) -> tuple[list[tuple[int, pinned.Job]], list[str]]:
+    """Say each program's state and, for those not done: print its command (`dry_run`), make it a job for
+    a pinned process (with `cores`; returned with its first seed, not started), train it in this process
+    (updating `dirs`), or, without `train_missing`, skip its condition (returned)."""
     skipped, jobs = [], []
     for name, cfgs in programs.items():
         for cfg in cfgs:
             state = states[name, cfg.seed]
             last = cfg.seed + cfg.seeds - 1
             label = name if len(cfgs) == 1 else f"{name} s{cfg.seed}" + (f"-{last}" if cfg.seeds > 1 else "")
-            print(f"[{recipe.name}/{scale.name}] {label}: {state}")
+            print(f"{prefix} {label}: {state}")
             flags = config_flags(cfg)
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
@@ -192,26 +231,17 @@ def run(
                 dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = seed_dirs(cfg)
             elif state != "done" and name not in skipped:
                 skipped.append(name)
-    if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves
-        # whole seeds done rather than one condition's
-        jobs = [job for _, job in sorted(jobs, key=lambda pair: pair[0])]
-        codes = pinned.run(jobs, list(cores), design_flags)
-        failed = [job.label for job, rc in zip(jobs, codes, strict=True) if rc != 0]
-        if failed:
-            raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
-        dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
-    for name in skipped:
-        print(f"  {name}: not trained (--no-train); its unfinished seeds are not evaluated")
-    finished = {c: [d for d in dirs[c] if len(logs.read_metrics(d)) >= scale.iterations] for c in programs}
-    for name in finished if not dry_run else ():  # after training: what the recipe's kind asks
-        for seed_dir in finished[name]:
+    return jobs, skipped
+
+
+def evaluate_finished(recipe: Recipe, scale: Scale, dirs: dict[str, list[Path]], blind: bool) -> None:
+    """Make what the recipe's kind evaluates of every seed in `dirs` that logged every iteration and lacks
+    it; a blind design's scores are not shown."""
+    for name, seed_dirs_ in dirs.items():
+        for seed_dir in [d for d in seed_dirs_ if len(logs.read_metrics(d)) >= scale.iterations]:
             for evaluation, spec, out in evaluation_outputs(recipe, scale, seed_dir):
                 if out.exists():
                     continue
                 result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
                 shown = BLIND_SCORE if blind else f"{evaluation.score(result):.3f}"
                 print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {shown}")
-    if not dry_run:
-        where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
-        figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
-        print(f"next: python -m jaxsocial.experiments {figure}   # the summary and figure, tests over seeds")
