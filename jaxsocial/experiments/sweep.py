@@ -293,7 +293,7 @@ def map_table(found: dict[str, Any]) -> list[str]:
     return lines
 
 
-def main(argv: list[str] | None = None) -> None:
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m jaxsocial.experiments.sweep", description=__doc__.split("\n")[0]
     )
@@ -330,27 +330,28 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--records-dir", default=str(paths.RECORDS))
     p.add_argument("--out", default=str(paths.SWEEP_SUMMARY), help="path without suffix")
     args = parser.parse_args(argv)
+    if args.command in ("run", "record") and any(not 0 <= s < 100 for s in args.seeds):
+        parser.error("the sweep is exploratory: seeds must be in 0-99 (confirmatory designs use 200 and up)")
+    return args
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
     if args.command == "list":
         for s in SETTINGS.values():
             print(f"{s.name}: {s.condition} {shlex.join(s.flags)}, {s.iterations} iterations\n  {s.why}")
-        return
-    if args.command in ("run", "record") and any(not 0 <= s < 100 for s in args.seeds):
-        parser.error("the sweep is exploratory: seeds must be in 0-99 (confirmatory designs use 200 and up)")
-    setting = SETTINGS.get(getattr(args, "setting", None))
-    if args.command == "run":
+    elif args.command == "run":
         if args.extend:
             try:
-                extend(SETTINGS[args.extend], setting, args.seeds, args.runs_dir)
+                extend(SETTINGS[args.extend], SETTINGS[args.setting], args.seeds, args.runs_dir)
             except ValueError as err:
-                parser.error(str(err))
-        codes = run(setting, args.seeds, args.runs_dir, args.cores)
-        sys.exit(max(codes, default=0))
-    if args.command == "record":
+                raise SystemExit(f"error: {err}") from err
+        sys.exit(max(run(SETTINGS[args.setting], args.seeds, args.runs_dir, args.cores), default=0))
+    elif args.command == "record":
         import jax
 
-        record(setting, args.seeds, args.runs_dir, args.device, jax.__version__)
-        return
-    if args.command == "map":
+        record(SETTINGS[args.setting], args.seeds, args.runs_dir, args.device, jax.__version__)
+    elif args.command == "map":
         found = summarise_map(logs.read_json(Path(args.summary)))
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -358,16 +359,16 @@ def main(argv: list[str] | None = None) -> None:
         plots.draw_map(found, out.with_suffix(".png"))
         print("\n".join(map_table(found)))
         print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
-        return
-    summary = summarise(Path(args.records_dir))
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    logs.write_json(out.with_suffix(".json"), summary)
-    plots.draw_sweep(summary, out.with_suffix(".png"))
-    for name, s in summary["settings"].items():
-        lifts = [x["takeoff_env_steps"] for x in s["seeds"]]
-        print(f"{name}: {s['took_off']} of {s['n']} seeds past the plateau; takeoffs (env-steps) {lifts}")
-    print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
+    else:
+        summary = summarise(Path(args.records_dir))
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        logs.write_json(out.with_suffix(".json"), summary)
+        plots.draw_sweep(summary, out.with_suffix(".png"))
+        for name, s in summary["settings"].items():
+            lifts = [x["takeoff_env_steps"] for x in s["seeds"]]
+            print(f"{name}: {s['took_off']} of {s['n']} seeds past the plateau; takeoffs (env-steps) {lifts}")
+        print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
 
 
 if __name__ == "__main__":
