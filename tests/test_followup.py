@@ -35,7 +35,8 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
     found = followup.sources(plan, str(runs))
     assert found == [followup.Source(CONDITION, 0, source)]  # the other conditions have no seed
     out, recs = tmp_path / "runs", tmp_path / "records"
-    assert followup.run(plan, str(runs), str(out), [0], "test command") == [0, 0]
+    cores = (pinned.visible_cores() or [0])[:2]  # both branches at once where two cores are seen
+    assert followup.run(plan, str(runs), str(out), cores, "test command") == [0, 0]
     for arm, solo_prob in followup.ARMS.items():
         branch = plan.root(out) / f"{CONDITION}-s0-{arm}"
         config = logs.read_config(branch)
