@@ -106,7 +106,6 @@ def run(cfg: TrainConfig) -> Path:
     trained = cost.trained_iterations(cfg, run_dir)
     if distributed.is_main() and trained < cfg.iterations:  # before "auto" measures the machine and compiling
         print(cost.estimate(cfg, trained), flush=True)
-    long_run = (cost.projected_seconds(cfg, trained) or 0.0) > cost.LONG_S  # an early rate and ETA
     cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)
@@ -115,7 +114,7 @@ def run(cfg: TrainConfig) -> Path:
         distributed.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
         main = distributed.is_main()  # evaluates and writes; the others train alongside
         learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
-        train_chunks(cfg, static, mesh, run_dir, seeds, learner_eval, first_chunk=1 if long_run else None)
+        train_chunks(cfg, static, mesh, run_dir, seeds, learner_eval)
         if cfg.resume:  # a resumed run's config is rewritten once it has succeeded
             distributed.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
     finally:
@@ -131,12 +130,10 @@ def train_chunks(
     run_dir: Path,
     seeds: list[SeedRun],
     learner_eval: Any,
-    first_chunk: int | None = None,
 ) -> None:
     """The training loop of `run` in its prepared (and locked) run directory, over the steps of `Driver`
     and `Outputs`: chunk after chunk, plan, compile, run, write rows (evaluating with `learner_eval`, on
-    process 0), switch stage, save and show progress. The first chunk is at most `first_chunk` iterations
-    where given (a long run's: its first progress line, with the measured rate and ETA, comes early).
+    process 0), switch stage, save and show progress.
     Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
     nothing non-finite is ever saved."""
     driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
@@ -145,11 +142,9 @@ def train_chunks(
             print(nothing_to_train(driver.it, cfg.iterations))
         return
     out = Outputs.open(cfg, static, mesh, seeds, driver.it, learner_eval)
-    start = driver.it
     try:
         while driver.it < cfg.iterations:
-            size = first_chunk if first_chunk and driver.it == start else cfg.chunk_iterations
-            n = plan_chunk(driver.settings, size, static.stages, driver.stage, driver.it)
+            n = plan_chunk(driver.settings, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
             compile_s = driver.compile(n, announce=out.compiling)
             out.start_progress(driver.it, compile_s)
             chunk = driver.run_chunk(n)

@@ -1,13 +1,11 @@
 """`python -m jaxsocial.train` states its cost before it compiles: from the committed benchmark rate of its
 preset where one measured these settings, and says so where none did."""
 
-import dataclasses
 import json
-import re
 from pathlib import Path
 
 import pytest
-from conftest import TINY, TINY_RUN_FLAGS
+from conftest import TINY_RUN_FLAGS
 
 from jaxsocial import train
 from jaxsocial.run import cost, loop
@@ -102,16 +100,3 @@ def test_the_cost_line_comes_before_compiling(tmp_path, capsys, monkeypatch):
     out = capsys.readouterr().out
     assert out.startswith("cost: 4 iterations x 32 env-steps = 128 env-steps; no time estimate")
     assert out.index("cost:") < out.index("COMPILING")
-
-
-def test_a_run_projected_over_an_hour_says_its_rate_after_one_iteration(tmp_path, monkeypatch, capsys):
-    """Its first chunk is one iteration (the progress line after it gives the measured rate and ETA), the
-    rest `chunk_iterations` long; a shorter run keeps whole chunks."""
-    assert cost.projected_seconds(train.parse_args(["--preset", "paper"])) > cost.LONG_S
-    assert cost.projected_seconds(train.parse_args(["--preset", "small"])) < cost.LONG_S
-    for projected, first in ((2 * cost.LONG_S, 1), (None, TINY.chunk_iterations)):
-        monkeypatch.setattr(cost, "projected_seconds", lambda *_, p=projected: p)
-        cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name=f"first-{first}", progress=True)
-        train.run(cfg)
-        shown = [int(m) for m in re.findall(r"first-\d+ +(\d+)/4 ", capsys.readouterr().out)]
-        assert shown[0] == first and shown[-1] == TINY.iterations

@@ -110,10 +110,11 @@ def estimate(cfg: TrainConfig, trained: int = 0, repo: Path = REPO) -> str:
     after `trained`."""
     per_iteration = cfg.num_envs * cfg.rollout_steps * cfg.seeds
     left = cfg.iterations - trained
-    resumed = f" (of {cfg.iterations:,}: {trained:,} done)" if trained else ""
     steps = left * per_iteration
+    resumed = f" (of {cfg.iterations:,}: {trained:,} done)" if trained else ""
     head = f"cost: {left:,} iterations{resumed} x {per_iteration:,} env-steps = {steps:,} env-steps"
-    measured, rate = rate_of(cfg, repo)
+    measured = measured_for(cfg)
+    rate = None if measured is None else read_rate(measured, repo)
     if rate is None:
         why = (
             f"this checkout lacks {measured.path}"
@@ -122,7 +123,7 @@ def estimate(cfg: TrainConfig, trained: int = 0, repo: Path = REPO) -> str:
             "unchanged)"
         )
         return f"{head}; no time estimate: {why}. The progress line gives the rate once it runs"
-    seconds = projected_seconds(cfg, trained, repo)
+    seconds = steps / rate.env_steps_per_s + rate.compile_s
     line = (
         f"{head}: about {duration(seconds)} at {rate.env_steps_per_s:,.0f} env-steps/s, the rate "
         f"of the {cfg.preset} preset on {rate.machine} ({rate.source}); another machine's differs"
@@ -130,24 +131,6 @@ def estimate(cfg: TrainConfig, trained: int = 0, repo: Path = REPO) -> str:
     if seconds > LONG_S:
         line += (
             "\nthat is over an hour: for a first look use a smaller preset (--preset small or laptop: "
-            "minutes on a CPU) or fewer --iterations, or train on a GPU; its first chunk is one iteration, "
-            "so the progress line gives the measured rate and ETA early"
+            "minutes on a CPU) or fewer --iterations, or train on a GPU"
         )
     return line
-
-
-def rate_of(cfg: TrainConfig, repo: Path = REPO) -> tuple[Measured | None, Rate | None]:
-    """The measurement that applies to `cfg` and its committed rate (None where none applies, or this
-    checkout lacks its file)."""
-    measured = measured_for(cfg)
-    return measured, None if measured is None else read_rate(measured, repo)
-
-
-def projected_seconds(cfg: TrainConfig, trained: int = 0, repo: Path = REPO) -> float | None:
-    """The seconds the iterations left after `trained` take at the committed rate of `cfg`'s settings,
-    compiling included (None: no committed rate applies)."""
-    _, rate = rate_of(cfg, repo)
-    if rate is None:
-        return None
-    steps = (cfg.iterations - trained) * cfg.num_envs * cfg.rollout_steps * cfg.seeds
-    return steps / rate.env_steps_per_s + rate.compile_s
