@@ -8,13 +8,16 @@
     python -m jaxsocial.experiments.sweep list                        # the exploratory sweep of settings
     python -m jaxsocial.experiments.followup run h1_laptop            # follow-ups of a design's learned seeds
     python -m jaxsocial.experiments.evaluation_design run transfer    # a pre-registered design over records
+    python -m jaxsocial.experiments.branch_design run mixing --cores 0 1   # one that trains on from records
 
 `recipes` names the conditions and scales, `runner` trains and evaluates them, `figures` summarises and
 draws them (`takeoff`: time to learning; `stats`: the tests and estimates over seeds), `records` packs run
 directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
-`evaluation_design` those that only evaluate committed records (`evaluation_designs/*.json`),
+`evaluation_design` those that only evaluate committed records (`evaluation_designs/*.json`), `branch_design`
+those that train on from committed records' policies (`branch_designs/*.json`),
 `predictions` draws a learner's predicted next frames, `sweep` screens settings, `followup` branches,
 transfers and probes a design's learners that learned, `pinned` runs one single-core process per seed; `kinds`
 says, per kind of recipe, how it is evaluated after training, summarised and drawn; `paths` names where
-everything is read and written.
+everything is read and written. They work on a checkout of the repository, run from its root
+(`paths.require_checkout`).
 """

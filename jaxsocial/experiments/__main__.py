@@ -271,6 +271,7 @@ def main(argv: list[str] | None = None) -> None:
         importlib.import_module(DELEGATED[argv[0]][0]).main(argv[1:])
         return
     args = parse_args(argv)
+    paths.require_checkout()
     if args.command == "list":
         list_recipes()
         return

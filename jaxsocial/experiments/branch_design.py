@@ -541,6 +541,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cores", type=int, nargs="+", default=[0], help="one training process a core")
     parser.add_argument("--dry-run", action="store_true", help="print each branch's state and command")
     args = parser.parse_args(argv)
+    paths.require_checkout()
     try:
         design = load(args.design)
         records_root, runs_root, science = Path(args.records), Path(args.runs_dir), Path(args.science)

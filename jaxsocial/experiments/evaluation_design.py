@@ -487,6 +487,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where results and summaries go")
     args = parser.parse_args(argv)
+    paths.require_checkout()
     design = load(args.design)
     records_root, science = Path(args.records), Path(args.science)
     if args.action == "power":

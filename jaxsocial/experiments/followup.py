@@ -340,6 +340,7 @@ def main(argv: list[str] | None = None) -> None:
     figure_p.add_argument("--records-dir", default=str(paths.RECORDS))
     figure_p.add_argument("--out-dir", default=str(paths.SCIENCE))
     args = parser.parse_args(argv)
+    paths.require_checkout()
     try:
         plan = Plan.of(args.recipe)
         if args.command == "run":

@@ -41,3 +41,14 @@ RECORDS_OUT = RUNS / "records"
 """Where `record` writes by default (the repository's records: `--out-dir benchmarks/results/records`)."""
 SWEEP_RUNS = RUNS / "sweep"
 """The exploratory sweep's run directories."""
+
+
+def require_checkout() -> None:
+    """Stop with a clear error, before anything is read or written, where the working directory holds no
+    `RESULTS`: the experiments work on a checkout of the repository, from its root."""
+    if not RESULTS.is_dir():
+        raise SystemExit(
+            f"error: no {RESULTS}/ in {Path.cwd()}: the experiments read and write the committed results "
+            "of a checkout of the repository; run them from the root of a clone (an installed jaxsocial "
+            "package holds the library, not the experiments' records)"
+        )

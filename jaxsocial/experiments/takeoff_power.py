@@ -241,6 +241,7 @@ def main(argv: list[str] | None = None) -> None:
     """Write the `POOLED` summaries from the committed records (no arguments)."""
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments pooled", description=main.__doc__)
     parser.parse_args(argv)
+    paths.require_checkout()
     for path, designs in POOLED.items():
         summary = pooled_summary(paths.RECORDS, designs)
         logs.write_json(path, summary, indent=1)
