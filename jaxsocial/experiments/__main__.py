@@ -9,7 +9,7 @@ import re
 import sys
 from pathlib import Path
 
-from jaxsocial.experiments import figures, paths, pinned, prereg, recipes, records, runner, verify
+from jaxsocial.experiments import figures, paths, pinned, prereg, recipes, records, rundirs, runner, verify
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -188,7 +188,7 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
     threshold = prereg.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
     plan = []
     for condition in recipe.conditions:
-        dirs = runner.condition_seed_dirs(
+        dirs = rundirs.condition_seed_dirs(
             scale, condition, args.seed, args.seeds, args.runs_dir, tuple(args.pick)
         )
         for seed_dir in dirs:

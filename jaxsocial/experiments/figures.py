@@ -20,7 +20,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import kinds, prereg, recipes, records, runner
+from jaxsocial.experiments import kinds, prereg, recipes, records, rundirs
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import config, logs, metrics
@@ -42,7 +42,7 @@ class RecipeRuns:
         }
         self.seed_dirs, self.rows, self.missing_seeds, self.dirs_by_seed = {}, {}, {}, {}
         for c in recipe.conditions:
-            dirs = runner.condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick)
+            dirs = rundirs.condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick)
             rows = [metrics.read_rows(d) for d in dirs]
             self.dirs_by_seed[c] = [d if r else None for d, r in zip(dirs, rows, strict=True)]
             self.seed_dirs[c] = [d for d, r in zip(dirs, rows, strict=True) if r]

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments import kinds, paths, pinned, plots, prereg, recipes, records, runner
+from jaxsocial.experiments import kinds, paths, pinned, plots, prereg, recipes, records, rundirs, runner
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -106,7 +106,7 @@ def sources(plan: Plan, from_dir: str) -> list[Source]:
     scale, design = plan.scale, plan.design
     out = []
     for condition in plan.recipe.conditions:
-        dirs = runner.condition_seed_dirs(scale, condition, design.seed, design.seeds, from_dir)
+        dirs = rundirs.condition_seed_dirs(scale, condition, design.seed, design.seeds, from_dir)
         for seed, seed_dir in enumerate(dirs, start=design.seed):
             rows = logs.read_metrics(seed_dir) if logs.has_metrics(seed_dir) else []
             if len(rows) < design.iterations or metrics.final_return(rows) <= design.learned_threshold:

@@ -1,0 +1,64 @@
+"""Where a recipe's seeds are: the run directory of each seed of a condition, whichever of the condition's
+runs holds it (`condition_seed_dirs`). Read by the runner (what is done), the figures and the records."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from jaxsocial.experiments import recipes
+from jaxsocial.experiments.recipes import Scale
+from jaxsocial.run import logs, outputs, rundir
+from jaxsocial.run.config import TrainConfig
+
+
+def seed_dirs(cfg: TrainConfig) -> list[Path]:
+    """The run directory of every seed of a condition's config."""
+    return [s.dir for s in outputs.seed_runs(cfg, outputs.run_path(cfg))]
+
+
+def condition_seed_dirs(
+    scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str, pick: tuple[str, ...] = ()
+) -> list[Path]:
+    """The run directory of each seed seed..seed+seeds-1 of a condition, from whichever of the condition's
+    runs at this scale (`<condition>-s<first>-<last>`) holds it: the recipe's own run, or another (e.g.
+    seeds trained in two programs, `--seeds 3` then `--seed 3 --seeds 3`, read together as `--seeds 6`). A
+    seed that no run holds keeps the directory the recipe's own run would give it.
+
+    A seed held by several runs is never chosen silently: ValueError naming them, unless exactly one of them
+    is in `pick` (run directory names, e.g. 'social_rec-s0-5')."""
+    own = [
+        d
+        for cfg in recipes.condition_programs(scale, condition, seed, seeds, runs_dir)
+        for d in seed_dirs(cfg)
+    ]
+    held: dict[int, list[Path]] = {}
+    for run_dir in sorted((Path(runs_dir) / scale.runs_root).glob(f"{condition}-s*")):
+        match = re.fullmatch(rf"{re.escape(condition)}-s(\d+)-(\d+)", run_dir.name)
+        if not match:
+            continue
+        first, last = int(match[1]), int(match[2])
+        for s in range(first, last + 1):
+            d = run_dir if first == last else run_dir / rundir.seed_name(s)
+            if logs.has_metrics(d):
+                held.setdefault(s, []).append(d)
+    return [_one_holder(condition, s, held.get(s, []), d, pick) for s, d in enumerate(own, start=seed)]
+
+
+def _one_holder(condition: str, seed: int, holders: list[Path], default: Path, pick: tuple[str, ...]) -> Path:
+    """The one directory of `holders` that holds `seed` (`default` if none; see `condition_seed_dirs`)."""
+    if len(holders) <= 1:
+        return holders[0] if holders else default
+    picked = [d for d in holders if _run_of(d).name in pick]
+    if len(picked) == 1:
+        return picked[0]
+    runs = ", ".join(str(_run_of(d)) for d in holders)
+    raise ValueError(
+        f"seed {seed} of {condition} is held by {len(holders)} runs ({runs}); name the one to read with "
+        f"--pick RUN (e.g. --pick {_run_of(holders[0]).name})"
+    )
+
+
+def _run_of(seed_dir: Path) -> Path:
+    """The run directory of a seed directory (itself for a one-seed run)."""
+    return seed_dir.parent if re.fullmatch(r"s\d+", seed_dir.name) else seed_dir
