@@ -1,0 +1,40 @@
+"""The experiments' analysis (summaries, figures, records, statistics) imports nothing of their launching
+(training processes, pinned runs, in-flight GPU blocks, re-training), directly or through another module:
+analyse reads what launch wrote and never starts it (issue 64's plan, launch, analyse)."""
+
+from test_import_graph import import_graph
+
+ANALYSE = (
+    "jaxsocial.experiments.figures",
+    "jaxsocial.experiments.kinds",
+    "jaxsocial.experiments.plots",
+    "jaxsocial.experiments.records",
+    "jaxsocial.experiments.rundirs",
+    "jaxsocial.experiments.takeoff",
+    "jaxsocial.experiments.takeoff_power",
+    "jaxsocial.experiments.predictions",
+)
+LAUNCH = (
+    "jaxsocial.experiments.runner",
+    "jaxsocial.experiments.pinned",
+    "jaxsocial.experiments.inflight",
+    "jaxsocial.experiments.verify",
+    "jaxsocial.train",
+)
+
+
+def reachable(graph: dict[str, set[str]], start: str) -> set[str]:
+    """Every module `start` imports, directly or through others."""
+    seen, todo = set(), [start]
+    while todo:
+        for dep in graph.get(todo.pop(), set()) - seen:
+            seen.add(dep)
+            todo.append(dep)
+    return seen
+
+
+def test_analysis_never_imports_launch():
+    graph = import_graph()
+    assert all(module in graph for module in (*ANALYSE, *LAUNCH))
+    crossings = {m: sorted(reachable(graph, m) & set(LAUNCH)) for m in ANALYSE}
+    assert not any(crossings.values()), crossings
