@@ -27,7 +27,10 @@ DECLARED = {
     ("docs/experiments.md", "The sample-efficiency sweep (exploratory)"),
     ("docs/experiments.md", "Results"),
     ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
-    ("docs/experiments.md", "`mixing`: does mixing solo episodes in keep the solo skill? (pre-registered; not started)"),
+    (
+        "docs/experiments.md",
+        "`mixing`: does mixing solo episodes in keep the solo skill? (pre-registered; not started)",
+    ),
     ("docs/experiments.md", "The GPU scale: social learning appears in some seeds *(no records)*"),
     ("docs/experiments.md", "Pre-registration"),
     (
