@@ -1,9 +1,12 @@
 """GAE, the PPO loss and update: ratio 1 on the first minibatch, stored-state replay, KL stop and revert,
 and the auxiliary targets. Synthetic data and a tiny network keep these exact and fast."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 from conftest import U32, reordered_tolerance
 
@@ -282,6 +285,84 @@ def test_minibatches_after_the_kl_stop_compute_no_loss_or_gradient(setup, monkey
     # Minibatch 0 is applied; minibatch 1 measures the KL, stops the loop, and is the last to compute.
     assert float(metrics["minibatches"]) == 1.0
     assert len(calls) == 2
+
+
+@pytest.mark.parametrize(
+    ("kl", "running", "expected"),
+    [
+        (0.005, True, (True, False)),
+        (0.02, True, (False, False)),
+        (0.05, True, (False, True)),
+        (0.05, False, (False, False)),
+    ],
+)
+def test_kl_stop_applies_up_to_the_target_and_reverts_past_the_hard_limit_while_running(
+    kl, running, expected
+):
+    cfg = ppo.PPOConfig(kl_target=0.01, kl_hard_limit=0.03)
+    apply, revert = ppo.kl_stop(jnp.float32(kl), jnp.array(running), cfg)
+    assert (bool(apply), bool(revert)) == expected
+
+
+@pytest.mark.parametrize(
+    ("apply", "revert", "expected"), [(True, False, 1.0), (False, False, 2.0), (False, True, 3.0)]
+)
+def test_keep_or_revert_takes_the_new_the_old_or_the_first_tree(apply, revert, expected):
+    trees = [{"w": jnp.full(2, value), "b": jnp.float32(value)} for value in (1.0, 2.0, 3.0)]
+    kept = ppo.keep_or_revert(jnp.array(apply), jnp.array(revert), *trees)
+    assert leaves_equal(kept, trees[int(expected) - 1])
+
+
+def update_state(params, batch, running=True):
+    """The minibatch loop's state before a step: fresh optimiser, the targets of `params`."""
+    opt_state = ppo.make_optimizer(CFG).init(params)
+    targets = recompute(params, NET, CFG, batch)
+    return ppo.UpdateState(params, opt_state, jnp.array(running), jnp.array(False), jnp.array(0), targets)
+
+
+def one_step(state, m, key, batch, cfg=CFG):
+    step = functools.partial(
+        ppo.minibatch_step, first=(state.params, state.opt_state), batch=batch, net_cfg=NET
+    )
+    return jax.jit(functools.partial(ppo.step_or_skip, functools.partial(step, ppo_cfg=cfg)))(state, (m, key))
+
+
+def test_a_minibatch_step_is_one_optimiser_step_on_its_drawn_segments(setup):
+    params, batch = setup
+    state, key = update_state(params, batch), jax.random.key(7)
+    new, (metrics, ran) = one_step(state, jnp.int32(1), key, batch)  # minibatch 1: no recompute
+    idx = jax.random.choice(key, T // L * E, (CFG.minibatch_segments,), replace=False)
+    mb = ppo.minibatch(batch, state.targets, idx, L)
+    grads = jax.jit(jax.grad(lambda p: ppo.loss_fn(p, NET, CFG, mb)[0]))(params)
+    updates, _ = ppo.make_optimizer(CFG).update(grads, state.opt_state, params)
+    for x, y in zip(
+        jax.tree.leaves(new.params), jax.tree.leaves(optax.apply_updates(params, updates)), strict=True
+    ):
+        np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)
+    assert bool(ran) and bool(new.running) and int(new.steps) == 1 and not bool(new.reverted)
+    assert leaves_equal(new.targets, state.targets) and float(metrics["kl"]) < CFG.kl_target
+
+
+def test_a_minibatch_step_past_the_hard_limit_reverts_to_the_first_params(setup):
+    params, batch = setup
+    far = batch._replace(logp=batch.logp + 0.5)  # KL about 0.11 from the rollout policy
+    state = update_state(params, far)._replace(params=jax.tree.map(lambda x: x + 1e-3, params))
+    first = update_state(params, far)
+    step = functools.partial(
+        ppo.minibatch_step, first=(first.params, first.opt_state), batch=far, net_cfg=NET
+    )
+    new, metrics = jax.jit(functools.partial(step, ppo_cfg=CFG))(state, (jnp.int32(1), jax.random.key(7)))
+    assert float(metrics["kl"]) > CFG.kl_hard_limit
+    assert bool(new.reverted) and not bool(new.running) and int(new.steps) == 0
+    assert leaves_equal(new.params, params) and leaves_equal(new.opt_state, first.opt_state)
+
+
+def test_a_stopped_loop_skips_the_step_keeping_its_state_with_zero_metrics(setup):
+    params, batch = setup
+    state = update_state(params, batch, running=False)
+    new, (metrics, ran) = one_step(state, jnp.int32(1), jax.random.key(7), batch)
+    assert not bool(ran) and leaves_equal(new, state)
+    assert all(float(value) == 0.0 for value in metrics.values())
 
 
 def test_vmapped_learners_stopping_at_different_minibatches_equal_their_own_updates(setup):

@@ -107,7 +107,7 @@ class Batch(NamedTuple):
     its LSTM states before each segment's first step (Carry of float32[C, E, H]); both given, they are the
     targets of minibatch 0 (`rollout_targets`: what its recompute would compute, without the unroll), both
     None, minibatch 0 recomputes them.
-    The rollout records each step in the same class (`rollout.env_step`: no time axis, carry0 None,
+    The rollout records each step in the same class (`rollout.record_learners`: no time axis, carry0 None,
     segment_carries every step's LSTM state; obs, actions and valid of the training slots), and `ppo_batch`
     adds both.
     """
@@ -325,12 +325,79 @@ def make_optimizer(ppo_cfg: PPOConfig) -> optax.GradientTransformation:
 
 
 class UpdateState(NamedTuple):
+    """The minibatch loop's state: the learner's params and optimiser state, and the loop's bookkeeping."""
+
     params: dict
     opt_state: optax.OptState
     running: jax.Array  # bool[]: the minibatch loop goes on
     reverted: jax.Array  # bool[]: the hard KL limit was hit and the update was undone
     steps: jax.Array  # int32[]: minibatch updates applied
     targets: Targets
+
+
+def kl_stop(kl: jax.Array, running: jax.Array, ppo_cfg: PPOConfig) -> tuple[jax.Array, jax.Array]:
+    """(apply, revert), bool[] each, for a minibatch whose params are at KL `kl` float32[] from the rollout
+    policy while the loop is `running`: apply its step while the KL is at most `kl_target`; revert the whole
+    update once it exceeds `kl_hard_limit`. The loop ends unless the step applies."""
+    apply = running & (kl <= ppo_cfg.kl_target)
+    revert = running & (kl > ppo_cfg.kl_hard_limit)
+    return apply, revert
+
+
+def keep_or_revert(apply: jax.Array, revert: jax.Array, new, old, first):
+    """Leaf by leaf, of trees of one structure: `first` (before the update) where `revert`, else `new` (after
+    this minibatch's step) where `apply`, else `old` (before it)."""
+    return jax.tree.map(lambda n, o, f: jnp.where(revert, f, jnp.where(apply, n, o)), new, old, first)
+
+
+def minibatch_step(
+    state: UpdateState,
+    inputs: tuple[jax.Array, jax.Array],
+    first: tuple[dict, optax.OptState],
+    batch: Batch,
+    net_cfg: NetworkConfig,
+    ppo_cfg: PPOConfig,
+    dp: Devices = ONE_DEVICE,
+) -> tuple[UpdateState, dict[str, jax.Array]]:
+    """Minibatch m of the update (`inputs` = (m int32[], key)): targets recomputed before minibatches k, 2k,
+    ... (and 0 without the rollout's), `minibatch_segments` segments drawn, one gradient step, kept, ended
+    or reverted to `first` (the params and optimiser state before the update) by `kl_stop`. Returns the new
+    state and the minibatch's `loss_fn` metrics."""
+    m, key = inputs
+    from_rollout = batch.values is not None
+    targets = jax.lax.cond(
+        (m % ppo_cfg.recompute_every == 0) & ((m > 0) | (not from_rollout)),
+        lambda: recompute(state.params, net_cfg, ppo_cfg, batch, dp),
+        lambda: state.targets,
+    )
+    n_segments = batch.actions.shape[0] // ppo_cfg.segment_length * batch.actions.shape[1]
+    idx = jax.random.choice(key, n_segments, (ppo_cfg.minibatch_segments,), replace=False)
+    mb = minibatch(batch, targets, idx, ppo_cfg.segment_length)
+    mb = dp.shard(mb, {name: int(name != "carry") for name in mb})  # [L, M, ...] along M, carry [M, H]
+    (_, metrics), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, net_cfg, ppo_cfg, mb, dp)
+    apply, revert = kl_stop(metrics["kl"], state.running, ppo_cfg)
+    updates, opt_state = make_optimizer(ppo_cfg).update(grads, state.opt_state, state.params)
+    params = keep_or_revert(apply, revert, optax.apply_updates(state.params, updates), state.params, first[0])
+    opt_state = keep_or_revert(apply, revert, opt_state, state.opt_state, first[1])
+    reverted = state.reverted | revert
+    return UpdateState(params, opt_state, apply, reverted, state.steps + apply, targets), metrics
+
+
+def skipped_step(step: Callable, state: UpdateState, inputs) -> tuple[UpdateState, dict[str, jax.Array]]:
+    """A minibatch after the stop (or revert): the state as it is and `step`'s metrics as zeros, without a
+    recompute or a gradient."""
+    metrics = jax.eval_shape(step, state, inputs)[1]
+    return state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metrics)
+
+
+def step_or_skip(step: Callable, state: UpdateState, inputs):
+    """`step(state, inputs)` while the loop runs, else `skipped_step`. Returns the new state and (the
+    metrics, whether the loop ran). Under vmap (learners, seeds) the step runs while any member is running;
+    the others discard it."""
+    new_state, metrics = jax.lax.cond(
+        any_in_batch(state.running), step, functools.partial(skipped_step, step), state, inputs
+    )
+    return new_state, (metrics, state.running)
 
 
 def update(
@@ -342,69 +409,27 @@ def update(
     batch: Batch,
     dp: Devices = ONE_DEVICE,
 ) -> tuple[dict, optax.OptState, dict[str, jax.Array]]:
-    """One PPO update of one learner on its rollout (the paper's minibatch loop).
+    """One PPO update of one learner on its rollout (the paper's minibatch loop): `num_minibatches`
+    `minibatch_step`s in a scan, those after the KL stop skipped (`step_or_skip`).
 
-    Minibatch m draws `minibatch_segments` segments uniformly; before minibatches 0, k, 2k, ... the hidden
-    states and advantages are recomputed with the current params (before minibatch 0 they are the rollout
-    policy's: `rollout_targets` where the batch carries the rollout's values). Each minibatch measures the
-    KL to the rollout policy with the current params: above `kl_hard_limit` every change of this update is
-    reverted (params and optimiser state) and the loop ends; above `kl_target` the loop ends without
-    applying it. The minibatches after the end compute nothing (a `lax.cond`; under `vmap` until every
-    member ended). Returns new params, optimiser state and metrics (means over the minibatches that ran).
+    Before minibatch 0 the targets are the rollout policy's (`rollout_targets`) where the batch carries the
+    rollout's values, else minibatch 0 recomputes them. Returns new params, optimiser state and metrics
+    (means over the minibatches that ran, the last KL, the minibatches applied, whether it reverted).
     `dp`: the devices the batch is split over (see the module docstring).
     """
-    optimizer = make_optimizer(ppo_cfg)
     batch = dp.shard(batch, BATCH_ENV_AXES)
-    n_segments = batch.actions.shape[0] // ppo_cfg.segment_length * batch.actions.shape[1]
-    grad_fn = jax.value_and_grad(loss_fn, has_aux=True)
-
-    from_rollout = batch.values is not None
-
-    def minibatch_step(state: UpdateState, inputs):
-        m, k = inputs
-        targets = jax.lax.cond(
-            (m % ppo_cfg.recompute_every == 0) & ((m > 0) | (not from_rollout)),
-            lambda: recompute(state.params, net_cfg, ppo_cfg, batch, dp),
-            lambda: state.targets,
-        )
-        idx = jax.random.choice(k, n_segments, (ppo_cfg.minibatch_segments,), replace=False)
-        mb = minibatch(batch, targets, idx, ppo_cfg.segment_length)
-        mb = dp.shard(mb, {name: int(name != "carry") for name in mb})  # [L, M, ...] along M, carry [M, H]
-        (_, metrics), grads = grad_fn(state.params, net_cfg, ppo_cfg, mb, dp)
-        kl = metrics["kl"]
-        apply = state.running & (kl <= ppo_cfg.kl_target)
-        revert = state.running & (kl > ppo_cfg.kl_hard_limit)
-        updates, new_opt = optimizer.update(grads, state.opt_state, state.params)
-        new_params = optax.apply_updates(state.params, updates)
-
-        def pick(new, old, first):
-            return jnp.where(revert, first, jnp.where(apply, new, old))
-
-        params = jax.tree.map(pick, new_params, state.params, params0)
-        opt = jax.tree.map(pick, new_opt, state.opt_state, opt0)
-        return UpdateState(params, opt, apply, state.reverted | revert, state.steps + apply, targets), metrics
-
-    def stopped_step(state: UpdateState, inputs):  # after the stop (or revert): no recompute, no gradient
-        metrics = jax.eval_shape(minibatch_step, state, inputs)[1]
-        return state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metrics)
-
-    def step_or_skip(state: UpdateState, inputs):
-        # Under vmap (learners, seeds) the step runs while any member is running; the others discard it.
-        new_state, metrics = jax.lax.cond(
-            any_in_batch(state.running), minibatch_step, stopped_step, state, inputs
-        )
-        return new_state, (metrics, state.running)
-
-    params0, opt0 = params, opt_state
-    if from_rollout:
+    if batch.values is not None:
         targets0 = rollout_targets(ppo_cfg, batch)
     else:
         targets0 = jax.tree.map(
             jnp.zeros_like, jax.eval_shape(lambda: recompute(params, net_cfg, ppo_cfg, batch))
         )
     init = UpdateState(params, opt_state, jnp.array(True), jnp.array(False), jnp.array(0), targets0)
+    step = functools.partial(
+        minibatch_step, first=(params, opt_state), batch=batch, net_cfg=net_cfg, ppo_cfg=ppo_cfg, dp=dp
+    )
     steps = (jnp.arange(ppo_cfg.num_minibatches), jax.random.split(key, ppo_cfg.num_minibatches))
-    final, (metrics, ran) = jax.lax.scan(step_or_skip, init, steps)
+    final, (metrics, ran) = jax.lax.scan(functools.partial(step_or_skip, step), init, steps)
     summary = {name: _masked_mean(value, ran) for name, value in metrics.items()}
     summary["kl_last"] = metrics["kl"][jnp.maximum(jnp.sum(ran) - 1, 0)]
     summary["minibatches"] = final.steps.astype(jnp.float32)
