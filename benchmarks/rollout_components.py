@@ -6,8 +6,9 @@ Each recipe's iteration is split by ablation into programs over the same T-step 
   env       T steps of every environment with random actions, no view rendered (dynamics, rewards, resets);
   render    the same steps rendering the views the networks read (`rollout.observers`): render = this - env;
   experts   the same steps with the scripted experts choosing their slots' actions: experts = this - render;
-  rollout   the recipe's rollout (`agents.rollout.rollout`): network = this - experts (the neural slots'
-            steps, sampling, the truncation values and the rollout's records);
+  rollout   the recipe's iteration up to its update (`agents.rollout.iteration` with `ppo_update` left out):
+            network = this - experts (the neural slots' steps, sampling, the truncation values, the rollout's
+            records and the learners' batches);
   update    the learners' update on that rollout (`rollout.ppo_update`, KL stop off: every minibatch runs).
 
 Every program starts from the state after one warm-up rollout (episodes under way), runs once to compile and
@@ -26,13 +27,14 @@ import argparse
 import dataclasses
 import functools
 import time
+from unittest import mock
 
 import jax
 from recipe_sps import RECIPES, parse_recipes, recipe
 from run_info import metadata, write_results
 
 from jaxsocial import train
-from jaxsocial.agents import population, rollout
+from jaxsocial.agents import acting, rollout
 from jaxsocial.env import core
 from jaxsocial.experiments import recipes
 from jaxsocial.run import config
@@ -60,8 +62,8 @@ def programs(name: str) -> tuple[dict, rollout.RunnerState, int]:
             k_act, k_expert, k_env = jax.random.split(k, 3)
             actions = jax.random.randint(k_act, (w.num_envs, n_agents), 0, 3)
             memory = slots.memory
-            if with_experts:  # as `population.act`: cost fields where an episode starts
-                actions, memory = population.expert_actions(
+            if with_experts:  # as `acting.act`: cost fields where an episode starts
+                actions, memory = acting.expert_actions(
                     k_expert, w.pop, w.env_params, env_states, memory, slots.reward, resets, actions
                 )
             obs, env_states, reward, _, _, info = core.step_batch(
@@ -74,21 +76,21 @@ def programs(name: str) -> tuple[dict, rollout.RunnerState, int]:
         carry = (state.env_states, state.slots, state.resets)
         return jax.lax.scan(step, carry, jax.random.split(key, w.rollout_steps))
 
-    def full_rollout(state, key):
-        return rollout.rollout(w, state, state.params, key)
+    def full_rollout(state, key):  # -> (state, the learners' batches, episodes): the update returns its batch
+        with mock.patch.object(rollout, "ppo_update", lambda w, state, batch, key, dp: (state, batch)):
+            return rollout.iteration(w, state._replace(key=key), None)
 
-    def update(state, traj, key):
-        carry0 = jax.tree.map(lambda c: c[: w.n_learners], state.slots.carry)
-        return rollout.ppo_update(w, state, state.params, traj, carry0, key)
+    def update(state, batch, key):
+        return rollout.ppo_update(w, state, batch, key)
 
     state = jax.jit(functools.partial(rollout.init, w))(jax.random.key(0))
-    state, traj, _ = jax.jit(full_rollout)(state, jax.random.key(1))  # episodes under way
+    state, batch, _ = jax.jit(full_rollout)(state, jax.random.key(1))  # episodes under way
     jitted = {
         "env": jax.jit(functools.partial(env_steps, observed=(), with_experts=False)),
         "render": jax.jit(functools.partial(env_steps, observed=w.observed, with_experts=False)),
         "experts": jax.jit(functools.partial(env_steps, observed=w.observed, with_experts=True)),
         "rollout": jax.jit(full_rollout),
-        "update": jax.jit(lambda s, k: update(s, traj, k)),
+        "update": jax.jit(lambda s, k: update(s, batch, k)),
     }
     return jitted, state, w.num_envs * w.rollout_steps
 

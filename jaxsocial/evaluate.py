@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxsocial
-from jaxsocial.agents import network, population
+from jaxsocial.agents import acting, network, population
 from jaxsocial.env import core
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import logs, policy_io
@@ -116,11 +116,11 @@ def episode_returns(
     reset = functools.partial(core.reset, observers=observers)
     obs, states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_reset, n_episodes), env_params)
     present = states.present
-    slots = population.init_slot_state(pop, net_cfg, env_params, n_episodes)
+    slots = acting.init_slot_state(pop, net_cfg, env_params, n_episodes)
 
     def body(carry, key):
         obs, states, slots, first, done, returns, late = carry
-        actions, slots, _, _ = population.act(
+        actions, slots, _, _ = acting.act(
             key, pop, net_cfg, env_params, params, slots, obs, states, first, observers
         )
         step = functools.partial(core.step_env, observers=observers)
@@ -131,7 +131,7 @@ def episode_returns(
         returns = returns + reward
         late = late + jnp.where(states.time[:, None] > env_params.max_steps // 2, reward, 0.0)
         done = done | jnp.all(terminated, -1) | truncated
-        slots = population.with_rewards(slots, reward)
+        slots = acting.with_rewards(slots, reward)
         return (obs, states, slots, jnp.zeros_like(first), done, returns, late), None
 
     zeros = jnp.zeros((n_episodes, env_params.n_agents), jnp.float32)

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.agents import network, population
+from jaxsocial.agents import acting, network, population
 from jaxsocial.env import core, pictures
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import policy_io
@@ -87,16 +87,16 @@ def _play(key, pop, net_cfg, env_params, params, steps: int) -> dict[str, Any]:
     steps)."""
     k_reset, k_run = jax.random.split(key)
     obs, state = core.reset(k_reset, env_params)
-    slots = population.init_slot_state(pop, net_cfg, env_params, 1)
+    slots = acting.init_slot_state(pop, net_cfg, env_params, 1)
 
     def body(carry, key):
         obs, state, slots, first = carry
         batched = jax.tree.map(lambda x: x[None], state)
-        actions, slots, _, _ = population.act(
+        actions, slots, _, _ = acting.act(
             key, pop, net_cfg, env_params, params, slots, obs[None], batched, first
         )
         new_obs, new_state, reward, terminated, truncated = core.step_env(state, actions[0], env_params)
-        slots = population.with_rewards(slots, reward[None])
+        slots = acting.with_rewards(slots, reward[None])
         out = {
             "states": state,
             "obs": obs,

@@ -14,7 +14,7 @@ from conftest import TINY
 from jaxmarl.wrappers import baselines as jaxmarl_wrappers
 
 from jaxsocial.adapters import gymnax_env, jaxmarl_env
-from jaxsocial.agents import network, population
+from jaxsocial.agents import acting, network, population
 from jaxsocial.env import core
 from jaxsocial.run import policy_io
 
@@ -99,22 +99,22 @@ def test_gymnax_step_is_the_native_world_step_with_the_experts_acting(gymnax_rol
     )
     np.testing.assert_array_equal(after.starts, done)
 
-    # The experts' actions are what the training rollout's `population.act` chooses, batched over the
+    # The experts' actions are what the training rollout's `acting.act` chooses, batched over the
     # environments, on the same states (the explorer is deterministic: no random draws).
     pop = population.Population(population.parse_slots("random,expert:explorer,expert:explorer", 3, False))
     net = network.NetworkConfig()
 
     def native(slot_state, step):
         world, views, starts, reward = step
-        actions, slot_state, _, _ = population.act(
+        actions, slot_state, _, _ = acting.act(
             jax.random.key(0), pop, net, params, None, slot_state, views, world, starts
         )
-        return population.with_rewards(slot_state, reward), actions
+        return acting.with_rewards(slot_state, reward), actions
 
     _, expert_actions = jax.jit(
         lambda: jax.lax.scan(
             native,
-            population.init_slot_state(pop, net, params, ENVS),
+            acting.init_slot_state(pop, net, params, ENVS),
             (before.world, before.views, before.starts, info["rewards"]),
         )
     )()

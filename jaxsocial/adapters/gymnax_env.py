@@ -6,7 +6,7 @@
 
 The other slots (`slots`, as in training: `expert:KIND`, `frozen:RUN_DIR[#k]`, `random`; default the
 environment's scripted experts) act inside `step` exactly as in `jaxsocial.train`'s rollout
-(`population.act`). `params` are the world's `EnvParams` (a static, leafless pytree: pass it like gymnax's).
+(`acting.act`). `params` are the world's `EnvParams` (a static, leafless pytree: pass it like gymnax's).
 The learner's episode ends when it is terminated (on a terminal goal) or the world's time limit truncates it;
 then the whole world resets. `info` holds gymnax's `terminated`, `truncated`, `final_observation`, and every
 slot's `actions` int32[N] and `rewards` float32[N] of the step.
@@ -29,7 +29,7 @@ except ModuleNotFoundError as err:  # pragma: no cover - depends on the installe
     raise ImportError('jaxsocial.adapters.gymnax_env needs gymnax: pip install -e ".[gymnax]"') from err
 
 import jaxsocial
-from jaxsocial.agents import network, population
+from jaxsocial.agents import acting, network, population
 from jaxsocial.env import core
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
@@ -44,13 +44,13 @@ class LearnerViewState(environment.EnvState):
         world: the world's `EnvState`.
         views: the observations uint8[K, 21, 21, 3] (int8[K, 7, 7, 4] symbolic) of the K slots that read
             one (`LearnerView.observers`: the learner and frozen policies; scripted experts read the world).
-        companions: the other slots' `population.SlotState` for a batch of one environment.
+        companions: the other slots' `acting.SlotState` for a batch of one environment.
         starts: bool[] the next step is the episode's first (companions clear their memory).
     """
 
     world: EnvState
     views: jax.Array
-    companions: population.SlotState
+    companions: acting.SlotState
     starts: jax.Array
 
 
@@ -109,7 +109,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
             time=world.time,
             world=world,
             views=views,
-            companions=population.init_slot_state(self.companions, self.net, params, 1),
+            companions=acting.init_slot_state(self.companions, self.net, params, 1),
             starts=jnp.ones((), bool),
         )
         return views[self.row], state
@@ -117,10 +117,10 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
     def step_env(
         self, key: jax.Array, state: LearnerViewState, action: int | jax.Array, params: EnvParams
     ) -> tuple[jax.Array, LearnerViewState, jax.Array, jax.Array, dict[str, Any]]:
-        """One step without reset: the companions act (`population.act`), the world steps (`core.step_env`).
+        """One step without reset: the companions act (`acting.act`), the world steps (`core.step_env`).
         Returns the learner's view, the state, its reward float32[] and terminated bool[], and info."""
         self._check(params)
-        actions, companions, _, _ = population.act(
+        actions, companions, _, _ = acting.act(
             key,
             self.companions,
             self.net,
@@ -138,7 +138,7 @@ class LearnerView(environment.Environment[LearnerViewState, EnvParams]):
             time=world.time,
             world=world,
             views=views,
-            companions=population.with_rewards(companions, reward[None]),
+            companions=acting.with_rewards(companions, reward[None]),
             starts=jnp.zeros((), bool),
         )
         info = {"actions": actions, "rewards": reward}

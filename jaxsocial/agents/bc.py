@@ -11,6 +11,7 @@ Shapes: T rollout steps, B demonstration streams (environments x demonstrators).
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -34,6 +35,32 @@ class BCConfig:
     def __post_init__(self):
         if self.epochs < 1 or self.lr <= 0:
             raise ValueError(f"BCConfig: need epochs >= 1 and lr > 0, got {self.epochs} and {self.lr}")
+
+
+class Demonstration(NamedTuple):
+    """The demonstrators' steps of a rollout (`rollout.record_demonstrations`), time-major: obs uint8[T, E, D,
+    21, 21, 3] (symbolic: int8[T, E, D, 7, 7, 4]) their views, resets bool[T, E] the step starts an episode,
+    actions int32[T, D, E], valid bool[T, D, E] the demonstrator was acting. Without the time axis: one step.
+    """
+
+    obs: jax.Array
+    resets: jax.Array
+    actions: jax.Array
+    valid: jax.Array
+
+
+def streams(demos: Demonstration) -> Demonstration:
+    """The demonstrations as E * D streams, environment-major and demonstrator-minor: obs [T, E * D, ...],
+    resets, actions and valid [T, E * D] (the arguments of `update`)."""
+    n_steps, n_envs, n_demo = demos.obs.shape[:3]
+
+    def flat(x):  # [T, E, D, ...] -> [T, E * D, ...]
+        return x.reshape(n_steps, n_envs * n_demo, *x.shape[3:])
+
+    obs = flat(demos.obs)
+    resets = jnp.repeat(demos.resets, n_demo, axis=1)
+    actions, valid = (flat(jnp.moveaxis(x, 1, 2)) for x in (demos.actions, demos.valid))
+    return Demonstration(obs, resets, actions, valid)
 
 
 def make_optimizer(bc_cfg: BCConfig) -> optax.GradientTransformation:

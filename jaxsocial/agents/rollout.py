@@ -1,7 +1,7 @@
-"""One training iteration's parts as plain functions: the rollout (every slot acts in E environments for T
-steps, one `lax.scan`; neural slots through a `vmap` over their stacked params), the learners' PPO update
-on it (`lax.map` over learners, `ppo.update`) or behaviour cloning's (`bc.update`), and the `RunnerState`
-they carry between iterations. `jaxsocial.run.loop.make_program` wires them into a compiled program.
+"""One training iteration, top to bottom (`iteration`): every slot acts in E environments for T steps (one
+`lax.scan`), then the learners learn from them, by PPO (`ppo.update`, learner after learner) or by behaviour
+cloning from the demonstrators (`bc.update`), and the `RunnerState` they carry between iterations.
+`jaxsocial.run.loop.make_program` scans it over iterations.
 
 Everything static (slots, network, environment, hyperparameters) is a `Wiring`, made once by `wiring`.
 Names: `done` bool[E] an environment's episode ended (`info["done"]`); `agent_done` bool[..., E] an agent's
@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from jaxsocial.agents import bc, network, population, ppo
+from jaxsocial.agents import acting, bc, network, population, ppo
 from jaxsocial.env import core, observe
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import EnvParams, EnvState
@@ -34,7 +34,7 @@ class RunnerState(NamedTuple):
     env_states: EnvState  # [E]
     obs: jax.Array  # uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]) the views of `observers(...)`
     resets: jax.Array  # bool[E]: the next step starts an episode
-    slots: population.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
+    slots: acting.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
     demo_carry: network.Carry | None  # bc: learners' LSTM states on the demonstration streams [S_l, E*D, H]
     episode_return: jax.Array  # float32[E, N] return so far in the current episode
     key: jax.Array
@@ -63,9 +63,9 @@ class Wiring:
     rollout_steps: int
     observed: tuple[int, ...]  # the slots whose views are rendered (`observers`)
     learners: jax.Array  # int32[S_l] the learner slots
+    learner_views: jax.Array  # int32[S_l] their rows of the rendered views
     training_slots: jax.Array  # int32[S_l] (bc: [D]) the slots whose actions are trained on
     training_views: jax.Array  # int32[S_l] (bc: [D]) their rows of the rendered views
-    learner_views: jax.Array  # int32[S_l] the learners' rows of the rendered views
 
     @property
     def cloning(self) -> bool:
@@ -105,9 +105,9 @@ def wiring(
         rollout_steps=rollout_steps,
         observed=observed,
         learners=jnp.asarray(pop.learners),
+        learner_views=jnp.asarray(acting.view_rows(pop.learners, observed)),
         training_slots=jnp.asarray(training),
-        training_views=jnp.asarray(population.view_rows(training, observed)),
-        learner_views=jnp.asarray(population.view_rows(pop.learners, observed)),
+        training_views=jnp.asarray(acting.view_rows(training, observed)),
     )
 
 
@@ -128,7 +128,7 @@ def init(w: Wiring, key: jax.Array) -> RunnerState:
         env_states=env_states,
         obs=obs,
         resets=jnp.ones(w.num_envs, bool),
-        slots=population.init_slot_state(w.pop, w.net_cfg, w.env_params, w.num_envs),
+        slots=acting.init_slot_state(w.pop, w.net_cfg, w.env_params, w.num_envs),
         demo_carry=network.initial_carry(w.net_cfg, (w.n_learners, w.n_demo_streams)) if w.cloning else None,
         episode_return=jnp.zeros((w.num_envs, w.env_params.n_agents), jnp.float32),
         key=k_run,
@@ -152,44 +152,98 @@ def attention_targets(w: Wiring, env_states: EnvState) -> jax.Array | None:
     return jnp.moveaxis(targets[:, w.learners], 1, 0)
 
 
-def env_step(w: Wiring, carry: tuple[RunnerState, Any], key: jax.Array):
-    """One step of every environment (the body of `rollout`'s scan): every slot acts, the environments step.
+def iteration(
+    w: Wiring, state: RunnerState, frozen_params, dp: ppo.Devices = ppo.ONE_DEVICE
+) -> tuple[RunnerState, dict[str, jax.Array], tuple[jax.Array, jax.Array]]:
+    """One training iteration: every slot acts in every environment for T steps, then every learner learns
+    from them. `frozen_params`: the frozen slots' params stacked [S - S_l, ...] (or None); `dp`: the devices
+    the PPO update splits its batch over. Returns the state after it (its key advanced), the learners'
+    losses ({name: float32[S_l]}) and the episodes that ended at each step (the sum of their returns and
+    their count per agent, float32[T, N] each)."""
+    key, k_rollout, k_update = jax.random.split(state.key, 3)
+    params = all_params(state, frozen_params)  # [S, ...]: the learners', then the frozen slots'
+    carry0 = jax.tree.map(lambda c: c[: w.n_learners], state.slots.carry)  # the learners' LSTM states
 
-    `carry` is (state, every neural slot's params [S, ...]). Returns the new carry and (the step's
-    `ppo.Batch` without the time axis, see `ppo_batch`; (sum of finished episodes' returns float32[N], their
-    count float32[N]))."""
-    state, params = carry
-    k_act, k_env = jax.random.split(key)
-    actions, slots, logp, values = population.act(
-        k_act,
-        w.pop,
-        w.net_cfg,
-        w.env_params,
-        params,
-        state.slots,
-        state.obs,
-        state.env_states,
-        state.resets,
-        w.observed,
+    # COLLECT: T steps of every environment, a scan of env_step
+    def env_step(carry, key):
+        state, params = carry
+        k_act, k_env = jax.random.split(key)
+        # ACT: every slot on the same joint state; the neural slots sample from their networks' policies
+        actions, slots, logp, values = act(w, k_act, params, state)
+        # STEP every environment; the last views of truncated episodes are valued to bootstrap them
+        obs, env_states, reward, terminated, _, info = core.step_batch(
+            jax.random.split(k_env, w.num_envs), state.env_states, actions, w.env_params, w.observed
+        )
+        final_values = truncation_values(w, params, slots.carry, info)
+        # RECORD the episodes that ended and the step: the learners', or the demonstrators' to clone
+        episode_return, ended = ended_episodes(state, reward, info["done"])
+        if w.cloning:
+            step = record_demonstrations(w, state, actions)
+        else:
+            step = record_learners(w, state, actions, logp, values, reward, terminated, info, final_values)
+        state = state._replace(
+            env_states=env_states,
+            obs=obs,
+            resets=info["done"],
+            slots=acting.with_rewards(slots, reward),
+            episode_return=jnp.where(info["done"][:, None], 0.0, episode_return),
+        )
+        return (state, params), (step, ended)
+
+    keys = jax.random.split(k_rollout, w.rollout_steps)
+    (state, _), (traj, ended) = jax.lax.scan(env_step, (state, params), keys)
+    if w.cloning:  # BEHAVIOUR CLONING: the learners fit the demonstrators' actions
+        state, losses = bc_update(w, state, traj)
+        return state._replace(key=key), losses, ended
+    # ADVANTAGE: each learner's batch, bootstrapped by the values of the views after the last step (GAE
+    # itself runs in `ppo.update`: on the rollout's values first, then recomputed every few minibatches)
+    bootstrap = acting.values(
+        w.pop, w.net_cfg, params, state.slots.carry, state.obs, state.resets, w.observed
     )
-    alive, present = state.env_states.active, state.env_states.present  # [E, N] at the step's start
-    obs, env_states, reward, terminated, truncated, info = core.step_batch(
-        jax.random.split(k_env, w.num_envs), state.env_states, actions, w.env_params, w.observed
+    learner_obs = state.obs[:, w.learner_views]
+    batch = ppo_batch(
+        traj, learner_obs, state.resets, bootstrap[: w.n_learners], carry0, w.ppo_cfg.segment_length
     )
-    done = info["done"]
-    n_learners = w.n_learners
-    final_values = jax.lax.cond(
-        any_in_batch(done),
-        lambda: population.values(
-            w.pop, w.net_cfg, params, slots.carry, info["final_obs"], observers=w.observed
-        ),
+    # UPDATE every learner by PPO, one after another
+    state, losses = ppo_update(w, state, batch, k_update, dp)
+    return state._replace(key=key), losses, ended
+
+
+def act(w: Wiring, key: jax.Array, params, state: RunnerState):
+    """`acting.act` of every slot on the joint state `state`, with every neural slot's params [S, ...]:
+    actions int32[E, N], the slots' new `acting.SlotState`, logp and values float32[S, E]."""
+    slots, obs, env_states, resets = state.slots, state.obs, state.env_states, state.resets
+    return acting.act(key, w.pop, w.net_cfg, w.env_params, params, slots, obs, env_states, resets, w.observed)
+
+
+def truncation_values(w: Wiring, params, carry: network.Carry, info: dict) -> jax.Array:
+    """float32[S, E] every neural slot's value of its view where the episode ended (`info["final_obs"]`,
+    before the reset), continuing from the LSTM states `carry` [S, E, H]; zeros in a step without an end."""
+    return jax.lax.cond(
+        any_in_batch(info["done"]),
+        lambda: acting.values(w.pop, w.net_cfg, params, carry, info["final_obs"], observers=w.observed),
         lambda: jnp.zeros((len(w.pop.neural), w.num_envs), jnp.float32),
     )
+
+
+def ended_episodes(state: RunnerState, reward: jax.Array, done: jax.Array):
+    """The returns so far with the step's rewards float32[E, N] added, and the episodes that ended with the
+    step (`done` bool[E]): per agent, the sum of their returns and their count, float32[N] each (an agent
+    counts the episodes it took part in)."""
     episode_return = state.episode_return + reward
-    finished = (done[:, None] & present).astype(jnp.float32)  # episodes each slot took part in
-    stats = (jnp.sum(episode_return * finished, 0), jnp.sum(finished, 0))
-    agent_done = terminated | done[:, None]
-    transition = ppo.Batch(
+    ended = (done[:, None] & state.env_states.present).astype(jnp.float32)
+    return episode_return, (jnp.sum(episode_return * ended, 0), jnp.sum(ended, 0))
+
+
+def record_learners(
+    w: Wiring, state: RunnerState, actions, logp, values, reward, terminated, info: dict, final_values
+) -> ppo.Batch:
+    """The learners' step, a `ppo.Batch` without the time axis (see `ppo_batch`), from the step's `state`
+    (before it), every slot's actions int32[E, N], the neural slots' logp and values float32[S, E], every
+    agent's reward float32[E, N] and terminated bool[E, N], `info` and `truncation_values`."""
+    n_learners = w.n_learners
+    agent_done = terminated | info["done"][:, None]
+    return ppo.Batch(
         obs=state.obs[:, w.training_views],
         resets=state.resets,
         actions=actions[:, w.training_slots].T,
@@ -198,29 +252,22 @@ def env_step(w: Wiring, carry: tuple[RunnerState, Any], key: jax.Array):
         terminated=terminated[:, w.learners].T,
         agent_done=agent_done[:, w.learners].T,
         final_values=final_values[:n_learners],
-        valid=alive[:, w.training_slots].T,
+        valid=state.env_states.active[:, w.training_slots].T,
         carry0=None,
         attention=attention_targets(w, state.env_states),
-        values=None if w.cloning else values[:n_learners],
-        segment_carries=None if w.cloning else jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
+        values=values[:n_learners],
+        segment_carries=jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
     )
-    new_state = state._replace(
-        env_states=env_states,
-        obs=obs,
-        resets=done,
-        slots=population.with_rewards(slots, reward),
-        episode_return=jnp.where(done[:, None], 0.0, episode_return),
-    )
-    return (new_state, params), (transition, stats)
 
 
-def rollout(w: Wiring, state: RunnerState, params, key: jax.Array):
-    """T steps of every environment with every neural slot's params [S, ...]. Returns the state after them,
-    the steps (`env_step`'s, stacked [T, ...]) and their episode statistics ([T, N] each)."""
-    (state, _), (traj, stats) = jax.lax.scan(
-        functools.partial(env_step, w), (state, params), jax.random.split(key, w.rollout_steps)
+def record_demonstrations(w: Wiring, state: RunnerState, actions: jax.Array) -> bc.Demonstration:
+    """The demonstrators' step, from the step's `state` (before it) and every slot's actions int32[E, N]."""
+    return bc.Demonstration(
+        obs=state.obs[:, w.training_views],
+        resets=state.resets,
+        actions=actions[:, w.training_slots].T,
+        valid=state.env_states.active[:, w.training_slots].T,
     )
-    return state, traj, stats
 
 
 def ppo_batch(
@@ -236,9 +283,8 @@ def ppo_batch(
     bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the learners' LSTM
     states `carry0`; the segment-start states are those before every `segment_length`-th step.
 
-    A rollout step is a `ppo.Batch` without the time axis and with carry0 None: obs, actions and valid are of
-    the training slots (learners for PPO, demonstrators for BC), the rest of the learners: obs uint8 or int8
-    [E, S_r, ...] (the environment's observations), resets bool[E], actions int32[S_r, E], valid bool[S_r, E],
+    A rollout step (`record_learners`) is a `ppo.Batch` without the time axis and with carry0 None: obs uint8
+    or int8 [E, S_l, ...] (the learners' views), resets bool[E], actions int32[S_l, E], valid bool[S_l, E],
     logp, rewards, values, final_values float32[S_l, E], terminated, agent_done bool[S_l, E], segment_carries
     the LSTM states before the step (Carry of float32[S_l, E, H]) and attention int32[S_l, E, N-1] with an
     attention head (`observe.attention_targets`), else None."""
@@ -257,28 +303,10 @@ def ppo_batch(
 
 
 def ppo_update(
-    w: Wiring,
-    state: RunnerState,
-    params,
-    traj: ppo.Batch,
-    carry0: network.Carry,
-    key: jax.Array,
-    dp: ppo.Devices = ppo.ONE_DEVICE,
+    w: Wiring, state: RunnerState, batch: ppo.Batch, key: jax.Array, dp: ppo.Devices = ppo.ONE_DEVICE
 ) -> tuple[RunnerState, dict[str, jax.Array]]:
-    """Every learner's PPO update (`ppo.update`) on the rollout `traj` that began with the learners' LSTM
-    states `carry0` and ended in `state`; `params` are every neural slot's, those the rollout acted with.
-    Returns the state with the new params and optimiser states, and the losses ({name: float32[S_l]})."""
-    bootstrap = population.values(
-        w.pop, w.net_cfg, params, state.slots.carry, state.obs, state.resets, w.observed
-    )
-    batch = ppo_batch(  # [S_l, T(+1), E, ...]
-        traj,
-        state.obs[:, w.learner_views],
-        state.resets,
-        bootstrap[: w.n_learners],
-        carry0,
-        w.ppo_cfg.segment_length,
-    )
+    """Every learner's PPO update (`ppo.update`) on its `batch` (`ppo_batch`, stacked [S_l, ...]). Returns
+    the state with the new params and optimiser states, and the losses ({name: float32[S_l]})."""
 
     # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
     # vmapped paper-size network, whose convolutions in frame batches are themselves a `lax.map`.
@@ -292,23 +320,17 @@ def ppo_update(
     return state._replace(params=new_params, opt_state=new_opt), losses
 
 
-def bc_update(w: Wiring, state: RunnerState, traj: ppo.Batch) -> tuple[RunnerState, dict[str, jax.Array]]:
-    """Every learner's behaviour-cloning update (`bc.update`) on the demonstrators' steps of the rollout
-    `traj`, as E * D demonstration streams, time-major [T, E * D, ...] (environment-major,
-    demonstrator-minor). Returns the state with the new params, optimiser states and streams' LSTM states,
-    and the losses."""
-
-    def streams(x):  # [T, E, D, ...] -> [T, E * D, ...]
-        return x.reshape(w.rollout_steps, w.n_demo_streams, *x.shape[3:])
-
-    n_demo = len(w.pop.demonstrators)
-    obs = streams(traj.obs)
-    resets = jnp.repeat(traj.resets, n_demo, axis=1)
-    actions, valid = (streams(jnp.moveaxis(x, 1, 2)) for x in (traj.actions, traj.valid))
+def bc_update(
+    w: Wiring, state: RunnerState, traj: bc.Demonstration
+) -> tuple[RunnerState, dict[str, jax.Array]]:
+    """Every learner's behaviour-cloning update (`bc.update`) on the rollout's demonstrations `traj`
+    (`record_demonstrations`, stacked [T, ...]) as E * D streams (`bc.streams`). Returns the state with the
+    new params, optimiser states and streams' LSTM states, and the losses."""
+    demos = bc.streams(traj)
 
     def update(args):
         params, opt_state, carry = args
-        return bc.update(params, opt_state, carry, w.net_cfg, w.bc_cfg, obs, resets, actions, valid)
+        return bc.update(params, opt_state, carry, w.net_cfg, w.bc_cfg, *demos)
 
     new_params, new_opt, carry, losses = jax.lax.map(
         update, (state.params, state.opt_state, state.demo_carry)

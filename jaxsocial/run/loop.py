@@ -1,7 +1,7 @@
-"""The compiled training loop: `make_program(program_cfg, env, slots) -> (init, run_chunk)` wires the
-rollout and update of `jaxsocial.agents.rollout` into the scan over iterations, and `compiled(program_cfg,
-mesh, env, slots)` jits it as a `Program` placed on a device mesh (several seeds in one program), cached per
-program. `jaxsocial.train.make_train(cfg)` builds the whole run of a `TrainConfig` as one function.
+"""The compiled training loop: `make_program(program_cfg, env, slots) -> (init, run_chunk)` scans
+`jaxsocial.agents.rollout.iteration` over iterations, and `compiled(program_cfg, mesh, env, slots)` jits it
+as a `Program` placed on a device mesh (several seeds in one program), cached per program.
+`jaxsocial.train.make_train(cfg)` builds the whole run of a `TrainConfig` as one function.
 
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments followed by one update of
 every learner, whose losses, parameters and optimiser state are checked for non-finite values
@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxsocial.agents import population, rollout
+from jaxsocial.agents import acting, population, rollout
 from jaxsocial.agents.rollout import RunnerState
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import distributed, nonfinite
@@ -31,7 +31,7 @@ ENV_AXES = RunnerState(
     env_states=0,
     obs=0,
     resets=0,
-    slots=population.SlotState(carry=1, memory=0, reward=0),
+    slots=acting.SlotState(carry=1, memory=0, reward=0),
     demo_carry=1,  # the streams are environment-major
     episode_return=0,
     key=None,
@@ -47,7 +47,7 @@ def make_program(
     mesh: jax.sharding.Mesh | None = None,
 ):
     """The pure training functions of one program: `program_cfg` in the validated environment `env_params`
-    with the slots `pop` (see `config.setup`), wired from `jaxsocial.agents.rollout`.
+    with the slots `pop` (see `config.setup`): `jaxsocial.agents.rollout.iteration` in a scan.
 
     Returns `(init, run_chunk)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
     (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
@@ -69,14 +69,7 @@ def make_program(
     devices = distributed.data_parallel(mesh)
 
     def iteration(state: RunnerState, frozen_params):
-        key, k_roll, k_update = jax.random.split(state.key, 3)
-        params = rollout.all_params(state, frozen_params)
-        carry0 = jax.tree.map(lambda c: c[: w.n_learners], state.slots.carry)
-        state, traj, (return_sum, episodes) = rollout.rollout(w, state, params, k_roll)
-        if w.cloning:
-            state, losses = rollout.bc_update(w, state, traj)
-        else:
-            state, losses = rollout.ppo_update(w, state, params, traj, carry0, k_update, devices)
+        state, losses, (return_sum, episodes) = rollout.iteration(w, state, frozen_params, devices)
         episodes_per_slot = jnp.sum(episodes, 0)
         metrics = {
             "episodes": episodes_per_slot,
@@ -84,7 +77,7 @@ def make_program(
             **losses,
             nonfinite.KEY: nonfinite.check(losses, state.params, state.opt_state),
         }
-        return state._replace(key=key, iteration=state.iteration + 1), metrics
+        return state._replace(iteration=state.iteration + 1), metrics
 
     def run_chunk(state: RunnerState, frozen_params, n: int):
         return jax.lax.scan(lambda s, _: iteration(s, frozen_params), state, None, length=n)
