@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import needs_records
 
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
@@ -122,6 +123,7 @@ def test_the_takeoff_design_states_its_tests_budget_and_evaluations():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", TAKEOFF_DESIGNS)
+@needs_records(*(f"records/laptop/prereg-{d}" for d in takeoff_power.EVIDENCE_DESIGNS))
 def test_the_takeoff_design_has_the_power_it_states(name, capsys):
     """The stored power re-simulated from the committed evidence with fewer simulated designs: within the
     two estimates' Monte Carlo error (4 standard errors)."""

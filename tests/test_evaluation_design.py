@@ -8,12 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial.experiments import evaluation_design as ed
 from jaxsocial.experiments import paths, prereg
-
-RECORDS = paths.RECORDS / "laptop" / "prereg-h1_early"
 
 
 def design_file(tmp_path, **changes) -> ed.EvaluationDesign:
@@ -150,7 +149,7 @@ def test_power_grows_with_the_effect_and_vanishes_without_one():
     assert table["discount 1"]["all"] <= min(table["discount 1"]["a"], table["discount 1"]["b"])
 
 
-@pytest.mark.skipif(not RECORDS.is_dir(), reason=f"needs the committed records {RECORDS}")
+@needs_records("records/laptop/prereg-h1_early")
 def test_run_plays_what_is_missing_blind_and_logs_its_machine(designs_dir, tmp_path, capsys):
     """Two records of each arm and a random walker in a small Four Rooms beside its experts."""
     design = design_file(designs_dir, secondary={})

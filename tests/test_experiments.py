@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import needs_records
 
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
@@ -554,6 +555,7 @@ def test_vmapped_seed_programs_write_one_record_per_seed(tmp_path, capsys):
         cli.main(["run", "predictions", "--scale", "tiny", "--vmap-seeds", "0", "--dry-run"])
 
 
+@needs_records("records/tiny")
 def test_a_designs_evaluations_are_written_blind(tmp_path, capsys):
     """A design at its own scale (runs under `<scale>/prereg-<design>/`) evaluates its finished seeds without
     showing a score: the committed tiny records, one seed's evaluations deleted, as a design's runs."""

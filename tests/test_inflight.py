@@ -7,7 +7,7 @@ import subprocess
 import tarfile
 from pathlib import Path
 
-from conftest import TINY
+from conftest import TINY, needs_records
 
 from jaxsocial import train
 from jaxsocial.experiments import inflight, verify
@@ -50,6 +50,7 @@ def progress_logs(tgz: Path) -> list[str]:
         ]
 
 
+@needs_records("inflight")
 def test_the_committed_states_hold_no_progress_log():
     states = sorted((Path(__file__).parents[1] / "benchmarks/results/inflight").glob("*/state/*.tgz"))
     assert states and {str(s): progress_logs(s) for s in states} == {str(s): [] for s in states}

@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from conftest import needs_records
 
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
@@ -28,6 +29,7 @@ SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"
 """The committed summary of the committed tiny records (`python -m jaxsocial.experiments figure no_penalty
 --scale tiny --seeds 2 --runs-dir benchmarks/results/records --out-dir benchmarks/results/science`)."""
 RECIPE = recipes.RECIPES["no_penalty"]
+TINY_RECORDS = needs_records("records/tiny")
 
 
 @pytest.fixture
@@ -40,6 +42,7 @@ def _record_dirs() -> list[Path]:
     return sorted(p.parent for p in (REPO / paths.RECORDS / "tiny").rglob(records.PROVENANCE_FILE))
 
 
+@TINY_RECORDS
 def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_path):
     committed = json.loads(Path(SUMMARY).read_text())
     runs = figures.RecipeRuns(RECIPE, recipes.TINY, 0, 2, str(paths.RECORDS))
@@ -58,6 +61,7 @@ def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_
     assert (tmp_path / "no_penalty-tiny.png").stat().st_size > 1000
 
 
+@TINY_RECORDS
 def test_a_record_reads_like_a_run_directory():
     record_dirs = _record_dirs()
     assert len(record_dirs) == 4  # 2 conditions x 2 seeds
@@ -106,6 +110,7 @@ def test_commands_log(tmp_path):
         records.run_provenance("cpu/z", runs, None, None)
 
 
+@TINY_RECORDS
 def test_pack_checks_before_it_writes(tmp_path):
     source = _record_dirs()[0]
     run = records.read_provenance(source)["run"]
@@ -144,6 +149,7 @@ def _commands_log(tmp_path: Path) -> Path:
     return log
 
 
+@TINY_RECORDS
 def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, tmp_path, capsys):
     log = _commands_log(tmp_path)
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(paths.RECORDS),
@@ -195,6 +201,7 @@ def _record_all_but_one_seed(tmp_path: Path, spoil) -> Path:
     return spoiled
 
 
+@TINY_RECORDS
 def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
     """A design's records are committed seed by seed while the next seeds train: `record` packs the finished
     seeds and names the unfinished one, which it leaves for a later call."""
@@ -206,6 +213,7 @@ def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
     assert f"{training} is unfinished: 4 of 1000 iterations logged; skipped" in capsys.readouterr().out
 
 
+@TINY_RECORDS
 def test_record_command_skips_seeds_not_evaluated_yet(in_repo, tmp_path, capsys):
     """A seed that finished training but not yet its evaluations (the runner evaluates after training, or
     `run --no-train` does): `record` names it and leaves it for a later call, so no record lacks them."""
@@ -218,6 +226,7 @@ def test_record_command_skips_seeds_not_evaluated_yet(in_repo, tmp_path, capsys)
     assert f"{unevaluated} not evaluated yet in " in capsys.readouterr().out
 
 
+@TINY_RECORDS
 def test_record_command_skips_seeds_whose_command_has_not_ended(in_repo, tmp_path, capsys):
     """A seed whose training has finished while its `pinned` command has not yet written its run file (the
     runner winding up): `record` names it and leaves it for a later call instead of failing."""
@@ -231,9 +240,10 @@ def test_record_command_skips_seeds_whose_command_has_not_ended(in_repo, tmp_pat
 
 
 def test_every_committed_results_path_exists():
-    """`paths` names where the committed results are: each of them is in the repository."""
+    """`paths` names where the committed results are: each of them is in the repository (the records, which a
+    code-only clone leaves out, in the test below)."""
     committed = {name: value for name, value in vars(paths).items() if isinstance(value, Path)}
-    committed = {name: p for name, p in committed.items() if p.is_relative_to(paths.RESULTS)}
+    committed = {n: p for n, p in committed.items() if p.is_relative_to(paths.RESULTS) and p != paths.RECORDS}
     suffixed = {paths.SWEEP_SUMMARY, paths.MAP_SUMMARY}  # named without their .json/.png
     missing = [
         name
@@ -241,6 +251,11 @@ def test_every_committed_results_path_exists():
         if not (REPO / (p.with_suffix(".json") if p in suffixed else p)).exists()
     ]
     assert not missing and len(committed) >= 8
+
+
+@needs_records("records")
+def test_the_records_are_in_the_repository():
+    assert (REPO / paths.RECORDS).is_dir()
 
 
 def test_a_record_keeps_its_checkpoint_only_with_a_reason():
@@ -275,6 +290,26 @@ def _rederivations() -> dict[str, functools.partial]:
     return out
 
 
+def _records_read(name: str) -> tuple[str, ...]:
+    """The folders under benchmarks/results/ that re-deriving the committed summary `name` reads: its
+    scale's records, the sweep's, an evaluation design's, or none (the map reads the sweep's summary)."""
+    summary = logs.read_json(REPO / paths.SCIENCE / name)
+    command = (summary.get("command") or "").split()
+    if name == paths.MAP_SUMMARY.name + ".json":
+        return ()
+    if name == paths.SWEEP_SUMMARY.name + ".json":
+        return (f"records/{sweep.RECORDS_SUBDIR}",)
+    if "evaluation_design" in " ".join(command[:3]):
+        return (f"records/{evaluation_design.load(summary['design']).records}",)
+    if "--scale" in command:
+        return (f"records/{command[command.index('--scale') + 1]}",)
+    return ("records/laptop",)  # the follow-ups' and the pooled laptop summaries
+
+
+def _rederivation_params() -> list:
+    return [pytest.param(n, marks=needs_records(*_records_read(n))) for n in sorted(_rederivations())]
+
+
 def test_every_committed_summary_is_rederived_or_from_runs_not_committed():
     """A summary the test below does not re-derive names a command that trains (`run`): its runs were not
     recorded."""
@@ -285,7 +320,7 @@ def test_every_committed_summary_is_rederived_or_from_runs_not_committed():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(_rederivations()))
+@pytest.mark.parametrize("name", _rederivation_params())
 def test_a_committed_summary_rederives_byte_for_byte_at_head(name, tmp_path, monkeypatch):
     """What the README promises: run a summary's command and `git status` shows nothing changed. It runs, as
     written, in a copy of the repository's results whose summaries are not there yet (everything else is

@@ -8,6 +8,7 @@ import string
 from pathlib import Path
 
 import pytest
+from conftest import needs_records
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -230,6 +231,11 @@ def test_a_config_json_with_the_old_field_names_reads_as_today():
     assert config.resume_conflicts(old, new) == []
     old["ppo"]["chunk_length"] = 16
     assert config.resume_conflicts(old, new) == ["ppo.segment_length"]  # named as today
+
+
+@needs_records("records/tiny")
+def test_a_committed_records_config_with_the_old_field_names_reads_as_today():
+    """A committed tiny record's config.json, written before the renames, reads under today's names."""
     record = logs.read_config(REPO / "benchmarks/results/records/tiny/social_pred_nopenalty-s0-1/s0")
     assert "chunk" in record["net"] and "chunk_length" in record["ppo"]  # written before the renames
     read = config.config_from_dict(record)

@@ -11,7 +11,7 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
-from conftest import TINY, TINY_FLAGS, metrics_without_speed
+from conftest import TINY, TINY_FLAGS, metrics_without_speed, needs_records
 
 from jaxsocial.agents import rollout
 from jaxsocial.agents.network import NetworkConfig
@@ -232,7 +232,7 @@ def test_load_policy_ignores_how_the_network_is_computed(tiny_runs):
 
 def test_a_policy_saved_with_the_old_field_name_loads(tmp_path):
     """Policies exported before `NetworkConfig.chunk` became `frame_batch` (metadata 'chunk') load: one
-    written so here, and a committed record's."""
+    written so here (a committed record's in the test below)."""
     net = dataclasses.replace(TINY.net, frame_batch=64)
     params = jax.vmap(lambda k: init_params(k, net))(jax.random.split(jax.random.key(0), 1))
     meta = policy_io.json_net(net)
@@ -245,6 +245,11 @@ def test_a_policy_saved_with_the_old_field_name_loads(tmp_path):
         jax.tree.leaves(policy_io.load_policy(tmp_path, net)), jax.tree.leaves(params), strict=True
     ):
         np.testing.assert_array_equal(a, b[0])
+
+
+@needs_records("records/tiny")
+def test_a_committed_records_policy_saved_with_the_old_field_name_loads():
+    """A committed tiny record's policy, exported before the rename, loads with the network it names."""
     record = (
         Path(__file__).resolve().parents[1] / "benchmarks/results/records/tiny/social_pred_nopenalty-s0-1/s0"
     )

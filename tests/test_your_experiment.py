@@ -7,6 +7,7 @@ from pathlib import Path
 
 import jax
 import pytest
+from conftest import needs_records
 
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import paths, pinned, records, verify
@@ -17,6 +18,7 @@ TINY_RECORDS = REPO / paths.RECORDS / "tiny"
 RECORD = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2"]
 
 
+@needs_records("records/tiny")
 def test_record_takes_the_device_each_runs_process_measured(tmp_path, monkeypatch):
     monkeypatch.chdir(REPO)
     runs = tmp_path / "runs"
@@ -44,6 +46,7 @@ def test_a_commands_logs_device_must_be_given(capsys):
     assert "--commands-log: give --device and --jax" in capsys.readouterr().err
 
 
+@needs_records("records/tiny")
 def test_verify_defaults_to_what_a_short_record_holds(monkeypatch):
     record = next(p.parent for p in TINY_RECORDS.rglob(records.PROVENANCE_FILE))
     rows = len(metrics.read_rows(record))
