@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import TINY, TINY_ENV_ARGS
+from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import train
@@ -21,6 +21,7 @@ MIXING = branch_design.load("mixing")
 RUNS = Path("runs-nowhere")
 
 
+@needs_records("records/laptop/prereg-experts")
 def test_the_mixing_design_branches_every_experts_record_in_its_arm():
     assert not branch_design.missing_sources(MIXING)
     assert [MIXING.paired(t) for t in MIXING.primary.values()] == [True, False]
@@ -76,6 +77,7 @@ def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, floa
     logs.write_json(directory / records.PROVENANCE_FILE, provenance)
 
 
+@needs_records("records/laptop/prereg-experts")
 def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path):
     design = dataclasses.replace(MIXING, seeds=6)
     rng = np.random.default_rng(1)
