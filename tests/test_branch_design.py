@@ -174,3 +174,12 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path):
     assert summary["recorded"] == 1 and summary["preregistered"]["checks"]["differing"] == []
     assert summary["environments"][solo]["mixed"]["per_seed"][0] is not None
     assert summary["environments"][solo]["social"]["per_seed"] == [None]
+
+
+@needs_records("records/laptop/prereg-experts")
+def test_figure_stays_blind_until_every_branch_is_recorded(tmp_path, capsys):
+    """The committed records hold some of the design's branches: `figure` says how many and writes nothing."""
+    branch_design.main(["figure", "mixing", "--science", str(tmp_path)])
+    out = capsys.readouterr().out
+    assert "branches recorded; the results stay blind until every branch is in" in out
+    assert "mean" not in out and not any(tmp_path.iterdir())

@@ -540,6 +540,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where the summary and figure go")
     parser.add_argument("--cores", type=int, nargs="+", default=[0], help="one training process a core")
     parser.add_argument("--dry-run", action="store_true", help="print each branch's state and command")
+    parser.add_argument(
+        "--interim", action="store_true", help="figure: summarise before every branch is recorded (unblinds)"
+    )
     args = parser.parse_args(argv)
     paths.require_checkout()
     try:
@@ -553,6 +556,13 @@ def main(argv: list[str] | None = None) -> None:
         elif args.action == "record":
             record(design, runs_root, records_root)
         else:
+            recorded = as_designed(design, records_root)
+            if not recorded["every_branch_recorded"] and not args.interim:
+                print(
+                    f"[{design.name}] {recorded['recorded']} of {design.seeds * len(design.arms)} branches "
+                    "recorded; the results stay blind until every branch is in (--interim shows them now)"
+                )
+                return
             summary = summarise(design, records_root)
             science.mkdir(parents=True, exist_ok=True)
             logs.write_json(science / f"{design.name}.json", summary)
