@@ -30,7 +30,7 @@ DECLARED = {
     ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
     (
         "docs/experiments.md",
-        "`mixing`: does mixing solo episodes in keep the solo skill? (pre-registered; not started)",
+        "`mixing`: does mixing solo episodes in keep the solo skill? (pre-registered; in progress)",
     ),
     ("docs/experiments.md", "The GPU scale: social learning appears in some seeds *(no records)*"),
     ("docs/experiments.md", "Pre-registration"),
