@@ -232,14 +232,16 @@ def mann_whitney(a: list[float], b: list[float], alternative: str) -> dict[str, 
     return {"statistic": float(result.statistic), "p": float(result.pvalue), "n": [len(a), len(b)]}
 
 
-def paired_difference(before: list[float], after: list[float]) -> dict[str, Any]:
-    """`after` minus `before` per seed: n, mean, 95% t-interval and the two-sided Wilcoxon signed-rank p (None
-    under 2 pairs or when every difference is 0)."""
+def paired_difference(
+    before: list[float], after: list[float], alternative: str = "two-sided"
+) -> dict[str, Any]:
+    """`after` minus `before` per seed: n, mean, 95% t-interval and the Wilcoxon signed-rank p (`alternative`
+    'greater': after tends to exceed before; None under 2 pairs or when every difference is 0)."""
     diff = np.asarray(after, np.float64) - np.asarray(before, np.float64)
     mean, low, high = mean_ci95(diff)
     p = None
     if len(diff) >= 2 and np.any(diff != 0):
-        p = float(scipy_stats.wilcoxon(diff, alternative="two-sided").pvalue)
+        p = float(scipy_stats.wilcoxon(diff, alternative=alternative).pvalue)
     return {"n": int(len(diff)), "mean": mean, "ci95": [low, high], "wilcoxon_p": p}
 
 

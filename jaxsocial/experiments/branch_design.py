@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, pinned, plots, prereg, records
+from jaxsocial.experiments import paths, pinned, plots, prereg, records, rundirs
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -183,12 +183,6 @@ def missing_sources(design: BranchDesign, records_root: Path = paths.RECORDS) ->
     return sorted(str(d) for d in wanted if not (d / "policy").is_dir())
 
 
-def run_state(design: BranchDesign, run_dir: Path) -> str:
-    """'done' (every iteration logged), 'partial' (begun) or 'missing'."""
-    rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
-    return "done" if rows >= design.iterations else "partial" if run_dir.is_dir() else "missing"
-
-
 def run(
     design: BranchDesign,
     runs_root: Path,
@@ -206,7 +200,8 @@ def run(
     for seed in design.source_seeds():
         for arm in design.arms:
             cfg = branch_config(design, arm, seed, runs_root, records_root)
-            run_dir, state = runs_root / cfg.run_name, run_state(design, runs_root / cfg.run_name)
+            run_dir = runs_root / cfg.run_name
+            state = rundirs.branch_state(run_dir, design.iterations)
             counts[state] += 1
             flags = config_flags(cfg) + (["--resume"] if state == "partial" else [])
             if dry_run:
@@ -229,7 +224,7 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path = paths.REC
             run_dir, target = runs_root / name, records_root / name
             if target.exists():
                 continue
-            if run_state(design, run_dir) != "done":
+            if rundirs.branch_state(run_dir, design.iterations) != "done":
                 print(f"  {name}: not finished, not recorded")
                 continue
             try:
@@ -256,13 +251,13 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path = paths.REC
 def final_scores(design: BranchDesign, records_root: Path = paths.RECORDS) -> dict[str, dict[str, list]]:
     """Per arm, per evaluation environment, every source seed's final evaluation (None: not recorded)."""
     out: dict[str, dict[str, list]] = {arm: {env: [] for env in design.eval_envs} for arm in design.arms}
+    keys = {env: metrics.eval_key(str(EnvSpec.parse(env))) for env in design.eval_envs}  # as `train` logs
     for arm in design.arms:
         for seed in design.source_seeds():
             record_dir = records_root / design.run_name(arm, seed)
             rows = logs.read_metrics(record_dir) if logs.has_metrics(record_dir) else None
             for env in design.eval_envs:
-                key = metrics.eval_key(str(EnvSpec.parse(env)))  # as `train` logs it
-                value = None if rows is None else metrics.final_eval(rows, key)
+                value = None if rows is None else metrics.final_eval(rows, keys[env])
                 out[arm][env].append(None if value is None or np.isnan(value) else round(value, 4))
     return out
 
@@ -272,16 +267,8 @@ def compare(test: Test, paired: bool, scores: dict[str, dict[str, list]]) -> dic
     a, b = scores[test.treatment][test.env], scores[test.control][test.env]
     if paired:
         pairs = [(x, y) for x, y in zip(a, b, strict=True) if x is not None and y is not None]
-        diff = np.array([x - y for x, y in pairs], np.float64)
-        entry: dict[str, Any] = {"test": "wilcoxon", "n": len(pairs)}
-        if len(pairs) >= 2 and np.any(diff != 0):
-            from scipy import stats as scipy_stats
-
-            entry["p"] = float(scipy_stats.wilcoxon(diff, alternative=test.alternative).pvalue)
-            entry["mean_difference"] = round(float(diff.mean()), 4)
-        else:
-            entry["p"] = None
-        return entry
+        d = stats.paired_difference([y for _, y in pairs], [x for x, _ in pairs], test.alternative)
+        return {"test": "wilcoxon", "n": d["n"], "p": d["wilcoxon_p"], "mean_difference": d["mean"]}
     kept = [[v for v in values if v is not None] for values in (a, b)]
     return {"test": "mann-whitney"} | stats.mann_whitney(kept[0], kept[1], test.alternative)
 
@@ -293,13 +280,7 @@ def tested(design: BranchDesign, family: dict[str, Test], scores: dict[str, dict
         | compare(t, design.paired(t), scores)
         for name, t in family.items()
     }
-    known = {name: entry["p"] for name, entry in out.items() if entry["p"] is not None}
-    adjusted = stats.holm(known)
-    for name, entry in out.items():
-        entry["p_holm"] = adjusted.get(name)
-        entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
-        entry.update({k: prereg.round_p(v) for k, v in entry.items() if isinstance(v, float)})
-    return out
+    return prereg.holm_family(out, design.alpha)
 
 
 def as_designed(design: BranchDesign, records_root: Path = paths.RECORDS) -> dict[str, Any]:

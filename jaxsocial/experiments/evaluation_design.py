@@ -236,13 +236,7 @@ def tested(
     for name, test in family.items():
         t, c = by_player[test.env, design.treatment], by_player[test.env, design.control]
         out[name] = stats.mann_whitney(t or [], c or [], test.alternative) | {"env": test.env}
-    known = {name: entry["p"] for name, entry in out.items() if entry["p"] is not None}
-    adjusted = stats.holm(known)
-    for name, entry in out.items():
-        entry["p_holm"] = prereg.round_p(adjusted[name]) if name in adjusted else None
-        entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
-        entry.update({k: prereg.round_p(v) for k, v in entry.items() if isinstance(v, float)})
-    return out
+    return prereg.holm_family(out, design.alpha)
 
 
 def read_results(

@@ -189,8 +189,7 @@ def run(
         for arm in ARMS:
             flags = config_flags(branch_config(plan, source, arm, runs_dir))
             run_dir = branch_dir(plan, source, arm, runs_dir)
-            rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
-            state = "done" if rows >= plan.branch_iterations else "partial" if run_dir.is_dir() else "missing"
+            state = rundirs.branch_state(run_dir, plan.branch_iterations)
             print(f"  {source.name}-{arm}: {state}")
             if dry_run:
                 print("    python -m jaxsocial.train " + " ".join(flags))

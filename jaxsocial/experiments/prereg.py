@@ -194,6 +194,18 @@ def round_p(value: float) -> float:
     return round(value, 6) if abs(value) >= 1e-6 else float(f"{value:.3g}")
 
 
+def holm_family(entries: dict[str, dict[str, Any]], alpha: float) -> dict[str, dict[str, Any]]:
+    """`entries` (a family's tests: name -> result with its 'p', None where it could not run), each given
+    its Holm-adjusted p-value over the family's tests that ran ('p_holm', None if it did not) and whether it
+    is rejected at `alpha`, every float rounded (`round_p`); returned."""
+    adjusted = stats.holm({name: e["p"] for name, e in entries.items() if e["p"] is not None})
+    for name, entry in entries.items():
+        entry["p_holm"] = adjusted.get(name)
+        entry["rejected"] = name in adjusted and adjusted[name] <= alpha
+        entry.update({k: round_p(v) for k, v in entry.items() if isinstance(v, float)})
+    return entries
+
+
 def commit_checks(commit: str | None, run_commits: dict[str, str | None]) -> dict[str, Any]:
     """Whether the design is committed and precedes every run's recorded commit (and which runs it does
     not)."""

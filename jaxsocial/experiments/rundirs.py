@@ -17,6 +17,13 @@ def seed_dirs(cfg: TrainConfig) -> list[Path]:
     return [s.dir for s in outputs.seed_runs(cfg, outputs.run_path(cfg))]
 
 
+def branch_state(run_dir: Path, iterations: int) -> str:
+    """'done' (`run_dir` logged `iterations` rows), 'partial' (it exists: training resumes it), or
+    'missing'."""
+    rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
+    return "done" if rows >= iterations else "partial" if run_dir.is_dir() else "missing"
+
+
 def condition_seed_dirs(
     scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str, pick: tuple[str, ...] = ()
 ) -> list[Path]:
