@@ -183,3 +183,18 @@ def test_figure_stays_blind_until_every_branch_is_recorded(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "branches recorded; the results stay blind until every branch is in" in out
     assert "mean" not in out and not any(tmp_path.iterdir())
+
+
+@needs_records("records/laptop/prereg-experts")
+def test_run_starts_only_max_runs_branches_in_seed_order(tmp_path, monkeypatch, capsys):
+    """--max-runs N: the first N pending branches, each source seed's arms before the next seed's."""
+    started = []
+    monkeypatch.setattr(
+        pinned, "run", lambda jobs, cores, flags: started.extend(j.label for j in jobs) or [0] * len(jobs)
+    )
+    with pytest.raises(SystemExit) as exit_:
+        branch_design.main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "4"])
+    assert exit_.value.code == 0
+    names = [f"laptop/prereg-mixing/{arm}-s{MIXING.seed + k}" for k in (0, 1) for arm in MIXING.arms]
+    assert started == names[:4]
+    assert "starting 4 of 120 pending runs (--max-runs)" in capsys.readouterr().out

@@ -140,6 +140,25 @@ def test_run_with_cores_trains_seed_by_seed(tmp_path, monkeypatch):
     assert started == [f"{c} s{s}" for s in (0, 1) for c in conditions]
 
 
+def test_max_runs_starts_only_the_first_runs_seed_by_seed(tmp_path, monkeypatch, capsys):
+    """--max-runs N starts the first N pending runs in the seed-by-seed order and says how many wait; a
+    later call starts from the rest (a finished run is not pending); N below 1 is refused at parsing."""
+    started = []
+    monkeypatch.setattr(
+        pinned, "run", lambda jobs, cores, flags: started.append([j.label for j in jobs]) or [0] * len(jobs)
+    )
+    command = ["run", "h1", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(tmp_path), "--cores", "0"]
+    cli.main([*command, "--max-runs", "3"])
+    assert started == [["solo_pred s0", "social_none s0", "social_rec s0"]]
+    assert "starting 3 of 8 pending runs (--max-runs)" in capsys.readouterr().out
+    cli.main([*command, "--max-runs", "8"])  # all of them: nothing said
+    assert started[-1][-1] == "social_pred s1" and "--max-runs" not in capsys.readouterr().out
+    for bad in ("0", "-2", "two"):
+        with pytest.raises(SystemExit):
+            cli.main([*command, "--max-runs", bad])
+        assert "--max-runs" in capsys.readouterr().err
+
+
 def test_a_designs_seeds_train_with_its_xla_flags(tmp_path, monkeypatch):
     """With --cores every process gets them after the single-core flags; in this process they must already
     be in $XLA_FLAGS (XLA reads them once), else nothing trains."""

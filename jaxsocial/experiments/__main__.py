@@ -96,6 +96,14 @@ def _run_options(p: argparse.ArgumentParser) -> None:
         help="train each K consecutive seeds of a condition as one vmapped program, one record per "
         "seed as before (a GPU's way; a design fixes its own, `seeds_per_program`)",
     )
+    p.add_argument(
+        "--max-runs",
+        type=pinned.positive_int,
+        default=None,
+        metavar="N",
+        help="with --cores: start only the first N pending runs, seed by seed (those that can end within "
+        "a sitting); a later call resumes from the rest",
+    )
 
 
 def _figure_options(p: argparse.ArgumentParser) -> None:
@@ -299,6 +307,7 @@ def main(argv: list[str] | None = None) -> None:
                 pick=tuple(args.pick),
                 cores=tuple(args.cores),
                 seeds_per_program=args.vmap_seeds,
+                max_runs=args.max_runs,
             )
         elif args.command == "record":
             record(args, recipe, scale)

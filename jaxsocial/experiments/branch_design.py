@@ -189,10 +189,11 @@ def run(
     cores: list[int],
     records_root: Path = paths.RECORDS,
     dry_run: bool = False,
+    max_runs: int | None = None,
 ) -> list[int]:
     """Train every branch not done yet, seed by seed (each source seed's arms before the next seed), one
-    process a core; a begun branch resumes. Nothing starts if a source record is missing. Returns the exit
-    codes."""
+    process a core; a begun branch resumes; only the first `max_runs` start (`pinned.first_runs`). Nothing
+    starts if a source record is missing. Returns the exit codes of those started."""
     missing = missing_sources(design, records_root)
     if missing:
         raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
@@ -211,7 +212,7 @@ def run(
     print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
     if dry_run or not jobs:
         return []
-    return pinned.run(jobs, cores, design.xla_flags)
+    return pinned.run(pinned.first_runs(jobs, max_runs), cores, design.xla_flags)
 
 
 def record(design: BranchDesign, runs_root: Path, records_root: Path = paths.RECORDS) -> list[Path]:
@@ -522,6 +523,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cores", type=int, nargs="+", default=[0], help="one training process a core")
     parser.add_argument("--dry-run", action="store_true", help="print each branch's state and command")
     parser.add_argument(
+        "--max-runs",
+        type=pinned.positive_int,
+        default=None,
+        metavar="N",
+        help="run: start only the first N pending branches (those that can end within a sitting)",
+    )
+    parser.add_argument(
         "--interim", action="store_true", help="figure: summarise before every branch is recorded (unblinds)"
     )
     args = parser.parse_args(argv)
@@ -532,7 +540,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.action == "power":
             print(describe(design))
         elif args.action == "run":
-            codes = run(design, runs_root, args.cores, records_root, args.dry_run)
+            codes = run(design, runs_root, args.cores, records_root, args.dry_run, args.max_runs)
             raise SystemExit(max(codes, default=0))
         elif args.action == "record":
             record(design, runs_root, records_root)

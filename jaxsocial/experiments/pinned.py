@@ -12,6 +12,7 @@ it as the run's provenance (`records.pack`); its log goes beside the run directo
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import datetime
 import importlib.metadata
@@ -96,6 +97,23 @@ def process_xla_flags(extra: str = "") -> str:
     """$XLA_FLAGS of a pinned process: the caller's, then `SINGLE_CORE_XLA_FLAGS`, then `extra` (e.g. a
     design's). ValueError if a word of them is not a `--flag` (`xla_flags.check`)."""
     return xla_flags.check(f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS} {extra}", "$XLA_FLAGS")
+
+
+def positive_int(text: str) -> int:
+    """`text` as an int of at least 1 (argparse's type for --max-runs; its error otherwise)."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {value}")
+    return value
+
+
+def first_runs(jobs: list[Job], max_runs: int | None) -> list[Job]:
+    """The first `max_runs` of `jobs` (all of them if None), saying so when some are left for later: a
+    sitting starts only the runs that can end within it."""
+    if max_runs is None or max_runs >= len(jobs):
+        return jobs
+    print(f"starting {max_runs} of {len(jobs)} pending runs (--max-runs); the rest wait for a later call")
+    return jobs[:max_runs]
 
 
 def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[int]:

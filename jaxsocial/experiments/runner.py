@@ -71,6 +71,7 @@ def run(
     pick: tuple[str, ...] = (),
     cores: tuple[int, ...] = (),
     seeds_per_program: int | None = None,
+    max_runs: int | None = None,
 ) -> None:
     """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
 
@@ -85,6 +86,7 @@ def run(
     `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
     (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
     process of its own with `cores`, else in this one (default: one per seed with `cores`, else one for all).
+    `max_runs`: start only the first that many of the pinned processes (`pinned.first_runs`).
     A design's runs at its own scale train and are evaluated blind (no return or score shown), with its
     `xla_flags` (ValueError if it has them and no `cores` are given, unless this process's $XLA_FLAGS end in
     them: they must be set before XLA starts).
@@ -120,7 +122,7 @@ def run(
     jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
     if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves
         # whole seeds done rather than one condition's
-        jobs = [job for _, job in sorted(jobs, key=lambda pair: pair[0])]
+        jobs = pinned.first_runs([job for _, job in sorted(jobs, key=lambda pair: pair[0])], max_runs)
         codes = pinned.run(jobs, list(cores), design_flags)
         failed = [job.label for job, rc in zip(jobs, codes, strict=True) if rc != 0]
         if failed:
