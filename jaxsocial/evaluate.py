@@ -33,9 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import jaxsocial
 from jaxsocial.agents import acting, network, population
-from jaxsocial.env import core
+from jaxsocial.env import core, registry
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import logs, policy_io
 from jaxsocial.run.metrics import LEARNED_RETURN
@@ -168,7 +167,7 @@ def _setup(eval_cfg: EvalConfig):
         raise ValueError(f"--episodes {eval_cfg.episodes} must be >= 1")
     if eval_cfg.protocol not in PROTOCOLS:
         raise ValueError(f"unknown --protocol {eval_cfg.protocol!r}; choose one of {PROTOCOLS}")
-    _, env_params = jaxsocial.make(eval_cfg.env, **dict(eval_cfg.env_args))
+    _, env_params = registry.make(eval_cfg.env, **dict(eval_cfg.env_args))
     slots = eval_cfg.slots or population.parse_slot_list(population.default_slots(env_params))
     pop = population.Population(population.check_slots(slots, env_params.n_agents, need_learner=False))
     pop.validate(env_params)

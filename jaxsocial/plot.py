@@ -24,11 +24,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import jaxsocial
 from jaxsocial import specs, stats
 from jaxsocial.agents import population
 from jaxsocial.axes import steps_axis
 from jaxsocial.curves import band
+from jaxsocial.env import registry
 from jaxsocial.run import logs, metrics
 
 PANELS = {
@@ -96,7 +96,7 @@ def seed_list(seeds: list[int]) -> str:
 
 def slot_labels(config: dict[str, Any]) -> list[str]:
     """Each slot's label ('learner', 'expert:explorer', ...) from a run's config."""
-    _, env_params = jaxsocial.make(config["env"], **dict(specs.ENV_ARGS.parse(config.get("env_args", ""))))
+    _, env_params = registry.make(config["env"], **dict(specs.ENV_ARGS.parse(config.get("env_args", ""))))
     text = config.get("slots") or population.default_slots(env_params)
     return [s.label for s in population.parse_slots(text, env_params.n_agents, need_learner=False)]
 

@@ -24,9 +24,9 @@ import sys
 import jax
 import numpy as np
 
-import jaxsocial
 from jaxsocial import playback
 from jaxsocial.agents import network, population
+from jaxsocial.env import registry
 from jaxsocial.env.pictures import (
     DECODER_TITLES,
     POLICIES,
@@ -65,7 +65,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.render", description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--env",
-        help=f"NAME[:field=value,...], NAME one of: {', '.join(jaxsocial.registered_envs())} (default with "
+        help=f"NAME[:field=value,...], NAME one of: {', '.join(registry.registered_envs())} (default with "
         "--ckpt: the run's)",
     )
     parser.add_argument(

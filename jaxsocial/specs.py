@@ -26,8 +26,8 @@ from typing import Annotated, Any
 
 import tyro
 
-import jaxsocial
 from jaxsocial import syntax
+from jaxsocial.env import registry
 from jaxsocial.env.types import EnvParams
 
 
@@ -47,7 +47,7 @@ class EnvSpec:
 
     def env_params(self) -> EnvParams:
         """The environment's parameters; ValueError for an unknown name or field."""
-        return jaxsocial.make(self.name, **dict(self.args))[1]
+        return registry.make(self.name, **dict(self.args))[1]
 
     def extended(self, env_args: tuple[tuple[str, Any], ...]) -> EnvSpec:
         """This spec with the overrides `env_args` (`--env-args`) added: ``--env NAME:a=1 --env-args b=2`` is

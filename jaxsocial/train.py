@@ -19,9 +19,9 @@ from typing import Any
 
 import jax
 
-import jaxsocial
 from jaxsocial import evaluate
 from jaxsocial.agents import population
+from jaxsocial.env import registry
 from jaxsocial.run import (
     compile_cache,
     config,
@@ -225,7 +225,7 @@ def parse_args(argv: list[str]) -> TrainConfig:
         default = PRESETS[preset]
     if ":" in (_flag_value(argv, "--env") or ""):  # NAME:ARGS is NAME with --env-args ARGS, not the preset's
         default = dataclasses.replace(default, env_args=())
-    usage = USAGE.format(envs=", ".join(jaxsocial.registered_envs()))
+    usage = USAGE.format(envs=", ".join(registry.registered_envs()))
     cfg = tyro.cli(
         TrainConfig, default=default, args=argv, description=usage, prog="python -m jaxsocial.train"
     )

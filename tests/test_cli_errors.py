@@ -13,7 +13,7 @@ from conftest import TINY, TINY_FLAGS
 
 import jaxsocial
 from jaxsocial import train
-from jaxsocial.run import checkpoint, logs, loop, outputs, policy_io, schedule
+from jaxsocial.run import checkpoint, logs, loop, outputs, policy_io, rundir, schedule
 
 
 @pytest.fixture
@@ -112,7 +112,7 @@ def finished_run(tmp_path_factory):
 def test_keep_checkpoints_and_resume_reads_the_saved_config(finished_run):
     cfg, run_dir = finished_run
     assert checkpoint.all_steps(run_dir / "checkpoints") == [4, 6]
-    assert checkpoint.all_steps(run_dir / policy_io.POLICY_DIR) == [4, 6]
+    assert checkpoint.all_steps(run_dir / rundir.POLICY_DIR) == [4, 6]
     resumed = train.parse_args(["--resume", str(run_dir)])
     assert resumed == dataclasses.replace(cfg, resume=True, runs_dir=str(run_dir.parent), run_name="done")
     assert train.parse_args(["--resume", str(run_dir), "--iterations", "8"]).iterations == 8
@@ -132,7 +132,7 @@ def copy_run(run_dir, tmp_path, name):
     return copy
 
 
-@pytest.mark.parametrize("lost", ["checkpoints", policy_io.POLICY_DIR])
+@pytest.mark.parametrize("lost", ["checkpoints", rundir.POLICY_DIR])
 def test_crash_between_the_policy_and_checkpoint_writes_resumes_consistently(finished_run, tmp_path, lost):
     """A run killed between writing iteration 6's policy and its checkpoint ('checkpoints/6' lost), or, in
     the order of older versions, between the checkpoint and the policy ('policy/6' lost): the resumed run

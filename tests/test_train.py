@@ -18,7 +18,7 @@ from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.network import init as init_params
 from jaxsocial.agents.ppo import PPOConfig
 from jaxsocial.env.observe import observe
-from jaxsocial.run import checkpoint, config, logs, loop, policy_io
+from jaxsocial.run import checkpoint, config, logs, loop, policy_io, rundir
 from jaxsocial.run.config import PRESETS
 from jaxsocial.train import make_train, parse_args, run
 
@@ -79,9 +79,7 @@ def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, c
     cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="stop", stop_at_return=-1e9)
     run_dir = run(cfg)
     assert len(logs.read_metrics(run_dir)) == TINY.chunk_iterations < TINY.iterations
-    assert (
-        checkpoint.latest_step(run_dir / policy_io.POLICY_DIR) == TINY.chunk_iterations
-    )  # saved at the stop
+    assert checkpoint.latest_step(run_dir / rundir.POLICY_DIR) == TINY.chunk_iterations  # saved at the stop
     assert f"stopped after iteration {TINY.chunk_iterations}" in capsys.readouterr().out
     never = run(dataclasses.replace(cfg, run_name="never", stop_at_return=1e9))
     assert len(logs.read_metrics(never)) == TINY.iterations
@@ -238,7 +236,7 @@ def test_a_policy_saved_with_the_old_field_name_loads(tmp_path):
     meta = policy_io.json_net(net)
     meta["chunk"] = meta.pop("frame_batch")
     checkpoint.save(
-        tmp_path / policy_io.POLICY_DIR, 3, {"params": params}, metadata={"net": meta, "n_learners": 1}
+        tmp_path / rundir.POLICY_DIR, 3, {"params": params}, metadata={"net": meta, "n_learners": 1}
     )
     assert policy_io.saved_net(tmp_path) == net
     for a, b in zip(
@@ -253,7 +251,7 @@ def test_a_committed_records_policy_saved_with_the_old_field_name_loads():
     record = (
         Path(__file__).resolve().parents[1] / "benchmarks/results/records/tiny/social_pred_nopenalty-s0-1/s0"
     )
-    assert "chunk" in checkpoint.read_metadata(record / policy_io.POLICY_DIR)["net"]
+    assert "chunk" in checkpoint.read_metadata(record / rundir.POLICY_DIR)["net"]
     saved = policy_io.saved_net(record)
     assert saved.frame_batch == 512 and jax.tree.leaves(policy_io.load_policy(record, saved))
 

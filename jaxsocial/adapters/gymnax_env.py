@@ -28,9 +28,8 @@ except ModuleNotFoundError as err:  # pragma: no cover - depends on the installe
         raise  # gymnax is installed but one of its own imports is missing: show that one
     raise ImportError('jaxsocial.adapters.gymnax_env needs gymnax: pip install -e ".[gymnax]"') from err
 
-import jaxsocial
 from jaxsocial.agents import acting, network, population
-from jaxsocial.env import core
+from jaxsocial.env import core, registry
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 from jaxsocial.run import policy_io
@@ -198,5 +197,5 @@ def make(name: str = "goalcycle3", slots: str | None = None, **overrides) -> tup
     `slots`: one entry per agent, exactly one `learner` (default: the learner in slot 0 beside the
     environment's scripted experts). Raises ValueError for a bad name, field or slot before compiling.
     """
-    _, params = jaxsocial.make(name, **overrides)
+    _, params = registry.make(name, **overrides)
     return LearnerView(name, params, slots), params

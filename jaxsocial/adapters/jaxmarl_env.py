@@ -26,8 +26,7 @@ except ModuleNotFoundError as err:  # pragma: no cover - depends on the installe
         raise  # jaxmarl is installed but one of its own imports is missing: show that one
     raise ImportError('jaxsocial.adapters.jaxmarl_env needs jaxmarl: pip install -e ".[jaxmarl]"') from err
 
-import jaxsocial
-from jaxsocial.env import core
+from jaxsocial.env import core, registry
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams, EnvState
 
 
@@ -117,5 +116,5 @@ class SocialMultiAgentEnv(MultiAgentEnv):
 def make(name: str = "goalcycle3", **overrides) -> SocialMultiAgentEnv:
     """The JaxMARL environment of a preset with `EnvParams` overrides (ValueError if bad), as
     `jaxmarl.make` returns one."""
-    _, params = jaxsocial.make(name, **overrides)
+    _, params = registry.make(name, **overrides)
     return SocialMultiAgentEnv(name, params)

@@ -22,8 +22,9 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from jaxsocial.run import checkpoint, logs, metrics, policy_io
+from jaxsocial.run import checkpoint, logs, metrics
 from jaxsocial.run.rundir import CHECKPOINTS_DIR as CHECKPOINTS
+from jaxsocial.run.rundir import POLICY_DIR
 
 PROGRESS_LOGS = "device-*.log"
 """The raw training logs a device block leaves in a run directory (benchmarks/prereg_gpu_block.sh), one per
@@ -42,7 +43,7 @@ def slim(run_dir: Path) -> int:
         for step_dir in (d / CHECKPOINTS).iterdir():
             if step_dir.name != str(keep):
                 shutil.rmtree(step_dir) if step_dir.is_dir() else step_dir.unlink()
-        shutil.rmtree(d / policy_io.POLICY_DIR, ignore_errors=True)
+        shutil.rmtree(d / POLICY_DIR, ignore_errors=True)
     for log in run_dir.glob(PROGRESS_LOGS):
         log.unlink()
     return keep

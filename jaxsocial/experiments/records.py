@@ -31,7 +31,7 @@ from typing import Any
 
 import jax
 
-from jaxsocial.run import checkpoint, logs, metrics, policy_io, rundir
+from jaxsocial.run import checkpoint, logs, metrics, rundir
 
 PROVENANCE_FILE = "provenance.json"
 ORBAX_COMMIT_NOTE = "commit_success.txt"
@@ -161,7 +161,7 @@ def pack(
         (record_dir / logs.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode(), mtime=0))
     else:  # a record packed again
         shutil.copy2(seed_dir / logs.METRICS_GZ_FILE, record_dir / logs.METRICS_GZ_FILE)
-    kept = [policy_io.POLICY_DIR] + ([rundir.CHECKPOINTS_DIR] if final_checkpoint else [])
+    kept = [rundir.POLICY_DIR] + ([rundir.CHECKPOINTS_DIR] if final_checkpoint else [])
     for directory in kept:  # without orbax's commit notes, which name the absolute path it was written to
         shutil.copytree(
             seed_dir / directory / str(iteration),
@@ -195,7 +195,7 @@ def packable(seed_dir: str | Path, final_checkpoint: bool = False) -> tuple[int,
     seed_dir = Path(seed_dir)
     if not (seed_dir / logs.CONFIG_FILE).is_file() or not logs.has_metrics(seed_dir):
         raise FileNotFoundError(f"{seed_dir} is not a finished seed run directory (no config or metrics)")
-    policy_dir = seed_dir / policy_io.POLICY_DIR
+    policy_dir = seed_dir / rundir.POLICY_DIR
     iteration = checkpoint.latest_step(policy_dir)
     if iteration is None:
         raise FileNotFoundError(f"{seed_dir} has no exported policy under {policy_dir}")

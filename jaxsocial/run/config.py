@@ -15,12 +15,12 @@ from typing import Annotated, Any, NamedTuple
 
 import jax
 
-import jaxsocial
 from jaxsocial import specs
 from jaxsocial.agents import network_config, population, ppo
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.env import registry
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
 from jaxsocial.run import autotune, logs, policy_io, schedule
 from jaxsocial.specs import CheckpointRef, EnvFlag, TextField
@@ -48,7 +48,7 @@ class RunConfig:
     validated (`Setup`)."""
 
     env: str = "goalcycle3"
-    """Environment preset (see `jaxsocial.registered_envs()`), NAME or NAME:field=value,... (the overrides
+    """Environment preset (see `registry.registered_envs()`), NAME or NAME:field=value,... (the overrides
     join --env-args: NAME:penalty=0.5 is NAME with --env-args penalty=0.5)."""
     env_args: specs.EnvArgsFlag = ()
     """EnvParams overrides, e.g. 'penalty=0.5,max_steps=100'."""
@@ -277,7 +277,7 @@ def with_env_observation(cfg: TrainConfig) -> TrainConfig:
     """`cfg` with `net.obs` the observations its environment gives (`--env` with `--env-args`: "rgb" or
     "symbolic"); `cfg` itself if that environment cannot be built (`setup` then says why)."""
     try:
-        _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+        _, env_params = registry.make(cfg.env, **cfg.env_overrides)
     except ValueError:
         return cfg
     return dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, obs=env_params.observation))
@@ -302,13 +302,13 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     """Validate the config (every stage) and load frozen policies; raises ValueError before anything
     compiles. Builds each stage's environment once (`jaxsocial.make`); a run calls this once."""
     stages = cfg.stages
-    _, env_params = jaxsocial.make(cfg.env, **cfg.env_overrides)
+    _, env_params = registry.make(cfg.env, **cfg.env_overrides)
     pop = population.Population(population.run_slots(cfg.slots, env_params))
     _check_stage(cfg, env_params, env_params, pop, "--env-args")
     stage_envs = [env_params]
     for index in range(len(stages)):
         overrides = {**cfg.env_overrides, **schedule.overrides_at(stages, index)}
-        stage_params = jaxsocial.make(cfg.env, **overrides)[1]
+        stage_params = registry.make(cfg.env, **overrides)[1]
         _check_stage(cfg, stage_params, env_params, pop, f"stage {index}")
         stage_envs.append(stage_params)
     if cfg.algo not in ALGOS:

@@ -22,9 +22,9 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import jaxsocial
 from jaxsocial.agents import population
 from jaxsocial.agents.network_config import NetworkConfig
+from jaxsocial.env import registry
 from jaxsocial.run import checkpoint, config, logs, policy_io, rundir
 from jaxsocial.run.config import RunConfig, TrainConfig
 from jaxsocial.specs import CheckpointRef
@@ -32,7 +32,7 @@ from jaxsocial.specs import CheckpointRef
 
 def _has_learners(seed_dir: Path) -> bool:
     """Whether `seed_dir` holds checkpoints or an exported policy."""
-    return rundir.checkpoints(seed_dir).is_dir() or (seed_dir / policy_io.POLICY_DIR).is_dir()
+    return rundir.checkpoints(seed_dir).is_dir() or (seed_dir / rundir.POLICY_DIR).is_dir()
 
 
 def _saved_steps(seed_dir: Path) -> set[int]:
@@ -40,7 +40,7 @@ def _saved_steps(seed_dir: Path) -> set[int]:
     policy exports'."""
     if rundir.checkpoints(seed_dir).is_dir():
         return set(checkpoint.all_steps(rundir.checkpoints(seed_dir)))
-    return set(checkpoint.all_steps(seed_dir / policy_io.POLICY_DIR))
+    return set(checkpoint.all_steps(seed_dir / rundir.POLICY_DIR))
 
 
 def source_dirs(source: CheckpointRef, seeds: list[int]) -> list[Path]:
@@ -98,7 +98,7 @@ def source_config(seed_dir: Path) -> TrainConfig:
 
 def _learners(run: RunConfig) -> tuple[int, ...]:
     """The learner slots of a run."""
-    _, env_params = jaxsocial.make(run.env, **dict(run.env_args))
+    _, env_params = registry.make(run.env, **dict(run.env_args))
     return population.Population(population.run_slots(run.slots, env_params)).learners
 
 

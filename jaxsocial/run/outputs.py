@@ -19,7 +19,7 @@ import numpy as np
 
 from jaxsocial import specs, stats
 from jaxsocial.agents import population
-from jaxsocial.run import config, distributed, logs, metrics, nonfinite, policy_io, rundir, schedule
+from jaxsocial.run import config, distributed, logs, metrics, nonfinite, rundir, schedule
 from jaxsocial.run.chunks import Check, Chunk, evaluates, seed_part
 from jaxsocial.run.config import TrainConfig, config_dict
 from jaxsocial.run.rundir import SeedRun
@@ -64,7 +64,7 @@ def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> No
         if diff:
             raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
     for seed in seeds:
-        for sub in (rundir.CHECKPOINTS_DIR, policy_io.POLICY_DIR):  # made here, before any process looks
+        for sub in (rundir.CHECKPOINTS_DIR, rundir.POLICY_DIR):  # made here, before any process looks
             (seed.dir / sub).mkdir(parents=True, exist_ok=True)
     if not cfg.resume:
         write_configs(cfg, run_dir, seeds)

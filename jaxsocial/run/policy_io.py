@@ -14,10 +14,8 @@ import jax
 
 from jaxsocial.agents import network, network_config, population
 from jaxsocial.run import checkpoint, logs
+from jaxsocial.run.rundir import POLICY_DIR
 from jaxsocial.specs import PolicyRef
-
-POLICY_DIR = "policy"
-"""Sub-directory of a run directory holding the learners' params (stacked [S_l, ...]) for frozen slots."""
 
 SPEED_FIELDS = ("conv_impl", "frame_batch", "dtype")
 """NetworkConfig fields that change how the network is computed, not what it computes (params are float32

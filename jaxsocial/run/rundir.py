@@ -16,6 +16,8 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 CHECKPOINTS_DIR = "checkpoints"
+POLICY_DIR = "policy"
+"""A seed's exported policy: the learners' params (stacked [S_l, ...]), which frozen slots load."""
 
 
 def seed_name(seed: int) -> str:
