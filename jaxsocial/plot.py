@@ -26,9 +26,8 @@ from typing import Any
 
 from jaxsocial import specs, stats
 from jaxsocial.agents import population
-from jaxsocial.axes import steps_axis
-from jaxsocial.curves import band
 from jaxsocial.env import registry
+from jaxsocial.plot_parts import band, steps_axis
 from jaxsocial.run import logs, metrics
 
 PANELS = {

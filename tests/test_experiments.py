@@ -14,7 +14,7 @@ from conftest import needs_records
 
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import figures, kinds, paths, plots, recipes, runner, takeoff
+from jaxsocial.experiments import kinds, paths, plot_figures, recipes, runner, summaries, takeoff
 from jaxsocial.run import config, logs, metrics, schedule
 
 
@@ -173,7 +173,7 @@ def test_a_seed_two_runs_hold_is_an_error_unless_one_is_picked(tmp_path):
     with pytest.raises(ValueError, match=r"seed 1 of social_rec is held by 2 runs .*--pick"):
         runner.condition_seed_dirs(scale, "social_rec", 0, 3, str(tmp_path))
     with pytest.raises(ValueError, match="held by 2 runs"):
-        figures.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 3, str(tmp_path))
+        summaries.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 3, str(tmp_path))
     base = tmp_path / "tiny"
     dirs = runner.condition_seed_dirs(scale, "social_rec", 0, 3, str(tmp_path), pick=("social_rec-s1-1",))
     assert dirs == [
@@ -200,14 +200,14 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
         base / "social_rec-s3-5" / f"s{s}" for s in range(3, 6)
     ]
     assert runner.status(recipes.condition_config(scale, "social_rec", 0, 6, str(tmp_path)), dirs) == "done"
-    runs = figures.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 6, str(tmp_path))
+    runs = summaries.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 6, str(tmp_path))
     assert runs.missing == ["solo_pred", "social_pred"]
     assert runs.missing_seeds == {"social_none": [1, 2, 3, 4, 5]}
     assert [metrics.final_return(rows) for rows in runs.rows["social_rec"]] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
     assert runs.seed_dirs["social_none"] == [base / "social_none-s0-0"]
-    summary = figures.summarize(runs, "the command")
+    summary = summaries.summarize(runs, "the command")
     assert summary["conditions"]["social_rec"]["seeds_above_one_tile"] == 3  # seeds 3, 4, 5 return > 2
-    said = figures.outcome_lines(summary)  # what `figure` ends with
+    said = summaries.outcome_lines(summary)  # what `figure` ends with
     assert said[[c for c in runs.rows].index("social_rec")].startswith(
         "social PPO + aux rec: 3 of 6 seeds past the one-tile plateau (the first at "
     )
@@ -329,9 +329,9 @@ def test_conditions_with_other_experts_report_their_own(tmp_path):
     assert "experts" not in summary["conditions"]["solo_pred"]
     assert summary["conditions"]["social_pred_imperfect"]["experts"]["final_returns"] == [21.0]
     assert summary["conditions"]["social_pred_distractors"]["experts"]["final_returns"] == [39.0]
-    plt = plots.pyplot()
+    plt = plot_figures.pyplot()
     fig, ax = plt.subplots()
-    plots.draw_finals(ax, runs, summary, plt.get_cmap("tab10").colors)
+    plot_figures.draw_finals(ax, runs, summary, plt.get_cmap("tab10").colors)
     assert [t.get_text() for t in ax.get_xticklabels()][-3:] == [
         "its scripted experts",
         "experts: social PPO + aux pred, imperfect experts",
@@ -381,9 +381,9 @@ def test_a_curves_recipe_with_transfer_envs_summarises_its_zero_shot_returns(tmp
     assert "zero_shot" not in kinds.summarise_curves(
         SimpleNamespace(**{**vars(runs), "recipe": recipes.RECIPES["imperfect"]})
     )
-    plt = plots.pyplot()
+    plt = plot_figures.pyplot()
     fig, axes = plt.subplots(1, 3)
-    plots.draw_zero_shot(axes, summary["zero_shot"], plt.get_cmap("tab10").colors)
+    plot_figures.draw_zero_shot(axes, summary["zero_shot"], plt.get_cmap("tab10").colors)
     assert [ax.get_title() for ax in axes] == [
         "4-goal Goal Cycle, 7x7, max steps 20",
         "4-goal Goal Cycle with distractors, 7x7, max steps 20",
@@ -456,18 +456,18 @@ def test_ct_recipe_trains_evaluates_and_summarises(mixing_runs, tmp_path):
 
 
 def test_figures_name_environments_and_scales_for_people():
-    assert plots.env_title("goalcycle4:width=9,height=9") == "4-goal Goal Cycle, 9x9"
+    assert plot_figures.env_title("goalcycle4:width=9,height=9") == "4-goal Goal Cycle, 9x9"
     assert (
-        plots.env_title("goalcycle3-solo:penalty=0,max_steps=20")
+        plot_figures.env_title("goalcycle3-solo:penalty=0,max_steps=20")
         == "3-goal Goal Cycle alone, penalty 0, max steps 20"
     )
-    assert plots.env_title("fourrooms") == "Four Rooms"
+    assert plot_figures.env_title("fourrooms") == "Four Rooms"
 
     class Runs:  # what `scale_title` reads of a RecipeRuns
         scale, seed, seeds = recipes.TINY, 0, 2
         configs = {"a": recipes.condition_config(recipes.TINY, "social_pred", 0, 2, "runs")}
 
-    assert plots.scale_title(Runs) == (
+    assert plot_figures.scale_title(Runs) == (
         "tiny scale (plumbing only: it learns nothing): 256 env-steps per seed, seeds 0-1"
     )
 
@@ -521,13 +521,13 @@ def test_figure_compares_ones_runs_with_the_committed_summary():
     mine = {"conditions": {"social_pred": condition(0, [0.1, 0.3, 0.4], 0.255, [-0.1, 0.6])}}
     committed = {"conditions": {"social_pred": condition(0, [0.0, 0.9, 0.2], 0.38, [-0.12, 0.87]),
                                 "solo_pred": condition(1, [3.0], 3.0, None)}}  # fmt: skip
-    (line,) = figures.against_committed(mine, committed)
+    (line,) = summaries.against_committed(mine, committed)
     assert line == (
         "social PPO + aux pred: yours 0 of 3 past the plateau, final return 0.255; committed 0 of 3, 0.38 "
         "[-0.12, 0.87]: yours is inside its 95% interval"
     )
     mine["conditions"]["social_pred"]["mean"] = 2.0
-    assert figures.against_committed(mine, committed)[0].endswith("yours is outside its 95% interval")
+    assert summaries.against_committed(mine, committed)[0].endswith("yours is outside its 95% interval")
 
 
 @pytest.mark.slow

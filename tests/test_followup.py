@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsocial import train
-from jaxsocial.experiments import followup, kinds, pinned, plots, prereg, recipes, records
+from jaxsocial.experiments import followup, kinds, pinned, plot_figures, prereg, recipes, records
 from jaxsocial.run import checkpoint, logs, metrics
 
 pytestmark = pytest.mark.slow
@@ -83,7 +83,7 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
     assert seed["condition"] == CONDITION
     assert summary["conditions"] == {CONDITION: {"seeds": 1, **followup.measures([seed], plan.scale)}}
     assert summary["zero_shot"] == summary["conditions"][CONDITION]["zero_shot"]  # one condition: the same
-    plots.draw_followup(summary, tmp_path / "f.png", tuple(followup.ARMS), kinds.CT_SCORES)
+    plot_figures.draw_followup(summary, tmp_path / "f.png", tuple(followup.ARMS), kinds.CT_SCORES)
     assert (tmp_path / "f.png").stat().st_size > 1000
 
 

@@ -5,9 +5,9 @@ analyse reads what launch wrote and never starts it (issue 64's plan, launch, an
 from test_import_graph import import_graph
 
 ANALYSE = (
-    "jaxsocial.experiments.figures",
+    "jaxsocial.experiments.summaries",
     "jaxsocial.experiments.kinds",
-    "jaxsocial.experiments.plots",
+    "jaxsocial.experiments.plot_figures",
     "jaxsocial.experiments.records",
     "jaxsocial.experiments.rundirs",
     "jaxsocial.experiments.takeoff",

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import TINY_ENV_ARGS
 
-from jaxsocial import axes, curves, plot
+from jaxsocial import plot, plot_parts
 from jaxsocial.run import logs, metrics
 
 
@@ -60,7 +60,7 @@ def test_two_seeds_panels_mean_and_band(run_dir):
     np.testing.assert_allclose(fig.axes[2].lines[1].get_ydata(), kl)  # seed 1's KL, per iteration
     assert [t.get_text() for t in returns.get_legend().get_texts()] == ["tiny (seeds 0, 1)"]
     # env steps on every x axis, as "64k", "1.2M", at most nbins + 1 = 6 ticks so their labels do not overlap
-    assert all(ax.xaxis.get_major_formatter().func is axes.format_steps for ax in fig.axes)
+    assert all(ax.xaxis.get_major_formatter().func is plot_parts.format_steps for ax in fig.axes)
     assert all(len(ax.get_xticks()) <= 6 for ax in fig.axes)
 
 
@@ -69,7 +69,7 @@ def test_two_seeds_panels_mean_and_band(run_dir):
     [(0, "0"), (800, "800"), (64_000, "64k"), (1_200_000, "1.2M"), (375_000_000, "375M"), (3.75e9, "3.75G")],
 )
 def test_env_steps_read_as_people_write_them(value, text):
-    assert axes.format_steps(value) == text
+    assert plot_parts.format_steps(value) == text
 
 
 def test_seeds_group_by_config(run_dir, tmp_path):
@@ -99,10 +99,10 @@ def test_a_zoomed_panel_spans_the_means_not_the_seeds():
 
     ax = Figure().subplots()
     x = np.arange(5.0)
-    curves.band(ax, [x, x], [np.full(5, -10.0), np.full(5, 12.0)], "wide", "C0")  # mean 1
-    curves.band(ax, [x], [np.linspace(0.0, 2.0, 5)], "narrow", "C1")
+    plot_parts.band(ax, [x, x], [np.full(5, -10.0), np.full(5, 12.0)], "wide", "C0")  # mean 1
+    plot_parts.band(ax, [x], [np.linspace(0.0, 2.0, 5)], "narrow", "C1")
     assert ax.get_ylim()[0] < -10 and ax.get_ylim()[1] > 12
-    curves.zoom_to_means(ax)
+    plot_parts.zoom_to_means(ax)
     np.testing.assert_allclose(ax.get_ylim(), (-0.2, 2.2))
 
 

@@ -13,12 +13,12 @@ from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import (
     evaluation_design,
-    figures,
     followup,
     paths,
     pinned,
     recipes,
     records,
+    summaries,
     sweep,
     takeoff_power,
 )
@@ -45,8 +45,8 @@ def _record_dirs() -> list[Path]:
 @TINY_RECORDS
 def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_path):
     committed = json.loads(Path(SUMMARY).read_text())
-    runs = figures.RecipeRuns(RECIPE, recipes.TINY, 0, 2, str(paths.RECORDS))
-    assert logs.to_json(figures.summarize(runs, committed["command"])) == committed
+    runs = summaries.RecipeRuns(RECIPE, recipes.TINY, 0, 2, str(paths.RECORDS))
+    assert logs.to_json(summaries.summarize(runs, committed["command"])) == committed
     assert committed["provenance"]["unrecorded"] == []
     for condition, dirs in committed["seed_dirs"].items():
         finals = [round(metrics.final_return(logs.read_metrics(d)), 4) for d in dirs]

@@ -175,7 +175,7 @@ def test_a_designs_deviations_reach_its_verdict(tmp_path):
 def test_an_incomplete_design_stays_blind():
     from types import SimpleNamespace
 
-    from jaxsocial.experiments import figures, recipes
+    from jaxsocial.experiments import recipes, summaries
 
     design = prereg.load("experts")
     done = [{"iteration": i + 1, "return/0": 0.0, "episodes/0": 1} for i in range(design.iterations)]
@@ -183,8 +183,8 @@ def test_an_incomplete_design_stays_blind():
     rows = {"social_rec": [done, unfinished], "solo_rec": []}  # what RecipeRuns read of the design's seeds
     runs = SimpleNamespace(recipe=recipes.RECIPES["experts"], scale=recipes.LAPTOP, rows=rows)
     total = design.seeds * 2
-    assert figures.incomplete_design(runs) == f"design experts: 1 of {total} runs finished"
+    assert summaries.incomplete_design(runs) == f"design experts: 1 of {total} runs finished"
     no_design = SimpleNamespace(recipe=recipes.RECIPES["h1"], scale=recipes.LAPTOP)
-    assert figures.incomplete_design(no_design) is None
+    assert summaries.incomplete_design(no_design) is None
     tiny = SimpleNamespace(recipe=recipes.RECIPES["experts"], scale=recipes.TINY, rows={})
-    assert figures.incomplete_design(tiny) is None  # not the design's scale: an ordinary recipe run
+    assert summaries.incomplete_design(tiny) is None  # not the design's scale: an ordinary recipe run

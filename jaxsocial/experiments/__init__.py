@@ -10,7 +10,7 @@
     python -m jaxsocial.experiments.evaluation_design run transfer    # a pre-registered design over records
     python -m jaxsocial.experiments.branch_design run mixing --cores 0 1   # one that trains on from records
 
-`recipes` names the conditions and scales, `runner` trains and evaluates them, `figures` summarises and
+`recipes` names the conditions and scales, `runner` trains and evaluates them, `summaries` summarises and
 draws them (`takeoff`: time to learning; `stats`: the tests and estimates over seeds), `records` packs run
 directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
 `evaluation_design` those that only evaluate committed records (`evaluation_designs/*.json`), `branch_design`

@@ -9,7 +9,7 @@ import re
 import sys
 from pathlib import Path
 
-from jaxsocial.experiments import figures, paths, pinned, prereg, recipes, records, rundirs, runner, verify
+from jaxsocial.experiments import paths, pinned, prereg, recipes, records, rundirs, runner, summaries, verify
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -331,20 +331,20 @@ def list_recipes() -> None:
 def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
     """`figure`: the recipe's summary and figure (a design's stay blind until every seed is in, unless
     --interim), its outcome, how it compares with the committed summary, and a design's verdict."""
-    runs = figures.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
-    blind = figures.incomplete_design(runs)
+    runs = summaries.RecipeRuns(recipe, scale, args.seed, args.seeds, args.runs_dir, tuple(args.pick))
+    blind = summaries.incomplete_design(runs)
     if blind and not args.interim:
         print(f"{blind}; its results stay blind until every seed is in (--interim shows them now)")
         return
-    json_path, png_path = figures.write(runs, args.out_dir)
+    json_path, png_path = summaries.write(runs, args.out_dir)
     print(f"wrote {json_path}\nwrote {png_path}")
     summary = logs.read_json(json_path)
-    print("\n".join(figures.outcome_lines(summary)))
+    print("\n".join(summaries.outcome_lines(summary)))
     committed = paths.SCIENCE / json_path.name
     if committed.is_file() and committed.resolve() != json_path.resolve():
         print(f"against the committed summary {committed}:")
         print(
-            "\n".join(f"  {line}" for line in figures.against_committed(summary, logs.read_json(committed)))
+            "\n".join(f"  {line}" for line in summaries.against_committed(summary, logs.read_json(committed)))
         )
     if recipe.design is not None:
         print(prereg.verdict(summary["preregistered"]))

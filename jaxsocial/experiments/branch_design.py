@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, pinned, plots, prereg, records, rundirs
+from jaxsocial.experiments import paths, pinned, plot_figures, prereg, records, rundirs
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -378,7 +378,7 @@ def verdict(summary: dict[str, Any]) -> str:
 def draw(summary: dict[str, Any], path: Path) -> None:
     """One panel per evaluation environment: each arm's mean with its 95% interval over seeds, a cross per
     seed, and a grey line joining the paired arms' seeds (same source); titled with the tests there."""
-    plt = plots.pyplot()
+    plt = plot_figures.pyplot()
     per_env, block = summary["environments"], summary["preregistered"]
     fig, axes = plt.subplots(1, len(per_env), figsize=(4.0 * len(per_env), 3.8), squeeze=False)
     for ax, (env, rows) in zip(axes[0], per_env.items(), strict=True):
@@ -387,7 +387,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
             s = rows[arm]
             if s["mean"] is None:
                 continue
-            ax.bar(j, s["mean"], color=f"C{j}", yerr=plots.whisker(s["mean"], s["ci95"]), capsize=3)
+            ax.bar(j, s["mean"], color=f"C{j}", yerr=plot_figures.whisker(s["mean"], s["ci95"]), capsize=3)
             values = [v for v in s["per_seed"] if v is not None]
             ax.scatter([j] * len(values), values, color="k", marker="x", s=8, zorder=3)
         tests = [
@@ -404,7 +404,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
         f"{summary['episodes']} episodes an evaluation",
         fontsize=10,
     )
-    plots.save_png(fig, path)
+    plot_figures.save_png(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -332,9 +332,9 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     """One panel per environment, four to a row: a bar per arm and reference (mean, t 95% interval over
     policies), a cross per policy, and the environment's experts as a dashed line; each panel titled with its
     test's family and Holm p-value."""
-    from jaxsocial.experiments import plots
+    from jaxsocial.experiments import plot_figures
 
-    plt = plots.pyplot()
+    plt = plot_figures.pyplot()
     block = summary["preregistered"]
     test_of = {
         e["env"]: (family, name, e)
@@ -352,7 +352,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
         players = [p for p in rows if p != "experts" and rows[p] is not None]
         for j, p in enumerate(players):
             s = rows[p]
-            ax.bar(j, s["mean"], color=colors[j], yerr=plots.whisker(s["mean"], s["ci95"]), capsize=3)
+            ax.bar(j, s["mean"], color=colors[j], yerr=plot_figures.whisker(s["mean"], s["ci95"]), capsize=3)
             ax.scatter(
                 [j] * len(s["final_returns"]), s["final_returns"], color="k", marker="x", s=10, zorder=3
             )
@@ -365,7 +365,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
         ax.set_title(f"{env}\n{family}: {p}", fontsize=9)
         ax.set_ylabel("learner return per episode")
     fig.suptitle(f"{summary['design']}: zero-shot, {summary['episodes']} episodes a policy", fontsize=10)
-    plots.save_png(fig, path)
+    plot_figures.save_png(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -34,7 +34,17 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments import kinds, paths, pinned, plots, prereg, recipes, records, rundirs, runner
+from jaxsocial.experiments import (
+    kinds,
+    paths,
+    pinned,
+    plot_figures,
+    prereg,
+    recipes,
+    records,
+    rundirs,
+    runner,
+)
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -355,7 +365,7 @@ def main(argv: list[str] | None = None) -> None:
         out = Path(args.out_dir) / f"followup-{summary['design']}-{summary['scale']}"
         out.parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(out.with_suffix(".json"), summary)
-        plots.draw_followup(summary, out.with_suffix(".png"), tuple(ARMS), kinds.CT_SCORES)
+        plot_figures.draw_followup(summary, out.with_suffix(".png"), tuple(ARMS), kinds.CT_SCORES)
         print(
             f"{len(summary['seeds'])} learned seeds; wrote {out.with_suffix('.json')} and "
             f"{out.with_suffix('.png')}"

@@ -1,5 +1,5 @@
 """The kinds of recipe (`Recipe.kind`) and, for each, how it is summarised, drawn and evaluated after
-training: one registry, `KINDS`, read by `runner` (the evaluation) and `figures` (the summary and figure).
+training: one registry, `KINDS`, read by `runner` (the evaluation) and `summaries` (the summary and figure).
 
     curves       return through training, final-return CIs, learned-seed tests
     mixing       the same, with the evaluations during training and where each seed switched stage
@@ -9,7 +9,7 @@ training: one registry, `KINDS`, read by `runner` (the evaluation) and `figures`
     takeoff      a time-to-takeoff design: the curves, then the zero-shot returns and the CT protocol
 
 Also here: the time to learning every kind's summary holds (`takeoffs`) and where the evaluations after
-training are written (`eval_path`, `ct_path`). The statistics are `stats`'s, the figures `plots`'.
+training are written (`eval_path`, `ct_path`). The statistics are `stats`'s, the figures `plot_figures`'.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import plots, predictions, recipes, records, takeoff
+from jaxsocial.experiments import plot_figures, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
@@ -283,7 +283,7 @@ class Kind:
     """How a kind of recipe is summarised, drawn and evaluated after training."""
 
     summarise: Callable[[Any], dict[str, Any]]
-    """`summarise(runs)`: the kind's part of the summary (`figures.summarize`), 'conditions' last."""
+    """`summarise(runs)`: the kind's part of the summary (`summaries.summarize`), 'conditions' last."""
     draw: Callable[[Any, dict[str, Any], Path], None]
     """`draw(runs, summary, path)`: the recipe's figure as a PNG."""
     evaluations: tuple[Evaluation, ...]
@@ -291,12 +291,12 @@ class Kind:
 
 
 KINDS: dict[str, Kind] = {
-    "curves": Kind(summarise_curves, plots.draw_curves, (RETURNS,)),
-    "mixing": Kind(summarise_mixing, plots.draw_mixing, (RETURNS,)),
+    "curves": Kind(summarise_curves, plot_figures.draw_curves, (RETURNS,)),
+    "mixing": Kind(summarise_mixing, plot_figures.draw_mixing, (RETURNS,)),
     "predictions": Kind(summarise_curves, draw_predictions, (RETURNS,)),
-    "transfer": Kind(summarise_transfer, plots.draw_transfer, (RETURNS,)),
-    "ct": Kind(summarise_ct, plots.draw_ct, (CT,)),
-    "takeoff": Kind(summarise_takeoff, plots.draw_takeoff, (RETURNS, CT)),
+    "transfer": Kind(summarise_transfer, plot_figures.draw_transfer, (RETURNS,)),
+    "ct": Kind(summarise_ct, plot_figures.draw_ct, (CT,)),
+    "takeoff": Kind(summarise_takeoff, plot_figures.draw_takeoff, (RETURNS, CT)),
 }
 
 

@@ -1,6 +1,6 @@
 """Run a recipe: train each condition that is not finished (resuming interrupted ones), then evaluate the
 trained learners where the recipe asks (zero-shot transfer, the cultural-transmission protocol). Everything
-lands in run directories; figures are drawn from them (`jaxsocial.experiments.figures`)."""
+lands in run directories; figures are drawn from them (`jaxsocial.experiments.summaries`)."""
 
 from __future__ import annotations
 

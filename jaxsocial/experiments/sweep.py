@@ -37,7 +37,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import paths, pinned, plots, recipes, records, takeoff
+from jaxsocial.experiments import paths, pinned, plot_figures, recipes, records, takeoff
 from jaxsocial.run import logs, metrics, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -357,7 +357,7 @@ def main(argv: list[str] | None = None) -> None:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(out.with_suffix(".json"), found)
-        plots.draw_map(found, out.with_suffix(".png"))
+        plot_figures.draw_map(found, out.with_suffix(".png"))
         print("\n".join(map_table(found)))
         print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
     else:
@@ -365,7 +365,7 @@ def main(argv: list[str] | None = None) -> None:
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
         logs.write_json(out.with_suffix(".json"), summary)
-        plots.draw_sweep(summary, out.with_suffix(".png"))
+        plot_figures.draw_sweep(summary, out.with_suffix(".png"))
         for name, s in summary["settings"].items():
             lifts = [x["takeoff_env_steps"] for x in s["seeds"]]
             print(f"{name}: {s['took_off']} of {s['n']} seeds past the plateau; takeoffs (env-steps) {lifts}")

@@ -13,7 +13,7 @@ A row is one training iteration::
 Keys are built and taken apart only here (`key`, `eval_key`, `split_key`). The file itself (append,
 truncate, the gzipped copy of a record) is `jaxsocial.run.logs` (`MetricsLog`, `read_metrics`); the
 statistics over seeds are `jaxsocial.stats`. This module needs numpy and `logs` only: tools that read runs
-(`plot`, `render`, `experiments.figures`) import it without the training stack.
+(`plot`, `render`, `experiments.summaries`) import it without the training stack.
 """
 
 from __future__ import annotations

@@ -1,12 +1,30 @@
-"""Learning curves over seeds on a matplotlib Axes (shared by `jaxsocial.plot` and the experiments'
-figures): each seed a faint line, the mean a thick one, a 95% Student-t band over the seeds; a panel zoomed
-to the means."""
+"""The parts every plot shares (`jaxsocial.plot`'s curves and the experiments' figures,
+`experiments.plot_figures`), on a matplotlib Axes: learning curves over seeds (each seed a faint line, the
+mean a thick one, a 95% Student-t band over the seeds), a panel zoomed to the means, and an env-steps x axis
+labelled as people read counts (64k, 1.2M)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from jaxsocial.stats import mean_ci95
+
+
+def format_steps(value: float, _position=None) -> str:
+    """A step count as people read it: 0, 800, 64k, 1.2M, 3.75G (3 significant digits)."""
+    for scale, suffix in ((1e9, "G"), (1e6, "M"), (1e3, "k")):
+        if abs(value) >= scale:
+            return f"{value / scale:.3g}{suffix}"
+    return f"{value:.3g}"
+
+
+def steps_axis(ax) -> None:
+    """An env-steps x axis on a matplotlib Axes: at most 5 ticks, labelled by `format_steps`."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=5))
+    ax.xaxis.set_major_formatter(FuncFormatter(format_steps))
+    ax.set_xlabel("env steps", fontsize=8)
 
 
 def band(ax, xs: list[np.ndarray], ys: list[np.ndarray], label: str, color) -> None:

@@ -2,7 +2,7 @@
 number): a recipe's figure per kind (`draw_curves`, `draw_mixing`, `draw_ct`, `draw_transfer`,
 `draw_takeoff`; `kinds.KINDS` names which), the exploratory sweep and its map (`draw_sweep`, `draw_map`) and
 a design's follow-ups (`draw_followup`). A learner's predicted next frames are `predictions.draw`'s, a run's
-own curves `jaxsocial.plot`'s; both share `jaxsocial.curves.band` with this module.
+own curves `jaxsocial.plot`'s; both share `jaxsocial.plot_parts.band` with this module.
 """
 
 from __future__ import annotations
@@ -12,9 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.axes import format_steps, steps_axis
-from jaxsocial.curves import band, zoom_to_means
 from jaxsocial.experiments import recipes, takeoff
+from jaxsocial.plot_parts import band, format_steps, steps_axis, zoom_to_means
 from jaxsocial.run import metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, metric_curve
 from jaxsocial.specs import EnvSpec
