@@ -55,11 +55,11 @@ def view_rows(slots: tuple[int, ...], observers: Observers) -> tuple[int, ...]:
     return tuple(observers.index(i) for i in slots)
 
 
-def step_networks(pop: Population, net_cfg: network.NetworkConfig, params, carry, obs, resets, observers):
+def step_networks(pop: Population, net_cfg: network.NetworkConfig, slot_params, carry, obs, resets, observers):
     """One network step of every neural slot (vmapped over slots), each on its own view of obs [E, K, ...]
     (the views of `observers`)."""
     neural_obs = jnp.moveaxis(obs[:, jnp.asarray(view_rows(pop.neural, observers))], 1, 0)
-    return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(params, net_cfg, carry, neural_obs, resets)
+    return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(slot_params, net_cfg, carry, neural_obs, resets)
 
 
 def sample_actions(key: jax.Array, logits: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -74,7 +74,7 @@ def act(
     pop: Population,
     net_cfg: network.NetworkConfig,
     env_params: EnvParams,
-    params,
+    slot_params,
     slot_state: SlotState,
     obs: jax.Array,
     env_states: EnvState,
@@ -84,7 +84,7 @@ def act(
     """Every slot's action for a batch of environments.
 
     Args:
-        params: neural-slot params stacked [S, ...] in `pop.neural` order (None when there are none);
+        slot_params: neural-slot params stacked [S, ...] in `pop.neural` order (None when there are none);
         obs: uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]) the views of `observers` (static slot
         indices that include every neural slot; None: every slot's, K = N); env_states: EnvState [E]
         (scripted experts read it); resets: bool[E] the step starts an episode (zero the LSTM state, clear
@@ -98,7 +98,7 @@ def act(
     actions = jax.random.randint(k_random, (n_envs, n_agents), 0, NUM_ACTIONS)
     carry, logp, value = slot_state.carry, jnp.zeros((0, n_envs)), jnp.zeros((0, n_envs))
     if pop.neural:
-        carry, out = step_networks(pop, net_cfg, params, carry, obs, resets, observers)
+        carry, out = step_networks(pop, net_cfg, slot_params, carry, obs, resets, observers)
         chosen, logp = sample_actions(k_neural, out.logits)
         actions = actions.at[:, jnp.asarray(pop.neural)].set(chosen.T.astype(actions.dtype))
         value = out.value
@@ -146,7 +146,7 @@ def with_rewards(slot_state: SlotState, reward: jax.Array) -> SlotState:
 def values(
     pop: Population,
     net_cfg: network.NetworkConfig,
-    params,
+    slot_params,
     carry: network.Carry,
     obs: jax.Array,
     resets: jax.Array | None = None,
@@ -155,5 +155,5 @@ def values(
     """float32[S, E] neural slots' values of `obs` ([E, K, ...], the views of `observers` as in `act`)
     continuing from `carry`, zeroed first where `resets` (bool[E]; None: nowhere)."""
     resets = jnp.zeros(obs.shape[0], bool) if resets is None else resets
-    _, out = step_networks(pop, net_cfg, params, carry, obs, resets, observers)
+    _, out = step_networks(pop, net_cfg, slot_params, carry, obs, resets, observers)
     return out.value

@@ -29,7 +29,7 @@ from jaxsocial.env.types import EnvParams, EnvState
 class RunnerState(NamedTuple):
     """The whole training state between iterations (a pytree; checkpointed at chunk boundaries)."""
 
-    params: Any  # learner params stacked [S_l, ...]
+    params: Any  # the learners' params stacked [S_l, ...] (every neural slot's: `all_params`)
     opt_state: Any  # learner optimiser states stacked [S_l, ...]
     env_states: EnvState  # [E]
     obs: jax.Array  # uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]) the views of `observers(...)`
@@ -161,20 +161,20 @@ def iteration(
     losses ({name: float32[S_l]}) and the episodes that ended at each step (the sum of their returns and
     their count per agent, float32[T, N] each)."""
     key, k_rollout, k_update = jax.random.split(state.key, 3)
-    params = all_params(state, frozen_params)  # [S, ...]: the learners', then the frozen slots'
+    slot_params = all_params(state, frozen_params)  # [S, ...]: the learners', then the frozen slots'
     carry0 = jax.tree.map(lambda c: c[: w.n_learners], state.slots.carry)  # the learners' LSTM states
 
     # COLLECT: T steps of every environment, a scan of env_step
     def env_step(carry, key):
-        state, params = carry
+        state, slot_params = carry
         k_act, k_env = jax.random.split(key)
         # ACT: every slot on the same joint state; the neural slots sample from their networks' policies
-        actions, slots, logp, values = act(w, k_act, params, state)
+        actions, slots, logp, values = act(w, k_act, slot_params, state)
         # STEP every environment; the last views of truncated episodes are valued to bootstrap them
         obs, env_states, reward, terminated, _, info = core.step_batch(
             jax.random.split(k_env, w.num_envs), state.env_states, actions, w.env_params, w.observed
         )
-        final_values = truncation_values(w, params, slots.carry, info)
+        final_values = truncation_values(w, slot_params, slots.carry, info)
         # RECORD the episodes that ended and the step: the learners', or the demonstrators' to clone
         episode_return, ended = ended_episodes(state, reward, info["done"])
         if w.cloning:
@@ -188,17 +188,17 @@ def iteration(
             slots=acting.with_rewards(slots, reward),
             episode_return=jnp.where(info["done"][:, None], 0.0, episode_return),
         )
-        return (state, params), (step, ended)
+        return (state, slot_params), (step, ended)
 
     keys = jax.random.split(k_rollout, w.rollout_steps)
-    (state, _), (traj, ended) = jax.lax.scan(env_step, (state, params), keys)
+    (state, _), (traj, ended) = jax.lax.scan(env_step, (state, slot_params), keys)
     if w.cloning:  # BEHAVIOUR CLONING: the learners fit the demonstrators' actions
         state, losses = bc_update(w, state, traj)
         return state._replace(key=key), losses, ended
     # ADVANTAGE: each learner's batch, bootstrapped by the values of the views after the last step (GAE
     # itself runs in `ppo.update`: on the rollout's values first, then recomputed every few minibatches)
     bootstrap = acting.values(
-        w.pop, w.net_cfg, params, state.slots.carry, state.obs, state.resets, w.observed
+        w.pop, w.net_cfg, slot_params, state.slots.carry, state.obs, state.resets, w.observed
     )
     learner_obs = state.obs[:, w.learner_views]
     batch = ppo_batch(
@@ -209,19 +209,19 @@ def iteration(
     return state._replace(key=key), losses, ended
 
 
-def act(w: Wiring, key: jax.Array, params, state: RunnerState):
+def act(w: Wiring, key: jax.Array, slot_params, state: RunnerState):
     """`acting.act` of every slot on the joint state `state`, with every neural slot's params [S, ...]:
     actions int32[E, N], the slots' new `acting.SlotState`, logp and values float32[S, E]."""
     slots, obs, env_states, resets = state.slots, state.obs, state.env_states, state.resets
-    return acting.act(key, w.pop, w.net_cfg, w.env_params, params, slots, obs, env_states, resets, w.observed)
+    return acting.act(key, w.pop, w.net_cfg, w.env_params, slot_params, slots, obs, env_states, resets, w.observed)
 
 
-def truncation_values(w: Wiring, params, carry: network.Carry, info: dict) -> jax.Array:
+def truncation_values(w: Wiring, slot_params, carry: network.Carry, info: dict) -> jax.Array:
     """float32[S, E] every neural slot's value of its view where the episode ended (`info["final_obs"]`,
     before the reset), continuing from the LSTM states `carry` [S, E, H]; zeros in a step without an end."""
     return jax.lax.cond(
         any_in_batch(info["done"]),
-        lambda: acting.values(w.pop, w.net_cfg, params, carry, info["final_obs"], observers=w.observed),
+        lambda: acting.values(w.pop, w.net_cfg, slot_params, carry, info["final_obs"], observers=w.observed),
         lambda: jnp.zeros((len(w.pop.neural), w.num_envs), jnp.float32),
     )
 
