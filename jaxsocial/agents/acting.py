@@ -55,11 +55,15 @@ def view_rows(slots: tuple[int, ...], observers: Observers) -> tuple[int, ...]:
     return tuple(observers.index(i) for i in slots)
 
 
-def step_networks(pop: Population, net_cfg: network.NetworkConfig, slot_params, carry, obs, resets, observers):
+def step_networks(
+    pop: Population, net_cfg: network.NetworkConfig, slot_params, carry, obs, resets, observers
+):
     """One network step of every neural slot (vmapped over slots), each on its own view of obs [E, K, ...]
     (the views of `observers`)."""
     neural_obs = jnp.moveaxis(obs[:, jnp.asarray(view_rows(pop.neural, observers))], 1, 0)
-    return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(slot_params, net_cfg, carry, neural_obs, resets)
+    return jax.vmap(network.step, in_axes=(0, None, 0, 0, None))(
+        slot_params, net_cfg, carry, neural_obs, resets
+    )
 
 
 def sample_actions(key: jax.Array, logits: jax.Array) -> tuple[jax.Array, jax.Array]:

@@ -213,7 +213,9 @@ def act(w: Wiring, key: jax.Array, slot_params, state: RunnerState):
     """`acting.act` of every slot on the joint state `state`, with every neural slot's params [S, ...]:
     actions int32[E, N], the slots' new `acting.SlotState`, logp and values float32[S, E]."""
     slots, obs, env_states, resets = state.slots, state.obs, state.env_states, state.resets
-    return acting.act(key, w.pop, w.net_cfg, w.env_params, slot_params, slots, obs, env_states, resets, w.observed)
+    return acting.act(
+        key, w.pop, w.net_cfg, w.env_params, slot_params, slots, obs, env_states, resets, w.observed
+    )
 
 
 def truncation_values(w: Wiring, slot_params, carry: network.Carry, info: dict) -> jax.Array:
