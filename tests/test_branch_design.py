@@ -12,7 +12,7 @@ from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import train
-from jaxsocial.experiments import branch_design, paths, pinned, records
+from jaxsocial.experiments import branch_design, commits, paths, pinned, records
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef
@@ -166,7 +166,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path):
         == f"{records_root}/tiny/material/social-s0-0@{TINY.iterations}"
     )
     assert branch_design.record(design, runs_root, records_root) == []  # no process file yet
-    pinned.write_run_file(run_dir, "python -m jaxsocial.train", records.head_commit(), 1, pinned.now(), rc=0)
+    pinned.write_run_file(run_dir, "python -m jaxsocial.train", commits.head_commit(), 1, pinned.now(), rc=0)
     assert branch_design.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
     provenance = logs.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
     assert provenance["run"]["device"].endswith(", one core per seed")

@@ -12,7 +12,7 @@ from conftest import needs_records
 
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import paths, pinned, prereg, recipes, records, takeoff, takeoff_power
+from jaxsocial.experiments import commits, paths, pinned, prereg, recipes, takeoff, takeoff_power
 from jaxsocial.run import config, logs
 
 
@@ -164,7 +164,7 @@ def test_preregistered_block():
     design = prereg.load("h1_prereg")
     learned = {"social_pred": [True, True, False, True], "social_rec": [True, False, False, False]}
     learned |= {"solo_pred": [False] * 4, "social_none": [False, True, False, False]}
-    head = records.head_commit()
+    head = commits.head_commit()
     block = prereg.preregistered(design, learned, {"a/s0": head, "a/s1": None})
     assert block["primary"] == {
         "treatment": list(design.treatment),
@@ -278,7 +278,7 @@ def test_a_config_with_the_old_field_names_counts_as_the_design_expects():
 
 
 def test_commit_order():
-    head, parent = records.head_commit(), records.git("rev-parse", "HEAD~1").stdout.strip()
+    head, parent = commits.head_commit(), commits.git("rev-parse", "HEAD~1").stdout.strip()
     if head is None or not parent:
         pytest.skip("needs a git checkout with history")
     assert prereg.precedes(parent, head) and prereg.precedes(head, head)

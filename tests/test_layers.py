@@ -1,9 +1,17 @@
-"""The experiments' analysis (summaries, figures, records, statistics) imports nothing of their launching
-(training processes, pinned runs, in-flight GPU blocks, re-training), directly or through another module:
-analyse reads what launch wrote and never starts it (issue 64's plan, launch, analyse)."""
+"""The experiments in three layers, as the work flows (issue 64): plan (recipes, designs, where results go,
+the runs' XLA flags, which commit) imports nothing of launch or analysis; analysis (summaries, figures,
+records, statistics) imports nothing of launching (training processes, pinned runs, in-flight GPU blocks,
+re-training): it reads what launch wrote and never starts it. Directly or through another module."""
 
 from test_import_graph import import_graph
 
+PLAN = (
+    "jaxsocial.experiments.paths",
+    "jaxsocial.experiments.xla_flags",
+    "jaxsocial.experiments.commits",
+    "jaxsocial.experiments.prereg",
+    "jaxsocial.experiments.recipes",
+)
 ANALYSE = (
     "jaxsocial.experiments.summaries",
     "jaxsocial.experiments.kinds",
@@ -37,4 +45,11 @@ def test_analysis_never_imports_launch():
     graph = import_graph()
     assert all(module in graph for module in (*ANALYSE, *LAUNCH))
     crossings = {m: sorted(reachable(graph, m) & set(LAUNCH)) for m in ANALYSE}
+    assert not any(crossings.values()), crossings
+
+
+def test_the_plan_imports_neither_launch_nor_analysis():
+    graph = import_graph()
+    assert all(module in graph for module in PLAN)
+    crossings = {m: sorted(reachable(graph, m) & {*LAUNCH, *ANALYSE}) for m in PLAN}
     assert not any(crossings.values()), crossings

@@ -10,14 +10,21 @@
     python -m jaxsocial.experiments.evaluation_design run transfer    # a pre-registered design over records
     python -m jaxsocial.experiments.branch_design run mixing --cores 0 1   # one that trains on from records
 
-`recipes` names the conditions and scales, `runner` trains and evaluates them, `summaries` summarises and
-draws them (`takeoff`: time to learning; `stats`: the tests and estimates over seeds), `records` packs run
-directories into the repository's records, `prereg` holds pre-registered designs (`designs/*.json`),
-`evaluation_design` those that only evaluate committed records (`evaluation_designs/*.json`), `branch_design`
-those that train on from committed records' policies (`branch_designs/*.json`),
-`predictions` draws a learner's predicted next frames, `sweep` screens settings, `followup` branches,
-transfers and probes a design's learners that learned, `pinned` runs one single-core process per seed; `kinds`
-says, per kind of recipe, how it is evaluated after training, summarised and drawn; `paths` names where
-everything is read and written. They work on a checkout of the repository, run from its root
-(`paths.require_checkout`).
+The modules form three layers, in the order the work flows (`tests/test_layers.py` keeps the arrows so):
+
+* plan, which imports neither of the others: `recipes` (conditions x scales), `prereg` (pre-registered
+  designs, `designs/*.json`), `paths` (where everything is read and written), `xla_flags` (the runs'
+  $XLA_FLAGS, checked), `commits` (which commit);
+* launch: `runner` (trains and evaluates a recipe), `pinned` (one single-core process per seed), `inflight`
+  (GPU blocks resumed across machines), `verify` (re-trains a record and compares);
+* analyse, which never imports launch: `records` (run directories packed into the repository's records),
+  `summaries` (summaries and figures; `takeoff`: time to learning, `stats`: the tests over seeds),
+  `plot_figures`, `kinds` (per kind of recipe: how it is evaluated, summarised and drawn), `rundirs`,
+  `predictions` (a learner's predicted next frames), `takeoff_power`.
+
+The commands on top use all three: `__main__`, `sweep` (screens settings), `followup` (branches, transfers and
+probes a design's learners that learned), `evaluation_design` (designs that only evaluate committed records,
+`evaluation_designs/*.json`) and `branch_design` (designs that train on from committed records' policies,
+`branch_designs/*.json`), each with its plan, launch and analysis in that order. They work on a checkout of
+the repository, run from its root (`paths.require_checkout`).
 """

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, pinned, prereg, records
+from jaxsocial.experiments import commits, paths, pinned, prereg
 from jaxsocial.run import logs
 from jaxsocial.specs import EnvSpec
 
@@ -201,7 +201,7 @@ def run(design: EvaluationDesign, records_root: Path = paths.RECORDS, science: P
         logs.write_json(e.path(out), result)
         when = {
             "file": e.path(out).name,
-            "commit": records.head_commit(),
+            "commit": commits.head_commit(),
             "started": started,
             "ended": pinned.now(),
         }

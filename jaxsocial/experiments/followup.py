@@ -35,6 +35,7 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.experiments import (
+    commits,
     kinds,
     paths,
     pinned,
@@ -182,7 +183,7 @@ def evaluate_source(plan: Plan, source: Source, out_dir: Path, command: str) -> 
             f"  {source.name} in {spec} ({evaluation.protocol}): {evaluation.score(result):.3f}", flush=True
         )
     if written:  # how they were made, as a training run's process records it
-        pinned.write_run_file(out_dir, command, records.head_commit(), None, started, 0)
+        pinned.write_run_file(out_dir, command, commits.head_commit(), None, started, 0)
 
 
 def run(

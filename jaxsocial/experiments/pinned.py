@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import records, xla_flags
+from jaxsocial.experiments import commits, records, xla_flags
 from jaxsocial.run import autotune, compile_cache, logs
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
@@ -123,7 +123,7 @@ def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[in
     Returns the exit codes, in the order of `jobs`."""
     if not cores:
         raise ValueError("give at least one core")
-    commit, process_flags = records.head_commit(), process_xla_flags(extra_xla_flags)
+    commit, process_flags = commits.head_commit(), process_xla_flags(extra_xla_flags)
     pending, active, codes = list(enumerate(jobs)), {}, {}
     free = list(cores)
     while pending or active:

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, records, xla_flags
+from jaxsocial.experiments import commits, paths, xla_flags
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
@@ -142,7 +142,7 @@ def design_commit(name: str) -> str | None:
 
 def file_commit(path: Path) -> str | None:
     """The last commit that touched the file `path` (None if it is not committed)."""
-    out = records.git("log", "-1", "--format=%H", "--", path.name, cwd=path.parent)
+    out = commits.git("log", "-1", "--format=%H", "--", path.name, cwd=path.parent)
     return out.stdout.strip() or None if out.returncode == 0 else None
 
 
@@ -150,7 +150,7 @@ def precedes(design: str | None, commit: str | None) -> bool | None:
     """Whether commit `design` is an ancestor of (or is) `commit`; None if either is unknown to git."""
     if not design or not commit:
         return None
-    out = records.git("merge-base", "--is-ancestor", design, commit, cwd=DESIGNS_DIR)
+    out = commits.git("merge-base", "--is-ancestor", design, commit, cwd=DESIGNS_DIR)
     return {0: True, 1: False}.get(out.returncode)
 
 

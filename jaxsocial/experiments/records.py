@@ -25,12 +25,12 @@ import gzip
 import json
 import re
 import shutil
-import subprocess
 from pathlib import Path
 from typing import Any
 
 import jax
 
+from jaxsocial.experiments import commits
 from jaxsocial.run import checkpoint, logs, metrics, rundir
 
 PROVENANCE_FILE = "provenance.json"
@@ -38,17 +38,6 @@ ORBAX_COMMIT_NOTE = "commit_success.txt"
 """The file orbax writes into each saved item naming the absolute path it went to (reading needs none)."""
 RUN_FIELDS = ("command", "commit", "device", "jax", "started", "ended", "rc")
 """What `provenance.json` says about the run (None where unknown)."""
-
-
-def git(*args: str, cwd: str | Path = ".") -> subprocess.CompletedProcess:
-    """`git args...` in `cwd`, its output captured as text."""
-    return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=30)
-
-
-def head_commit() -> str | None:
-    """The commit checked out in the working directory (None outside a git repository)."""
-    out = git("rev-parse", "HEAD")
-    return out.stdout.strip() if out.returncode == 0 else None
 
 
 def read_provenance(seed_dir: str | Path) -> dict[str, Any] | None:
@@ -180,7 +169,7 @@ def pack(
             "checkpoint_iteration": iteration if final_checkpoint else None,
             "checkpoint_reason": checkpoint_reason,
             "packed": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-            "packed_at_commit": head_commit(),
+            "packed_at_commit": commits.head_commit(),
             "packed_with_jax": jax.__version__,
         },
     }

@@ -35,7 +35,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import pinned, records, xla_flags
+from jaxsocial.experiments import commits, pinned, records, xla_flags
 from jaxsocial.run import autotune, config, logs, metrics
 from jaxsocial.run.flags import config_flags
 
@@ -176,7 +176,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
             "record": {field: records.run_field(record_dir, field) for field in pinned.ENVIRONMENT_FIELDS},
             "here": pinned.environment(),
         },
-        "commit": {"record": records.run_field(record_dir, "commit"), "here": records.head_commit()},
+        "commit": {"record": records.run_field(record_dir, "commit"), "here": commits.head_commit()},
         "xla_flags": retraining_flags(record_dir),
         "cores": {"record": cores, "here": pinned.cores_seen(retraining_cores(cores))},
     }
