@@ -241,6 +241,47 @@ def _nearest(reach: jax.Array, allowed: jax.Array, inf: int) -> jax.Array:
     return jnp.where(ok.any(), jnp.argmin(jnp.where(ok, reach, inf)), -1).astype(jnp.int32)
 
 
+def _learn_order(labels, entered, label, reward, forgot, last, chain_start, succ, mistake):
+    """The explorer's `Memory` fields (last, chain_start, succ, mistake) after a step: what entering tile
+    `label` (when `entered`) with `reward` taught it, then cleared (but `last`) if it `forgot`. `labels`:
+    int32[T] the tile labels 0..T-1."""
+    first = last < 0
+    correct = entered & (first | (reward > 0))
+    wrong = entered & ~correct
+    succ = jnp.where(correct & ~first & (labels == last), label, succ)
+    mistake |= wrong & (labels[:, None] == last) & (labels[None, :] == label)
+    chain_start = jnp.where(correct & first, label, chain_start)
+    last = jnp.where(correct, label, last)
+    succ = jnp.where(forgot, -1, succ)
+    mistake &= ~forgot
+    chain_start = jnp.where(forgot, last, chain_start)
+    return last, chain_start, succ, mistake
+
+
+def _explorer_target(labels, best_reach, last, chain_start, succ, mistake, inf: int) -> jax.Array:
+    """The explorer's new target: the known successor of `last`, else the nearest reachable tile (costs
+    `best_reach` int32[T]) that can still follow it (the successor map is a single T-cycle)."""
+    n = labels.shape[0]
+    has_pred = jnp.any(succ[:, None] == labels[None, :], axis=0)
+    closes_early = (labels == chain_start) & (jnp.sum(succ >= 0) < n - 1)
+    known = succ[jnp.maximum(last, 0)]
+    candidates = (labels != last) & ~has_pred & ~mistake[jnp.maximum(last, 0)] & ~closes_early
+    guess = _nearest(best_reach, jnp.where(last < 0, True, candidates), inf)
+    return jnp.where((last >= 0) & (known >= 0), known, guess)
+
+
+def _oracle_target(labels, best_reach, cycle, forgot, u, inf: int) -> jax.Array:
+    """The oracle's new target: the successor of its `cycle_state` (before the first tile, the nearest
+    reachable one); if it `forgot`, a uniformly random other reachable tile (by `u[3]`)."""
+    n = labels.shape[0]
+    successor = (cycle + 1) % n
+    fresh = jnp.where(cycle >= 0, successor, _nearest(best_reach, jnp.ones(n, bool), inf))
+    others = (best_reach < inf) & ((labels != successor) | (cycle < 0))
+    rank = jnp.floor(u[3] * others.sum()) if u is not None else 0.0
+    wrong_pick = jnp.argmax(others & (jnp.cumsum(others) > rank))
+    return jnp.where(forgot & others.any(), wrong_pick, fresh).astype(jnp.int32)
+
+
 def _decide(key, spec, env_params, state, agent, memory, reward, reset, cost):
     """`act` given the (already refreshed) cost fields."""
     inf = _inf(env_params)
@@ -265,31 +306,12 @@ def _decide(key, spec, env_params, state, agent, memory, reward, reset, cost):
     reach = _neighbour_costs(cost, pos, inf)  # [T, 4]
     best_reach = reach.min(-1)
     if spec.kind == "explorer":
-        first = last < 0
-        correct = entered & (first | (reward > 0))
-        wrong = entered & ~correct
-        succ = jnp.where(correct & ~first & (labels == last), label, succ)
-        mistake |= wrong & (labels[:, None] == last) & (labels[None, :] == label)
-        chain_start = jnp.where(correct & first, label, chain_start)
-        last = jnp.where(correct, label, last)
-        succ = jnp.where(forgot, -1, succ)
-        mistake &= ~forgot
-        chain_start = jnp.where(forgot, last, chain_start)
-        # Tiles that can still follow `last`: the successor map is a single n-cycle.
-        has_pred = jnp.any(succ[:, None] == labels[None, :], axis=0)
-        closes_early = (labels == chain_start) & (jnp.sum(succ >= 0) < n - 1)
-        known = succ[jnp.maximum(last, 0)]
-        candidates = (labels != last) & ~has_pred & ~mistake[jnp.maximum(last, 0)] & ~closes_early
-        guess = _nearest(best_reach, jnp.where(last < 0, True, candidates), inf)
-        fresh = jnp.where((last >= 0) & (known >= 0), known, guess)
+        last, chain_start, succ, mistake = _learn_order(
+            labels, entered, label, reward, forgot, last, chain_start, succ, mistake
+        )
+        fresh = _explorer_target(labels, best_reach, last, chain_start, succ, mistake, inf)
     elif spec.kind == "oracle":
-        cycle = state.cycle_state[agent]
-        successor = (cycle + 1) % n
-        fresh = jnp.where(cycle >= 0, successor, _nearest(best_reach, jnp.ones(n, bool), inf))
-        others = (best_reach < inf) & ((labels != successor) | (cycle < 0))
-        rank = jnp.floor(u[3] * others.sum()) if u is not None else 0.0
-        wrong_pick = jnp.argmax(others & (jnp.cumsum(others) > rank))
-        fresh = jnp.where(forgot & others.any(), wrong_pick, fresh).astype(jnp.int32)
+        fresh = _oracle_target(labels, best_reach, state.cycle_state[agent], forgot, u, inf)
     else:
         fresh = jnp.int32(0)
     event = reset | entered | forgot | (memory.target < 0)

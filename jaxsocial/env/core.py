@@ -189,6 +189,46 @@ def step_batch(
     return jax.vmap(one, in_axes=(0, 0, 0, None))(keys, states, actions, env_params)
 
 
+def _layout_arrays(layout: str | list[str] | np.ndarray, goal_id) -> tuple[np.ndarray, np.ndarray]:
+    """The tiles uint8[H, W] and bonus ids int8[H, W] of `state_from_layout`'s `layout` (an ASCII map or a
+    tile array) and `goal_id` (None: the map's digits; for an array, its bonus tiles in row-major order)."""
+    if isinstance(layout, str | list):
+        grid, parsed_ids = parse_ascii(layout)
+        goal_id = parsed_ids if goal_id is None else goal_id
+    else:
+        grid = np.asarray(layout, np.uint8)
+    if goal_id is None:
+        goal_id = np.full(grid.shape, -1, np.int8)
+        bonus = np.flatnonzero(grid == BONUS)
+        goal_id.ravel()[bonus] = np.arange(len(bonus))
+    return grid, np.asarray(goal_id, np.int8)
+
+
+def _check_scene(
+    env_params: EnvParams, grid: np.ndarray, goal_id: np.ndarray, pos: np.ndarray, dir: np.ndarray
+) -> None:
+    """ValueError unless the tiles and bonus ids fit `env_params` and its N agents (int32[N, 2] positions,
+    int32[N] directions) stand on free cells inside the grid."""
+    n = env_params.n_agents
+    if grid.shape != (env_params.height, env_params.width) or goal_id.shape != grid.shape:
+        raise ValueError(
+            f"layout is {grid.shape} (rows, cols) but env_params say {(env_params.height, env_params.width)}"
+        )
+    if len(pos) != n or len(dir) != n:
+        raise ValueError(f"need {n} agent positions and directions, got {len(pos)} and {len(dir)}")
+    if np.any((pos < 0) | (pos >= [env_params.width, env_params.height])) or np.any(
+        grid[pos[:, 1], pos[:, 0]] == WALL
+    ):
+        raise ValueError(f"agents must stand on free cells inside the grid, got {pos.tolist()}")
+    if np.any(goal_id >= env_params.n_goals):
+        raise ValueError(f"bonus ids must be < n_goals={env_params.n_goals}")
+
+
+def _per_agent(values, default, n: int, dtype) -> jax.Array:
+    """`values` (None: `default`) broadcast to one per agent, [n] of `dtype`."""
+    return jnp.asarray(np.broadcast_to(default if values is None else values, (n,)), dtype)
+
+
 def state_from_layout(
     env_params: EnvParams,
     layout: str | list[str] | np.ndarray,
@@ -220,35 +260,11 @@ def state_from_layout(
             absent ones never).
         time: steps already taken in the episode.
     """
-    if isinstance(layout, str | list):
-        grid, parsed_ids = parse_ascii(layout)
-        goal_id = parsed_ids if goal_id is None else goal_id
-    else:
-        grid = np.asarray(layout, np.uint8)
-    if goal_id is None:
-        goal_id = np.full(grid.shape, -1, np.int8)
-        bonus = np.flatnonzero(grid == BONUS)
-        goal_id.ravel()[bonus] = np.arange(len(bonus))
-    goal_id = np.asarray(goal_id, np.int8)
+    grid, goal_id = _layout_arrays(layout, goal_id)
     n = env_params.n_agents
     pos, dir = np.asarray(pos, np.int32).reshape(-1, 2), np.asarray(dir, np.int32).reshape(-1)
-    if grid.shape != (env_params.height, env_params.width) or goal_id.shape != grid.shape:
-        raise ValueError(
-            f"layout is {grid.shape} (rows, cols) but env_params say {(env_params.height, env_params.width)}"
-        )
-    if len(pos) != n or len(dir) != n:
-        raise ValueError(f"need {n} agent positions and directions, got {len(pos)} and {len(dir)}")
-    if np.any((pos < 0) | (pos >= [env_params.width, env_params.height])) or np.any(
-        grid[pos[:, 1], pos[:, 0]] == WALL
-    ):
-        raise ValueError(f"agents must stand on free cells inside the grid, got {pos.tolist()}")
-    if np.any(goal_id >= env_params.n_goals):
-        raise ValueError(f"bonus ids must be < n_goals={env_params.n_goals}")
-
-    def per_agent(values, default, dtype):
-        return jnp.asarray(np.broadcast_to(default if values is None else values, (n,)), dtype)
-
-    present = per_agent(present, True, bool)
+    _check_scene(env_params, grid, goal_id, pos, dir)
+    present = _per_agent(present, True, n, bool)
     window = fixed_window(present) if window is None else window
 
     return EnvState(
@@ -256,12 +272,12 @@ def state_from_layout(
         goal_id=jnp.asarray(goal_id),
         pos=jnp.asarray(pos),
         dir=jnp.asarray(dir % 4),
-        cycle_state=per_agent(cycle_state, -1, jnp.int32),
-        prestige=per_agent(prestige, 0.0, jnp.float32),
-        active=per_agent(active, True, bool) & present,
+        cycle_state=_per_agent(cycle_state, -1, n, jnp.int32),
+        prestige=_per_agent(prestige, 0.0, n, jnp.float32),
+        active=_per_agent(active, True, n, bool) & present,
         present=present,
         window=jnp.asarray(np.broadcast_to(window, (n, 2)), jnp.int32),
-        arrival=per_agent(arrival, 0, jnp.int32),
+        arrival=_per_agent(arrival, 0, n, jnp.int32),
         time=jnp.asarray(time, jnp.int32),
     )
 

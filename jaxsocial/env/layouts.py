@@ -129,27 +129,21 @@ def four_rooms(key: jax.Array, env_params: EnvParams) -> Layout:
     return Layout(grid, goal_id, jnp.asarray(fixed["spawn_box"]) & (grid != WALL))
 
 
-def maze(key: jax.Array, env_params: EnvParams) -> Layout:
-    """A random maze on the odd lattice, like labmaze's RandomMaze (docs/environment.md 6.3, 9.10).
-
-    A random spanning tree (Prim's algorithm on random edge weights) connects every lattice cell; up to four
-    rooms of 3x3 or 5x5 cells are carved; every remaining inner wall between two lattice cells opens with
-    probability 0.05. Carving only removes walls, so all free cells stay connected and the goal is always
-    reachable. The goal is uniform over free cells; the spawn point is the one of 5 uniform free cells
-    farthest (L1) from it, and agents spawn in the free cells of the 3x3 box around that point.
-    """
-    nx, ny = (env_params.width - 1) // 2, (env_params.height - 1) // 2
-    n_nodes = nx * ny
-    node = np.arange(n_nodes).reshape(ny, nx)
-    # Edges between lattice neighbours: endpoints and the wall cell between them.
+def _lattice_edges(nx: int, ny: int) -> tuple[np.ndarray, ...]:
+    """The edges between neighbouring cells of an nx x ny lattice (node y * nx + x at grid cell (2x+1, 2y+1)):
+    int[E] endpoints `u` and `v`, and the grid row and column of the wall cell between them."""
+    node = np.arange(nx * ny).reshape(ny, nx)
     edges_u = np.concatenate([node[:, :-1].ravel(), node[:-1, :].ravel()])
     edges_v = np.concatenate([node[:, 1:].ravel(), node[1:, :].ravel()])
     uy, ux = np.divmod(edges_u, nx)
     vy, vx = np.divmod(edges_v, nx)
-    wall_y, wall_x = uy + vy + 1, ux + vx + 1
-    k_w, k_start, k_extra, k_rooms, k_goal, k_spawn = jax.random.split(key, 6)
-    weights = jax.random.uniform(k_w, (len(edges_u),))
+    return edges_u, edges_v, uy + vy + 1, ux + vx + 1
 
+
+def _open_edges(k_w, k_start, k_extra, edges_u: np.ndarray, edges_v: np.ndarray, n_nodes: int) -> jax.Array:
+    """bool[E] the lattice edges opened: a random spanning tree (Prim's algorithm on random edge weights
+    from a random start node), then each other edge with probability 0.05."""
+    weights = jax.random.uniform(k_w, (len(edges_u),))
     eu, ev = jnp.asarray(edges_u), jnp.asarray(edges_v)
 
     def grow(_, carry):
@@ -162,15 +156,14 @@ def maze(key: jax.Array, env_params: EnvParams) -> Layout:
     start = jax.random.randint(k_start, (), 0, n_nodes)
     in_tree = jnp.zeros(n_nodes, bool).at[start].set(True)
     _, opened = jax.lax.fori_loop(0, n_nodes - 1, grow, (in_tree, jnp.zeros(len(edges_u), bool)))
-    opened |= jax.random.bernoulli(k_extra, 0.05, opened.shape)
+    return opened | jax.random.bernoulli(k_extra, 0.05, opened.shape)
 
-    grid = jnp.full((env_params.height, env_params.width), WALL, jnp.uint8)
-    grid = grid.at[1::2, 1::2].set(EMPTY)
-    grid = grid.at[wall_y, wall_x].set(jnp.where(opened, EMPTY, WALL).astype(jnp.uint8))
-    # Rooms: up to 4 odd-sized (3 or 5) squares aligned on the lattice.
-    ys, xs = np.mgrid[0 : env_params.height, 0 : env_params.width]
-    kr = jax.random.split(k_rooms, 4)
-    for k in kr:
+
+def _carve_rooms(k_rooms, grid: jax.Array, nx: int, ny: int, ys: np.ndarray, xs: np.ndarray) -> jax.Array:
+    """uint8[H, W] `grid` with up to 4 odd-sized (3 or 5) square rooms, aligned on the lattice, emptied
+    (each kept with probability 0.75; the border stays). `ys`, `xs`: int[H, W] each cell's row and column."""
+    height, width = grid.shape
+    for k in jax.random.split(k_rooms, 4):
         k_keep, k_size, k_x, k_y = jax.random.split(k, 4)
         size = jnp.where(jax.random.bernoulli(k_size), 5, 3)
         half_cells = (size - 1) // 2
@@ -179,18 +172,49 @@ def maze(key: jax.Array, env_params: EnvParams) -> Layout:
         room = (
             (xs >= x0) & (xs < x0 + size) & (ys >= y0) & (ys < y0 + size) & jax.random.bernoulli(k_keep, 0.75)
         )
-        room &= (xs < env_params.width - 1) & (ys < env_params.height - 1)
+        room &= (xs < width - 1) & (ys < height - 1)
         grid = jnp.where(room, EMPTY, grid).astype(jnp.uint8)
+    return grid
 
+
+def _place_goal_and_spawn(
+    k_goal, k_spawn, grid: jax.Array, ys: np.ndarray, xs: np.ndarray
+) -> tuple[jax.Array, jax.Array]:
+    """uint8[H, W] `grid` with the goal on a uniform free cell, and bool[H, W] the spawn cells: the free cells
+    of the 3x3 box around the one of 5 uniform free cells farthest (L1) from the goal. `ys`, `xs`: int[H, W]
+    each cell's row and column."""
+    width = grid.shape[1]
     free = grid == EMPTY
     goal_cell = _sample_cells(k_goal, free, 1)[0]
-    gy, gx = jnp.divmod(goal_cell, env_params.width)
+    gy, gx = jnp.divmod(goal_cell, width)
     grid = grid.at[gy, gx].set(GOAL)
     free = grid == EMPTY
     cand = jax.random.categorical(k_spawn, jnp.where(free.ravel(), 0.0, -jnp.inf), shape=(5,))
-    cy, cx = jnp.divmod(cand, env_params.width)
+    cy, cx = jnp.divmod(cand, width)
     best = jnp.argmax(jnp.abs(cx - gx) + jnp.abs(cy - gy))
     spawn = free & (jnp.abs(xs - cx[best]) <= 1) & (jnp.abs(ys - cy[best]) <= 1)
+    return grid, spawn
+
+
+def maze(key: jax.Array, env_params: EnvParams) -> Layout:
+    """A random maze on the odd lattice, like labmaze's RandomMaze (docs/environment.md 6.3, 9.10).
+
+    A random spanning tree (Prim's algorithm on random edge weights) connects every lattice cell; up to four
+    rooms of 3x3 or 5x5 cells are carved; every remaining inner wall between two lattice cells opens with
+    probability 0.05. Carving only removes walls, so all free cells stay connected and the goal is always
+    reachable. The goal is uniform over free cells; the spawn point is the one of 5 uniform free cells
+    farthest (L1) from it, and agents spawn in the free cells of the 3x3 box around that point.
+    """
+    nx, ny = (env_params.width - 1) // 2, (env_params.height - 1) // 2
+    edges_u, edges_v, wall_y, wall_x = _lattice_edges(nx, ny)
+    k_w, k_start, k_extra, k_rooms, k_goal, k_spawn = jax.random.split(key, 6)
+    opened = _open_edges(k_w, k_start, k_extra, edges_u, edges_v, nx * ny)
+    grid = jnp.full((env_params.height, env_params.width), WALL, jnp.uint8)
+    grid = grid.at[1::2, 1::2].set(EMPTY)
+    grid = grid.at[wall_y, wall_x].set(jnp.where(opened, EMPTY, WALL).astype(jnp.uint8))
+    ys, xs = np.mgrid[0 : env_params.height, 0 : env_params.width]  # one array: one constant in the program
+    grid = _carve_rooms(k_rooms, grid, nx, ny, ys, xs)
+    grid, spawn = _place_goal_and_spawn(k_goal, k_spawn, grid, ys, xs)
     return Layout(grid, jnp.full(grid.shape, -1, jnp.int8), spawn)
 
 

@@ -7,6 +7,7 @@ are stored row-major as `[y, x]`; directions are 0 east, 1 south, 2 west, 3 nort
 from __future__ import annotations
 
 import dataclasses
+from typing import NoReturn
 
 import jax
 import numpy as np
@@ -45,6 +46,11 @@ AGENT_COLOR_NAMES = ("red", "blue", "purple", "orange", "olive", "pink")
 MAX_AGENTS = len(AGENT_COLOR_NAMES)
 
 LAYOUTS = ("goalcycle", "fourrooms", "maze")
+
+
+def _fail(msg: str) -> NoReturn:
+    """Raise the ValueError of an invalid `EnvParams`."""
+    raise ValueError(f"EnvParams: {msg}")
 
 
 @jax.tree_util.register_static
@@ -119,67 +125,11 @@ class EnvParams:
     """Last step at which a slot may leave or join (0: max_steps - 1)."""
 
     def __post_init__(self):
-        def fail(msg):
-            raise ValueError(f"EnvParams: {msg}")
-
+        """Raise ValueError for the first invalid field found: types first, then values."""
         self._check_types()
-        if self.layout not in LAYOUTS:
-            fail(f"unknown layout {self.layout!r}; choose one of {LAYOUTS}")
-        if not 1 <= self.n_agents <= MAX_AGENTS:
-            fail(f"n_agents={self.n_agents} but there are {MAX_AGENTS} agent colours (1-{MAX_AGENTS} agents)")
-        if self.view_size < 3 or self.view_size % 2 == 0:
-            fail(f"view_size={self.view_size} must be odd and >= 3")
-        if not 0 <= self.view_offset < self.view_size:
-            fail(f"view_offset={self.view_offset} must be in [0, view_size)")
-        if self.tile_size != 3:
-            fail(f"tile_size={self.tile_size}: only 3 is supported (the paper's 21x21 observations)")
-        if self.penalty < 0.0:
-            fail(f"penalty={self.penalty} is a magnitude and must be >= 0 (a wrong tile pays -penalty)")
-        if self.max_steps < 1:
-            fail(f"max_steps={self.max_steps} must be >= 1")
-        if self.agent_colors not in ("prestige", "fixed"):
-            fail(f"agent_colors={self.agent_colors!r} must be 'prestige' or 'fixed'")
-        if self.prestige_formula not in ("code", "paper"):
-            fail(f"prestige_formula={self.prestige_formula!r} must be 'code' or 'paper'")
-        if self.observation not in ("rgb", "symbolic"):
-            fail(f"observation={self.observation!r} must be 'rgb' or 'symbolic'")
-        if not 0.0 <= self.solo_prob <= 1.0:
-            fail(f"solo_prob={self.solo_prob} must be a probability in [0, 1]")
-        if not 1 <= self.solo_agents <= self.n_agents:
-            fail(f"solo_agents={self.solo_agents} must be in [1, n_agents={self.n_agents}]")
-        if not 0.0 <= self.prestige_beta <= 1.0:
-            fail(f"prestige_beta={self.prestige_beta} must be in [0, 1]")
-        if self.prestige_scale <= 0.0:
-            fail(f"prestige_scale={self.prestige_scale} must be > 0")
-        if not 0.0 <= self.dropout_prob <= 1.0 or not 0.0 <= self.dropin_prob <= 1.0:
-            fail(f"dropout_prob={self.dropout_prob} and dropin_prob={self.dropin_prob} must be in [0, 1]")
-        if self.dropout_prob + self.dropin_prob > 1.0:
-            fail(f"dropout_prob + dropin_prob = {self.dropout_prob + self.dropin_prob} must be <= 1")
-        steps_ok = 1 <= self.dropout_min_step <= self.dropout_last_step < self.max_steps
-        if self.changes_presence and not steps_ok:
-            fail(
-                f"need 1 <= dropout_min_step ({self.dropout_min_step}) <= dropout_max_step "
-                f"({self.dropout_last_step}) < max_steps ({self.max_steps})"
-            )
-        if not 0.0 <= self.clutter_density < 1.0:
-            fail(f"clutter_density={self.clutter_density} must be in [0, 1)")
-        if self.layout == "goalcycle":
-            if not 1 <= self.n_goals <= 127:
-                fail(f"n_goals={self.n_goals} must be in [1, 127]")
-            if self.width < 3 or self.height < 3:
-                fail("a goal-cycle grid needs at least 3x3 cells")
-            if self.n_goals + self.n_clutter >= self.interior_cells:
-                fail(
-                    f"a {self.width}x{self.height} grid has {self.interior_cells} free cells, too few for "
-                    f"{self.n_goals} goals + {self.n_clutter} clutter walls + a spawn cell"
-                )
-        elif self.layout == "fourrooms":
-            if self.width < 9 or self.height < 9:
-                fail("four rooms needs at least 9x9 cells")
-        elif self.layout == "maze" and (
-            self.width < 7 or self.height < 7 or self.width % 2 == 0 or self.height % 2 == 0
-        ):
-            fail("a maze needs odd width and height >= 7")
+        self._check_settings()
+        self._check_presence()
+        self._check_grid()
 
     def _check_types(self) -> None:
         """ValueError unless every field has its annotated type (ints are accepted for floats and stored as
@@ -190,10 +140,76 @@ class EnvParams:
             if kind is float and isinstance(value, int) and not isinstance(value, bool):
                 object.__setattr__(self, field.name, float(value))
             elif not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
-                raise ValueError(
-                    f"EnvParams: {field.name}={value!r} must be of type {field.type}, "
-                    f"not {type(value).__name__}"
+                _fail(f"{field.name}={value!r} must be of type {field.type}, not {type(value).__name__}")
+
+    def _check_settings(self) -> None:
+        """ValueError unless the layout name, agent count, view, rewards, episode length, colours,
+        observation, solo episodes and prestige are valid."""
+        if self.layout not in LAYOUTS:
+            _fail(f"unknown layout {self.layout!r}; choose one of {LAYOUTS}")
+        if not 1 <= self.n_agents <= MAX_AGENTS:
+            _fail(
+                f"n_agents={self.n_agents} but there are {MAX_AGENTS} agent colours (1-{MAX_AGENTS} agents)"
+            )
+        if self.view_size < 3 or self.view_size % 2 == 0:
+            _fail(f"view_size={self.view_size} must be odd and >= 3")
+        if not 0 <= self.view_offset < self.view_size:
+            _fail(f"view_offset={self.view_offset} must be in [0, view_size)")
+        if self.tile_size != 3:
+            _fail(f"tile_size={self.tile_size}: only 3 is supported (the paper's 21x21 observations)")
+        if self.penalty < 0.0:
+            _fail(f"penalty={self.penalty} is a magnitude and must be >= 0 (a wrong tile pays -penalty)")
+        if self.max_steps < 1:
+            _fail(f"max_steps={self.max_steps} must be >= 1")
+        if self.agent_colors not in ("prestige", "fixed"):
+            _fail(f"agent_colors={self.agent_colors!r} must be 'prestige' or 'fixed'")
+        if self.prestige_formula not in ("code", "paper"):
+            _fail(f"prestige_formula={self.prestige_formula!r} must be 'code' or 'paper'")
+        if self.observation not in ("rgb", "symbolic"):
+            _fail(f"observation={self.observation!r} must be 'rgb' or 'symbolic'")
+        if not 0.0 <= self.solo_prob <= 1.0:
+            _fail(f"solo_prob={self.solo_prob} must be a probability in [0, 1]")
+        if not 1 <= self.solo_agents <= self.n_agents:
+            _fail(f"solo_agents={self.solo_agents} must be in [1, n_agents={self.n_agents}]")
+        if not 0.0 <= self.prestige_beta <= 1.0:
+            _fail(f"prestige_beta={self.prestige_beta} must be in [0, 1]")
+        if self.prestige_scale <= 0.0:
+            _fail(f"prestige_scale={self.prestige_scale} must be > 0")
+
+    def _check_presence(self) -> None:
+        """ValueError unless the dropout and drop-in probabilities and steps are valid."""
+        if not 0.0 <= self.dropout_prob <= 1.0 or not 0.0 <= self.dropin_prob <= 1.0:
+            _fail(f"dropout_prob={self.dropout_prob} and dropin_prob={self.dropin_prob} must be in [0, 1]")
+        if self.dropout_prob + self.dropin_prob > 1.0:
+            _fail(f"dropout_prob + dropin_prob = {self.dropout_prob + self.dropin_prob} must be <= 1")
+        steps_ok = 1 <= self.dropout_min_step <= self.dropout_last_step < self.max_steps
+        if self.changes_presence and not steps_ok:
+            _fail(
+                f"need 1 <= dropout_min_step ({self.dropout_min_step}) <= dropout_max_step "
+                f"({self.dropout_last_step}) < max_steps ({self.max_steps})"
+            )
+
+    def _check_grid(self) -> None:
+        """ValueError unless the clutter density is valid and the grid fits the layout (and its goals)."""
+        if not 0.0 <= self.clutter_density < 1.0:
+            _fail(f"clutter_density={self.clutter_density} must be in [0, 1)")
+        if self.layout == "goalcycle":
+            if not 1 <= self.n_goals <= 127:
+                _fail(f"n_goals={self.n_goals} must be in [1, 127]")
+            if self.width < 3 or self.height < 3:
+                _fail("a goal-cycle grid needs at least 3x3 cells")
+            if self.n_goals + self.n_clutter >= self.interior_cells:
+                _fail(
+                    f"a {self.width}x{self.height} grid has {self.interior_cells} free cells, too few for "
+                    f"{self.n_goals} goals + {self.n_clutter} clutter walls + a spawn cell"
                 )
+        elif self.layout == "fourrooms":
+            if self.width < 9 or self.height < 9:
+                _fail("four rooms needs at least 9x9 cells")
+        elif self.layout == "maze" and (
+            self.width < 7 or self.height < 7 or self.width % 2 == 0 or self.height % 2 == 0
+        ):
+            _fail("a maze needs odd width and height >= 7")
 
     @property
     def dropout_last_step(self) -> int:
