@@ -158,6 +158,99 @@ def render_map(state: EnvState, env_params: EnvParams, tile: int = 12, fov: bool
     return image
 
 
+def _spacing(tile: int) -> tuple[int, int, int]:
+    """Pixel sizes of a frame at `tile` pixels per map cell: the gap between panels, a view's border and the
+    strip above a view."""
+    return max(2, tile // 3), max(1, tile // 6), max(2, tile // 4)
+
+
+def _view_panels(
+    obs: np.ndarray,
+    reward: np.ndarray | None,
+    tile: int,
+    predicted: Mapping[int, np.ndarray],
+    titles: Sequence[str],
+    predicted_title: str,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, str]]:
+    """`render_frame`'s panels in order: each agent's view and, right after it, the view its network predicts
+    if any. Each is (view uint8[21, 21, 3], strip colour uint8[3] or a striped strip uint8[side, 3], border
+    colour uint8[3], title)."""
+    n = obs.shape[0]
+    ids = identity_colors(n)
+    signs = np.zeros(n, int) if reward is None else np.sign(np.asarray(reward, np.float64)).astype(int)
+    striped = np.arange(obs.shape[2] * max(1, tile // 3)) // _spacing(tile)[2] % 2 == 0
+    panels = []
+    for i in range(n):
+        panels.append((obs[i], ids[i], REWARD_BORDER.get(signs[i], NO_REWARD_BORDER), titles[i]))
+        if i in predicted:
+            view = np.asarray(predicted[i])
+            if view.shape != obs.shape[1:] or view.dtype != np.uint8:
+                expected = f"uint8{list(obs.shape[1:])}"
+                raise ValueError(
+                    f"agent {i}'s predicted view must be {expected}, not {view.dtype}{list(view.shape)}"
+                )
+            striped_strip = np.where(striped[:, None], ids[i], BACKGROUND)
+            panels.append((view, striped_strip, NO_REWARD_BORDER, predicted_title))
+    return panels
+
+
+def _grid_shape(n_panels: int, fit: int) -> tuple[int, int]:
+    """(rows, columns) of `n_panels` panels in columns of at most `fit` (at least 1) rows, as few columns as
+    that allows, and then as few rows as those columns need."""
+    rows = max(1, min(n_panels, fit))
+    cols = math.ceil(n_panels / rows)
+    return math.ceil(n_panels / cols), cols
+
+
+def _compose(
+    world: np.ndarray,
+    panels: list[tuple[np.ndarray, np.ndarray, np.ndarray, str]],
+    tile: int,
+    map_title: str,
+    progress: float,
+) -> np.ndarray:
+    """The frame uint8[h, w, 3] of the map `world` uint8[H * tile, W * tile, 3] titled `map_title`, the
+    `panels` (`_view_panels`) in a grid to its right, and a progress bar `progress` (in [0, 1]) wide below."""
+    map_h, map_w = world.shape[:2]
+    gap, border, strip = _spacing(tile)
+    label = title_height(tile)
+    views = np.stack([upscale(v, 1, max(1, tile // 3)) for v, *_ in panels])
+    side = views.shape[1]
+    panel_h, panel_w = label + strip + side + 2 * border, side + 2 * border
+    rows, cols = _grid_shape(len(panels), (label + map_h + gap) // (panel_h + gap))
+    content_h = max(label + map_h, rows * panel_h + (rows - 1) * gap)
+    bar = max(2, gap // 2)
+    height = gap + content_h + gap + bar + gap
+    width = gap + map_w + gap + cols * panel_w + (cols - 1) * gap + gap
+    frame = np.empty((height, width, 3), np.uint8)
+    frame[:] = BACKGROUND
+    frame[gap + label : gap + label + map_h, gap : gap + map_w] = world
+    placed = [((gap, gap), map_title)]
+
+    for k, ((_, strip_colors, border_color, title), view) in enumerate(zip(panels, views, strict=True)):
+        r, c = divmod(k, cols)
+        y0 = gap + r * (panel_h + gap)
+        x0 = 2 * gap + map_w + c * (panel_w + gap)
+        placed.append(((x0, y0), title))
+        y0 += label
+        frame[y0 : y0 + panel_h - label, x0 : x0 + panel_w] = border_color
+        frame[y0 + border : y0 + border + strip, x0 + border : x0 + border + side] = strip_colors
+        frame[y0 + border + strip : y0 + border + strip + side, x0 + border : x0 + border + side] = view
+
+    bar_y = gap + content_h + gap
+    frame[bar_y : bar_y + bar, gap : gap + round(progress * (width - 2 * gap))] = PROGRESS
+    return _draw_titles(frame, placed, tile)
+
+
+def _draw_titles(frame: np.ndarray, placed: list[tuple[tuple[int, int], str]], tile: int) -> np.ndarray:
+    """`frame` uint8[h, w, 3] with each `(x, y), title` of `placed` written at (x, y) (its top left)."""
+    image = Image.fromarray(frame)
+    draw, font = ImageDraw.Draw(image), title_font(tile)
+    for xy, title in placed:
+        draw.text(xy, title, fill=TITLE_COLOR, font=font)
+    return np.asarray(image)
+
+
 def render_frame(
     state: EnvState,
     obs: np.ndarray | None,
@@ -194,64 +287,38 @@ def render_frame(
     if len(titles) != n:
         raise ValueError(f"{len(titles)} titles for {n} agents")
     world = render_map(state, env_params, tile)
-    map_h, map_w = world.shape[:2]
-
-    gap, border, strip = max(2, tile // 3), max(1, tile // 6), max(2, tile // 4)
-    label = title_height(tile)
-    ids = identity_colors(n)
-    signs = np.zeros(n, int) if reward is None else np.sign(np.asarray(reward, np.float64)).astype(int)
-    striped = np.arange(obs.shape[2] * max(1, tile // 3)) // strip % 2 == 0
-    panels = []  # (view, strip colours, border colour, title)
-    for i in range(n):
-        panels.append((obs[i], ids[i], REWARD_BORDER.get(signs[i], NO_REWARD_BORDER), titles[i]))
-        if i in predicted:
-            view = np.asarray(predicted[i])
-            if view.shape != obs.shape[1:] or view.dtype != np.uint8:
-                expected = f"uint8{list(obs.shape[1:])}"
-                raise ValueError(
-                    f"agent {i}'s predicted view must be {expected}, not {view.dtype}{list(view.shape)}"
-                )
-            striped_strip = np.where(striped[:, None], ids[i], BACKGROUND)
-            panels.append((view, striped_strip, NO_REWARD_BORDER, predicted_title))
-    views = np.stack([upscale(v, 1, max(1, tile // 3)) for v, *_ in panels])
-    side = views.shape[1]
-    panel_h, panel_w = label + strip + side + 2 * border, side + 2 * border
-    rows = max(1, min(len(panels), (label + map_h + gap) // (panel_h + gap)))
-    cols = math.ceil(len(panels) / rows)
-    rows = math.ceil(len(panels) / cols)
-    content_h = max(label + map_h, rows * panel_h + (rows - 1) * gap)
-    bar = max(2, gap // 2)
-    height = gap + content_h + gap + bar + gap
-    width = gap + map_w + gap + cols * panel_w + (cols - 1) * gap + gap
-    frame = np.empty((height, width, 3), np.uint8)
-    frame[:] = BACKGROUND
-    frame[gap + label : gap + label + map_h, gap : gap + map_w] = world
-    placed = [((gap, gap), f"step {int(np.asarray(state.time))} of {env_params.max_steps}")]
-
-    for k, ((_, strip_colors, border_color, title), view) in enumerate(zip(panels, views, strict=True)):
-        r, c = divmod(k, cols)
-        y0 = gap + r * (panel_h + gap)
-        x0 = 2 * gap + map_w + c * (panel_w + gap)
-        placed.append(((x0, y0), title))
-        y0 += label
-        frame[y0 : y0 + panel_h - label, x0 : x0 + panel_w] = border_color
-        frame[y0 + border : y0 + border + strip, x0 + border : x0 + border + side] = strip_colors
-        frame[y0 + border + strip : y0 + border + strip + side, x0 + border : x0 + border + side] = view
-
+    panels = _view_panels(obs, reward, tile, predicted, titles, predicted_title)
+    map_title = f"step {int(np.asarray(state.time))} of {env_params.max_steps}"
     progress = min(1.0, float(np.asarray(state.time)) / env_params.max_steps)
-    bar_y = gap + content_h + gap
-    frame[bar_y : bar_y + bar, gap : gap + round(progress * (width - 2 * gap))] = PROGRESS
-    image = Image.fromarray(frame)
-    draw, font = ImageDraw.Draw(image), title_font(tile)
-    for xy, title in placed:
-        draw.text(xy, title, fill=TITLE_COLOR, font=font)
-    return np.asarray(image)
+    return _compose(world, panels, tile, map_title, progress)
 
 
 _reset = jax.jit(reset)
 _step_env = jax.jit(step_env)
 
 Policy = Callable[[jax.Array, jax.Array, EnvState], Any]
+
+
+def _chooser(policy: str | Policy, key: jax.Array, limit: int, n: int) -> Callable[[int, Any, EnvState], Any]:
+    """`rollout_episode`'s `choose(t, obs, state)`: the n agents' int32[n] actions at step t < `limit` by
+    `policy` (a name of `POLICIES`, whose actions are drawn with `key` beforehand, or a callable, given
+    `key`'s t-th split)."""
+    if callable(policy):
+        step_keys = jax.random.split(key, limit)
+
+        def choose(t, obs, state):
+            return np.asarray(policy(step_keys[t], obs, state), np.int32)
+
+    elif policy in POLICIES:
+        moves = np.arange(NUM_ACTIONS) if policy == "random" else np.array([LEFT, RIGHT, FORWARD])
+        drawn = moves[np.asarray(jax.random.randint(key, (limit, n), 0, len(moves)))].astype(np.int32)
+
+        def choose(t, obs, state):
+            return drawn[t]
+
+    else:
+        raise ValueError(f"unknown policy {policy!r}; use one of {POLICIES} or a callable")
+    return choose
 
 
 def rollout_episode(
@@ -277,22 +344,7 @@ def rollout_episode(
         raise ValueError(f"max_steps={max_steps} must be >= 1")
     k_reset, k_act = jax.random.split(key)
     n = env_params.n_agents
-    if callable(policy):
-        step_keys = jax.random.split(k_act, limit)
-
-        def choose(t, obs, state):
-            return np.asarray(policy(step_keys[t], obs, state), np.int32)
-
-    elif policy in POLICIES:
-        moves = np.arange(NUM_ACTIONS) if policy == "random" else np.array([LEFT, RIGHT, FORWARD])
-        drawn = moves[np.asarray(jax.random.randint(k_act, (limit, n), 0, len(moves)))].astype(np.int32)
-
-        def choose(t, obs, state):
-            return drawn[t]
-
-    else:
-        raise ValueError(f"unknown policy {policy!r}; use one of {POLICIES} or a callable")
-
+    choose = _chooser(policy, k_act, limit, n)
     obs, state = jax.device_get(_reset(k_reset, env_params))
     states, observations, actions, rewards = [state], [obs], [], []
     terminated, truncated = np.zeros(n, bool), False
