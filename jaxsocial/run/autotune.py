@@ -443,6 +443,67 @@ def _now() -> str:
     return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
 
 
+def _cached_tuning(
+    entry, key: str, specs: dict[str, LayerSpec], auto: list[str], dtype: str, path: Path
+) -> Tuning | None:
+    """`tune`'s result from the network's cache `entry` (under `key`), for its `auto` layers in `dtype`; None
+    if there is none, or (with a warning) if it is unusable."""
+    if entry is None:
+        return None
+    try:
+        layers, impls = entry["layers"], parse_conv_impl(entry["conv_impl"])
+        choices = {
+            layer: LayerChoice(layer, impls[layer], layers[layer]["alone"], dict(layers[layer]["times_s"]))
+            for layer in auto
+        }
+        if all(c.impl in specs[c.layer].candidates(dtype) for c in choices.values()):
+            return Tuning(choices, dict(entry.get("step_s", {})), True, key)
+        raise ValueError("an implementation that is not a candidate")
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        warnings.warn(f"autotune cache {path}: entry {key!r} unusable ({err}); measuring again", stacklevel=3)
+    return None
+
+
+def _layer_times(
+    spec: LayerSpec, dtype: str, machine: str, entries: dict[str, dict], path: Path, reps: int
+) -> tuple[dict[str, float], dict[str, dict]]:
+    """A layer's timings per candidate in `dtype` on `machine`: the cache `entries`' for its key, else (with
+    a warning if that entry is unusable) measured (`measure`); and the new cache entry ({} if none)."""
+    layer_key = spec.key(dtype, machine)
+    candidates = spec.candidates(dtype)
+    entry = entries.get(layer_key)
+    if (cached_times := _cached_times(entry, candidates)) is not None:
+        return cached_times, {}
+    if entry is not None:
+        warnings.warn(f"autotune cache {path}: entry {layer_key!r} unusable; measuring again", stacklevel=3)
+    times = measure(spec, candidates, dtype, reps)
+    return times, {layer_key: {"times_s": times, "measured": _now()}}
+
+
+def _confirm(
+    net_cfg: NetworkConfig, auto: list[str], alone: dict[str, str], frames: int, reps: int
+) -> tuple[dict[str, str], dict[str, float]]:
+    """Every layer's implementation after confirming the `auto` layers' choices `alone` in the gradient step
+    of `frames` frames (`tune`), and the steps timed (per-layer `conv_impl` -> best seconds)."""
+    impls = net_cfg.impls | dict.fromkeys(auto, CONV_IMPLS[0])
+    step_s: dict[str, float] = {}
+    for layer in auto:
+        if alone[layer] == CONV_IMPLS[0]:
+            continue
+        current = dataclasses.replace(net_cfg, conv_impl=format_conv_impl(impls))
+        trial = dataclasses.replace(net_cfg, conv_impl=format_conv_impl(impls | {layer: alone[layer]}))
+        before, after = measure_step((current, trial), frames, reps)
+        step_s |= {current.conv_impl: before, trial.conv_impl: after}
+        kept = after < STEP_PREFER * before
+        log.info(
+            "autotune %s=%s in the gradient step: %.2f ms against %.2f ms: %s", layer, alone[layer],
+            after * 1e3, before * 1e3, "kept" if kept else "not kept",
+        )  # fmt: skip
+        if kept:
+            impls[layer] = alone[layer]
+    return impls, step_s
+
+
 def tune(net_cfg: NetworkConfig, batch: int, *, path: str | Path | None = None, reps: int = REPS) -> Tuning:
     """The choice of every layer of `net_cfg` whose `conv_impl` entry is "auto", in `net_cfg`'s dtype
     (resolved with `auto_dtype` if "auto"), for calls of `batch` frames (`layer_specs`).
@@ -464,69 +525,25 @@ def tune(net_cfg: NetworkConfig, batch: int, *, path: str | Path | None = None, 
         return Tuning({}, {}, True, key)
     path = Path(path) if path is not None else cache_path()
     entries = _read_cache(path)
-    new: dict[str, dict] = {}
-
-    cached = entries.get(key)
-    if cached is not None:
-        try:
-            layers, impls = cached["layers"], parse_conv_impl(cached["conv_impl"])
-            choices = {
-                layer: LayerChoice(
-                    layer, impls[layer], layers[layer]["alone"], dict(layers[layer]["times_s"])
-                )
-                for layer in auto
-            }
-            if all(c.impl in specs[c.layer].candidates(net_cfg.dtype) for c in choices.values()):
-                return Tuning(choices, dict(cached.get("step_s", {})), True, key)
-            raise ValueError("an implementation that is not a candidate")
-        except (KeyError, TypeError, ValueError, AttributeError) as err:
-            warnings.warn(
-                f"autotune cache {path}: entry {key!r} unusable ({err}); measuring again", stacklevel=2
-            )
-
+    if (tuning := _cached_tuning(entries.get(key), key, specs, auto, net_cfg.dtype, path)) is not None:
+        return tuning
     print(
         f"autotune: measuring the {len(auto)} 'auto' layers on this machine ({net_cfg.dtype}, {frames} "
         f"frames), once: the choice is cached in {path}",
         file=sys.stderr,
         flush=True,
     )
-    alone, times = {}, {}
+    alone, times, new = {}, {}, {}
     for layer in auto:
-        spec = specs[layer]
-        layer_key = spec.key(net_cfg.dtype, machine)
-        candidates = spec.candidates(net_cfg.dtype)
-        entry = entries.get(layer_key)
-        if (cached_times := _cached_times(entry, candidates)) is not None:
-            times[layer] = cached_times
-        else:
-            if entry is not None:
-                warnings.warn(
-                    f"autotune cache {path}: entry {layer_key!r} unusable; measuring again", stacklevel=2
-                )
-            times[layer] = measure(spec, candidates, net_cfg.dtype, reps)
-            new[layer_key] = {"times_s": times[layer], "measured": _now()}
+        times[layer], measured = _layer_times(specs[layer], net_cfg.dtype, machine, entries, path, reps)
+        new |= measured
+        candidates = specs[layer].candidates(net_cfg.dtype)
         alone[layer] = choose(times[layer], candidates)
         log.info(
             "autotune %s (%s, %d frames): %s alone (%s)", layer, net_cfg.dtype, frames, alone[layer],
             ", ".join(f"{c} {times[layer][c] * 1e3:.2f} ms" for c in candidates),
         )  # fmt: skip
-
-    impls = net_cfg.impls | dict.fromkeys(auto, CONV_IMPLS[0])
-    step_s: dict[str, float] = {}
-    for layer in auto:
-        if alone[layer] == CONV_IMPLS[0]:
-            continue
-        current = dataclasses.replace(net_cfg, conv_impl=format_conv_impl(impls))
-        trial = dataclasses.replace(net_cfg, conv_impl=format_conv_impl(impls | {layer: alone[layer]}))
-        before, after = measure_step((current, trial), frames, reps)
-        step_s |= {current.conv_impl: before, trial.conv_impl: after}
-        kept = after < STEP_PREFER * before
-        log.info(
-            "autotune %s=%s in the gradient step: %.2f ms against %.2f ms: %s", layer, alone[layer],
-            after * 1e3, before * 1e3, "kept" if kept else "not kept",
-        )  # fmt: skip
-        if kept:
-            impls[layer] = alone[layer]
+    impls, step_s = _confirm(net_cfg, auto, alone, frames, reps)
     choices = {layer: LayerChoice(layer, impls[layer], alone[layer], times[layer]) for layer in auto}
     new[key] = {
         "conv_impl": format_conv_impl({layer: impls[layer] for layer in auto}),
