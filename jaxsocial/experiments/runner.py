@@ -92,22 +92,9 @@ def run(
     them: they must be set before XLA starts).
     """
     per_program = seeds_per_program or (1 if cores else None)
-    programs = {
-        c: recipes.condition_programs(scale, c, seed, seeds, runs_dir, per_program) for c in recipe.conditions
-    }
-    blind = recipe.design is not None and bool(scale.runs_subdir)  # a design at its own scale
-    design_flags = (prereg.load(recipe.design).xla_flags if blind else None) or ""
-    in_process = train_missing and not cores and not dry_run
-    if design_flags and in_process and not xla_flags.hold(os.environ.get("XLA_FLAGS"), design_flags):
-        raise ValueError(
-            f"the design {recipe.design} trains with $XLA_FLAGS ending in {design_flags!r}: train with "
-            "--cores, or set them before starting this process"
-        )
-    if blind:
-        programs = {c: [dataclasses.replace(cfg, blind=True) for cfg in cfgs] for c, cfgs in programs.items()}
-    for cfgs in programs.values():
-        for cfg in cfgs:
-            setup(cfg, load_frozen=False)
+    programs, blind, design_flags = validated_programs(recipe, scale, seed, seeds, runs_dir, per_program)
+    if design_flags and train_missing and not cores and not dry_run:
+        xla_flags_held(recipe, design_flags)
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     states = {  # each program's state, by its condition and first seed
         (name, cfg.seed): status(cfg, dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds])
@@ -120,13 +107,8 @@ def run(
         )
     prefix = f"[{recipe.name}/{scale.name}]"
     jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
-    if jobs:  # seed by seed (a stable sort: conditions keep their order), so a sitting cut short leaves
-        # whole seeds done rather than one condition's
-        jobs = pinned.first_runs([job for _, job in sorted(jobs, key=lambda pair: pair[0])], max_runs)
-        codes = pinned.run(jobs, list(cores), design_flags)
-        failed = [job.label for job, rc in zip(jobs, codes, strict=True) if rc != 0]
-        if failed:
-            raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
+    if jobs:
+        run_pinned(jobs, cores, design_flags, max_runs)
         dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     for name in skipped:
         print(f"  {name}: not trained (--no-train); its unfinished seeds are not evaluated")
@@ -136,6 +118,48 @@ def run(
     where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
     figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
     print(f"next: python -m jaxsocial.experiments {figure}   # the summary and figure, tests over seeds")
+
+
+def validated_programs(
+    recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, per_program: int | None
+) -> tuple[dict[str, list[TrainConfig]], bool, str]:
+    """Each condition's programs for seeds seed..seed+seeds-1 (`recipes.condition_programs`), every config
+    validated (`setup`); whether they are blind (a design at its own scale: no return or score is shown),
+    and the design's `xla_flags` then ('' otherwise)."""
+    programs = {
+        c: recipes.condition_programs(scale, c, seed, seeds, runs_dir, per_program) for c in recipe.conditions
+    }
+    blind = recipe.design is not None and bool(scale.runs_subdir)
+    if blind:
+        programs = {c: [dataclasses.replace(cfg, blind=True) for cfg in cfgs] for c, cfgs in programs.items()}
+    for cfgs in programs.values():
+        for cfg in cfgs:
+            setup(cfg, load_frozen=False)
+    design_flags = (prereg.load(recipe.design).xla_flags if blind else None) or ""
+    return programs, blind, design_flags
+
+
+def xla_flags_held(recipe: Recipe, design_flags: str) -> None:
+    """ValueError unless this process's $XLA_FLAGS end in the design's `design_flags`: training in this
+    process needs them set before XLA starts."""
+    if not xla_flags.hold(os.environ.get("XLA_FLAGS"), design_flags):
+        raise ValueError(
+            f"the design {recipe.design} trains with $XLA_FLAGS ending in {design_flags!r}: train with "
+            "--cores, or set them before starting this process"
+        )
+
+
+def run_pinned(
+    jobs: list[tuple[int, pinned.Job]], cores: tuple[int, ...], design_flags: str, max_runs: int | None
+) -> None:
+    """Train the `jobs` (each with its first seed) in pinned processes on `cores`, seed by seed (a stable
+    sort: conditions keep their order, so a sitting cut short leaves whole seeds done rather than one
+    condition's), only the first `max_runs`; TrainingFailed after they end if any failed."""
+    ordered = pinned.first_runs([job for _, job in sorted(jobs, key=lambda pair: pair[0])], max_runs)
+    codes = pinned.run(ordered, list(cores), design_flags)
+    failed = [job.label for job, rc in zip(ordered, codes, strict=True) if rc != 0]
+    if failed:
+        raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
 
 
 def print_cost(recipe: Recipe, scale: Scale, to_train: list[TrainConfig], cores: tuple[int, ...]) -> None:
