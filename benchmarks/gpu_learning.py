@@ -33,13 +33,13 @@ def fractions(seeds: list[dict]) -> dict:
     return {"seeds": len(seeds), "took_off": sum(t is not None for t in lifts), "kaplan_meier": at}
 
 
-def compare(run_dir: Path, records_root: Path = paths.RECORDS) -> dict:
+def compare(run_dir: Path, records_root: Path) -> dict:
     """The seeds of `run_dir` (its s<seed>/ folders) against the pooled CPU social PPO + rec seeds."""
     config = logs.read_config(run_dir)
     if (config["env"], config["net"]["aux"], config.get("preset")) != ("goalcycle3", "rec", "laptop"):
         raise SystemExit(f"{run_dir} is not a laptop social PPO + rec run (`train --preset laptop`)")
     device = [takeoff_power.seed_lift(d) for d in sorted(run_dir.glob("s[0-9]*")) if d.is_dir()]
-    designs = takeoff_power.POOLED[paths.POOLED_ALL_SUMMARY]
+    designs = takeoff_power.POOLED[paths.POOLED_ALL_SUMMARY.name]
     cpu = [seed for _, seed in takeoff_power.seed_takeoffs("social_rec", designs, records_root)]
     return {
         "run_dir": str(run_dir),
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> None:
     run_dir = Path(args.run_dir)
     if not (run_dir / "config.json").is_file():
         raise SystemExit(f"{run_dir}: no config.json (not a run directory)")
-    result = compare(run_dir)
+    result = compare(run_dir, paths.RECORDS)
     for name in ("device", "cpu_pooled"):
         at = ", ".join(
             f"{int(s) / 1e6:g}M {v['kaplan_meier']:.2f}" for s, v in result[name]["kaplan_meier"].items()

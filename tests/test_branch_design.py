@@ -23,11 +23,11 @@ RUNS = Path("runs-nowhere")
 
 @needs_records("records/laptop/prereg-experts")
 def test_the_mixing_design_branches_every_experts_record_in_its_arm():
-    assert not branch_design.missing_sources(MIXING)
+    assert not branch_design.missing_sources(MIXING, paths.RECORDS)
     assert [MIXING.paired(t) for t in MIXING.primary.values()] == [True, False]
     for arm, k in (("mixed", 0), ("social", 7), ("alone", 39)):
         seed = MIXING.seed + k
-        cfg = branch_design.branch_config(MIXING, arm, seed, RUNS)
+        cfg = branch_design.branch_config(MIXING, arm, seed, RUNS, paths.RECORDS)
         source = paths.RECORDS / "laptop/prereg-experts" / f"{MIXING.arms[arm].source}-s{seed}-{seed}"
         assert cfg.init_from == CheckpointRef(source)
         assert (cfg.seed, cfg.seeds, cfg.iterations, cfg.eval_every) == (400 + k, 1, 610, 610)
@@ -36,8 +36,8 @@ def test_the_mixing_design_branches_every_experts_record_in_its_arm():
         assert f"{cfg.env}:{','.join(f'{k}={v}' for k, v in cfg.env_args)}" == MIXING.arms[arm].env
         assert [str(e) for e in cfg.eval_envs] == list(MIXING.eval_envs)
         assert train.parse_args(config_flags(cfg)) == cfg  # the command `run` starts trains exactly this
-    social = branch_design.branch_config(MIXING, "social", MIXING.seed, RUNS)
-    mixed = branch_design.branch_config(MIXING, "mixed", MIXING.seed, RUNS)
+    social = branch_design.branch_config(MIXING, "social", MIXING.seed, RUNS, paths.RECORDS)
+    mixed = branch_design.branch_config(MIXING, "mixed", MIXING.seed, RUNS, paths.RECORDS)
     assert dataclasses.replace(mixed, env_args=social.env_args, run_name=social.run_name) == social
 
 
@@ -62,7 +62,7 @@ def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path):
 def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, float]) -> None:
     """A record of `arm`'s branch of `seed` with its final evaluations `scores` (env -> return) and the
     config and provenance `summarise` reads."""
-    cfg = branch_design.branch_config(design, arm, seed, RUNS)
+    cfg = branch_design.branch_config(design, arm, seed, RUNS, paths.RECORDS)
     directory = root / design.run_name(arm, seed)
     directory.mkdir(parents=True)
     config = {"iterations": cfg.iterations, "seed": cfg.seed, "env": cfg.env}

@@ -1,10 +1,14 @@
 """The experiments' commands say at the door that they need a checkout's committed results, before anything
-is read or written, where the working directory holds none."""
+is read or written, where the working directory holds none; every command's `--results DIR` points them at
+a checkout's results from anywhere."""
+
+from pathlib import Path
 
 import pytest
+from conftest import RESULTS, needs_records
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design, evaluation_design, followup, sweep, takeoff_power
+from jaxsocial.experiments import branch_design, evaluation_design, followup, paths, sweep, takeoff_power
 
 COMMANDS = {
     "experiments": (cli.main, ["list"]),
@@ -23,3 +27,51 @@ def test_a_command_outside_a_checkout_says_it_needs_one(name, tmp_path, monkeypa
     with pytest.raises(SystemExit, match=r"no benchmarks/results/ in .*run them from the root of a clone"):
         main(argv)
     assert not any(tmp_path.iterdir())  # nothing written
+
+
+@pytest.fixture
+def results_moved_back():
+    """Put `paths` back as it was after a test that moved the results (`--results DIR`)."""
+    saved = {name: value for name, value in vars(paths).items() if isinstance(value, Path)}
+    yield
+    vars(paths).update(saved)
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_results_dir_that_is_not_there_is_named(name, tmp_path, monkeypatch, results_moved_back):
+    monkeypatch.chdir(tmp_path)
+    main, argv = COMMANDS[name]
+    missing = tmp_path / "elsewhere" / "results"
+    with pytest.raises(SystemExit, match=rf"no {missing}/: .*or name its results with --results DIR"):
+        main(["--results", str(missing), *argv])
+    assert not any(tmp_path.iterdir())
+
+
+def test_results_dir_moves_every_results_path_and_the_parsers_defaults(results_moved_back):
+    runs = paths.EXPERIMENT_RUNS
+    rest = paths.take_results_option(["figure", "--results", "/r", "--out", "x"])
+    assert rest == ["figure", "--out", "x"]
+    names = ("RESULTS", "RECORDS", "DEVIATIONS", "EVIDENCE", "EXPERIMENT_RUNS")
+    moved = {name: str(getattr(paths, name)) for name in names}
+    assert moved == {
+        "RESULTS": "/r",
+        "RECORDS": "/r/records",
+        "DEVIATIONS": "/r/deviations",
+        "EVIDENCE": "/r/science/experts-evidence",
+        "EXPERIMENT_RUNS": str(runs),  # the run directories stay
+    }
+    args = sweep.parse_args(["figure"])
+    assert (args.records_dir, args.out) == ("/r/records", "/r/science/sweep")
+
+
+@needs_records("records/laptop/prereg-experts")
+def test_a_command_reads_the_results_it_is_pointed_at(tmp_path, monkeypatch, capsys, results_moved_back):
+    mixing = branch_design.load("mixing")
+    recorded = branch_design.as_designed(mixing, RESULTS / "records")["recorded"]
+    monkeypatch.chdir(tmp_path)  # no benchmarks/results here
+    science = tmp_path / "science"
+    branch_design.main(["figure", "mixing", "--results", str(RESULTS), "--science", str(science)])
+    if recorded < 120:
+        assert f"[mixing] {recorded} of 120 branches recorded" in capsys.readouterr().out
+    else:
+        assert (science / "mixing.json").exists()

@@ -184,7 +184,7 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
     design = ed.load(name)
     if not (paths.RECORDS / design.records).is_dir():
         pytest.skip(f"needs the committed records {paths.RECORDS / design.records}")
-    assert ed.missing_records(design) == []
+    assert ed.missing_records(design, paths.RECORDS) == []
     pilot = ed.pilot_scores(design)
     assert set(pilot) == set(design.primary) and all(len(t) and len(c) for t, c in pilot.values())
 

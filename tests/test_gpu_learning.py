@@ -40,7 +40,7 @@ def fake_run(root: Path, returns: dict[int, list[float]], preset: str = "laptop"
     return run
 
 
-@needs_records(*(f"records/laptop/prereg-{d}" for d in takeoff_power.POOLED[paths.POOLED_ALL_SUMMARY]))
+@needs_records(*(f"records/laptop/prereg-{d}" for d in takeoff_power.POOLED[paths.POOLED_ALL_SUMMARY.name]))
 def test_takeoffs_and_kaplan_meier_beside_the_pooled_cpu_seeds(tmp_path, capsys):
     plateau = [0.5] * ITERATIONS
     learns = [0.5] * 30 + [5.0] * (ITERATIONS - 30)  # the second 24-iteration window is above 2

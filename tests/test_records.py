@@ -286,7 +286,7 @@ def _rederivations() -> dict[str, functools.partial]:
     committed = ["--summary", str(science / "sweep.json")]
     out[paths.MAP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["map", *committed])
     for pooled in takeoff_power.POOLED:
-        out[pooled.name] = functools.partial(takeoff_power.main, [])
+        out[pooled] = functools.partial(takeoff_power.main, [])
     return out
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import importlib
 import re
-import sys
 from pathlib import Path
 
 from jaxsocial.experiments import paths, pinned, prereg, recipes, records, rundirs, runner, summaries, verify
@@ -35,6 +34,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p = sub.add_parser("power", help=power, description=power)
     p.add_argument("recipe", choices=designed)
     _verify_parser(sub)
+    paths.add_results_help(parser)
     args = parser.parse_args(argv)
     if args.command == "verify" and args.iterations is not None and args.iterations < 1:
         parser.error(f"--iterations {args.iterations} must be >= 1")
@@ -274,7 +274,7 @@ DELEGATED = {
 
 
 def main(argv: list[str] | None = None) -> None:
-    argv = sys.argv[1:] if argv is None else argv
+    argv = paths.take_results_option(argv)
     if argv and argv[0] in DELEGATED:
         importlib.import_module(DELEGATED[argv[0]][0]).main(argv[1:])
         return

@@ -98,7 +98,7 @@ class BranchDesign:
     def source_seeds(self) -> range:
         return range(self.seed, self.seed + self.seeds)
 
-    def source_dir(self, arm: str, seed: int, records_root: Path = paths.RECORDS) -> Path:
+    def source_dir(self, arm: str, seed: int, records_root: Path) -> Path:
         """The record run `seed` of `arm` starts from."""
         return records_root / self.records / f"{self.arms[arm].source}-s{seed}-{seed}"
 
@@ -150,7 +150,7 @@ def load(name: str, designs_dir: Path = DESIGNS_DIR) -> BranchDesign:
 
 
 def branch_config(
-    design: BranchDesign, arm: str, seed: int, runs_root: Path, records_root: Path = paths.RECORDS
+    design: BranchDesign, arm: str, seed: int, runs_root: Path, records_root: Path
 ) -> TrainConfig:
     """The training config of `arm`'s branch of source seed `seed`: the source record's own config in the
     arm's environment, from the record's policy, for the design's iterations with its branch seed, evaluated
@@ -177,7 +177,7 @@ def branch_config(
     )
 
 
-def missing_sources(design: BranchDesign, records_root: Path = paths.RECORDS) -> list[str]:
+def missing_sources(design: BranchDesign, records_root: Path) -> list[str]:
     """The design's source records that hold no final policy."""
     wanted = {design.source_dir(a, s, records_root) for a in design.arms for s in design.source_seeds()}
     return sorted(str(d) for d in wanted if not (d / "policy").is_dir())
@@ -187,7 +187,7 @@ def run(
     design: BranchDesign,
     runs_root: Path,
     cores: list[int],
-    records_root: Path = paths.RECORDS,
+    records_root: Path,
     dry_run: bool = False,
     max_runs: int | None = None,
 ) -> list[int]:
@@ -215,7 +215,7 @@ def run(
     return pinned.run(pinned.first_runs(jobs, max_runs), cores, design.xla_flags)
 
 
-def record(design: BranchDesign, runs_root: Path, records_root: Path = paths.RECORDS) -> list[Path]:
+def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Path]:
     """Pack every finished branch under `runs_root` that has no record yet into the records root, with its
     process's provenance (the machine it measured); every one is checked before the first is written."""
     packing = []
@@ -249,7 +249,7 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path = paths.REC
 # ----------------------------------------------------------------------------------------------------------
 
 
-def final_scores(design: BranchDesign, records_root: Path = paths.RECORDS) -> dict[str, dict[str, list]]:
+def final_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str, list]]:
     """Per arm, per evaluation environment, every source seed's final evaluation (None: not recorded)."""
     out: dict[str, dict[str, list]] = {arm: {env: [] for env in design.eval_envs} for arm in design.arms}
     keys = {env: metrics.eval_key(str(EnvSpec.parse(env))) for env in design.eval_envs}  # as `train` logs
@@ -284,7 +284,7 @@ def tested(design: BranchDesign, family: dict[str, Test], scores: dict[str, dict
     return prereg.holm_family(out, design.alpha)
 
 
-def as_designed(design: BranchDesign, records_root: Path = paths.RECORDS) -> dict[str, Any]:
+def as_designed(design: BranchDesign, records_root: Path) -> dict[str, Any]:
     """Which recorded branches differ from the design (iterations, seed, environment, source) and whether
     every branch is recorded."""
     differing, recorded = [], 0
@@ -311,9 +311,7 @@ def as_designed(design: BranchDesign, records_root: Path = paths.RECORDS) -> dic
     return {"every_branch_recorded": recorded == every, "recorded": recorded, "differing": differing}
 
 
-def summarise(
-    design: BranchDesign, records_root: Path = paths.RECORDS, designs_dir: Path = DESIGNS_DIR
-) -> dict[str, Any]:
+def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESIGNS_DIR) -> dict[str, Any]:
     """The design's summary: per environment each arm's per-seed scores (`stats.summary`), the tests, and the
     checks that make it valid (the design committed before every run, every branch recorded as designed)."""
     scores = final_scores(design, records_root)
@@ -514,6 +512,7 @@ def describe(design: BranchDesign) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    argv = paths.take_results_option(argv)
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.branch_design")
     parser.add_argument("action", choices=("power", "run", "record", "figure"))
     parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. mixing)")
@@ -532,6 +531,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--interim", action="store_true", help="figure: summarise before every branch is recorded (unblinds)"
     )
+    paths.add_results_help(parser)
     args = parser.parse_args(argv)
     paths.require_checkout()
     try:

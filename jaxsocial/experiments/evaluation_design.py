@@ -80,7 +80,7 @@ class EvaluationDesign:
     power_simulation: dict[str, Any]
     rationale: str
 
-    def record_dirs(self, condition: str, records_root: Path = paths.RECORDS) -> list[Path]:
+    def record_dirs(self, condition: str, records_root: Path) -> list[Path]:
         """The records of `condition`, seed by seed."""
         folder = records_root / self.records
         return [folder / f"{condition}-s{s}-{s}" for s in range(self.seed, self.seed + self.seeds)]
@@ -122,7 +122,7 @@ def env_tag(env: str) -> str:
     return env.rstrip(":").replace(":", "_").replace(",", "_")
 
 
-def out_dir(design: EvaluationDesign, science: Path = paths.SCIENCE) -> Path:
+def out_dir(design: EvaluationDesign, science: Path) -> Path:
     return science / design.name
 
 
@@ -150,7 +150,7 @@ class Evaluation:
         return out / f"{env_tag(self.env)}-{self.player}.json"
 
 
-def evaluations(design: EvaluationDesign, records_root: Path = paths.RECORDS) -> list[Evaluation]:
+def evaluations(design: EvaluationDesign, records_root: Path) -> list[Evaluation]:
     """What the design plays: both arms and every reference in every environment its tests name."""
     out = []
     for env in envs(design):
@@ -163,14 +163,14 @@ def evaluations(design: EvaluationDesign, records_root: Path = paths.RECORDS) ->
     return out
 
 
-def missing_records(design: EvaluationDesign, records_root: Path = paths.RECORDS) -> list[str]:
+def missing_records(design: EvaluationDesign, records_root: Path) -> list[str]:
     """The design's records (and reference records) that hold no final policy."""
     wanted = [d for c in (design.treatment, design.control) for d in design.record_dirs(c, records_root)]
     wanted += [records_root / r.ckpt for r in design.references.values() if r.ckpt]
     return [str(d) for d in wanted if not (d / "policy").is_dir()]
 
 
-def run(design: EvaluationDesign, records_root: Path = paths.RECORDS, science: Path = paths.SCIENCE) -> None:
+def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
     """Play every evaluation of the design that has no result yet, blind (no score is printed), and log each
     process's commit, date and machine in `<out>/provenance.jsonl`. Nothing runs if a record is missing."""
     from jaxsocial import evaluate
@@ -240,7 +240,7 @@ def tested(
 
 
 def read_results(
-    design: EvaluationDesign, out: Path, records_root: Path = paths.RECORDS
+    design: EvaluationDesign, out: Path, records_root: Path
 ) -> dict[Evaluation, dict[str, Any] | None]:
     """Every evaluation of the design and its result (None: not played yet)."""
     return {
@@ -267,9 +267,7 @@ def played_as_designed(design: EvaluationDesign, results: dict[Evaluation, dict[
     )
 
 
-def summarise(
-    design: EvaluationDesign, records_root: Path = paths.RECORDS, science: Path = paths.SCIENCE
-) -> dict[str, Any]:
+def summarise(design: EvaluationDesign, records_root: Path, science: Path) -> dict[str, Any]:
     """The design's summary: per environment each arm's and reference's scores (`stats.summary` over
     policies, with every seed's) and the experts' return there; the tests; and the checks that make it
     valid (the design committed before every evaluation, every evaluation played as designed)."""
@@ -475,11 +473,13 @@ def describe(design: EvaluationDesign) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
+    argv = paths.take_results_option(argv)
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.evaluation_design")
     parser.add_argument("action", choices=("power", "run", "figure"))
     parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. transfer)")
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where results and summaries go")
+    paths.add_results_help(parser)
     args = parser.parse_args(argv)
     paths.require_checkout()
     design = load(args.design)

@@ -319,6 +319,7 @@ def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, A
 
 
 def main(argv: list[str] | None = None) -> None:
+    argv = paths.take_results_option(argv)
     parser = argparse.ArgumentParser(
         prog="python -m jaxsocial.experiments.followup", description=__doc__.split("\n")[0]
     )
@@ -349,12 +350,13 @@ def main(argv: list[str] | None = None) -> None:
     record_p.add_argument("--device", required=True, help="the machine the follow-ups ran on, in words")
     figure_p.add_argument("--records-dir", default=str(paths.RECORDS))
     figure_p.add_argument("--out-dir", default=str(paths.SCIENCE))
+    paths.add_results_help(parser)
     args = parser.parse_args(argv)
     paths.require_checkout()
     try:
         plan = Plan.of(args.recipe)
         if args.command == "run":
-            command = "python -m jaxsocial.experiments.followup " + " ".join(argv or sys.argv[1:])
+            command = "python -m jaxsocial.experiments.followup " + " ".join(argv)
             codes = run(plan, args.from_dir, args.runs_dir, args.cores, command, args.dry_run)
             sys.exit(max(codes, default=0))
         if args.command == "record":

@@ -1,11 +1,15 @@
 """Where the experiments read and write, relative to the repository root: the committed results under
 `RESULTS` (records, summaries, deviations, evidence) and the default scratch directories under `RUNS`.
 
-Every other module of `jaxsocial.experiments` names these paths through this one; a command-line default
-is the path as a string (`str(paths.RECORDS)`), since commands are written into the summaries."""
+Every other module of `jaxsocial.experiments` names these paths through this one, read when a command runs
+(never bound at import), so every command's `--results DIR` moves them all (`take_results_option`). A
+command-line default is the path as a string (`str(paths.RECORDS)`), since commands are written into the
+summaries."""
 
 from __future__ import annotations
 
+import argparse
+import sys
 from pathlib import Path
 
 RESULTS = Path("benchmarks/results")
@@ -43,12 +47,50 @@ SWEEP_RUNS = RUNS / "sweep"
 """The exploratory sweep's run directories."""
 
 
+RESULTS_HELP = (
+    f"the committed results to read and write (default: {RESULTS}, from the root of a checkout); the run "
+    "directories stay under the working directory"
+)
+"""The help of every experiments command's `--results DIR`."""
+
+
+def use_results(root: Path) -> None:
+    """Read and write the committed results under `root` in place of `RESULTS`: every path here under
+    `RESULTS` moves with it (the run directories under `RUNS` stay)."""
+    names = globals()
+    old = names["RESULTS"]
+    for name, value in list(names.items()):
+        if isinstance(value, Path) and value.is_relative_to(old):
+            names[name] = root / value.relative_to(old)
+
+
+def take_results_option(argv: list[str] | None) -> list[str]:
+    """Every experiments command's first step: read `--results DIR` (anywhere in `argv`, default
+    `sys.argv[1:]`) and point the committed results there (`use_results`); return the other arguments, to
+    parse with a parser made after this, so that its defaults name DIR. That parser lists the option for
+    its help (`add_results_help`)."""
+    early = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    early.add_argument("--results", type=Path)
+    known, rest = early.parse_known_args(sys.argv[1:] if argv is None else argv)
+    if known.results is not None:
+        use_results(known.results)
+    return rest
+
+
+def add_results_help(parser: argparse.ArgumentParser) -> None:
+    """List `--results DIR` in `parser`'s help (`take_results_option` has read it before parsing)."""
+    parser.add_argument("--results", metavar="DIR", help=RESULTS_HELP)
+
+
 def require_checkout() -> None:
-    """Stop with a clear error, before anything is read or written, where the working directory holds no
-    `RESULTS`: the experiments work on a checkout of the repository, from its root."""
+    """Stop with a clear error, before anything is read or written, where `RESULTS` is not a folder: the
+    experiments work on the committed results of a checkout of the repository, from its root or through
+    `--results DIR`."""
     if not RESULTS.is_dir():
+        where = f"{RESULTS}/ in {Path.cwd()}" if not RESULTS.is_absolute() else f"{RESULTS}/"
         raise SystemExit(
-            f"error: no {RESULTS}/ in {Path.cwd()}: the experiments read and write the committed results "
-            "of a checkout of the repository; run them from the root of a clone (an installed jaxsocial "
-            "package holds the library, not the experiments' records)"
+            f"error: no {where}: the experiments read and write the committed results of a checkout of the "
+            "repository; run them from the root of a clone, or name its results with --results DIR (e.g. "
+            "--results ~/jaxsocial/benchmarks/results; an installed jaxsocial package holds the library, "
+            "not the experiments' records)"
         )

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import commits, paths, xla_flags
+from jaxsocial.experiments import commits, xla_flags
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
@@ -89,7 +89,7 @@ class Design:
         return {"treatment": self.seeds * len(self.treatment), "control": self.seeds * len(self.control)}
 
 
-def deviations(name: str, directory: Path = paths.DEVIATIONS) -> list[dict[str, str]]:
+def deviations(name: str, directory: Path) -> list[dict[str, str]]:
     """The recorded deviations of design `name` ([] where there are none): `directory/<name>.json`, what
     happened to its runs that its rules did not foresee ({"deviations": [{"date", "what"}, ...]}), carried
     into its summary's `preregistered` block and verdict."""

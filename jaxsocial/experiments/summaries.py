@@ -20,7 +20,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import kinds, prereg, recipes, records, rundirs
+from jaxsocial.experiments import kinds, paths, prereg, recipes, records, rundirs
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import config, logs, metrics
@@ -204,7 +204,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         )
         problems = design_problems(runs, design)
         out["preregistered"]["problems"] = problems
-        out["preregistered"]["deviations"] = prereg.deviations(design.name)
+        out["preregistered"]["deviations"] = prereg.deviations(design.name, paths.DEVIATIONS)
         checks = out["preregistered"]["checks"]
         out["preregistered"]["valid"] = not problems and all(
             v for v in checks.values() if isinstance(v, bool)

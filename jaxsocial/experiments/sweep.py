@@ -329,6 +329,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = sub.add_parser("figure", help="summary JSON and figure of every recorded setting")
     p.add_argument("--records-dir", default=str(paths.RECORDS))
     p.add_argument("--out", default=str(paths.SWEEP_SUMMARY), help="path without suffix")
+    paths.add_results_help(parser)
     args = parser.parse_args(argv)
     if args.command in ("run", "record") and any(not 0 <= s < 100 for s in args.seeds):
         parser.error("the sweep is exploratory: seeds must be in 0-99 (confirmatory designs use 200 and up)")
@@ -336,7 +337,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(argv)
+    args = parse_args(paths.take_results_option(argv))
     paths.require_checkout()
     if args.command == "list":
         for s in SETTINGS.values():

@@ -185,11 +185,11 @@ POOLED_AT = (4_000_000, 6_000_000, 8_000_000, 11_993_088, 20_000_000)
 """Env-steps at which the pooled summaries read the fraction past the plateau (11,993,088: `experts`'
 budget)."""
 POOLED = {
-    paths.POOLED_SUMMARY: EVIDENCE_DESIGNS,
-    paths.POOLED_ALL_SUMMARY: (*EVIDENCE_DESIGNS, "experts"),
+    paths.POOLED_SUMMARY.name: EVIDENCE_DESIGNS,
+    paths.POOLED_ALL_SUMMARY.name: (*EVIDENCE_DESIGNS, "experts"),
 }
-"""Pooled summary -> the laptop designs it pools: the evidence that chose `experts`, and every fresh seed of
-the laptop PPO + rec learner (the rate the README quotes)."""
+"""Pooled summary (its file name in `paths.SCIENCE`) -> the laptop designs it pools: the evidence that chose
+`experts`, and every fresh seed of the laptop PPO + rec learner (the rate the README quotes)."""
 
 
 def kaplan_meier_at(curve: dict[str, list[float]], steps: int) -> dict[str, Any]:
@@ -239,10 +239,13 @@ def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, An
 
 def main(argv: list[str] | None = None) -> None:
     """Write the `POOLED` summaries from the committed records (no arguments)."""
+    argv = paths.take_results_option(argv)
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments pooled", description=main.__doc__)
+    paths.add_results_help(parser)
     parser.parse_args(argv)
     paths.require_checkout()
-    for path, designs in POOLED.items():
+    for name, designs in POOLED.items():
+        path = paths.SCIENCE / name
         summary = pooled_summary(paths.RECORDS, designs)
         logs.write_json(path, summary, indent=1)
         print(f"{', '.join(designs)}:")
