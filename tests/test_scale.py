@@ -76,48 +76,50 @@ def test_seeds_in_one_program_equal_separate_runs(tmp_path, single_runs, two_see
         assert metrics_without_speed(resumed / f"s{seed}") == metrics_without_speed(run_dir / f"s{seed}")
 
 
-@pytest.mark.slow  # three subprocesses compile programs of their own (multi-device equality)
-def test_devices_and_processes_match_one_device(tmp_path, single_runs):
-    """Two host devices in one process (two seeds, seeds mapped) and two processes with one device each
-    give the metrics of one device; the two-device run fills a compilation cache."""
-    cli = [sys.executable, "-m", "jaxsocial.train", *TINY_RUN_FLAGS, "--runs-dir", str(tmp_path)]
-    two_devices = subprocess.Popen(
-        [*cli, "--run-name", "d2", "--devices", "2", "--seeds", "2", "--seed-batching", "map"]
-        + ["--compile-cache", str(tmp_path / "cache")],
-        env=env_with(XLA_FLAGS=f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    coordinator = f"127.0.0.1:{free_port()}"
-    processes = [
-        subprocess.Popen(
-            [*cli, "--run-name", "p2", "--coordinator", coordinator, "--num-processes", "2"]
-            + ["--process-id", str(i)],
-            env=env_with(),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for i in range(2)
-    ]
-    for proc in [two_devices, *processes]:
+def _train(cli: list[str], processes: int = 1, **env: str) -> None:
+    """Run the training command `cli` in `processes` processes at once (process ids 0.. through a local
+    coordinator when more than one), with `env` added; each must exit 0."""
+    if processes > 1:
+        coordinator = ["--coordinator", f"127.0.0.1:{free_port()}", "--num-processes", str(processes)]
+        commands = [[*cli, *coordinator, "--process-id", str(i)] for i in range(processes)]
+    else:
+        commands = [cli]
+    pipes = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True}
+    started = [subprocess.Popen(command, env=env_with(**env), **pipes) for command in commands]
+    for proc in started:
         _, err = proc.communicate(timeout=300)
         assert proc.returncode == 0, err[-3000:]
+
+
+@pytest.mark.slow  # a subprocess with two host devices compiles programs of its own
+def test_two_devices_match_one_device_and_fill_a_compile_cache(tmp_path, single_runs):
+    """Two host devices in one process (two seeds, seeds mapped) give the metrics of one device; the run
+    fills a compilation cache, which the cache's command clears."""
+    cli = [sys.executable, "-m", "jaxsocial.train", *TINY_RUN_FLAGS, "--runs-dir", str(tmp_path)]
+    cli += ["--run-name", "d2", "--devices", "2", "--seeds", "2", "--seed-batching", "map"]
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=2"
+    _train([*cli, "--compile-cache", str(tmp_path / "cache")], XLA_FLAGS=flags)
     for seed, single in enumerate(single_runs):
         assert_same_metrics(tmp_path / "d2" / f"s{seed}", single)
-    assert_same_metrics(tmp_path / "p2", tmp_path / "d2" / "s0")
-    assert checkpoint.all_steps(tmp_path / "p2" / "checkpoints") == [2, 4]
     assert compile_cache.entries(tmp_path / "cache")
-    done = subprocess.run(
+    cleared = subprocess.run(
         [sys.executable, "-m", "jaxsocial.run.compile_cache", str(tmp_path / "cache"), "--clear"],
         env=env_with(),
         capture_output=True,
         text=True,
         timeout=120,
     )
-    assert done.returncode == 0 and "cleared" in done.stdout, done.stderr
+    assert cleared.returncode == 0 and "cleared" in cleared.stdout, cleared.stderr
     assert not compile_cache.entries(tmp_path / "cache")
+
+
+@pytest.mark.slow  # two subprocesses compile programs of their own (multi-process equality)
+def test_two_processes_match_one_device(tmp_path, single_runs):
+    """Two processes with one device each, through a local coordinator, give the metrics of one device."""
+    cli = [sys.executable, "-m", "jaxsocial.train", *TINY_RUN_FLAGS, "--runs-dir", str(tmp_path)]
+    _train([*cli, "--run-name", "p2"], processes=2)
+    assert_same_metrics(tmp_path / "p2", single_runs[0])
+    assert checkpoint.all_steps(tmp_path / "p2" / "checkpoints") == [2, 4]
 
 
 @pytest.mark.parametrize(
