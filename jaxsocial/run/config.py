@@ -299,24 +299,55 @@ def _check_stage(
 
 
 def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
-    """Validate the config (every stage) and load frozen policies; raises ValueError before anything
-    compiles. Builds each stage's environment once (`jaxsocial.make`); a run calls this once."""
-    stages = cfg.stages
-    _, env_params = registry.make(cfg.env, **cfg.env_overrides)
+    """Validate the config (its settings, then every stage's environment and the slots in it) and load frozen
+    policies; raises ValueError before anything compiles. Builds each stage's environment once
+    (`jaxsocial.make`); a run calls this once."""
+    _check_settings(cfg)
+    stages = range(len(cfg.stages))
+    overrides = [
+        cfg.env_overrides,
+        *({**cfg.env_overrides, **schedule.overrides_at(cfg.stages, i)} for i in stages),
+    ]
+    stage_envs = tuple(registry.make(cfg.env, **o)[1] for o in overrides)  # before the stages, then each
+    env_params = stage_envs[0]
     pop = population.Population(population.run_slots(cfg.slots, env_params))
-    _check_stage(cfg, env_params, env_params, pop, "--env-args")
-    stage_envs = [env_params]
-    for index in range(len(stages)):
-        overrides = {**cfg.env_overrides, **schedule.overrides_at(stages, index)}
-        stage_params = registry.make(cfg.env, **overrides)[1]
-        _check_stage(cfg, stage_params, env_params, pop, f"stage {index}")
-        stage_envs.append(stage_params)
+    wheres = ["--env-args", *(f"stage {i}" for i in stages)]
+    for where, stage_params in zip(wheres, stage_envs, strict=True):
+        _check_stage(cfg, stage_params, env_params, pop, where)
+    _check_learners(cfg, env_params, pop)
+    frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
+    return Setup(env_params, pop, cfg.stages, frozen, stage_envs)
+
+
+def _check_settings(cfg: TrainConfig) -> None:
+    """ValueError for a setting out of range, checked without building anything."""
     if cfg.algo not in ALGOS:
         raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
     for name in ("num_envs", "rollout_steps", "keep_checkpoints"):
         value = getattr(cfg, name)
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise ValueError(f"{name}={value!r} must be a whole number >= 1 (for every --algo)")
+    for name in ("iterations", "chunk_iterations", "checkpoint_every"):
+        if getattr(cfg, name) < 1:
+            raise ValueError(f"{name}={getattr(cfg, name)} must be >= 1")
+    if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
+        raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
+    if cfg.on_nonfinite not in ON_NONFINITE:
+        raise ValueError(f"unknown on_nonfinite {cfg.on_nonfinite!r}; choose from {ON_NONFINITE}")
+    if cfg.seed_batching not in SEED_BATCHING:
+        raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
+    if cfg.eval_envs and cfg.eval_every < 1:
+        raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
+    if cfg.seeds > 1 and any(stage.threshold is not None for stage in cfg.stages):
+        raise ValueError(
+            "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
+            "triggered by the return would start at another iteration for each seed: train them one by one"
+        )
+
+
+def _check_learners(cfg: TrainConfig, env_params: EnvParams, pop: population.Population) -> None:
+    """ValueError where the learners' algorithm, network or evaluation does not fit the slots `pop` of the
+    environment `env_params`."""
     if cfg.algo == "bc" and not pop.demonstrators:
         raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
     if cfg.algo == "bc" and cfg.net.n_actions != NUM_ACTIONS:
@@ -333,26 +364,8 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         )
     if cfg.algo == "ppo":
         ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
-    for name in ("iterations", "chunk_iterations", "checkpoint_every"):
-        if getattr(cfg, name) < 1:
-            raise ValueError(f"{name}={getattr(cfg, name)} must be >= 1")
-    if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
-        raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
-    if cfg.on_nonfinite not in ON_NONFINITE:
-        raise ValueError(f"unknown on_nonfinite {cfg.on_nonfinite!r}; choose from {ON_NONFINITE}")
-    if cfg.seed_batching not in SEED_BATCHING:
-        raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
     if cfg.eval_envs:
-        if cfg.eval_every < 1:
-            raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
         specs.check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
-    if cfg.seeds > 1 and any(stage.threshold is not None for stage in stages):
-        raise ValueError(
-            "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
-            "triggered by the return would start at another iteration for each seed: train them one by one"
-        )
-    frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
-    return Setup(env_params, pop, stages, frozen, tuple(stage_envs))
 
 
 def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig:
