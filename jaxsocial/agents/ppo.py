@@ -106,10 +106,7 @@ class Batch(NamedTuple):
     values: float32[T+1, E] the rollout policy's values (the last of the bootstrap step) and segment_carries:
     its LSTM states before each segment's first step (Carry of float32[C, E, H]); both given, they are the
     targets of minibatch 0 (`rollout_targets`: what its recompute would compute, without the unroll), both
-    None, minibatch 0 recomputes them.
-    The rollout records each step in the same class (`rollout.record_learners`: no time axis, carry0 None,
-    segment_carries every step's LSTM state; obs, actions and valid of the training slots), and `ppo_batch`
-    adds both.
+    None, minibatch 0 recomputes them. The rollout makes it of its steps (`rollout.ppo_batch`).
     """
 
     obs: jax.Array

@@ -47,6 +47,29 @@ def observers(pop: population.Population, algo: str) -> tuple[int, ...]:
     return pop.observers(cloned=algo == "bc")
 
 
+class LearnerStep(NamedTuple):
+    """The learners' record of one rollout step (`record_learners`); the scan stacks them into [T, ...] and
+    `ppo_batch` makes each learner's `ppo.Batch` of them. Leaves in `ppo.Batch`'s order.
+
+    obs: uint8[E, S_l, 21, 21, 3] (symbolic: int8[E, S_l, 7, 7, 4]) the learners' views; resets: bool[E];
+    actions: int32[S_l, E]; logp, rewards, final_values, values: float32[S_l, E]; terminated, agent_done,
+    valid: bool[S_l, E]; attention: int32[S_l, E, N-1] with an attention head (`observe.attention_targets`),
+    else None; carry: the learners' LSTM states before the step (Carry of float32[S_l, E, H])."""
+
+    obs: jax.Array
+    resets: jax.Array
+    actions: jax.Array
+    logp: jax.Array
+    rewards: jax.Array
+    terminated: jax.Array
+    agent_done: jax.Array
+    final_values: jax.Array
+    valid: jax.Array
+    attention: jax.Array | None
+    values: jax.Array
+    carry: network.Carry
+
+
 @dataclasses.dataclass(frozen=True)
 class Wiring:
     """The static side of one program: its slots `pop` in the environment `env_params`, the network, the
@@ -239,13 +262,13 @@ def ended_episodes(state: RunnerState, reward: jax.Array, done: jax.Array):
 
 def record_learners(
     w: Wiring, state: RunnerState, actions, logp, values, reward, terminated, info: dict, final_values
-) -> ppo.Batch:
-    """The learners' step, a `ppo.Batch` without the time axis (see `ppo_batch`), from the step's `state`
-    (before it), every slot's actions int32[E, N], the neural slots' logp and values float32[S, E], every
-    agent's reward float32[E, N] and terminated bool[E, N], `info` and `truncation_values`."""
+) -> LearnerStep:
+    """The learners' step from the step's `state` (before it), every slot's actions int32[E, N], the neural
+    slots' logp and values float32[S, E], every agent's reward float32[E, N] and terminated bool[E, N],
+    `info` and `truncation_values`."""
     n_learners = w.n_learners
     agent_done = terminated | info["done"][:, None]
-    return ppo.Batch(
+    return LearnerStep(
         obs=state.obs[:, w.training_views],
         resets=state.resets,
         actions=actions[:, w.training_slots].T,
@@ -255,10 +278,9 @@ def record_learners(
         agent_done=agent_done[:, w.learners].T,
         final_values=final_values[:n_learners],
         valid=state.env_states.active[:, w.training_slots].T,
-        carry0=None,
         attention=attention_targets(w, state.env_states),
         values=values[:n_learners],
-        segment_carries=jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
+        carry=jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
     )
 
 
@@ -273,7 +295,7 @@ def record_demonstrations(w: Wiring, state: RunnerState, actions: jax.Array) -> 
 
 
 def ppo_batch(
-    traj: ppo.Batch,
+    traj: LearnerStep,
     last_obs: jax.Array,
     last_resets: jax.Array,
     last_values: jax.Array,
@@ -281,26 +303,29 @@ def ppo_batch(
     segment_length: int,
 ) -> ppo.Batch:
     """The learners' `ppo.Batch`es, stacked [S_l, T(+1), E, ...], of a rollout `traj` (the scan-stacked
-    steps, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...], `last_resets`
-    bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the learners' LSTM
-    states `carry0`; the segment-start states are those before every `segment_length`-th step.
-
-    A rollout step (`record_learners`) is a `ppo.Batch` without the time axis and with carry0 None: obs uint8
-    or int8 [E, S_l, ...] (the learners' views), resets bool[E], actions int32[S_l, E], valid bool[S_l, E],
-    logp, rewards, values, final_values float32[S_l, E], terminated, agent_done bool[S_l, E], segment_carries
-    the LSTM states before the step (Carry of float32[S_l, E, H]) and attention int32[S_l, E, N-1] with an
-    attention head (`observe.attention_targets`), else None."""
+    `LearnerStep`s, [T, ...]) that ended with the learners' observations `last_obs` [E, S_l, ...],
+    `last_resets` bool[E] and values `last_values` float32[S_l, E] (the bootstrap step), starting from the
+    learners' LSTM states `carry0`; the segment-start states are those before every `segment_length`-th
+    step."""
     obs = jnp.concatenate([traj.obs, last_obs[None]], 0)  # [T + 1, E, S_l, ...]
     resets = jnp.concatenate([traj.resets, last_resets[None]], 0)  # [T + 1, E], shared by the learners
     n_learners = last_obs.shape[1]
     per_learner = traj._replace(obs=None, resets=None)  # the rest are [T, S_l, E, ...]
-    batch = jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)
-    return batch._replace(
+    step = jax.tree.map(lambda x: jnp.moveaxis(x, 1, 0), per_learner)
+    return ppo.Batch(
         obs=jnp.moveaxis(obs, 2, 0),
         resets=jnp.broadcast_to(resets, (n_learners, *resets.shape)),
-        values=jnp.concatenate([batch.values, last_values[:, None]], 1),
-        segment_carries=jax.tree.map(lambda c: c[:, ::segment_length], batch.segment_carries),
+        actions=step.actions,
+        logp=step.logp,
+        rewards=step.rewards,
+        terminated=step.terminated,
+        agent_done=step.agent_done,
+        final_values=step.final_values,
+        valid=step.valid,
         carry0=carry0,
+        attention=step.attention,
+        values=jnp.concatenate([step.values, last_values[:, None]], 1),
+        segment_carries=jax.tree.map(lambda c: c[:, ::segment_length], step.carry),
     )
 
 
