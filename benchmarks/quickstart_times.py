@@ -1,14 +1,14 @@
-"""How long the README's Quickstart commands take on this machine, as a newcomer runs them: each command in a
-fresh process with an empty compilation cache, one after another, wall-clock seconds (compile included).
+"""How long the README's set-up and Quickstart commands take on this machine, as a newcomer runs them: each
+command as written (the same iterations), in a fresh process with an empty compilation cache, one after
+another, wall-clock seconds (compile included). Nothing is projected.
 
-The learner trained by the first command is the one the evaluation, rendering and plotting commands read.
-Three learners train 50 iterations here; the seconds of the README's 500 follow from the run's own
-`compile_s` and env-steps/s (`three_learners_500`), as do those of the set-up command's 500 iterations from
-the first run (`train_500`).
+The learner trained by the set-up command (`setup_train`, 500 iterations) is the one the evaluation, rendering
+and plotting commands read.
 
     python benchmarks/quickstart_times.py --out benchmarks/results/quickstart_times.json
 
-Writes JSON with the CPU model, the commit and the load average (`run_info.metadata`).
+Writes JSON with the CPU model, the commit and the load average at the start and the end
+(`run_info.metadata`); quote it only from a quiet machine (a 1-minute load under 1 at the start).
 """
 
 from __future__ import annotations
@@ -23,18 +23,16 @@ from pathlib import Path
 
 import run_info
 
-from jaxsocial.run import logs, metrics
-
-SHORT = "short"
+SETUP_RUN = "goalcycle3-s0"
 COMMANDS = {
-    "train_200": ["jaxsocial.train", "--env", "goalcycle3", "--iterations", "200", "--run-name", SHORT],
-    "three_learners_50": [
-        "jaxsocial.train", "--env", "goalcycle3", "--slots", "learner,learner,learner", "--iterations", "50",
-        "--run-name", "three",
+    "setup_train": ["jaxsocial.train", "--env", "goalcycle3"],
+    "train_200": ["jaxsocial.train", "--env", "goalcycle3", "--iterations", "200", "--run-name", "short"],
+    "three_learners": [
+        "jaxsocial.train", "--env", "goalcycle3", "--slots", "learner,learner,learner", "--run-name", "three",
     ],
-    "evaluate": ["jaxsocial.evaluate", "--ckpt", f"RUNS/{SHORT}", "--env", "fourrooms"],
-    "render": ["jaxsocial.render", "--ckpt", f"RUNS/{SHORT}", "--out", "RUNS/learner.gif"],
-    "plot": ["jaxsocial.plot", f"RUNS/{SHORT}", "--out", "RUNS/curves.png"],
+    "evaluate": ["jaxsocial.evaluate", "--ckpt", f"RUNS/{SETUP_RUN}", "--env", "fourrooms"],
+    "render": ["jaxsocial.render", "--ckpt", f"RUNS/{SETUP_RUN}", "--out", "RUNS/learner.gif"],
+    "plot": ["jaxsocial.plot", f"RUNS/{SETUP_RUN}", "--out", "RUNS/curves.png"],
 }  # fmt: skip
 """name -> `python -m` arguments ('RUNS' is the runs directory)."""
 
@@ -50,16 +48,6 @@ def timed(args: list[str], runs: Path, cache: Path) -> float:
     return time.perf_counter() - t0
 
 
-def projected(run_dir: Path, iterations: int) -> float:
-    """Seconds a run like `run_dir` takes for `iterations`: its compile seconds and its mean env-steps/s
-    after the first chunk (whose rate includes the all-reset first rollout)."""
-    rows, config = logs.read_metrics(run_dir), logs.read_config(run_dir)
-    later = [r for r in rows if r[metrics.ITERATION] > config["chunk_iterations"]] or rows
-    steps_per_s = sum(r[metrics.SPEED] for r in later) / len(later)
-    seconds = iterations * metrics.steps_per_iteration(config) / steps_per_s
-    return rows[0].get(metrics.COMPILE_S, 0.0) + seconds
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default=None, help="JSON results")
@@ -71,9 +59,6 @@ def main() -> None:
         for name, command in COMMANDS.items():
             seconds[name] = timed(command, runs, Path(work) / f"cache-{name}")
             print(f"{name}: {seconds[name]:.1f} s", flush=True)
-        for name, run in (("train_500", SHORT), ("three_learners_500", "three")):
-            seconds[name] = projected(runs / run, 500)
-            print(f"{name} (projected from its run): {seconds[name]:.0f} s", flush=True)
     if args.out:
         run_info.write_results(args.out, meta, {"seconds": seconds})
 
