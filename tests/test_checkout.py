@@ -60,7 +60,7 @@ def test_results_dir_moves_every_results_path_and_the_parsers_defaults(results_m
         "EVIDENCE": "/r/science/experts-evidence",
         "EXPERIMENT_RUNS": str(runs),  # the run directories stay
     }
-    args = sweep.parse_args(["figure"])
+    args = sweep.make_parser().parse_args(["figure"])
     assert (args.records_dir, args.out) == ("/r/records", "/r/science/sweep")
 
 

@@ -20,7 +20,7 @@ RECIPE_COMMANDS = {
 """The subcommands that act on a recipe's conditions and seeds, and their help."""
 
 
-def parse_args(argv: list[str]) -> argparse.Namespace:
+def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="the recipes, their conditions and the scales")
@@ -34,15 +34,22 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
     p = sub.add_parser("power", help=power, description=power)
     p.add_argument("recipe", choices=designed)
     _verify_parser(sub)
-    paths.add_results_help(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """The command line, after `--results DIR` is read, checked, with the committed results found."""
+    return paths.parse_command(make_parser, argv, check_args)
+
+
+def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The combinations of options the parser cannot refuse alone, each through `parser.error`."""
     if args.command == "verify" and args.iterations is not None and args.iterations < 1:
         parser.error(f"--iterations {args.iterations} must be >= 1")
     if args.command in RECIPE_COMMANDS:
         _seed_range(parser, args)
     if args.command == "record" and args.commands_log and None in (args.device, args.jax):
         parser.error("--commands-log: give --device and --jax, what its runs trained on (not measured here)")
-    return args
 
 
 def _recipe_parser(sub, name: str, help_: str) -> argparse.ArgumentParser:
@@ -279,7 +286,6 @@ def main(argv: list[str] | None = None) -> None:
         importlib.import_module(DELEGATED[argv[0]][0]).main(argv[1:])
         return
     args = parse_args(argv)
-    paths.require_checkout()
     if args.command == "list":
         list_recipes()
         return

@@ -511,8 +511,7 @@ def describe(design: BranchDesign) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> None:
-    argv = paths.take_results_option(argv)
+def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.branch_design")
     parser.add_argument("action", choices=("power", "run", "record", "figure"))
     parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. mixing)")
@@ -531,9 +530,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--interim", action="store_true", help="figure: summarise before every branch is recorded (unblinds)"
     )
-    paths.add_results_help(parser)
-    args = parser.parse_args(argv)
-    paths.require_checkout()
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = paths.parse_command(make_parser, argv)
     try:
         design = load(args.design)
         records_root, runs_root, science = Path(args.records), Path(args.runs_dir), Path(args.science)

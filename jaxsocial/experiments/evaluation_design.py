@@ -472,16 +472,17 @@ def describe(design: EvaluationDesign) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> None:
-    argv = paths.take_results_option(argv)
+def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.evaluation_design")
     parser.add_argument("action", choices=("power", "run", "figure"))
     parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. transfer)")
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where results and summaries go")
-    paths.add_results_help(parser)
-    args = parser.parse_args(argv)
-    paths.require_checkout()
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = paths.parse_command(make_parser, argv)
     design = load(args.design)
     records_root, science = Path(args.records), Path(args.science)
     if args.action == "power":

@@ -318,8 +318,7 @@ def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, A
     }
 
 
-def main(argv: list[str] | None = None) -> None:
-    argv = paths.take_results_option(argv)
+def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m jaxsocial.experiments.followup", description=__doc__.split("\n")[0]
     )
@@ -350,9 +349,12 @@ def main(argv: list[str] | None = None) -> None:
     record_p.add_argument("--device", required=True, help="the machine the follow-ups ran on, in words")
     figure_p.add_argument("--records-dir", default=str(paths.RECORDS))
     figure_p.add_argument("--out-dir", default=str(paths.SCIENCE))
-    paths.add_results_help(parser)
-    args = parser.parse_args(argv)
-    paths.require_checkout()
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    args = paths.parse_command(make_parser, argv)
     try:
         plan = Plan.of(args.recipe)
         if args.command == "run":

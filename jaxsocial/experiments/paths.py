@@ -2,7 +2,7 @@
 `RESULTS` (records, summaries, deviations, evidence) and the default scratch directories under `RUNS`.
 
 Every other module of `jaxsocial.experiments` names these paths through this one, read when a command runs
-(never bound at import), so every command's `--results DIR` moves them all (`take_results_option`). A
+(never bound at import), so every command's `--results DIR` moves them all (`parse_command`). A
 command-line default is the path as a string (`str(paths.RECORDS)`), since commands are written into the
 summaries."""
 
@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 RESULTS = Path("benchmarks/results")
@@ -65,10 +66,8 @@ def use_results(root: Path) -> None:
 
 
 def take_results_option(argv: list[str] | None) -> list[str]:
-    """Every experiments command's first step: read `--results DIR` (anywhere in `argv`, default
-    `sys.argv[1:]`) and point the committed results there (`use_results`); return the other arguments, to
-    parse with a parser made after this, so that its defaults name DIR. That parser lists the option for
-    its help (`add_results_help`)."""
+    """Read `--results DIR` (anywhere in `argv`, default `sys.argv[1:]`) and point the committed results
+    there (`use_results`); return the other arguments."""
     early = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     early.add_argument("--results", type=Path)
     known, rest = early.parse_known_args(sys.argv[1:] if argv is None else argv)
@@ -77,9 +76,23 @@ def take_results_option(argv: list[str] | None) -> list[str]:
     return rest
 
 
-def add_results_help(parser: argparse.ArgumentParser) -> None:
-    """List `--results DIR` in `parser`'s help (`take_results_option` has read it before parsing)."""
+def parse_command(
+    make_parser: Callable[[], argparse.ArgumentParser],
+    argv: list[str] | None,
+    check: Callable[[argparse.ArgumentParser, argparse.Namespace], None] | None = None,
+) -> argparse.Namespace:
+    """Every experiments command's parsing, in order: read `--results DIR` first (`take_results_option`);
+    make the command's parser after it, so that its defaults name DIR, and list the option in its help;
+    parse the other arguments; run `check(parser, args)`, which reports bad combinations through
+    `parser.error`; then stop where there are no committed results (`require_checkout`)."""
+    rest = take_results_option(argv)
+    parser = make_parser()
     parser.add_argument("--results", metavar="DIR", help=RESULTS_HELP)
+    args = parser.parse_args(rest)
+    if check is not None:
+        check(parser, args)
+    require_checkout()
+    return args
 
 
 def require_checkout() -> None:

@@ -293,7 +293,7 @@ def map_table(found: dict[str, Any]) -> list[str]:
     return lines
 
 
-def parse_args(argv: list[str] | None) -> argparse.Namespace:
+def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m jaxsocial.experiments.sweep", description=__doc__.split("\n")[0]
     )
@@ -329,16 +329,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = sub.add_parser("figure", help="summary JSON and figure of every recorded setting")
     p.add_argument("--records-dir", default=str(paths.RECORDS))
     p.add_argument("--out", default=str(paths.SWEEP_SUMMARY), help="path without suffix")
-    paths.add_results_help(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def check_seeds(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """The sweep is exploratory: its seeds are below 100."""
     if args.command in ("run", "record") and any(not 0 <= s < 100 for s in args.seeds):
         parser.error("the sweep is exploratory: seeds must be in 0-99 (confirmatory designs use 200 and up)")
-    return args
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_args(paths.take_results_option(argv))
-    paths.require_checkout()
+    args = paths.parse_command(make_parser, argv, check_seeds)
     if args.command == "list":
         for s in SETTINGS.values():
             print(f"{s.name}: {s.condition} {shlex.join(s.flags)}, {s.iterations} iterations\n  {s.why}")

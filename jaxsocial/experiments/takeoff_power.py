@@ -239,11 +239,8 @@ def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, An
 
 def main(argv: list[str] | None = None) -> None:
     """Write the `POOLED` summaries from the committed records (no arguments)."""
-    argv = paths.take_results_option(argv)
-    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments pooled", description=main.__doc__)
-    paths.add_results_help(parser)
-    parser.parse_args(argv)
-    paths.require_checkout()
+    prog = "python -m jaxsocial.experiments pooled"
+    paths.parse_command(lambda: argparse.ArgumentParser(prog=prog, description=main.__doc__), argv)
     for name, designs in POOLED.items():
         path = paths.SCIENCE / name
         summary = pooled_summary(paths.RECORDS, designs)
