@@ -126,6 +126,14 @@ def test_output_shapes_and_decode(small_params):
     assert out1.hidden.shape == carry1.h.shape == (B, cfg.hidden)
 
 
+def test_params_of_another_shape_are_named(small_params):
+    """Applying params whose layer has another shape than the network's says which, before it computes."""
+    wide = dataclasses.replace(SMALL, hidden=SMALL.hidden + 1)
+    obs = _obs(1, (B, *net.OBS_SHAPE))
+    with pytest.raises(ValueError, match=r"^fc/kernel: the params hold \(45, 8\), the network \(45, 9\)"):
+        step(small_params, wide, net.initial_carry(wide, (B,)), obs, jnp.zeros((B,), bool))
+
+
 def test_matmul_equals_xla_conv(small_params):
     """Both conv implementations compute the same function of the same params, and the same gradients.
 

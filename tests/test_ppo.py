@@ -324,7 +324,8 @@ def one_step(state, m, key, batch, cfg=CFG):
     step = functools.partial(
         ppo.minibatch_step, first=(state.params, state.opt_state), batch=batch, net_cfg=NET
     )
-    return jax.jit(functools.partial(ppo.step_or_skip, functools.partial(step, ppo_cfg=cfg)))(state, (m, key))
+    step_or_skip = functools.partial(ppo.step_or_skip, functools.partial(step, ppo_cfg=cfg), NET)
+    return jax.jit(step_or_skip)(state, (m, key))
 
 
 def test_a_minibatch_step_is_one_optimiser_step_on_its_drawn_segments(setup):

@@ -22,7 +22,7 @@ from jax.ad_checkpoint import checkpoint_name
 from jaxsocial.agents.fast import conv
 from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.fast.frame_batches import SAVED, leaky_relu, leaky_relu_unsaved, map_frame_batches
-from jaxsocial.agents.initialisers import Init, param
+from jaxsocial.agents.initialisers import ZEROS, Init, param
 from jaxsocial.agents.network_config import ATTENTION_CLASSES, OBS_SHAPE, STRIDES, NetworkConfig
 from jaxsocial.agents.paper_net import LSTM, MLP, Carry, Dense, Output
 from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_VOCAB, symbolic_classes, symbolic_errors
@@ -58,7 +58,7 @@ class Embed(nn.Module):
     @nn.compact
     def __call__(self, cells: jax.Array) -> jax.Array:
         kernel = param(self, "kernel", Init("normal", 1.0), (SYMBOLIC_VOCAB, self.features))
-        return kernel[symbolic_classes(cells)].sum(-2) + param(self, "bias", Init("zeros"), (self.features,))
+        return kernel[symbolic_classes(cells)].sum(-2) + param(self, "bias", ZEROS, (self.features,))
 
 
 class Encoder(nn.Module):

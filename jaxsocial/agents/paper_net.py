@@ -31,7 +31,7 @@ from jax import lax
 from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.fast.frame_batches import LEAKY_SLOPE
 from jaxsocial.agents.fast.precision import matmul
-from jaxsocial.agents.initialisers import Init, param
+from jaxsocial.agents.initialisers import ZEROS, Init, param
 from jaxsocial.agents.network_config import ATTENTION_CLASSES, OBS_SHAPE, STRIDES, NetworkConfig
 
 
@@ -61,7 +61,7 @@ class Dense(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         kernel = param(self, "kernel", Init("orthogonal", self.gain), (x.shape[-1], self.features))
-        return matmul(x, kernel, self.dtype) + param(self, "bias", Init("zeros"), (self.features,))
+        return matmul(x, kernel, self.dtype) + param(self, "bias", ZEROS, (self.features,))
 
 
 class MLP(nn.Module):
@@ -93,7 +93,7 @@ class LSTM(nn.Module):
         n_in, gates = x.shape[-1], 4 * self.features
         wi = param(self, "wi", Init("normal", 1.0 / math.sqrt(n_in)), (n_in, gates))
         wh = param(self, "wh", Init("orthogonal", 1.0, blocks=4), (self.features, gates))
-        xproj = matmul(x, wi, self.dtype) + param(self, "b", Init("zeros"), (gates,))
+        xproj = matmul(x, wi, self.dtype) + param(self, "b", ZEROS, (gates,))
 
         def cell(carry, inputs):
             xp, reset = inputs

@@ -256,6 +256,19 @@ def _masked_mean(x: jax.Array, mask: jax.Array) -> jax.Array:
     return jnp.sum(x * mask) / jnp.maximum(jnp.sum(mask), 1.0)
 
 
+LOSS_METRICS = ("policy_loss", "value_loss", "entropy", "kl", "clip_frac", "ratio_mean")
+"""`loss_fn`'s metrics (float32 scalars) of every network; `loss_metric_names` adds its heads' losses."""
+
+
+def loss_metric_names(net_cfg: NetworkConfig) -> tuple[str, ...]:
+    """The names of `loss_fn`'s metrics for `net_cfg`: `LOSS_METRICS`, then "aux_loss" with a frame
+    auxiliary head and "attention_loss" with the attention head."""
+    heads = (("aux_loss",) if net_cfg.frame_aux != "none" else ()) + (
+        ("attention_loss",) if net_cfg.attention else ()
+    )
+    return LOSS_METRICS + heads
+
+
 def loss_fn(
     params, net_cfg: NetworkConfig, ppo_cfg: PPOConfig, mb: dict[str, jax.Array], dp: Devices = ONE_DEVICE
 ):
@@ -292,14 +305,9 @@ def loss_fn(
     entropy = _masked_mean(-jnp.sum(jnp.exp(log_probs) * log_probs, -1), valid)
     kl = _masked_mean(ratio - 1.0 - log_ratio, valid)
     loss = policy_loss + ppo_cfg.value_coef * value_loss - ppo_cfg.entropy_coef * entropy
-    metrics = {
-        "policy_loss": policy_loss,
-        "value_loss": value_loss,
-        "entropy": entropy,
-        "kl": kl,
-        "clip_frac": _masked_mean((jnp.abs(ratio - 1.0) > ppo_cfg.clip).astype(jnp.float32), valid),
-        "ratio_mean": _masked_mean(ratio, valid),
-    }
+    clip_frac = _masked_mean((jnp.abs(ratio - 1.0) > ppo_cfg.clip).astype(jnp.float32), valid)
+    values = (policy_loss, value_loss, entropy, kl, clip_frac, _masked_mean(ratio, valid))
+    metrics = dict(zip(LOSS_METRICS, values, strict=True))
     if net_cfg.frame_aux != "none":
         predict = net_cfg.frame_aux == "pred"
         target = mb["next_obs"] if predict else mb["obs"]
@@ -380,19 +388,20 @@ def minibatch_step(
     return UpdateState(params, opt_state, apply, reverted, state.steps + apply, targets), metrics
 
 
-def skipped_step(step: Callable, state: UpdateState, inputs) -> tuple[UpdateState, dict[str, jax.Array]]:
-    """A minibatch after the stop (or revert): the state as it is and `step`'s metrics as zeros, without a
-    recompute or a gradient."""
-    metrics = jax.eval_shape(step, state, inputs)[1]
-    return state, jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), metrics)
+def skipped_step(
+    net_cfg: NetworkConfig, state: UpdateState, inputs
+) -> tuple[UpdateState, dict[str, jax.Array]]:
+    """A minibatch after the stop (or revert): the state as it is and `loss_fn`'s metrics as zeros, without a
+    recompute or a gradient (nor a trace of them: `loss_metric_names` names the metrics)."""
+    return state, {name: jnp.zeros((), jnp.float32) for name in loss_metric_names(net_cfg)}
 
 
-def step_or_skip(step: Callable, state: UpdateState, inputs):
+def step_or_skip(step: Callable, net_cfg: NetworkConfig, state: UpdateState, inputs):
     """`step(state, inputs)` while the loop runs, else `skipped_step`. Returns the new state and (the
     metrics, whether the loop ran). Under vmap (learners, seeds) the step runs while any member is running;
     the others discard it."""
     new_state, metrics = jax.lax.cond(
-        any_in_batch(state.running), step, functools.partial(skipped_step, step), state, inputs
+        any_in_batch(state.running), step, functools.partial(skipped_step, net_cfg), state, inputs
     )
     return new_state, (metrics, state.running)
 
@@ -426,7 +435,7 @@ def update(
         minibatch_step, first=(params, opt_state), batch=batch, net_cfg=net_cfg, ppo_cfg=ppo_cfg, dp=dp
     )
     steps = (jnp.arange(ppo_cfg.num_minibatches), jax.random.split(key, ppo_cfg.num_minibatches))
-    final, (metrics, ran) = jax.lax.scan(functools.partial(step_or_skip, step), init, steps)
+    final, (metrics, ran) = jax.lax.scan(functools.partial(step_or_skip, step, net_cfg), init, steps)
     summary = {name: _masked_mean(value, ran) for name, value in metrics.items()}
     summary["kl_last"] = metrics["kl"][jnp.maximum(jnp.sum(ran) - 1, 0)]
     summary["minibatches"] = final.steps.astype(jnp.float32)
