@@ -139,6 +139,11 @@ def episode_returns(
     return Episodes(returns, late, present)
 
 
+play_episodes = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
+"""`episode_returns`, compiled once a process for each population, network, environment and episode count
+(every evaluation and every training run's evaluations share it)."""
+
+
 def make_learner_eval(specs: tuple[EnvSpec, ...], net_cfg: network.NetworkConfig, episodes: int):
     """Evaluation during training: `fn(key, params) -> {spec: mean return}` plays `episodes` episodes of
     each environment spec (`specs.EnvSpec`; keys are their text) with one learner's `params` (unstacked) in
@@ -148,13 +153,12 @@ def make_learner_eval(specs: tuple[EnvSpec, ...], net_cfg: network.NetworkConfig
     setups = [
         (spec, population.default_population(p), p) for spec, p in check_eval_envs(specs, net_cfg, episodes)
     ]
-    play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
 
     def run(key: jax.Array, params) -> dict[str, float]:
         stacked = jax.tree.map(lambda x: x[None], params)
         out = {}
         for (spec, pop, env_params), k in zip(setups, jax.random.split(key, len(setups)), strict=True):
-            played = jax.device_get(play(k, pop, net_cfg, env_params, stacked, episodes))
+            played = jax.device_get(play_episodes(k, pop, net_cfg, env_params, stacked, episodes))
             out[str(spec)] = float(played.returns[played.present[:, 0], 0].mean())
         return out
 
@@ -200,7 +204,6 @@ def _setup(eval_cfg: EvalConfig):
 def evaluate(eval_cfg: EvalConfig) -> dict[str, Any]:
     """Run the evaluation (`eval_cfg.protocol`) and return the JSON-able results."""
     env_params, pop, net_cfg, per_ckpt = _setup(eval_cfg)
-    play = jax.jit(episode_returns, static_argnums=(1, 2, 3, 5))
     key = jax.random.key(eval_cfg.seed)
     header = {
         "env": eval_cfg.env,
@@ -216,7 +219,7 @@ def evaluate(eval_cfg: EvalConfig) -> dict[str, Any]:
         cases = ct_cases(env_params)
         played = {
             name: [
-                jax.device_get(play(key, pop, net_cfg, case, params, eval_cfg.episodes))
+                jax.device_get(play_episodes(key, pop, net_cfg, case, params, eval_cfg.episodes))
                 for params in per_ckpt
             ]
             for name, case in cases.items()
@@ -224,7 +227,8 @@ def evaluate(eval_cfg: EvalConfig) -> dict[str, Any]:
         demonstrators = pop.demonstrators or tuple(range(1, env_params.n_agents))
         return {**header, "protocol": "ct", **cultural_transmission(played, demonstrators)}
     results = [
-        jax.device_get(play(key, pop, net_cfg, env_params, params, eval_cfg.episodes)) for params in per_ckpt
+        jax.device_get(play_episodes(key, pop, net_cfg, env_params, params, eval_cfg.episodes))
+        for params in per_ckpt
     ]
     slots = []
     for i, slot in enumerate(pop.slots):

@@ -74,10 +74,9 @@ def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     env_params = EnvSpec.parse(f"{CT_ENV}:{CT_ARGS}").env_params()
     pop = population.Population(population.parse_slots(CT_SLOTS, 3))
     params = population.stack([policy_io.load_policy(saved_learner, net)])
-    play = jax.jit(evaluate.episode_returns, static_argnums=(1, 2, 3, 5))
     cases = evaluate.ct_cases(env_params)
     out = {
-        name: jax.device_get(play(jax.random.key(3), pop, net, case, params, CT_EPISODES))
+        name: jax.device_get(evaluate.play_episodes(jax.random.key(3), pop, net, case, params, CT_EPISODES))
         for name, case in cases.items()
     }
     first_half = {name: r.returns - r.late_returns for name, r in out.items()}
