@@ -20,7 +20,7 @@ from pathlib import Path
 
 import run_info
 
-from jaxsocial.experiments import recipes
+from jaxsocial.experiments import conditions, recipes
 from jaxsocial.run import logs, metrics
 
 
@@ -33,7 +33,7 @@ def seed_flags(scale: recipes.Scale, condition: str, seed: int, runs_dir: str, i
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scale", default="laptop", choices=sorted(recipes.SCALES))
-    parser.add_argument("--condition", default="social_rec", choices=sorted(recipes.CONDITIONS))
+    parser.add_argument("--condition", default="social_rec", choices=sorted(conditions.CONDITIONS))
     parser.add_argument("--seeds", type=int, default=3, help="processes, one seed each, one after another")
     parser.add_argument("--iterations", type=int, default=10, help="iterations per process (one chunk)")
     parser.add_argument("--out", default=None, help="JSON results")

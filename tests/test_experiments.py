@@ -14,13 +14,13 @@ from conftest import needs_records
 
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import kinds, paths, plot_figures, recipes, runner, summaries, takeoff
+from jaxsocial.experiments import conditions, kinds, paths, plot_figures, recipes, runner, summaries, takeoff
 from jaxsocial.run import config, logs, metrics, schedule
 
 
 @pytest.mark.parametrize("scale", sorted(recipes.SCALES))
 def test_every_condition_is_a_valid_run(scale):
-    for name, cond in recipes.CONDITIONS.items():
+    for name, cond in conditions.CONDITIONS.items():
         programs = recipes.condition_programs(recipes.SCALES[scale], name, seed=3, seeds=2, runs_dir="r")
         per_seed = [(3, 1), (4, 1)] if cond.program_per_seed else [(3, 2)]
         assert [(cfg.seed, cfg.seeds) for cfg in programs] == per_seed
@@ -33,16 +33,16 @@ def test_every_condition_is_a_valid_run(scale):
             flags = recipes.condition_flags(recipes.SCALES[scale], name, cfg.seed, cfg.seeds, "r")
             assert train.parse_args(flags) == cfg  # the command line a run is launched with gives it back
     for recipe in recipes.RECIPES.values():
-        assert set(recipe.conditions) <= set(recipes.CONDITIONS)
+        assert set(recipe.conditions) <= set(conditions.CONDITIONS)
 
 
 def test_learned_mixing_switches_each_seed_on_its_own_return(tmp_path, capsys):
     """The faithful Fig. 6 protocol: each seed's program switches to 75% solo episodes once its own return
     reaches MIXING_RETURN; the dry run lists one command per seed, and the seeds are read back together."""
-    assert recipes.CONDITIONS["social_pred_mixed_learned"].program_per_seed
+    assert conditions.CONDITIONS["social_pred_mixed_learned"].program_per_seed
     first, second = recipes.condition_programs(recipes.GPU, "social_pred_mixed_learned", 0, 2, str(tmp_path))
     assert first.stages == second.stages
-    assert schedule.format_stages(first.stages) == f"return>={recipes.MIXING_RETURN!r}:solo_prob=0.75"
+    assert schedule.format_stages(first.stages) == f"return>={conditions.MIXING_RETURN!r}:solo_prob=0.75"
     mixed = recipes.condition_config(recipes.GPU, "social_pred_mixed", 0, 2, "r")
     assert schedule.format_stages(mixed.stages) == "200:solo_prob=0.75"
     cli.main(["run", "mixing", "--scale", "gpu", "--seeds", "2", "--runs-dir", str(tmp_path), "--dry-run"])

@@ -10,6 +10,7 @@ PLAN = (
     "jaxsocial.experiments.xla_flags",
     "jaxsocial.experiments.commits",
     "jaxsocial.experiments.prereg",
+    "jaxsocial.experiments.conditions",
     "jaxsocial.experiments.recipes",
 )
 ANALYSE = (

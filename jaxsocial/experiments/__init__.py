@@ -12,7 +12,8 @@
 
 The modules form three layers, in the order the work flows (`tests/test_layers.py` keeps the arrows so):
 
-* plan, which imports neither of the others: `recipes` (conditions x scales), `prereg` (pre-registered
+* plan, which imports neither of the others: `conditions` (what each changes, its label), `recipes`
+  (conditions x scales), `prereg` (pre-registered
   designs, `designs/*.json`), `paths` (where everything is read and written), `xla_flags` (the runs'
   $XLA_FLAGS, checked), `commits` (which commit);
 * launch: `runner` (trains and evaluates a recipe), `pinned` (one single-core process per seed), `inflight`

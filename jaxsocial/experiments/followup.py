@@ -36,6 +36,7 @@ import numpy as np
 from jaxsocial import stats
 from jaxsocial.experiments import (
     commits,
+    conditions,
     kinds,
     paths,
     pinned,
@@ -59,7 +60,7 @@ MIXED_SOLO_PROB = 0.75
 """The share of solo episodes in the mixed branch (the paper's 75%)."""
 ARMS = {"social": 0.0, "mixed": MIXED_SOLO_PROB}
 """Branch name -> its share of solo episodes."""
-BRANCH_ENV = recipes.LEARNERS["social"]
+BRANCH_ENV = conditions.LEARNERS["social"]
 """Every branch trains beside the experts, whatever the source's condition: a seed that learned alone
 (solo PPO + aux pred) meets them there for the first time."""
 

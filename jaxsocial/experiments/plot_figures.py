@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import recipes, takeoff
+from jaxsocial.experiments import takeoff
+from jaxsocial.experiments.conditions import CONDITIONS
 from jaxsocial.plot_parts import band, format_steps, steps_axis, zoom_to_means
 from jaxsocial.run import metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, metric_curve
@@ -141,13 +142,13 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
         xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
         xs = [x * steps_per_iteration[c] for x in xs]
         for ax in (returns_ax, zoom_ax):
-            band(ax, xs, list(ys), recipes.CONDITIONS[c].label, colors[i])
+            band(ax, xs, list(ys), CONDITIONS[c].label, colors[i])
         name = next((n for n in LOSS_PANEL if metrics.logged(seed_rows[0][-1], n, 0)), None)
         if name is not None:
             used.add(name)
             its, losses = zip(*(metric_curve(rows, metrics.key(name, 0)) for rows in seed_rows), strict=True)
             its = [x * steps_per_iteration[c] for x in its]
-            band(loss_ax, its, list(losses), recipes.CONDITIONS[c].label, colors[i])
+            band(loss_ax, its, list(losses), CONDITIONS[c].label, colors[i])
     if "experts" in summary and summary["experts"]["mean"] is not None:
         returns_ax.axhline(summary["experts"]["mean"], color="k", ls="--", lw=1, label="experts")
     returns_ax.set(ylabel="learner episode return", title="the learners' returns")
@@ -191,7 +192,7 @@ def draw_mixing(runs, summary: dict[str, Any], path: Path) -> None:
     draw_takeoffs(axes[-2], runs, summary, colors)
     axes = axes[:-2]
     for i, (c, seed_rows) in enumerate(runs.rows.items()):
-        label = recipes.CONDITIONS[c].label
+        label = CONDITIONS[c].label
         xs, ys = zip(*(curve(rows) for rows in seed_rows), strict=True)
         band(axes[0], list(xs), list(ys), label, colors[i])
         for ax, key in zip(axes[1:], keys, strict=True):
@@ -251,7 +252,7 @@ def draw_takeoffs(ax, runs, summary: dict[str, Any], colors) -> None:
         cfg = runs.configs[c]
         end = max(len(rows) for rows in runs.rows[c]) * cfg.num_envs * cfg.rollout_steps
         steps = entry["takeoff_env_steps"]
-        takeoff_curve(ax, steps, end, recipes.CONDITIONS[c].label, colors[i])
+        takeoff_curve(ax, steps, end, CONDITIONS[c].label, colors[i])
     steps_axis(ax)
     ax.set(
         ylabel="fraction of seeds",
@@ -276,7 +277,7 @@ def draw_takeoff(runs, summary: dict[str, Any], path: Path) -> None:
     fig, axes = _panels(plt, 2 + len(TAKEOFF_PANELS))
     km_ax, returns_ax, *score_axes = axes
     for i, (c, seed_rows) in enumerate(runs.rows.items()):
-        entry, label = summary["conditions"][c], recipes.CONDITIONS[c].label
+        entry, label = summary["conditions"][c], CONDITIONS[c].label
         per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
         end = max(entry["run_env_steps"])
         took = summary["time_to_learning"]["conditions"][c]["took_off"]
@@ -323,10 +324,10 @@ def bars(ax, per_cond: dict[str, dict[str, Any]], colors) -> None:
 def bar_label(name: str) -> str:
     """A bar's label: a condition's, 'its scripted experts' (the recipe's), or 'experts: <condition>' for a
     condition's own experts ('experts:<condition>')."""
-    if name in recipes.CONDITIONS:
-        return recipes.CONDITIONS[name].label
+    if name in CONDITIONS:
+        return CONDITIONS[name].label
     _, _, condition = name.partition(":")
-    return f"experts: {recipes.CONDITIONS[condition].label}" if condition else "its scripted experts"
+    return f"experts: {CONDITIONS[condition].label}" if condition else "its scripted experts"
 
 
 def whisker(centre: float, interval: list[float] | None) -> list[list[float]] | None:
@@ -435,7 +436,7 @@ def draw_followup(
         offset = (k - (len(colours) - 1) / 2) * 0.12  # conditions side by side in each column
         for i, spec in enumerate(specs):
             learner = [s["zero_shot"][spec]["learner"] for s in group]
-            label = f"{recipes.CONDITIONS[condition].label} ({len(group)})" if i == 0 else None
+            label = f"{CONDITIONS[condition].label} ({len(group)})" if i == 0 else None
             axes[0].scatter(
                 np.full(len(learner), i + offset), learner, color=colour, s=14, zorder=3, label=label
             )

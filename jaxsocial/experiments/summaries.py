@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.experiments import kinds, paths, prereg, recipes, records, rundirs
+from jaxsocial.experiments.conditions import CONDITIONS
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import config, logs, metrics
@@ -114,8 +115,8 @@ class RecipeRuns:
             "config": {
                 c: {
                     "flags": shlex.join(self.flags(c)),
-                    "label": recipes.CONDITIONS[c].label,
-                    "program_per_seed": recipes.CONDITIONS[c].program_per_seed,
+                    "label": CONDITIONS[c].label,
+                    "program_per_seed": CONDITIONS[c].program_per_seed,
                 }
                 for c in self.configs
             },
@@ -133,7 +134,7 @@ def outcome_lines(summary: dict[str, Any]) -> list[str]:
     finals = {**summary.get("training", {}), **summary.get("conditions", {})}
     lines = []
     for c, t in summary.get("time_to_learning", {}).get("conditions", {}).items():
-        label = recipes.CONDITIONS[c].label if c in recipes.CONDITIONS else c
+        label = CONDITIONS[c].label if c in CONDITIONS else c
         text = f"{label}: {t['took_off']} of {t['seeds']} seeds past the one-tile plateau"
         steps = [s for s in t["takeoff_env_steps"] if s is not None]
         text += f" (the first at {min(steps):,} env-steps)" if steps else ""
@@ -254,7 +255,7 @@ def against_committed(summary: dict[str, Any], committed: dict[str, Any]) -> lis
         theirs = committed.get("conditions", {}).get(c)
         if theirs is None or "seeds_above_one_tile" not in mine or mine.get("mean") is None:
             continue
-        label = recipes.CONDITIONS[c].label if c in recipes.CONDITIONS else c
+        label = CONDITIONS[c].label if c in CONDITIONS else c
         seeds = lambda x: sum(v is not None for v in x["final_returns"])  # noqa: E731
         text = (
             f"{label}: yours {mine['seeds_above_one_tile']} of {seeds(mine)} past the plateau, final return "

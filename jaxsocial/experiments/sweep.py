@@ -1,7 +1,7 @@
 """The exploratory sample-efficiency sweep: which settings make auxiliary-loss learners leave the one-tile
 plateau early on a 2-core CPU (exploration only: seeds below 100, no confirmatory result).
 
-A *setting* is a condition of `recipes.CONDITIONS` at the cpu scale with some flags changed, a budget and
+A *setting* is a condition of `conditions.CONDITIONS` at the cpu scale with some flags changed, a budget and
 the reason it is tried. Each seed trains in a process of its own pinned to one core (`pinned`), and its
 record goes to
 ``benchmarks/results/records/sweep/<setting>/s<seed>/``. The summary (`summarise`) gives per setting each
@@ -37,7 +37,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import paths, pinned, plot_figures, recipes, records, takeoff
+from jaxsocial.experiments import conditions, paths, pinned, plot_figures, recipes, records, takeoff
 from jaxsocial.run import logs, metrics, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -64,7 +64,10 @@ class Setting:
 
 FIELDS = {
     "name": ("a string, the file's name", lambda v: isinstance(v, str)),
-    "condition": ("one of recipes.CONDITIONS", lambda v: isinstance(v, str) and v in recipes.CONDITIONS),
+    "condition": (
+        "one of conditions.CONDITIONS",
+        lambda v: isinstance(v, str) and v in conditions.CONDITIONS,
+    ),
     "flags": ("a list of strings", lambda v: isinstance(v, list) and all(isinstance(f, str) for f in v)),
     "iterations": ("a whole number >= 1", lambda v: type(v) is int and v >= 1),
     "why": ("a string", lambda v: isinstance(v, str)),
