@@ -69,8 +69,8 @@ def param(module: nn.Module, name: str, init: Init, shape: tuple[int, ...]) -> j
     (only `param_inits` asks: Flax's own ``Module.init`` leaves that collection immutable).
 
     Where the parameter exists (every apply), it is returned after a check of its shape: Flax's own check
-    traces the initialiser abstractly, on every apply of every layer (~10 ms for an orthogonal one, ~15% of
-    a training program's trace). `param_inits` needs shapes only, so it gets `ZEROS`."""
+    traces the initialiser abstractly (an orthogonal one's Gram-Schmidt loop too) on every apply of every
+    layer. `param_inits` needs shapes only, so it gets `ZEROS`."""
     if module.has_variable("params", name):
         value = module.get_variable("params", name)
         if value.shape != shape:
