@@ -4,7 +4,8 @@ social programs ran 6x slower than solo ones on an H100, about 10% on CPUs).
 Each recipe's iteration is split by ablation into programs over the same T-step rollout, timed in turn:
 
   env       T steps of every environment with random actions, no view rendered (dynamics, rewards, resets);
-  render    the same steps rendering the views the networks read (`rollout.observers`): render = this - env;
+  render    the same steps rendering the views the networks read (`rollout.program_observers`):
+            render = this - env;
   experts   the same steps with the scripted experts choosing their slots' actions: experts = this - render;
   rollout   the recipe's iteration up to its update (`agents.rollout.iteration` with `ppo_update` left out):
             network = this - experts (the neural slots' steps, sampling, the truncation values, the rollout's
@@ -56,7 +57,7 @@ def programs(name: str) -> tuple[dict, rollout.RunnerState, int]:
     w = rollout.wiring(static.pop, static.env_params, p.net, p.ppo, p.bc, p.algo, p.num_envs, p.rollout_steps)
     n_agents = w.env_params.n_agents
 
-    def env_steps(state: rollout.RunnerState, key: jax.Array, observed: tuple[int, ...], with_experts: bool):
+    def env_steps(state: rollout.RunnerState, key: jax.Array, observers: tuple[int, ...], with_experts: bool):
         def step(carry, k):
             env_states, slots, resets = carry
             k_act, k_expert, k_env = jax.random.split(k, 3)
@@ -67,7 +68,7 @@ def programs(name: str) -> tuple[dict, rollout.RunnerState, int]:
                     k_expert, w.pop, w.env_params, env_states, memory, slots.reward, resets, actions
                 )
             obs, env_states, reward, _, _, info = core.step_batch(
-                jax.random.split(k_env, w.num_envs), env_states, actions, w.env_params, observed
+                jax.random.split(k_env, w.num_envs), env_states, actions, w.env_params, observers
             )
             if with_experts:
                 slots = slots._replace(memory=memory, reward=reward)
@@ -86,9 +87,9 @@ def programs(name: str) -> tuple[dict, rollout.RunnerState, int]:
     state = jax.jit(functools.partial(rollout.init, w))(jax.random.key(0))
     state, batch, _ = jax.jit(full_rollout)(state, jax.random.key(1))  # episodes under way
     jitted = {
-        "env": jax.jit(functools.partial(env_steps, observed=(), with_experts=False)),
-        "render": jax.jit(functools.partial(env_steps, observed=w.observed, with_experts=False)),
-        "experts": jax.jit(functools.partial(env_steps, observed=w.observed, with_experts=True)),
+        "env": jax.jit(functools.partial(env_steps, observers=(), with_experts=False)),
+        "render": jax.jit(functools.partial(env_steps, observers=w.observers, with_experts=False)),
+        "experts": jax.jit(functools.partial(env_steps, observers=w.observers, with_experts=True)),
         "rollout": jax.jit(full_rollout),
         "update": jax.jit(lambda s, k: update(s, batch, k)),
     }

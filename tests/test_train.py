@@ -159,7 +159,8 @@ def test_a_checkpoint_holding_every_slots_views_resumes_the_same_run(tiny_runs):
     init, _ = loop.make_program(TINY.program, env_params, static.pop)
     state = checkpoint.restore(ckpt_dir, jax.eval_shape(init, jax.random.key(0)), 2)
     every = jax.vmap(observe, in_axes=(0, None))(state.env_states, env_params)  # [E, N, ...]
-    assert rollout.observers(static.pop, "ppo") == (0,) and every.shape[1] == 3 > state.obs.shape[1] == 1
+    assert rollout.program_observers(static.pop, "ppo") == (0,)
+    assert every.shape[1] == 3 > state.obs.shape[1] == 1
     np.testing.assert_array_equal(every[:, :1], state.obs)
     metadata = checkpoint.read_metadata(ckpt_dir, 2)
     shutil.rmtree(ckpt_dir / "2")

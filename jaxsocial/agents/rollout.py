@@ -7,7 +7,7 @@ Everything static (slots, network, environment, hyperparameters) is a `Wiring`, 
 Names: `done` bool[E] an environment's episode ended (`info["done"]`); `agent_done` bool[..., E] an agent's
 episode ended (it terminated, or `done`); `resets` bool[E] the step starts an episode (the previous `done`).
 Shapes: E environments, N agents, T rollout steps, S neural slots (S_l learners first, then frozen
-policies), K rendered views (`observers`), D demonstrators, H LSTM units.
+policies), K rendered views (`program_observers`), D demonstrators, H LSTM units.
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ class RunnerState(NamedTuple):
     params: Any  # the learners' params stacked [S_l, ...] (every neural slot's: `all_params`)
     opt_state: Any  # learner optimiser states stacked [S_l, ...]
     env_states: EnvState  # [E]
-    obs: jax.Array  # uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]) the views of `observers(...)`
+    obs: jax.Array  # uint8[E, K, 21, 21, 3] (symbolic: int8[E, K, 7, 7, 4]), the views of `program_observers`
     resets: jax.Array  # bool[E]: the next step starts an episode
     slots: acting.SlotState  # neural slots' LSTM states [S, E, H], experts' memory, last rewards
     demo_carry: network.Carry | None  # bc: learners' LSTM states on the demonstration streams [S_l, E*D, H]
@@ -41,7 +41,7 @@ class RunnerState(NamedTuple):
     iteration: jax.Array  # int32[]
 
 
-def observers(pop: population.Population, algo: str) -> tuple[int, ...]:
+def program_observers(pop: population.Population, algo: str) -> tuple[int, ...]:
     """The slots whose views a program of `algo` renders (`Population.observers`; behaviour cloning trains
     on the demonstrators' views too), so a step beside two scripted experts renders one view, not three."""
     return pop.observers(cloned=algo == "bc")
@@ -84,7 +84,7 @@ class Wiring:
     algo: str
     num_envs: int
     rollout_steps: int
-    observed: tuple[int, ...]  # the slots whose views are rendered (`observers`)
+    observers: tuple[int, ...]  # the slots whose views are rendered (`program_observers`)
     learners: jax.Array  # int32[S_l] the learner slots
     learner_views: jax.Array  # int32[S_l] their rows of the rendered views
     training_slots: jax.Array  # int32[S_l] (bc: [D]) the slots whose actions are trained on
@@ -115,7 +115,7 @@ def wiring(
     rollout_steps: int,
 ) -> Wiring:
     """The `Wiring` of a program (arguments as its fields)."""
-    observed = observers(pop, algo)
+    observers = program_observers(pop, algo)
     training = pop.demonstrators if algo == "bc" else pop.learners
     return Wiring(
         pop=pop,
@@ -126,11 +126,11 @@ def wiring(
         algo=algo,
         num_envs=num_envs,
         rollout_steps=rollout_steps,
-        observed=observed,
+        observers=observers,
         learners=jnp.asarray(pop.learners),
-        learner_views=jnp.asarray(acting.view_rows(pop.learners, observed)),
+        learner_views=jnp.asarray(acting.view_rows(pop.learners, observers)),
         training_slots=jnp.asarray(training),
-        training_views=jnp.asarray(acting.view_rows(training, observed)),
+        training_views=jnp.asarray(acting.view_rows(training, observers)),
     )
 
 
@@ -143,7 +143,7 @@ def init(w: Wiring, key: jax.Array) -> RunnerState:
     """The state before the first iteration: fresh learners, every environment reset."""
     k_params, k_env, k_run = jax.random.split(key, 3)
     params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(k_params, w.n_learners), w.net_cfg)
-    reset = functools.partial(core.reset, observers=w.observed)
+    reset = functools.partial(core.reset, observers=w.observers)
     obs, env_states = jax.vmap(reset, in_axes=(0, None))(jax.random.split(k_env, w.num_envs), w.env_params)
     return RunnerState(
         params=params,
@@ -195,7 +195,7 @@ def iteration(
         actions, slots, logp, values = act(w, k_act, slot_params, state)
         # STEP every environment; the last views of truncated episodes are valued to bootstrap them
         obs, env_states, reward, terminated, _, info = core.step_batch(
-            jax.random.split(k_env, w.num_envs), state.env_states, actions, w.env_params, w.observed
+            jax.random.split(k_env, w.num_envs), state.env_states, actions, w.env_params, w.observers
         )
         final_values = truncation_values(w, slot_params, slots.carry, info)
         # RECORD the episodes that ended and the step: the learners', or the demonstrators' to clone
@@ -221,7 +221,7 @@ def iteration(
     # ADVANTAGE: each learner's batch, bootstrapped by the values of the views after the last step (GAE
     # itself runs in `ppo.update`: on the rollout's values first, then recomputed every few minibatches)
     bootstrap = acting.values(
-        w.pop, w.net_cfg, slot_params, state.slots.carry, state.obs, state.resets, w.observed
+        w.pop, w.net_cfg, slot_params, state.slots.carry, state.obs, state.resets, w.observers
     )
     learner_obs = state.obs[:, w.learner_views]
     batch = ppo_batch(
@@ -237,7 +237,7 @@ def act(w: Wiring, key: jax.Array, slot_params, state: RunnerState):
     actions int32[E, N], the slots' new `acting.SlotState`, logp and values float32[S, E]."""
     slots, obs, env_states, resets = state.slots, state.obs, state.env_states, state.resets
     return acting.act(
-        key, w.pop, w.net_cfg, w.env_params, slot_params, slots, obs, env_states, resets, w.observed
+        key, w.pop, w.net_cfg, w.env_params, slot_params, slots, obs, env_states, resets, w.observers
     )
 
 
@@ -246,7 +246,7 @@ def truncation_values(w: Wiring, slot_params, carry: network.Carry, info: dict) 
     before the reset), continuing from the LSTM states `carry` [S, E, H]; zeros in a step without an end."""
     return jax.lax.cond(
         any_in_batch(info["done"]),
-        lambda: acting.values(w.pop, w.net_cfg, slot_params, carry, info["final_obs"], observers=w.observed),
+        lambda: acting.values(w.pop, w.net_cfg, slot_params, carry, info["final_obs"], observers=w.observers),
         lambda: jnp.zeros((len(w.pop.neural), w.num_envs), jnp.float32),
     )
 

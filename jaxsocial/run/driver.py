@@ -46,11 +46,11 @@ def stage_program(
 
 
 def restore_state(
-    ckpt_dir: Path, template: RunnerState, step: int | None, observed: tuple[int, ...]
+    ckpt_dir: Path, template: RunnerState, step: int | None, observers: tuple[int, ...]
 ) -> RunnerState:
     """`checkpoint.restore` of one seed's RunnerState like `template`. A checkpoint written before programs
     rendered only the views they read holds every slot's views (obs [E, N, ...]); it is restored with the
-    rows of the slots `observed` (`rollout.observers`), exactly the views the program renders."""
+    rows of the slots `observers` (`rollout.program_observers`), exactly the views the program renders."""
     stored = checkpoint.leaf_shapes(ckpt_dir, step).get(".obs")
     want = template.obs.shape
     n_slots = template.env_states.pos.shape[1]
@@ -58,7 +58,7 @@ def restore_state(
         return checkpoint.restore(ckpt_dir, template, step)
     every_view = template._replace(obs=jax.ShapeDtypeStruct(stored, template.obs.dtype))
     state = checkpoint.restore(ckpt_dir, every_view, step)
-    return state._replace(obs=state.obs[:, np.asarray(observed)])
+    return state._replace(obs=state.obs[:, np.asarray(observers)])
 
 
 def source_state(seed_dir: Path, iteration: int) -> RunnerState:
@@ -67,8 +67,8 @@ def source_state(seed_dir: Path, iteration: int) -> RunnerState:
     static = config.setup(source, load_frozen=False)
     init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
     template = jax.eval_shape(init, jax.random.key(0))
-    observed = rollout.observers(static.pop, source.program.algo)
-    return restore_state(rundir.checkpoints(seed_dir), template, iteration, observed)
+    observers = rollout.program_observers(static.pop, source.program.algo)
+    return restore_state(rundir.checkpoints(seed_dir), template, iteration, observers)
 
 
 def load_source_learners(
@@ -217,10 +217,10 @@ class Driver:
             raise ValueError(f"cannot resume: no checkpoint in {missing}; start again with --overwrite")
         lead = int(self.program.seeds > 1)
         template = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[lead:], x.dtype), self.state)
-        observed = rollout.observers(self.static.pop, self.program.algo)
+        observers = rollout.program_observers(self.static.pop, self.program.algo)
         for step in sorted(set.intersection(*map(set, steps)), reverse=True):
             try:
-                restored = [restore_state(d, template, step, observed) for d in ckpt_dirs]
+                restored = [restore_state(d, template, step, observers) for d in ckpt_dirs]
                 stage = int(checkpoint.read_metadata(ckpt_dirs[0], step).get("stage", self.stage))
             except checkpoint.CheckpointMismatchError:
                 raise
