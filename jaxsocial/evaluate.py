@@ -37,6 +37,7 @@ from jaxsocial.agents import acting, network, population
 from jaxsocial.env import core, registry
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import logs, policy_io
+from jaxsocial.run.config import check_eval_envs
 from jaxsocial.run.metrics import LEARNED_RETURN
 from jaxsocial.specs import (
     ENV_ARGS,
@@ -44,7 +45,6 @@ from jaxsocial.specs import (
     EnvSpec,
     PolicyFlag,
     PolicyRef,
-    check_eval_envs,
     join_env_in,
 )
 from jaxsocial.stats import mean_ci95
@@ -401,7 +401,7 @@ def outcome(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
             learner = np.mean([s["mean_return"] for s in by_kind["learner"]])
             experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
-            lines.append(verdict(learner, experts, EnvSpec(eval_cfg.env, eval_cfg.env_args).env_params()))
+            lines.append(verdict(learner, experts, registry.env_params(eval_cfg.env, eval_cfg.env_args)))
     lines += _next(result, eval_cfg)
     if not eval_cfg.out:
         lines.append("      add --out FILE to keep every number above (and the per-seed values) as JSON")
@@ -418,7 +418,7 @@ def _next(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
     slots = result.get("results", ())
     if result.get("protocol") != "ct" and slots and slots[0]["kind"] == "learner" and any(
         s["kind"] == "expert" for s in slots
-    ) and env.env_params().solo_agents == 1:  # fmt: skip
+    ) and registry.env_params(env.name, env.args).solo_agents == 1:  # fmt: skip
         ckpts = " ".join(str(c) for c in eval_cfg.ckpt)
         return [
             "next: does it learn from the experts, and keep it once they leave? python -m "

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxsocial.agents import acting, network, population
-from jaxsocial.env import core, pictures
+from jaxsocial.env import core, pictures, registry
 from jaxsocial.env.types import EnvParams
 from jaxsocial.run import policy_io
 from jaxsocial.specs import EnvSpec, PolicyRef
@@ -39,7 +39,8 @@ def episode_setup(run_dir: str, env_spec: str, slots: str | None = None) -> Epis
     """
     policy = PolicyRef.parse(run_dir)
     net_cfg = policy_io.saved_net(policy)
-    env_params = EnvSpec.parse(env_spec).env_params()
+    spec = EnvSpec.parse(env_spec)
+    env_params = registry.env_params(spec.name, spec.args)
     net_cfg.check_env(env_params, f"env {env_spec!r} with the policy {run_dir}")
     population.require_rgb(env_params, f"env {env_spec!r}")
     if slots is None:

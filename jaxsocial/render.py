@@ -52,7 +52,8 @@ def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playba
     spec = env or f"{config['env']}:{config.get('env_args', '')}"
     if slots is None and config.get("slots"):  # else the environment's default companions, as in training
         try:
-            population.parse_slots(config["slots"], EnvSpec.parse(spec).env_params().n_agents)
+            parsed = EnvSpec.parse(spec)
+            population.parse_slots(config["slots"], registry.env_params(parsed.name, parsed.args).n_agents)
         except ValueError as err:
             raise ValueError(f"the run's slots do not fit {spec}: {err}; choose them with --slots") from None
         slots = config["slots"]
@@ -135,7 +136,8 @@ def check_args(args: argparse.Namespace) -> None:
     args.tile *= args.scale
     check_video_path(args.out)
     if args.ckpt is None:
-        args.env_params = EnvSpec.parse(args.env).env_params()
+        spec = EnvSpec.parse(args.env)
+        args.env_params = registry.env_params(spec.name, spec.args)
     else:
         args.setup, args.env, args.decoder = learner_setup(args.ckpt, args.env, args.slots)
         args.env_params = args.setup.env_params

@@ -3,8 +3,8 @@
 * ``field=value,...``: EnvParams overrides (`ENV_ARGS`; held as pairs, values Python literals), the syntax
   of `--env-args`, of a stage's overrides (`run.schedule`) and of an `EnvSpec`'s;
 * `EnvSpec`: an environment, ``NAME`` or ``NAME:field=value,...`` (evaluation environments, `--env` of
-  training and the tools, where ``--env NAME:ARGS`` is ``--env NAME --env-args ARGS``); `check_eval_envs`
-  checks a training run's;
+  training and the tools, where ``--env NAME:ARGS`` is ``--env NAME --env-args ARGS``): the text only;
+  ``registry.env_params(spec.name, spec.args)`` builds its parameters;
 * `PolicyRef`: a learner's exported policy, ``RUN_DIR`` (its first learner) or ``RUN_DIR#k`` (its k-th), for
   frozen slots, trained experts (`expert:ckpt=`), `evaluate --ckpt` and `render --ckpt`;
 * `CheckpointRef`: a training checkpoint, ``RUN_DIR`` (its latest) or ``RUN_DIR@ITERATION``, for
@@ -27,8 +27,6 @@ from typing import Annotated, Any
 import tyro
 
 from jaxsocial import syntax
-from jaxsocial.env import registry
-from jaxsocial.env.types import EnvParams
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,14 +38,10 @@ class EnvSpec:
 
     @classmethod
     def parse(cls, text: str) -> EnvSpec:
-        """``NAME`` or ``NAME:field=value,...`` (the syntax only: `env_params` checks the name and the
-        fields). ValueError on an override without '='."""
+        """``NAME`` or ``NAME:field=value,...`` (the syntax only: `registry.env_params` checks the name and
+        the fields). ValueError on an override without '='."""
         name, args = syntax.split_name(text)
         return cls(name.strip(), ENV_ARGS.parse(args))
-
-    def env_params(self) -> EnvParams:
-        """The environment's parameters; ValueError for an unknown name or field."""
-        return registry.make(self.name, **dict(self.args))[1]
 
     def extended(self, env_args: tuple[tuple[str, Any], ...]) -> EnvSpec:
         """This spec with the overrides `env_args` (`--env-args`) added: ``--env NAME:a=1 --env-args b=2`` is
@@ -75,19 +69,6 @@ def join_env_in(obj: Any) -> None:
     env = EnvSpec.parse(obj.env).extended(obj.env_args)
     object.__setattr__(obj, "env", env.name)
     object.__setattr__(obj, "env_args", env.args)
-
-
-def check_eval_envs(specs: tuple[EnvSpec, ...], net_cfg, episodes: int) -> list[tuple[EnvSpec, EnvParams]]:
-    """(spec, parameters) of each evaluation environment of a training run (`TrainConfig.eval_envs`), checked
-    for a network `net_cfg` (`NetworkConfig`) to act in and `episodes` >= 1: ValueError otherwise."""
-    if episodes < 1:
-        raise ValueError(f"eval_episodes={episodes} must be >= 1")
-    parsed = []
-    for spec in specs:
-        env_params = spec.env_params()
-        net_cfg.check_env(env_params, f"eval env {str(spec)!r}")
-        parsed.append((spec, env_params))
-    return parsed
 
 
 @dataclasses.dataclass(frozen=True)

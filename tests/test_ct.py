@@ -12,6 +12,7 @@ from test_regimes import save_policy
 import jaxsocial
 from jaxsocial import evaluate
 from jaxsocial.agents import population
+from jaxsocial.env import registry
 from jaxsocial.evaluate import Episodes, EvalConfig
 from jaxsocial.run import policy_io
 from jaxsocial.specs import EnvSpec
@@ -71,7 +72,8 @@ def saved_learner(tmp_path_factory):
 
 def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     net = TINY.net
-    env_params = EnvSpec.parse(f"{CT_ENV}:{CT_ARGS}").env_params()
+    spec = EnvSpec.parse(f"{CT_ENV}:{CT_ARGS}")
+    env_params = registry.env_params(spec.name, spec.args)
     pop = population.Population(population.parse_slots(CT_SLOTS, 3))
     params = population.stack([policy_io.load_policy(saved_learner, net)])
     cases = evaluate.ct_cases(env_params)

@@ -8,6 +8,7 @@ import pytest
 import tyro
 
 from jaxsocial import evaluate
+from jaxsocial.env import registry
 from jaxsocial.specs import PolicyRef
 
 ARGS = [
@@ -86,11 +87,11 @@ def test_the_outcome_says_what_the_evaluation_shows():
     ]
     randoms = [{**s, "kind": "random"} if s["kind"] == "expert" else s for s in slots]
     assert evaluate.outcome({"results": randoms}, dataclasses.replace(cfg, out="x.json")) == [ONWARDS]
-    four = evaluate.EnvSpec("goalcycle4").env_params()
+    four = registry.env_params("goalcycle4")
     below = evaluate.verdict(-4.93, 45.5, four)
     assert below.startswith("on the one-tile plateau (return <= 2): it does not complete the 4-goal cycle")
     assert below.endswith("; below 0 it pays more wrong-tile penalties than it earns")
-    rooms = evaluate.EnvSpec("fourrooms").env_params()
+    rooms = registry.env_params("fourrooms")
     assert evaluate.verdict(0.5, 0.9, rooms) == "that is 56% of the experts' return"
 
 

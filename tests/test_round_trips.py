@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 import jaxsocial
 from jaxsocial import evaluate, syntax, train
 from jaxsocial.agents import experts, network_config, population
+from jaxsocial.env import registry
 from jaxsocial.run import config, flags, logs, schedule
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import ENV_ARGS, CheckpointRef, EnvSpec, PolicyRef
@@ -265,6 +266,7 @@ def test_an_environment_with_overrides_is_one_syntax(preset, capsys):
 
 
 def test_an_unknown_environment_shows_both_forms():
+    spec = EnvSpec.parse("goalcycle9:penalty=1.0")
     with pytest.raises(ValueError, match="unknown environment") as err:
-        EnvSpec.parse("goalcycle9:penalty=1.0").env_params()
+        registry.env_params(spec.name, spec.args)
     assert "(goalcycle3:penalty=1.0,width=7), or in --env-args" in str(err.value)

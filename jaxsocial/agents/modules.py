@@ -1,12 +1,13 @@
 """The network's Flax linen modules as they run: `ActorCritic`, the function `paper_net.PaperActorCritic`
 computes in plain layers, with the same params tree, computed faster. Its `Encoder` and `Decoder` (the
 auxiliary frame head) run their convolutions (`Conv`) in frame batches and in the kernel `conv_impl` picks
-(`fast/`); `Embed` maps symbolic views; `LSTM`, `MLP` and `Dense` are `paper_net`'s. `network` applies them to
+(`fast/`); `Embed` maps symbolic views; `LSTM`, `MLP` and `Dense` are `layers`'. `network` applies them to
 a params dict.
 
 Conventions: conv kernels are HWIO ``[3, 3, C_in, C_out]``, and the conv layers take and return HWNC
 activations (`conv`); deconv kernels are ``[3, 3, C_in, C_out]`` with torch ConvTranspose2d (scatter)
-semantics. Every layer creates its params with `initialisers.param`, with `paper_net`'s distributions.
+semantics. Every layer creates its params with `initialisers.param`, with the distributions of `paper_net`
+and `layers`.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ from jaxsocial.agents.fast import conv
 from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.fast.frame_batches import SAVED, leaky_relu, leaky_relu_unsaved, map_frame_batches
 from jaxsocial.agents.initialisers import ZEROS, Init, param
+from jaxsocial.agents.layers import LSTM, MLP, Carry, Dense, Output
 from jaxsocial.agents.network_config import ATTENTION_CLASSES, OBS_SHAPE, STRIDES, NetworkConfig
-from jaxsocial.agents.paper_net import LSTM, MLP, Carry, Dense, Output
 from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_VOCAB, symbolic_classes, symbolic_errors
 
 

@@ -11,12 +11,12 @@ compiles ~10x faster than one draw per tensor).
 The parts, one job each:
 
 * `network_config`: `NetworkConfig` and the shapes that follow from it.
-* `paper_net`: the network in plain Flax layers (`PaperActorCritic`), the reference to read; its `LSTM`,
-  `MLP` and `Dense` are shared.
+* `layers`: the plain layers both networks are built of (`Dense`, `MLP`, `LSTM`).
+* `paper_net`: the network in plain Flax layers (`PaperActorCritic`), the reference to read.
 * `modules`: the Flax modules that run (`ActorCritic`, `Encoder`, `Decoder`, `Conv`, `Embed`): the same
   function of the same params, faster.
 * `initialisers`: each parameter's distribution, and the params drawn from two random buffers.
-* `aux_loss`: the auxiliary frame loss, fused with its gradient.
+* `aux_loss`: the auxiliary frame loss of a decoder, fused with its gradient (`aux_loss` here applies it).
 * `symbolic`: the symbolic views' vocabulary and their masked cross-entropy.
 * `fast`: how it runs fast on CPUs, not what it computes (conv kernels, batches of frames, bfloat16
   products, the machine's own choice among them), selected by `conv_impl`, `frame_batch` and `dtype`.
@@ -66,10 +66,11 @@ import jax
 import jax.numpy as jnp
 
 from jaxsocial.agents import initialisers
-from jaxsocial.agents.aux_loss import aux_loss
+from jaxsocial.agents.aux_loss import fused_aux_loss
 from jaxsocial.agents.fast.conv import KERNEL
 from jaxsocial.agents.initialisers import Params
-from jaxsocial.agents.modules import ActorCritic
+from jaxsocial.agents.layers import Carry, Output
+from jaxsocial.agents.modules import ActorCritic, Decoder
 from jaxsocial.agents.network_config import (
     ATTENTION_CLASSES,
     CONV_IMPLS,
@@ -78,7 +79,6 @@ from jaxsocial.agents.network_config import (
     OBS_SHAPE,
     NetworkConfig,
 )
-from jaxsocial.agents.paper_net import Carry, Output
 from jaxsocial.agents.symbolic import (
     PREDICTED_CLASSES,
     PREDICTED_VOCAB,
@@ -168,6 +168,22 @@ def step(
     have no T axis."""
     carry, out = unroll(params, net_cfg, carry, obs[None], reset[None])
     return carry, jax.tree_util.tree_map(lambda x: x[0], out)
+
+
+def aux_loss(
+    params: Params,
+    net_cfg: NetworkConfig,
+    hidden: jax.Array,
+    action: jax.Array,
+    target: jax.Array,
+    weight: jax.Array,
+    axis_name: str | None = None,
+) -> jax.Array:
+    """Weighted auxiliary loss ``sum(weight * mean|decode(hidden, action) - target / 255|)``, f32[], computed
+    with its gradient frame batch by frame batch (`aux_loss.fused_aux_loss`, which says how; symbolic views:
+    the masked cross-entropy). hidden f32[..., H]; action int[...]; target uint8[..., 21, 21, 3] (the current
+    view for aux "rec", the next one for "pred"); weight f32[...]. Raises ValueError without a decoder."""
+    return fused_aux_loss(Decoder(net_cfg), params, hidden, action, target, weight, axis_name)
 
 
 def attention_loss(params: Params, net_cfg: NetworkConfig, hidden: jax.Array, target: jax.Array, weight):

@@ -11,6 +11,7 @@ reward decay `1 - 0.9 t / T`, and 250 steps (docs/environment.md 9.9). `-solo` v
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 from jaxsocial.env.core import Env
 from jaxsocial.env.types import EnvParams
@@ -63,3 +64,9 @@ def make(name: str, **overrides) -> tuple[Env, EnvParams]:
         raise ValueError(f"unknown EnvParams field(s) {unknown}; valid fields: {', '.join(PARAM_FIELDS)}")
     env_params = PRESETS[name].replace(**overrides)
     return Env(name, env_params), env_params
+
+
+def env_params(name: str, args: tuple[tuple[str, Any], ...] = ()) -> EnvParams:
+    """The parameters of preset `name` with the overrides `args`, (field, value) pairs as a `specs.EnvSpec`
+    holds them: ``env_params(spec.name, spec.args)``. ValueError as `make`."""
+    return make(name, **dict(args))[1]

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
+from jaxsocial.env import registry
 from jaxsocial.experiments import paths, pinned, plot_figures, prereg, records, rundirs
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.config import TrainConfig
@@ -123,10 +124,9 @@ def load(name: str, designs_dir: Path = DESIGNS_DIR) -> BranchDesign:
         raw[family] = {k: Test(**v) for k, v in raw[family].items()}
     raw["eval_envs"] = tuple(raw["eval_envs"])
     design = BranchDesign(**raw)
-    for arm in design.arms.values():
-        EnvSpec.parse(arm.env).env_params()  # ValueError for an unknown environment or field
-    for env in design.eval_envs:
-        EnvSpec.parse(env).env_params()
+    for env in (*(arm.env for arm in design.arms.values()), *design.eval_envs):
+        spec = EnvSpec.parse(env)
+        registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
     for test_name, test in design.tests.items():
         problems = [
             f"arm {a!r} is not one of {sorted(design.arms)}"

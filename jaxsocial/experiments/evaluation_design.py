@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
+from jaxsocial.env import registry
 from jaxsocial.experiments import commits, paths, pinned, prereg
 from jaxsocial.run import logs
 from jaxsocial.specs import EnvSpec
@@ -106,7 +107,8 @@ def load(name: str) -> EvaluationDesign:
     raw["references"] = {k: Reference(**v) for k, v in raw["references"].items()}
     design = EvaluationDesign(**raw)
     for name_, test in design.tests.items():
-        EnvSpec.parse(test.env).env_params()  # ValueError for an unknown environment or field
+        spec = EnvSpec.parse(test.env)
+        registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
         if test.alternative not in ALTERNATIVES:
             raise ValueError(f"design {name}: test {name_}'s alternative must be one of {ALTERNATIVES}")
     for name_, ref in design.references.items():
@@ -185,7 +187,7 @@ def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
     for e in todo:
         spec, slots = EnvSpec.parse(e.env), ()
         if e.slot:  # in the learner's place, beside the environment's own slots
-            others = population.default_slots(spec.env_params()).split(",")[1:]
+            others = population.default_slots(registry.env_params(spec.name, spec.args)).split(",")[1:]
             slots = population.parse_slot_list(",".join([e.slot, *others]))
         config = evaluate.EvalConfig(
             ckpt=e.ckpts,

@@ -365,7 +365,22 @@ def _check_learners(cfg: TrainConfig, env_params: EnvParams, pop: population.Pop
     if cfg.algo == "ppo":
         ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
     if cfg.eval_envs:
-        specs.check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
+        check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
+
+
+def check_eval_envs(
+    eval_envs: tuple[specs.EnvSpec, ...], net_cfg: NetworkConfig, episodes: int
+) -> list[tuple[specs.EnvSpec, EnvParams]]:
+    """(spec, parameters) of each evaluation environment of a training run (`TrainConfig.eval_envs`), checked
+    for the network `net_cfg` to act in and `episodes` >= 1: ValueError otherwise."""
+    if episodes < 1:
+        raise ValueError(f"eval_episodes={episodes} must be >= 1")
+    parsed = []
+    for spec in eval_envs:
+        env_params = registry.env_params(spec.name, spec.args)
+        net_cfg.check_env(env_params, f"eval env {str(spec)!r}")
+        parsed.append((spec, env_params))
+    return parsed
 
 
 def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig:
