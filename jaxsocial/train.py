@@ -144,7 +144,7 @@ def train_chunks(
     out = Outputs.open(cfg, static, mesh, seeds, driver.it, learner_eval)
     try:
         while driver.it < cfg.iterations:
-            n = plan_chunk(driver.settings, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
+            n = plan_chunk(driver.driver_cfg, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
             compile_s = driver.compile(n, announce=out.compiling)
             out.start_progress(driver.it, compile_s)
             chunk = driver.run_chunk(n)
@@ -157,7 +157,7 @@ def train_chunks(
             learner_return = metrics.learner_return(pooled, static.pop)
             driver.switch_stage(learner_return)
             stop = reached(cfg.stop_at_return, learner_return)
-            if stop or checkpoint_due(driver.settings, driver.it, driver.last_saved):
+            if stop or checkpoint_due(driver.driver_cfg, driver.it, driver.last_saved):
                 driver.save(check.healthy_end)
             out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
             if stop:

@@ -1,8 +1,8 @@
 """The training driver's state between chunks (`Driver`) and its steps: start-up (from scratch, a checkpoint
 or `--init-from`), compiling a chunk, running it and saving every seed's checkpoint and policy. What it
-decides from its settings and a chunk's results (planning, non-finite checks) is `jaxsocial.run.chunks`;
-`jaxsocial.train.train_chunks` loops over the steps; what process 0 writes (metrics rows, evaluations,
-progress) is `jaxsocial.run.outputs.Outputs`.
+decides from its `DriverConfig` (`driver_cfg`) and a chunk's results (planning, non-finite checks) is
+`jaxsocial.run.chunks`; `jaxsocial.train.train_chunks` loops over the steps; what process 0 writes (metrics
+rows, evaluations, progress) is `jaxsocial.run.outputs.Outputs`.
 """
 
 from __future__ import annotations
@@ -105,7 +105,7 @@ class Driver:
     from the run's parts (`TrainConfig.program` and `.driver`) by `start`."""
 
     program: ProgramConfig
-    settings: DriverConfig
+    driver_cfg: DriverConfig
     static: config.Setup
     mesh: jax.sharding.Mesh
     seeds: list[SeedRun]
@@ -121,15 +121,15 @@ class Driver:
     def start(
         cls,
         program: ProgramConfig,
-        settings: DriverConfig,
+        driver_cfg: DriverConfig,
         static: config.Setup,
         mesh: jax.sharding.Mesh,
         seeds: list[SeedRun],
         slots: str,
     ) -> Driver:
         """Start-up: every seed's initial state in the stage a new run starts in or, with
-        `settings.resume`, the state and stage of the latest checkpoint (`restore`); at iteration 0, the
-        learners of `settings.init_from`."""
+        `driver_cfg.resume`, the state and stage of the latest checkpoint (`restore`); at iteration 0, the
+        learners of `driver_cfg.init_from`."""
         stage = schedule.initial_index(static.stages)
         compiled = stage_program(program, static, mesh, stage)
         numbers = [s.seed for s in seeds]
@@ -137,12 +137,12 @@ class Driver:
         frozen = static.frozen_params
         if frozen is not None:
             frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
-        driver = cls(program, settings, static, mesh, seeds, slots, state, stage, frozen)
-        if settings.resume:
+        driver = cls(program, driver_cfg, static, mesh, seeds, slots, state, stage, frozen)
+        if driver_cfg.resume:
             driver.restore(compiled)
         driver.it = driver.last_saved = int(np.asarray(driver.state.iteration).reshape(-1)[0])
         if driver.it == 0:  # a new run, or a resumed one that saved nothing yet: from the source's learners
-            driver.state = load_source_learners(settings.init_from, numbers, driver.state, compiled)
+            driver.state = load_source_learners(driver_cfg.init_from, numbers, driver.state, compiled)
         return driver
 
     def compile(self, n: int, announce: Callable[[int, int], None]) -> float | None:
@@ -193,13 +193,13 @@ class Driver:
             ckpt_dir = rundir.checkpoints(seed.dir)
             if self.it not in checkpoint.all_steps(ckpt_dir):  # else saved before an interruption: the same
                 metadata = {**seed.config, "stage": self.stage}
-                keep = self.settings.keep_checkpoints
+                keep = self.driver_cfg.keep_checkpoints
                 checkpoint.save(ckpt_dir, self.it, seed_state, metadata=metadata, keep=keep)
 
     def export_policy(self, seed_dir: Path, it: int, params: Any) -> None:
         """Write the learners' params (stacked [S_l, ...]) to `seed_dir/policy/<it>` unless that step
         exists."""
-        keep = self.settings.keep_checkpoints
+        keep = self.driver_cfg.keep_checkpoints
         policy_io.export_policy(seed_dir, it, params, self.program.net, slots=self.slots, keep=keep)
 
     def restore(self, program: Program) -> None:
