@@ -28,9 +28,11 @@ SETTINGS = {
     "default": "",
     "opt0": "--xla_backend_optimization_level=0",
     "tests": "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false",
+    "opt1": "--xla_backend_optimization_level=1",
 }
-"""Setting name -> $XLA_FLAGS: XLA's defaults (training), LLVM at level 0 (the tests until 2026-11-27), and
-`conftest.TEST_XLA_FLAGS` (the tests since)."""
+"""Setting name -> $XLA_FLAGS: XLA's defaults (training, and the learning tests until 2026-11-29), LLVM at
+level 0 (the tests until 2026-11-27), `conftest.TEST_XLA_FLAGS` (the tests since), and LLVM at level 1 with
+XLA's fusion emitters (`conftest.RUN_FAST`, the learning tests since 2026-11-29)."""
 PROGRAMS = {"tiny": 2, "learning": 10}
 """Program -> iterations in its chunk: TINY (most test files) and SOLO_LEARNING (the learning tests)."""
 

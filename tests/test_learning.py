@@ -50,7 +50,9 @@ def test_bfloat16_learns_like_float32():
 @pytest.mark.slow
 def test_behaviour_cloning_of_navigators_beats_random():
     """BC from two scripted navigators' views and actions on a 9x9 Four Rooms: the cloned policy, acting
-    in the learner slot, starts near the random return (about 0.03) and reaches several times it."""
+    in the learner slot, starts near the random return (about 0.03) and reaches ten times it. After 200
+    iterations keys 0-3 end at 0.56-0.61 (accuracy 0.97) under LLVM levels 1 and 3 alike; after 120 they
+    were still rising, anywhere from 0.09 to 0.58, so the bits of one compiler setting decided the test."""
     cfg = TrainConfig(
         env="fourrooms",
         env_args="width=9,height=9,max_steps=30",
@@ -58,7 +60,7 @@ def test_behaviour_cloning_of_navigators_beats_random():
         algo="bc",
         num_envs=16,
         rollout_steps=16,
-        iterations=120,
+        iterations=200,
         net=NetworkConfig(conv_channels=(8, 16, 16), hidden=32, mlp=32),
         bc=BCConfig(lr=3e-3, epochs=4),
     )
@@ -67,6 +69,6 @@ def test_behaviour_cloning_of_navigators_beats_random():
     returns, episodes = np.asarray(metrics["return"])[:, 0], np.asarray(metrics["episodes"])[:, 0]
     first, last = mean_return(returns[:20], episodes[:20]), mean_return(returns[-20:], episodes[-20:])
     assert first < 0.06, first
-    assert last > 0.12 and last > 3 * first, (first, last)
+    assert last > 0.3, (first, last)
     accuracy = np.asarray(metrics["bc_accuracy"])[:, 0]
     assert accuracy[-20:].mean() > accuracy[:20].mean() + 0.1
