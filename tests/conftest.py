@@ -112,10 +112,10 @@ docs/benchmarks.md)."""
 
 RUN_FAST = {"xla_backend_optimization_level": 1, "xla_cpu_use_fusion_emitters": True}
 """`jax.jit(f, compiler_options=RUN_FAST)`: code generation for the programs whose run time outweighs their
-compile time (the learning tests' hundreds of iterations): LLVM at level 1 with XLA's fusion emitters. Their
-10 iterations run about as fast as under XLA's defaults (level 3) and about 3x faster than under
-`TEST_XLA_FLAGS`, and compile in about two thirds of the defaults' time (`benchmarks/compile_flags.py`,
-docs/benchmarks.md)."""
+compile time under `TEST_XLA_FLAGS` (the learning tests' hundreds of iterations): LLVM at level 1 with XLA's
+fusion emitters. Their 10 iterations run about 3x faster than under `TEST_XLA_FLAGS` and a sixth slower than
+under XLA's defaults (level 3), and compile in about two thirds of the defaults' time
+(`benchmarks/compile_flags.py`, docs/benchmarks.md)."""
 
 
 def pytest_configure(config):
