@@ -448,16 +448,17 @@ def section_kl_stop(args: argparse.Namespace) -> dict:
     at minibatch 1, and the latter with the stopped minibatches still computed (the code before they were
     skipped, by replacing `ppo.any_in_batch` with a constant True)."""
     from jaxsocial.agents import ppo
+    from jaxsocial.agents.ppo_config import PPOConfig
 
     rows = []
     for name in args.configs:
         cfg = dataclasses.replace(CONFIGS[name], conv_impl="matmul")
         params, batch = synthetic_rollout(cfg, steps=256, envs=128)
         cases = {
-            "every minibatch": (ppo.PPOConfig(kl_target=1e9, kl_hard_limit=1e9), ppo.any_in_batch),
-            "stop at minibatch 1": (ppo.PPOConfig(kl_target=1e-12, kl_hard_limit=1e9), ppo.any_in_batch),
+            "every minibatch": (PPOConfig(kl_target=1e9, kl_hard_limit=1e9), ppo.any_in_batch),
+            "stop at minibatch 1": (PPOConfig(kl_target=1e-12, kl_hard_limit=1e9), ppo.any_in_batch),
             "stop at minibatch 1, no skip": (
-                ppo.PPOConfig(kl_target=1e-12, kl_hard_limit=1e9),
+                PPOConfig(kl_target=1e-12, kl_hard_limit=1e9),
                 lambda running: jnp.array(True),
             ),
         }

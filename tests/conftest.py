@@ -11,7 +11,7 @@ from xdist.scheduler import LoadScopeScheduling
 
 from jaxsocial import train
 from jaxsocial.agents.network import NetworkConfig
-from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env import core
 from jaxsocial.env.observe import observe
 from jaxsocial.run import compile_cache, logs

@@ -10,12 +10,13 @@ import optax
 import pytest
 from conftest import U32, reordered_tolerance
 
-from jaxsocial.agents import network, ppo, rollout
+from jaxsocial.agents import network, ppo, ppo_config, rollout
 from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents.ppo_config import PPOConfig
 
 NET = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8)
 T, E, L = 32, 6, 8
-CFG = ppo.PPOConfig(segment_length=L, minibatch_segments=8, num_minibatches=4, lr=1e-3)
+CFG = PPOConfig(segment_length=L, minibatch_segments=8, num_minibatches=4, lr=1e-3)
 # Rollout and replay evaluate NET in other orders: its widest dot products have 72 terms (conv 3, FC), and a
 # log-probability passes 3 convolutions, the FC layer, L LSTM steps and 3 MLP layers.
 NET_REORDERED = reordered_tolerance(terms=72, depth=3 + 1 + L + 3)
@@ -164,7 +165,7 @@ def test_update_from_rollout_targets_has_the_recomputed_update_losses(aux):
     net = NetworkConfig(conv_channels=(4, 8, 8), hidden=16, mlp=8, aux=aux)
     params = init(jax.random.key(0), net)
     batch = jax.jit(synthetic_rollout, static_argnums=2)(jax.random.key(1), params, net)
-    cfg = ppo.PPOConfig(**{**CFG.__dict__, "num_minibatches": 1})
+    cfg = PPOConfig(**{**CFG.__dict__, "num_minibatches": 1})
     opt_state = ppo.make_optimizer(cfg).init(params)
     update = jax.jit(ppo.update, static_argnums=(3, 4))
 
@@ -226,7 +227,7 @@ def test_attention_loss_term_uses_the_minibatch_targets_on_valid_steps(setup):
         params, net, out.hidden, mb["attention"], weight
     )
     np.testing.assert_allclose(metrics["attention_loss"], expected, rtol=1e-6)
-    cfg0 = ppo.PPOConfig(**{**CFG.__dict__, "attention_coef": 0.0})
+    cfg0 = PPOConfig(**{**CFG.__dict__, "attention_coef": 0.0})
     total0, _ = loss(params, net, cfg0, mb)
     np.testing.assert_allclose(total - total0, CFG.attention_coef * expected, rtol=1e-4)
     # Its gradient reaches the LSTM, not only the head.
@@ -251,7 +252,7 @@ def leaves_equal(a, b):
 
 def test_kl_hard_limit_reverts_params_and_optimizer_state_exactly(setup):
     params, batch = setup
-    cfg = ppo.PPOConfig(**{**CFG.__dict__, "lr": 0.05, "kl_target": 1e-12, "kl_hard_limit": 1e-12})
+    cfg = PPOConfig(**{**CFG.__dict__, "lr": 0.05, "kl_target": 1e-12, "kl_hard_limit": 1e-12})
     opt0, (new_params, new_opt, metrics) = run_update(params, batch, cfg)
     assert float(metrics["reverted"]) == 1.0
     assert leaves_equal(new_params, params) and leaves_equal(new_opt, opt0)
@@ -259,7 +260,7 @@ def test_kl_hard_limit_reverts_params_and_optimizer_state_exactly(setup):
 
 def test_kl_target_stops_early_and_normal_update_changes_params(setup):
     params, batch = setup
-    cfg = ppo.PPOConfig(**{**CFG.__dict__, "lr": 0.05, "kl_target": 1e-12, "kl_hard_limit": 10.0})
+    cfg = PPOConfig(**{**CFG.__dict__, "lr": 0.05, "kl_target": 1e-12, "kl_hard_limit": 10.0})
     _, (stopped, _, metrics) = run_update(params, batch, cfg)
     assert float(metrics["minibatches"]) == 1.0 and float(metrics["reverted"]) == 0.0
     assert not leaves_equal(stopped, params)
@@ -279,7 +280,7 @@ def test_minibatches_after_the_kl_stop_compute_no_loss_or_gradient(setup, monkey
     monkeypatch.setattr(ppo, "loss_fn", counted_loss)
     # A config of its own, so that no update compiled by another test (without the counter) is reused.
     changes = {"lr": 0.05, "kl_target": 1e-12, "kl_hard_limit": 9.0, "num_minibatches": 5}
-    cfg = ppo.PPOConfig(**{**CFG.__dict__, **changes})
+    cfg = PPOConfig(**{**CFG.__dict__, **changes})
     _, (_, _, metrics) = run_update(params, batch, cfg)
     jax.effects_barrier()
     # Minibatch 0 is applied; minibatch 1 measures the KL, stops the loop, and is the last to compute.
@@ -299,7 +300,7 @@ def test_minibatches_after_the_kl_stop_compute_no_loss_or_gradient(setup, monkey
 def test_kl_stop_applies_up_to_the_target_and_reverts_past_the_hard_limit_while_running(
     kl, running, expected
 ):
-    cfg = ppo.PPOConfig(kl_target=0.01, kl_hard_limit=0.03)
+    cfg = PPOConfig(kl_target=0.01, kl_hard_limit=0.03)
     apply, revert = ppo.kl_stop(jnp.float32(kl), jnp.array(running), cfg)
     assert (bool(apply), bool(revert)) == expected
 
@@ -393,7 +394,7 @@ def test_vmapped_learners_stopping_at_different_minibatches_equal_their_own_upda
 )
 def test_impossible_configs_are_rejected(changes, steps, envs, message):
     with pytest.raises(ValueError, match=message):
-        ppo.validate(ppo.PPOConfig(**changes), steps, envs)
+        ppo_config.validate(PPOConfig(**changes), steps, envs)
 
 
 @pytest.mark.slow  # compiles TINY's chunk twice; the fast path keeps the synthetic-rollout test above

@@ -16,7 +16,7 @@ from conftest import TINY, TINY_FLAGS, metrics_without_speed, needs_records
 from jaxsocial.agents import rollout
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.network import init as init_params
-from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env.observe import observe
 from jaxsocial.run import checkpoint, config, logs, loop, policy_io, rundir
 from jaxsocial.run.config import PRESETS

@@ -21,6 +21,8 @@ import jax.numpy as jnp
 import optax
 
 from jaxsocial.agents import acting, bc, network, population, ppo
+from jaxsocial.agents.devices import ONE_DEVICE, Devices
+from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env import core, observe
 from jaxsocial.env.batching import any_in_batch
 from jaxsocial.env.types import EnvParams, EnvState
@@ -79,7 +81,7 @@ class Wiring:
     pop: population.Population
     env_params: EnvParams
     net_cfg: network.NetworkConfig
-    ppo_cfg: ppo.PPOConfig
+    ppo_cfg: PPOConfig
     bc_cfg: bc.BCConfig
     algo: str
     num_envs: int
@@ -108,7 +110,7 @@ def wiring(
     pop: population.Population,
     env_params: EnvParams,
     net_cfg: network.NetworkConfig,
-    ppo_cfg: ppo.PPOConfig,
+    ppo_cfg: PPOConfig,
     bc_cfg: bc.BCConfig,
     algo: str,
     num_envs: int,
@@ -176,7 +178,7 @@ def attention_targets(w: Wiring, env_states: EnvState) -> jax.Array | None:
 
 
 def iteration(
-    w: Wiring, state: RunnerState, frozen_params, dp: ppo.Devices = ppo.ONE_DEVICE
+    w: Wiring, state: RunnerState, frozen_params, dp: Devices = ONE_DEVICE
 ) -> tuple[RunnerState, dict[str, jax.Array], tuple[jax.Array, jax.Array]]:
     """One training iteration: every slot acts in every environment for T steps, then every learner learns
     from them. `frozen_params`: the frozen slots' params stacked [S - S_l, ...] (or None); `dp`: the devices
@@ -330,7 +332,7 @@ def ppo_batch(
 
 
 def ppo_update(
-    w: Wiring, state: RunnerState, batch: ppo.Batch, key: jax.Array, dp: ppo.Devices = ppo.ONE_DEVICE
+    w: Wiring, state: RunnerState, batch: ppo.Batch, key: jax.Array, dp: Devices = ONE_DEVICE
 ) -> tuple[RunnerState, dict[str, jax.Array]]:
     """Every learner's PPO update (`ppo.update`) on its `batch` (`ppo_batch`, stacked [S_l, ...]). Returns
     the state with the new params and optimiser states, and the losses ({name: float32[S_l]})."""

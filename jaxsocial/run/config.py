@@ -16,10 +16,10 @@ from typing import Annotated, Any, NamedTuple
 import jax
 
 from jaxsocial import specs
-from jaxsocial.agents import network_config, population, ppo
+from jaxsocial.agents import network_config, population, ppo_config
 from jaxsocial.agents.bc import BCConfig
 from jaxsocial.agents.network import NetworkConfig
-from jaxsocial.agents.ppo import PPOConfig
+from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env import registry
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
 from jaxsocial.run import autotune, logs, policy_io, schedule
@@ -363,7 +363,7 @@ def _check_learners(cfg: TrainConfig, env_params: EnvParams, pop: population.Pop
             f"{env_params.n_agents - 1} (got --algo {cfg.algo}, net.n_others {cfg.net.n_others})"
         )
     if cfg.algo == "ppo":
-        ppo.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
+        ppo_config.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
     if cfg.eval_envs:
         check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
 

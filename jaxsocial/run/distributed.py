@@ -29,7 +29,7 @@ import numpy as np
 from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from jaxsocial.agents import ppo
+from jaxsocial.agents.devices import ONE_DEVICE, Devices
 
 __all__ = [
     "DATA",
@@ -235,7 +235,7 @@ def state_shardings(state: Any, mesh: Mesh, env_axes: Any, offset: int = 0) -> A
 
 
 class DataParallel:
-    """Inside a jitted program: how batch axes are split over the devices of `mesh` (a `ppo.Devices`).
+    """Inside a jitted program: how batch axes are split over the devices of `mesh` (a `devices.Devices`).
 
     Axes are given as pytree prefixes of ints (the batch axis of those leaves) or None (replicated).
     """
@@ -258,11 +258,11 @@ class DataParallel:
         return jax.shard_map(fn, mesh=self.mesh, in_specs=to_spec(in_axes), out_specs=to_spec(out_axes))
 
 
-def data_parallel(mesh: Mesh | None) -> ppo.Devices:
-    """How the batch is split over `mesh`'s devices: its DataParallel, or `ppo.ONE_DEVICE` when there is
+def data_parallel(mesh: Mesh | None) -> Devices:
+    """How the batch is split over `mesh`'s devices: its DataParallel, or `ONE_DEVICE` when there is
     nothing to split over (no mesh, one device)."""
     if mesh is None or mesh.size == 1:
-        return ppo.ONE_DEVICE
+        return ONE_DEVICE
     return DataParallel(mesh)
 
 
