@@ -66,7 +66,7 @@ class RunConfig:
     chunk_iterations: int = 10
     """Iterations per compiled chunk (the driver logs and may checkpoint between chunks)."""
     preset: str = "small"
-    """Hyperparameter preset the other defaults came from: 'small', 'paper' or 'expert'."""
+    """Hyperparameter preset the other defaults came from: 'small', 'laptop', 'paper' or 'expert'."""
 
     def __post_init__(self):
         for name, field in TEXT_FIELDS.items():
