@@ -46,7 +46,9 @@ DECLARED = {
 SOURCES = re.compile(r"^<!--\s*numbers:\s*(.*?)\s*-->", re.S | re.M)
 HEADING = re.compile(r"#+ (.*)$")
 CODE = re.compile(r"```.*?```|`[^`\n]*`", re.S)
-DECIMAL = re.compile(r"(?<![A-Za-wyz\d_.\-])(-?\d{1,3}(?:,\d{3})*\.\d+|-?\d+\.\d+)([kMG%]?)(?![\w.]\d|\d)")
+DECIMAL = re.compile(
+    r"(?<![A-Za-wyz\d_.\-])((?:-?\d{1,3}(?:,\d{3})*\.\d+|-?\d+\.\d+)(?:e-?\d+)?)([kMG%]?)(?![\w.]\d|\d)"
+)
 SCALE = {"": 1.0, "k": 1e3, "M": 1e6, "G": 1e9, "%": 0.01}
 NUMBER_IN_TEXT = re.compile(r"(-?\d+(?:\.\d+)?(?:e-?\d+)?)([kMG%]?)")
 
@@ -85,8 +87,10 @@ def quoted(text: str) -> list[tuple[str, str]]:
 
 
 def found(written: str, suffix: str, values: list[float]) -> bool:
-    """Whether some value, rounded to the decimals written (after the suffix's scale), is the number."""
-    digits = len(written.split(".")[1])
+    """Whether some value, rounded to the decimals written (after the suffix's scale; 7.6e-7 to 8 decimals),
+    is the number."""
+    mantissa, _, exponent = written.partition("e")
+    digits = len(mantissa.split(".")[1]) - int(exponent or 0)
     number = float(written.replace(",", ""))
     return any(round(v / SCALE[suffix], digits) in (number, -number) for v in values)
 
@@ -136,10 +140,13 @@ def test_every_quoted_decimal_is_in_a_declared_source(doc, heading, files, text)
 
 
 def test_the_walker_reads_what_it_should():
-    """The walker itself: suffixes scale, code is skipped, versions and names are not decimals."""
+    """The walker itself: suffixes scale, exponents count, code is skipped, versions and names are not
+    decimals."""
     text = "p = 0.10, 4.75M steps, x3.37, 82.5%, -1.5, 1,234.5 `--lr 0.3` jax 0.10.2, h1-cpu, 9x9, 82%"
     assert [w + s for w, s in quoted(text)] == ["0.10", "4.75M", "3.37", "82.5%", "-1.5", "1,234.5"]
     assert found("0.10", "", [0.0985]) and not found("0.10", "", [0.106])
     assert found("4.75", "M", [4_751_360.0]) and found("-25.7", "", [-25.7057])
+    assert [w for w, _ in quoted("relative 7.6e-7, 1.2e-6)")] == ["7.6e-7", "1.2e-6"]  # whole, exponent too
+    assert found("7.6e-7", "", [7.5957e-7]) and not found("7.6e-7", "", [7.4e-7, 7.6])
     assert numbers({"flags": "--env-args penalty=1.25 --lr 1e-3", "n": [2, True]}) == [1.25, 1e-3, 2.0]
     assert numbers("125.8M env-steps, 61%") == [125.8e6, 0.61]
