@@ -196,12 +196,19 @@ def logrank(
     return {"statistic": float(result.statistic), "p": float(result.pvalue)}
 
 
+BAND_DECIMALS = 12
+"""Decimals of a Kaplan-Meier band: its log and exp run in numpy's SIMD code, whose last bits differ between
+CPU kinds (the experts summary's bands: up to 1.1e-16 apart between an Intel AVX-512 kind and the AMD Zen 3
+it was made on), so a summary keeps the band to 1e-12 and re-derives alike on both."""
+
+
 def kaplan_meier(
     takeoffs: Sequence[float | None], ends: Sequence[float], confidence: float = 0.95
 ) -> dict[str, list[float]]:
     """The Kaplan-Meier estimate of the fraction of seeds past the plateau against time, 1 - S(t), with its
-    pointwise `confidence` band (scipy's log-log interval of S): 'time' (0 first, then each distinct takeoff),
-    'learned', 'low', 'high'. A step function, constant after each time until the next."""
+    pointwise `confidence` band (scipy's log-log interval of S, to `BAND_DECIMALS`): 'time' (0 first, then
+    each distinct takeoff), 'learned', 'low', 'high'. A step function, constant after each time until the
+    next."""
     times, learned, low, high = [0.0], [0.0], [0.0], [0.0]
     if any(t is not None for t in takeoffs):
         fit = scipy_stats.ecdf(censored(takeoffs, ends))
@@ -213,8 +220,8 @@ def kaplan_meier(
         lows, highs = 1.0 - band.high.evaluate(at), 1.0 - band.low.evaluate(at)  # 1 - S swaps the bounds
         times += at.tolist()
         learned += estimate.tolist()
-        low += np.where(np.isnan(lows), estimate, lows).tolist()
-        high += np.where(np.isnan(highs), estimate, highs).tolist()
+        low += np.where(np.isnan(lows), estimate, lows).round(BAND_DECIMALS).tolist()
+        high += np.where(np.isnan(highs), estimate, highs).round(BAND_DECIMALS).tolist()
     return {"time": times, "learned": learned, "low": low, "high": high}
 
 
