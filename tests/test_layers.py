@@ -18,6 +18,7 @@ ANALYSE = (
     "jaxsocial.experiments.kinds",
     "jaxsocial.experiments.plot_figures",
     "jaxsocial.experiments.records",
+    "jaxsocial.experiments.run_times",
     "jaxsocial.experiments.rundirs",
     "jaxsocial.experiments.takeoff",
     "jaxsocial.experiments.takeoff_power",

@@ -32,7 +32,7 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.env import registry
-from jaxsocial.experiments import paths, pinned, plot_figures, prereg, records, rundirs
+from jaxsocial.experiments import paths, pinned, plot_figures, prereg, records, run_times, rundirs
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -210,6 +210,11 @@ def run(
             elif state != "done":
                 jobs.append(pinned.Job(cfg.run_name, pinned.train_command(flags), run_dir))
     print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
+    pending = counts["partial"] + counts["missing"]
+    starting = min(pending, max_runs or pending)
+    pace = run_times.recorded_pace(records_root / design.out, starting, len(cores)) if pending else None
+    if pace:
+        print(f"[{design.name}] at the pace of its records: {pace}")
     if dry_run or not jobs:
         return []
     return pinned.run(pinned.first_runs(jobs, max_runs), cores, design.xla_flags)

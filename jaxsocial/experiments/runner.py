@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import evaluate, train
-from jaxsocial.experiments import kinds, paths, pinned, prereg, recipes, xla_flags
+from jaxsocial.experiments import kinds, paths, pinned, prereg, recipes, run_times, xla_flags
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.experiments.rundirs import condition_seed_dirs, seed_dirs
 from jaxsocial.run import logs, outputs
@@ -102,9 +102,8 @@ def run(
         for cfg in cfgs
     }
     if train_missing:
-        print_cost(
-            recipe, scale, [c for n, cs in programs.items() for c in cs if states[n, c.seed] != "done"], cores
-        )
+        to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != "done"]
+        print_cost(recipe, scale, to_train, cores, max_runs)
     prefix = f"[{recipe.name}/{scale.name}]"
     jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
     if jobs:
@@ -162,8 +161,12 @@ def run_pinned(
         raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
 
 
-def print_cost(recipe: Recipe, scale: Scale, to_train: list[TrainConfig], cores: tuple[int, ...]) -> None:
-    """The cost line of the programs `to_train` (nothing if none), on `cores` (or in this process)."""
+def print_cost(
+    recipe: Recipe, scale: Scale, to_train: list[TrainConfig], cores: tuple[int, ...], max_runs: int | None
+) -> None:
+    """The cost line of the programs `to_train` (nothing if none), on `cores` (or in this process), and with
+    `cores`, what the first `max_runs` (None: all) take at the pace of the runs recorded in their folder
+    (`run_times.recorded_pace`)."""
     if not to_train:
         return
     runs = sum(cfg.seeds for cfg in to_train)
@@ -171,6 +174,11 @@ def print_cost(recipe: Recipe, scale: Scale, to_train: list[TrainConfig], cores:
     estimate = recipes.cost(scale, runs, steps, len(cores) or 1) or f"{runs} runs (no measured CPU rate)"
     mode = "" if cores else " (the rate is one seed a process, as --cores trains; in one process it differs)"
     print(f"[{recipe.name}/{scale.name}] to train: {estimate}{mode}")
+    recorded = paths.RECORDS / Path(to_train[0].run_name).parent
+    starting = min(runs, max_runs or runs)
+    pace = run_times.recorded_pace(recorded, starting, len(cores)) if cores else None
+    if pace:
+        print(f"[{recipe.name}/{scale.name}] at the pace of its records: {pace}")
 
 
 def train_programs(
