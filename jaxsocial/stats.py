@@ -243,8 +243,11 @@ def paired_difference(
     before: list[float], after: list[float], alternative: str = "two-sided"
 ) -> dict[str, Any]:
     """`after` minus `before` per seed: n, mean, 95% t-interval and the Wilcoxon signed-rank p (`alternative`
-    'greater': after tends to exceed before; None under 2 pairs or when every difference is 0)."""
+    'greater': after tends to exceed before; None under 2 pairs or when every difference is 0); mean and
+    interval None without pairs."""
     diff = np.asarray(after, np.float64) - np.asarray(before, np.float64)
+    if not len(diff):
+        return {"n": 0, "mean": None, "ci95": None, "wilcoxon_p": None}
     mean, low, high = mean_ci95(diff)
     p = None
     if len(diff) >= 2 and np.any(diff != 0):

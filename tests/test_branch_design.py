@@ -3,7 +3,9 @@ analysis of recorded branches against scipy, and a refused design."""
 
 import dataclasses
 import json
+import math
 import shutil
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -11,7 +13,7 @@ import pytest
 from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
-from jaxsocial import train
+from jaxsocial import stats, train
 from jaxsocial.experiments import branch_design, commits, paths, pinned, records
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.flags import config_flags
@@ -78,6 +80,16 @@ def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, floa
 
 
 @needs_records("records/laptop/prereg-experts")
+def test_a_paired_difference_is_the_t_interval_and_wilcoxon_of_the_differences():
+    d = stats.paired_difference([1.0, 2.0, 4.0], [2.0, 4.0, 7.0], "greater")  # differences 1, 2, 3
+    half = scipy_stats.t.ppf(0.975, 2) / math.sqrt(3)  # their standard deviation is 1
+    assert d["n"] == 3 and d["mean"] == 2.0 and d["ci95"] == pytest.approx([2 - half, 2 + half], rel=1e-12)
+    assert d["wilcoxon_p"] == scipy_stats.wilcoxon([1, 2, 3], alternative="greater").pvalue == 0.125
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no pairs: no statistics, and no warning of an empty mean
+        assert stats.paired_difference([], []) == {"n": 0, "mean": None, "ci95": None, "wilcoxon_p": None}
+
+
 def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path):
     design = dataclasses.replace(MIXING, seeds=6)
     rng = np.random.default_rng(1)

@@ -226,7 +226,7 @@ def zero_shot_returns(runs) -> dict[str, Any]:
         experts = [s for s in first if s["kind"] == "expert"]
         per_cond["experts"] = {
             "per_slot": [{"mean": round(s["mean_return"], 4), "ci95": _rounded(s["ci95"])} for s in experts],
-            "mean": round(float(np.mean([s["mean_return"] for s in experts])), 4),
+            "mean": round(float(np.mean([s["mean_return"] for s in experts])), 4) if experts else None,
             "ci_over": "episodes, each slot its own",
         }
         conditions[spec] = per_cond
