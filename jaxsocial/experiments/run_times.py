@@ -13,7 +13,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from jaxsocial.experiments import records
-from jaxsocial.run import autotune, cost, logs
+from jaxsocial.run import autotune, cost
 
 UNNAMED = "a CPU not recorded"
 """The kind of a record whose provenance names no CPU."""
@@ -26,7 +26,7 @@ def minutes_by_cpu(root: Path) -> dict[str, list[float]]:
     its start and end do not span one process."""
     times: dict[str, list[float]] = defaultdict(list)
     for path in sorted(Path(root).glob(f"*/{records.PROVENANCE_FILE}")):
-        run = logs.read_json(path).get("run") or {}
+        run = records.read_provenance(path.parent).get("run") or {}
         if run.get("cores") != 1 or run.get("rc") != 0 or run.get("earlier"):
             continue
         if not (run.get("started") and run.get("ended")):
