@@ -147,7 +147,18 @@ def test_crash_between_the_policy_and_checkpoint_writes_resumes_consistently(fin
     assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got), strict=True))
 
 
-@pytest.mark.parametrize("damage", ["manifest/metadata", "state/ocdbt.process_0/d/*"])
+# Emptied data files make one of orbax's tensorstore reads fail: orbax (asyncio_utils._run_sync_via_new_loop)
+# closes its event loop on that error while the other reads are still in flight, and when they end their
+# callbacks find the loop closed ("Exception ignored ... Event loop is closed"), an upstream race outside
+# what this test checks.
+ORBAX_CLOSED_LOOP = pytest.mark.filterwarnings(
+    "ignore:Exception ignored:pytest.PytestUnraisableExceptionWarning"
+)
+
+
+@pytest.mark.parametrize(
+    "damage", ["manifest/metadata", pytest.param("state/ocdbt.process_0/d/*", marks=ORBAX_CLOSED_LOOP)]
+)
 def test_corrupt_latest_checkpoint_falls_back_to_the_one_before(finished_run, tmp_path, capsys, damage):
     """An emptied manifest or emptied data files in checkpoint 6: resuming warns, naming it, restarts from
     checkpoint 4 and trains iterations 5-6 again, exactly as the first time."""
