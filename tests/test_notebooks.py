@@ -65,6 +65,15 @@ def test_social_learning_notebook_shows_committed_results_without_training(
             f"treatment {result['treatment_learned']}/{result['treatment_seeds']} learned, control "
             f"{result['control_learned']}/{result['control_seeds']}, p = {result['p']:.4g}"
         ) in printed
+    readme = (REPO / "README.md").read_text()
+    findings = readme[readme.index("## The paper, finding by finding") :]
+    findings = findings[: findings.index("\n## ", 1)]
+    rows = [line for line in findings.splitlines() if line.startswith("| ") and "| verdict |" not in line]
+    assert len(ns["findings"]) == len(rows) > 10
+    for line in rows:  # the README's row, claim first and verdict last, as the notebook prints it
+        cells = [cell.strip("| ").replace("**", "").replace("`", "") for cell in line.split(" | ")]
+        claim, verdict = cells[0], cells[-1]
+        assert f"{claim}\n    ours: " in printed and f"    verdict: {verdict}\n" in printed
     experts = json.loads((REPO / "benchmarks/results/science/experts-laptop.json").read_text())
     for test, result in experts["preregistered"]["result"]["primary"].items():  # takeoff, then 4-goal returns
         assert f"primary {test}: p = {result['p']:.4g}" in printed
