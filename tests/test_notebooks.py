@@ -58,8 +58,8 @@ def test_social_learning_notebook_shows_committed_results_without_training(
     assert ns["committed"]["h1-gpu"] == h1
     mean, (low, high) = h1["conditions"]["social_rec"]["mean"], h1["conditions"]["social_rec"]["ci95"]
     assert f"{mean:6.2f} [{low:6.2f}, {high:6.2f}]" in printed
-    for design in ("h1_laptop", "h1_early", "h1_sooner"):
-        laptop = json.loads((REPO / f"benchmarks/results/science/{design}-laptop.json").read_text())
+    for summary in ("h1_laptop-laptop", "h1_early-laptop", "h1_sooner-laptop", "pred8-laptop8"):
+        laptop = json.loads((REPO / f"benchmarks/results/science/{summary}.json").read_text())
         result = laptop["preregistered"]["result"]  # the design's test, as the summary carries it
         assert (
             f"treatment {result['treatment_learned']}/{result['treatment_seeds']} learned, control "

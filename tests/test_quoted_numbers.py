@@ -27,6 +27,11 @@ DECLARED = {
     ("README.md", "The paper, finding by finding"),
     ("docs/experiments.md", "The sample-efficiency sweep (exploratory)"),
     ("docs/experiments.md", "Results"),
+    (
+        "docs/experiments.md",
+        "`pred8`: do the experts decide whether a learner with the prediction loss learns? "
+        "(pre-registered; holds)",
+    ),
     ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
     (
         "docs/experiments.md",
