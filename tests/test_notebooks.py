@@ -103,7 +103,9 @@ def test_social_learning_notebook_trains_when_asked_then_finds_the_runs(tmp_path
     monkeypatch.setenv("JAXSOCIAL_TRAIN", "1")
     trained = run_notebook(SOCIAL)
     assert trained["RUNS_DIR"] == repo / "runs" / "experiments"
-    assert "No committed summary" in capsys.readouterr().out  # this repository has no benchmarks/results
+    printed = capsys.readouterr().out
+    assert "No committed summary" in printed  # this repository has no benchmarks/results
+    assert f"No table of findings: {repo / 'README.md'} is missing." in printed and trained["findings"] == []
     tiny = trained["recipes"].TINY
     assert len(trained["curves"]) == 2
     for x, y in trained["curves"]:
