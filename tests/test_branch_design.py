@@ -14,7 +14,7 @@ from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats, train
-from jaxsocial.experiments import branch_design, commits, paths, pinned, records
+from jaxsocial.experiments import branch_design, commits, kinds, paths, pinned, prereg, records
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef
@@ -44,10 +44,49 @@ def test_the_mixing_design_branches_every_experts_record_in_its_arm():
 
 
 @pytest.mark.slow
-def test_the_mixing_design_has_the_power_it_states():
+def test_the_mixing_design_and_its_amendment_have_the_power_they_state():
     assert branch_design.stated_power(MIXING) == MIXING.power_simulation["power"]
     planning = MIXING.power_simulation["power"][f"discount {MIXING.power_simulation['planning_discount']:g}"]
     assert MIXING.power == planning[MIXING.power_simulation["planning_test"]]
+    added = MIXING.amendment
+    assert branch_design.amendment_power(MIXING) == added.power_simulation["power"]
+    planning = added.power_simulation["power"][f"discount {added.power_simulation['planning_discount']:g}"]
+    assert added.power == planning[added.power_simulation["planning_test"]]
+
+
+@needs_records("records/laptop/prereg-experts")
+def test_where_the_branches_started_is_the_experts_designs_own_evaluation():
+    """The start of every branch, alone in 3-goal and beside new experts in 4-goal, is what the committed
+    experts summary says of its source record; beside the experts in 3-goal it was not evaluated."""
+    started = branch_design.start_scores(MIXING, paths.RECORDS)
+    experts = logs.read_json(paths.SCIENCE / "experts-laptop.json")["conditions"]
+    solo3, gc4, gc3 = MIXING.eval_envs
+    for source in MIXING.sources():
+        row = started[branch_design.start_row(source)]
+        assert row[solo3] == [round(v, 4) for v in experts[source]["solo3"]["per_seed"]]
+        assert row[gc4] == [round(v, 4) for v in experts[source]["goalcycle4"]["per_seed"]]
+        assert row[gc3] == [None] * MIXING.seeds
+
+
+def test_the_amendment_tests_each_branch_against_where_it_started():
+    """The amendment's two tests pair a branch with its own source record; the design's tests are as
+    committed, and the pilot's differences point the way each test looks."""
+    assert list(MIXING.amendment.tests) == ["social_fades", "mixed_gains"]
+    assert all(MIXING.paired(t) for t in MIXING.amendment.tests.values())
+    fades = MIXING.amendment.tests["social_fades"]
+    assert (fades.treatment, fades.control, fades.alternative) == ("social", "start", "less")
+    assert MIXING.control_row(fades) == "social_rec at the branch"
+    assert list(MIXING.primary) == ["mixed_vs_social", "mixed_vs_alone"] and MIXING.sources() == (
+        "social_rec",
+        "solo_rec",
+    )
+    pilot = branch_design.pilot_scores(MIXING, MIXING.amendment.tests, MIXING.amendment.power_simulation)
+    follow_up = logs.read_json(Path(MIXING.amendment.power_simulation["pilot_branches"]))
+    solo3 = fades.env
+    social = [s for s in follow_up["seeds"].values() if s["condition"].startswith("social")]
+    assert pilot["social_fades"]["differences"] == [
+        s["zero_shot"][solo3]["learner"] - s["branches"]["social"][solo3] for s in social
+    ]  # a fall is positive
 
 
 def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path):
@@ -55,7 +94,7 @@ def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path):
     raw["primary"]["mixed_vs_alone"]["control"] = "solo"
     raw["secondary"]["social_skill"]["env"] = "goalcycle4"
     (tmp_path / "bad.json").write_text(json.dumps(raw))
-    with pytest.raises(ValueError, match=r"arm 'solo' is not one of \['alone', 'mixed', 'social'\]"):
+    with pytest.raises(ValueError, match=r"arm 'solo' is not one of \['alone', 'mixed', 'social', 'start'\]"):
         branch_design.load("bad", tmp_path)
     with pytest.raises(FileNotFoundError, match=r"the designs are \['bad'\]"):
         branch_design.load("mixing", tmp_path)
@@ -90,7 +129,7 @@ def test_a_paired_difference_is_the_t_interval_and_wilcoxon_of_the_differences()
         assert stats.paired_difference([], []) == {"n": 0, "mean": None, "ci95": None, "wilcoxon_p": None}
 
 
-def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path):
+def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeypatch):
     design = dataclasses.replace(MIXING, seeds=6)
     rng = np.random.default_rng(1)
     solo3, gc4, gc3 = design.eval_envs
@@ -104,6 +143,23 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path):
                 _fake_record(
                     tmp_path, design, arm, seed, {e: float(values[arm][e][k]) for e in design.eval_envs}
                 )
+    started = rng.normal(7.0, 3, 6).round(2)  # where the social_rec records ended, alone in 3-goal
+    for k, seed in enumerate(design.source_seeds()):
+        evaluation = {"results": [{"slot": 0, "kind": "learner", "mean_return": float(started[k])}]}
+        path = kinds.eval_path(design.record_of("social_rec", seed, tmp_path), solo3)
+        path.parent.mkdir(parents=True)
+        logs.write_json(path, evaluation)
+    ended = {"mixed-s300": "2026-11-28T16:17:21+00:00", "social-s300": "2026-12-01T20:00:00-03:00"}
+    for name, when in ended.items():  # one run ended before the amendment and one after (23:00 UTC)
+        provenance = logs.read_json(tmp_path / design.out / name / records.PROVENANCE_FILE)
+        provenance["run"]["ended"] = when
+        logs.write_json(tmp_path / design.out / name / records.PROVENANCE_FILE, provenance)
+    committed = prereg.file_commit  # the design's commit as it is; the amendment's at 22:00 UTC
+    amendment = branch_design.amendment_path(design.name)
+    monkeypatch.setattr(
+        prereg, "file_commit", lambda path: "f" * 40 if path == amendment else committed(path)
+    )
+    monkeypatch.setattr(prereg, "commit_time", lambda commit: "2026-12-01T22:00:00+00:00")
     summary = branch_design.summarise(design, tmp_path)
     block = summary["preregistered"]
     paired = scipy_stats.wilcoxon(
@@ -129,6 +185,25 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path):
     assert not checks["every_branch_recorded"] and checks["branches_as_designed"] and not block["valid"]
     assert not checks["design_precedes_every_run"]  # commit 000... is no ancestor of the design
     assert "NOT VALID" in branch_design.verdict(summary)
+    added = block["amendment"]
+    assert added["tests"]["social_fades"]["arms"] == ["social", "social_rec at the branch"]
+    fades = scipy_stats.wilcoxon(values["social"][solo3] - started, alternative="less").pvalue
+    gains = scipy_stats.wilcoxon(values["mixed"][solo3] - started, alternative="greater").pvalue
+    assert added["tests"]["social_fades"]["p"] == pytest.approx(fades, rel=1e-5)
+    assert added["tests"]["mixed_gains"]["p"] == pytest.approx(gains, rel=1e-5)
+    assert added["tests"]["social_fades"]["p_holm"] == pytest.approx(
+        min(1, max(2 * min(fades, gains), fades)), rel=1e-5
+    )
+    assert summary["environments"][solo3]["social_rec at the branch"]["per_seed"] == list(started)
+    assert summary["environments"][gc4]["solo_rec at the branch"]["per_seed"] == [None] * 6  # not evaluated
+    assert added["checks"] == {
+        "amendment_committed": True,
+        "runs_ended_before_the_amendment": 1,
+        "amendment_before_the_last_run_ended": True,
+        "every_start_scored": True,
+    }
+    assert added["valid"] and added["committed"] == "2026-12-01T22:00:00+00:00"
+    assert "amendment social_fades (wilcoxon" in branch_design.verdict(summary)
     shutil.rmtree(tmp_path / design.run_name("mixed", design.seed + 2))
     _fake_record(tmp_path, dataclasses.replace(design, iterations=5), "mixed", design.seed + 2, {solo3: 1.0})
     assert branch_design.summarise(design, tmp_path)["preregistered"]["checks"]["differing"] == ["mixed-s302"]

@@ -19,12 +19,18 @@ otherwise; the primary tests are Holm-corrected at `alpha` as a family, the seco
 
 The power is simulated from a pilot (`pilot_scores`): paired differences and each arm's scores, the effect
 diluted by a discount (`power_table`).
+
+Tests added after a design's runs began, blind (no result seen: `figure` refuses until every branch is in),
+are an amendment in `branch_designs/amendments/<name>.json`: a family of their own, Holm-corrected among
+themselves, the design's own tests untouched. Their control may be `start`: where each branch started, its
+source record scored by the evaluation of the design that made it (`<record>/eval/<env>.json`).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime
 from pathlib import Path
 from typing import Any
 
@@ -32,14 +38,18 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.env import registry
-from jaxsocial.experiments import paths, pinned, plot_figures, prereg, records, run_times, rundirs
+from jaxsocial.experiments import kinds, paths, pinned, plot_figures, prereg, records, run_times, rundirs
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
 
 DESIGNS_DIR = Path(__file__).parent / "branch_designs"
+AMENDMENTS = "amendments"
+"""The folder of `DESIGNS_DIR` that holds the amendments, one `<name>.json` a design."""
 ALTERNATIVES = ("greater", "less", "two-sided")
+START = "start"
+"""A test's control that is no arm: the treatment arm's source records, as they were when branched."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,6 +71,19 @@ class Test:
     control: str
     alternative: str
     statement: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class Amendment:
+    """Tests added to a design after its runs began and before any result was seen, with their power."""
+
+    added: str
+    """The date, and how many of the design's runs had ended."""
+    alpha: float
+    tests: dict[str, Test]
+    power: float
+    power_simulation: dict[str, Any]
+    rationale: str
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,29 +110,52 @@ class BranchDesign:
     power: float
     power_simulation: dict[str, Any]
     rationale: str
+    amendment: Amendment | None = None
 
     @property
     def tests(self) -> dict[str, Test]:
-        return {**self.primary, **self.secondary}
+        return {**self.primary, **self.secondary, **(self.amendment.tests if self.amendment else {})}
 
     def paired(self, test: Test) -> bool:
-        """Whether `test`'s arms branch the same records (seed k of one pairs with seed k of the other)."""
-        return self.arms[test.treatment].source == self.arms[test.control].source
+        """Whether `test`'s arms branch the same records (seed k of one pairs with seed k of the other), as
+        a branch pairs with its own start."""
+        return test.control == START or self.arms[test.treatment].source == self.arms[test.control].source
+
+    def control_row(self, test: Test) -> str:
+        """The name of `test`'s control among the scores: an arm, or the treatment's `start_row`."""
+        return start_row(self.arms[test.treatment].source) if test.control == START else test.control
 
     def source_seeds(self) -> range:
         return range(self.seed, self.seed + self.seeds)
 
     def source_dir(self, arm: str, seed: int, records_root: Path) -> Path:
         """The record run `seed` of `arm` starts from."""
-        return records_root / self.records / f"{self.arms[arm].source}-s{seed}-{seed}"
+        return self.record_of(self.arms[arm].source, seed, records_root)
+
+    def record_of(self, source: str, seed: int, records_root: Path) -> Path:
+        """The material's record of condition `source`, seed `seed`."""
+        return records_root / self.records / f"{source}-s{seed}-{seed}"
+
+    def sources(self) -> tuple[str, ...]:
+        """The source conditions of the arms, each once, in the arms' order."""
+        return tuple(dict.fromkeys(a.source for a in self.arms.values()))
 
     def run_name(self, arm: str, seed: int) -> str:
         """The run name of `arm`'s branch of source seed `seed` (under a runs root or a records root)."""
         return f"{self.out}/{arm}-s{seed}"
 
 
+def start_row(source: str) -> str:
+    """The scores' name of the `source` condition's records as they were when branched."""
+    return f"{source} at the branch"
+
+
 def path_of(name: str, designs_dir: Path = DESIGNS_DIR) -> Path:
     return designs_dir / f"{name}.json"
+
+
+def amendment_path(name: str, designs_dir: Path = DESIGNS_DIR) -> Path:
+    return designs_dir / AMENDMENTS / f"{name}.json"
 
 
 def load(name: str, designs_dir: Path = DESIGNS_DIR) -> BranchDesign:
@@ -124,14 +170,18 @@ def load(name: str, designs_dir: Path = DESIGNS_DIR) -> BranchDesign:
         raw[family] = {k: Test(**v) for k, v in raw[family].items()}
     raw["eval_envs"] = tuple(raw["eval_envs"])
     design = BranchDesign(**raw)
+    if amendment_path(name, designs_dir).is_file():
+        added = logs.read_json(amendment_path(name, designs_dir))
+        added["tests"] = {k: Test(**v) for k, v in added["tests"].items()}
+        design = dataclasses.replace(design, amendment=Amendment(**added))
     for env in (*(arm.env for arm in design.arms.values()), *design.eval_envs):
         spec = EnvSpec.parse(env)
         registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
     for test_name, test in design.tests.items():
         problems = [
-            f"arm {a!r} is not one of {sorted(design.arms)}"
-            for a in (test.treatment, test.control)
-            if a not in design.arms
+            f"arm {a!r} is not one of {sorted(allowed)}"
+            for a, allowed in ((test.treatment, design.arms), (test.control, {*design.arms, START}))
+            if a not in allowed
         ]
         if test.env not in design.eval_envs:
             problems.append(f"{test.env} is not among eval_envs")
@@ -255,7 +305,8 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
 
 
 def final_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str, list]]:
-    """Per arm, per evaluation environment, every source seed's final evaluation (None: not recorded)."""
+    """Per arm, per evaluation environment, every source seed's final evaluation (None: not recorded); and
+    where the branches started (`start_scores`)."""
     out: dict[str, dict[str, list]] = {arm: {env: [] for env in design.eval_envs} for arm in design.arms}
     keys = {env: metrics.eval_key(str(EnvSpec.parse(env))) for env in design.eval_envs}  # as `train` logs
     for arm in design.arms:
@@ -265,12 +316,30 @@ def final_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str
             for env in design.eval_envs:
                 value = None if rows is None else metrics.final_eval(rows, keys[env])
                 out[arm][env].append(None if value is None or np.isnan(value) else round(value, 4))
+    return out | start_scores(design, records_root)
+
+
+def start_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str, list]]:
+    """Per source condition (`start_row`), per evaluation environment, each source record's own evaluation
+    there (`<record>/eval/<env>.json`, the learner's mean return), where its branches started; None where
+    the design that made the records did not evaluate them there."""
+    out = {}
+    for source in design.sources():
+        started = [design.record_of(source, seed, records_root) for seed in design.source_seeds()]
+        out[start_row(source)] = {
+            env: [
+                round(kinds.RETURNS.score(logs.read_json(path)), 4) if path.is_file() else None
+                for path in (kinds.eval_path(record_dir, env) for record_dir in started)
+            ]
+            for env in design.eval_envs
+        }
     return out
 
 
-def compare(test: Test, paired: bool, scores: dict[str, dict[str, list]]) -> dict[str, Any]:
-    """One test on the seeds both arms have (paired: by source seed): its p-value (None without data)."""
-    a, b = scores[test.treatment][test.env], scores[test.control][test.env]
+def compare(test: Test, paired: bool, scores: dict[str, dict[str, list]], control: str) -> dict[str, Any]:
+    """One test on the seeds both rows have, `test`'s treatment arm against the row `control` (paired: by
+    source seed): its p-value (None without data)."""
+    a, b = scores[test.treatment][test.env], scores[control][test.env]
     if paired:
         pairs = [(x, y) for x, y in zip(a, b, strict=True) if x is not None and y is not None]
         d = stats.paired_difference([y for _, y in pairs], [x for x, _ in pairs], test.alternative)
@@ -279,14 +348,16 @@ def compare(test: Test, paired: bool, scores: dict[str, dict[str, list]]) -> dic
     return {"test": "mann-whitney"} | stats.mann_whitney(kept[0], kept[1], test.alternative)
 
 
-def tested(design: BranchDesign, family: dict[str, Test], scores: dict[str, dict[str, list]]) -> dict:
-    """Each test of `family`, Holm-corrected among themselves at the design's alpha."""
+def tested(
+    design: BranchDesign, family: dict[str, Test], scores: dict[str, dict[str, list]], alpha: float
+) -> dict:
+    """Each test of `family`, Holm-corrected among themselves at `alpha`."""
     out = {
-        name: {"env": t.env, "arms": [t.treatment, t.control], "alternative": t.alternative}
-        | compare(t, design.paired(t), scores)
+        name: {"env": t.env, "arms": [t.treatment, design.control_row(t)], "alternative": t.alternative}
+        | compare(t, design.paired(t), scores, design.control_row(t))
         for name, t in family.items()
     }
-    return prereg.holm_family(out, design.alpha)
+    return prereg.holm_family(out, alpha)
 
 
 def as_designed(design: BranchDesign, records_root: Path) -> dict[str, Any]:
@@ -324,7 +395,7 @@ def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESI
         env: {
             arm: stats.summary([v for v in scores[arm][env] if v is not None])
             | {"per_seed": scores[arm][env]}
-            for arm in design.arms
+            for arm in scores
         }
         for env in design.eval_envs
     }
@@ -342,11 +413,14 @@ def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESI
     block = {
         "commit": commit,
         "alpha": design.alpha,
-        "primary": tested(design, design.primary, scores),
-        "secondary": tested(design, design.secondary, scores),
+        "primary": tested(design, design.primary, scores, design.alpha),
+        "secondary": tested(design, design.secondary, scores, design.alpha),
         "checks": checks,
         "valid": all(v for v in checks.values() if isinstance(v, bool)),
     }
+    if design.amendment:
+        ended = [p["run"].get("ended") for p in provenance.values()]
+        block["amendment"] = amended(design, scores, ended, designs_dir)
     return {
         "design": design.name,
         "material": {"records": design.records, "seeds": [design.seed, design.seed + design.seeds - 1]},
@@ -361,45 +435,101 @@ def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESI
     }
 
 
+def amended(
+    design: BranchDesign, scores: dict[str, dict[str, list]], ended: list[str | None], designs_dir: Path
+) -> dict[str, Any]:
+    """The amendment's tests, Holm-corrected among themselves, and its checks: committed, and before the
+    last of the design's runs ended (how many had: `ended`, the recorded runs' end times), every branch's
+    start scored."""
+    amendment = design.amendment
+    commit = prereg.file_commit(amendment_path(design.name, designs_dir))
+    when = prereg.commit_time(commit)
+    at = datetime.datetime.fromisoformat(when) if when else None
+    before = sum(at is not None and e is not None and datetime.datetime.fromisoformat(e) < at for e in ended)
+    checks = {
+        "amendment_committed": commit is not None,
+        "runs_ended_before_the_amendment": before,
+        "amendment_before_the_last_run_ended": at is not None and before < design.seeds * len(design.arms),
+        "every_start_scored": all(
+            v is not None
+            for t in amendment.tests.values()
+            if t.control == START
+            for v in scores[design.control_row(t)][t.env]
+        ),
+    }
+    return {
+        "commit": commit,
+        "committed": when,
+        "added": amendment.added,
+        "alpha": amendment.alpha,
+        "tests": tested(design, amendment.tests, scores, amendment.alpha),
+        "checks": checks,
+        "valid": all(v for v in checks.values() if isinstance(v, bool)),
+    }
+
+
+def families(block: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """The tested families of a summary's `preregistered` block: primary, secondary and any amendment's."""
+    out = [("primary", block["primary"]), ("secondary", block["secondary"])]
+    return out + ([("amendment", block["amendment"]["tests"])] if "amendment" in block else [])
+
+
+def test_lines(family: str, entries: dict[str, Any], environments: dict[str, Any]) -> list[str]:
+    """One line a test of a tested family: its rows' means, p-values and whether it is rejected."""
+    lines = []
+    for name, entry in entries.items():
+        rows = environments[entry["env"]]
+        means = ", ".join(f"{a} {rows[a]['mean']}" for a in entry["arms"])
+        p = "no data" if entry["p"] is None else f"p = {entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
+        rejected = ", rejected" if entry["rejected"] else ""
+        lines.append(f"  {family} {name} ({entry['test']}, {entry['env']}): mean {means}; {p}{rejected}")
+    return lines
+
+
+def check_lines(checks: dict[str, Any], indent: str = "  ") -> list[str]:
+    return [f"{indent}{k}: {('yes' if v else 'NO') if isinstance(v, bool) else v}" for k, v in checks.items()]
+
+
 def verdict(summary: dict[str, Any]) -> str:
     """The summary's tests and checks, for people."""
-    block = summary["preregistered"]
+    block, environments = summary["preregistered"], summary["environments"]
     lines = [f"{summary['design']}: {summary['recorded']} branches recorded; alpha {block['alpha']:g}, Holm"]
-    for family in ("primary", "secondary"):
-        for name, entry in block[family].items():
-            rows = summary["environments"][entry["env"]]
-            means = ", ".join(f"{a} {rows[a]['mean']}" for a in entry["arms"])
-            p = "no data" if entry["p"] is None else f"p = {entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
-            rejected = ", rejected" if entry["rejected"] else ""
-            lines.append(f"  {family} {name} ({entry['test']}, {entry['env']}): mean {means}; {p}{rejected}")
-    lines += [f"  {k}: {'yes' if ok else 'NO'}" for k, ok in block["checks"].items() if isinstance(ok, bool)]
+    lines += test_lines("primary", block["primary"], environments)
+    lines += test_lines("secondary", block["secondary"], environments)
+    lines += check_lines({k: v for k, v in block["checks"].items() if isinstance(v, bool)})
     if not block["valid"]:
         lines.append("NOT VALID: the result above does not test the design (see the checks)")
+    if "amendment" in block:
+        added = block["amendment"]
+        lines.append(f"amendment, {added['added']} (Holm among its tests at {added['alpha']:g}):")
+        lines += test_lines("amendment", added["tests"], environments) + check_lines(added["checks"])
+        if not added["valid"]:
+            lines.append("NOT VALID: the amendment's tests do not test it (see its checks)")
     return "\n".join(lines)
 
 
 def draw(summary: dict[str, Any], path: Path) -> None:
-    """One panel per evaluation environment: each arm's mean with its 95% interval over seeds, a cross per
-    seed, and a grey line joining the paired arms' seeds (same source); titled with the tests there."""
+    """One panel per evaluation environment: each arm's mean (and each source's where it started, if
+    scored there) with its 95% interval over seeds and a cross per seed; titled with the tests there."""
     plt = plot_figures.pyplot()
     per_env, block = summary["environments"], summary["preregistered"]
     fig, axes = plt.subplots(1, len(per_env), figsize=(4.0 * len(per_env), 3.8), squeeze=False)
     for ax, (env, rows) in zip(axes[0], per_env.items(), strict=True):
-        arms = list(rows)
+        colours = {arm: f"C{j}" for j, arm in enumerate(rows)}  # one colour a row in every panel
+        arms = [arm for arm, s in rows.items() if s["mean"] is not None]
         for j, arm in enumerate(arms):
             s = rows[arm]
-            if s["mean"] is None:
-                continue
-            ax.bar(j, s["mean"], color=f"C{j}", yerr=plot_figures.whisker(s["mean"], s["ci95"]), capsize=3)
+            whisker = plot_figures.whisker(s["mean"], s["ci95"])
+            ax.bar(j, s["mean"], color=colours[arm], yerr=whisker, capsize=3)
             values = [v for v in s["per_seed"] if v is not None]
             ax.scatter([j] * len(values), values, color="k", marker="x", s=8, zorder=3)
         tests = [
             f"{name}: Holm p = {e['p_holm']:.3g}" if e["p"] is not None else f"{name}: no data"
-            for family in ("primary", "secondary")
-            for name, e in block[family].items()
+            for _, entries in families(block)
+            for name, e in entries.items()
             if e["env"] == env
         ]
-        ax.set_xticks(range(len(arms)), arms)
+        ax.set_xticks(range(len(arms)), arms, rotation=20, ha="right", fontsize=8)
         ax.set_title("\n".join([env, *tests]), fontsize=8)
         ax.set_ylabel("learner return per episode")
     fig.suptitle(
@@ -415,25 +545,36 @@ def draw(summary: dict[str, Any], path: Path) -> None:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def pilot_scores(design: BranchDesign) -> dict[str, dict[str, list[float]]]:
-    """Per primary test, the pilot's evidence: for a paired test the per-seed differences (treatment minus
-    control) of the exploratory follow-up's branches of its social seeds (`pilot_branches`); otherwise the
-    treatment's per-seed scores there and the control's from a committed summary (`pilot_control`: where
-    the arm's source records ended, before any further training)."""
-    sim = design.power_simulation
+def pilot_scores(
+    design: BranchDesign, tests: dict[str, Test], sim: dict[str, Any]
+) -> dict[str, dict[str, list[float]]]:
+    """Per test of `tests`, the pilot's evidence, each oriented so that the effect the test looks for is
+    positive: for a paired test the per-seed differences of the exploratory follow-up's branches of its
+    social seeds (`pilot_branches`), against the other branch or against where the branch started (the
+    follow-up's zero-shot score of its source); otherwise the treatment's per-seed scores there and the
+    control's from a committed summary (`pilot_control`: where the arm's source records ended, before any
+    further training)."""
     branches = logs.read_json(Path(sim["pilot_branches"]))
     sources = [s for s in branches["seeds"].values() if s["condition"].startswith(sim["pilot_sources"])]
     out = {}
-    for name, test in design.primary.items():
+    for name, test in tests.items():
+        if test.alternative == "two-sided":
+            raise ValueError(
+                f"design {design.name}, test {name}: power is simulated for one-sided tests only"
+            )
         treatment = [s["branches"][test.treatment][test.env] for s in sources]
-        if design.paired(test):
+        if test.control == START:
+            control = [s["zero_shot"][test.env]["learner"] for s in sources]
+        elif design.paired(test):
             control = [s["branches"][test.control][test.env] for s in sources]
-            out[name] = {"differences": [t - c for t, c in zip(treatment, control, strict=True)]}
         else:
             where = sim["pilot_control"]
             summary = logs.read_json(Path(where["summary"]))
             control = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
             out[name] = {"treatment": treatment, "control": control}
+            continue
+        sign = -1.0 if test.alternative == "less" else 1.0
+        out[name] = {"differences": [sign * (t - c) for t, c in zip(treatment, control, strict=True)]}
     return out
 
 
@@ -445,12 +586,12 @@ def power_table(
     reps: int,
     rng_seed: int = 0,
 ) -> dict[str, dict[str, float]]:
-    """The power of the primary tests (one-sided, greater), Holm-corrected at `alpha` as one family, with
-    `seeds` source seeds. A paired test (`differences`) is Wilcoxon's on `seeds` differences, each with
-    probability d (the discount) a pilot difference, else one of the pilot's magnitudes with a random sign
-    (no effect); an unpaired one is Mann-Whitney's on `seeds` scores an arm, a treatment score with
-    probability d a pilot treatment score, else a control one. Returns per discount each test's probability
-    of rejection, and that of rejecting all and any of them."""
+    """The power of a family of one-sided tests (`pilot_scores`: each effect oriented positive),
+    Holm-corrected at `alpha`, with `seeds` source seeds. A paired test (`differences`) is Wilcoxon's on
+    `seeds` differences, each with probability d (the discount) a pilot difference, else one of the pilot's
+    magnitudes with a random sign (no effect); an unpaired one is Mann-Whitney's on `seeds` scores an arm,
+    a treatment score with probability d a pilot treatment score, else a control one. Returns per discount
+    each test's probability of rejection, and that of rejecting all and any of them."""
     from scipy import stats as scipy_stats
 
     rng = np.random.default_rng(rng_seed)
@@ -486,8 +627,16 @@ def power_table(
 def stated_power(design: BranchDesign) -> dict[str, dict[str, float]]:
     """The design's power table, recomputed from its pilot as its `power_simulation` says."""
     sim = design.power_simulation
-    pilot = pilot_scores(design)
+    pilot = pilot_scores(design, design.primary, sim)
     return power_table(pilot, design.seeds, design.alpha, tuple(sim["discounts"]), sim["reps"])
+
+
+def amendment_power(design: BranchDesign) -> dict[str, dict[str, float]]:
+    """The amendment's power table, recomputed from its pilot as its `power_simulation` says."""
+    added = design.amendment
+    sim = added.power_simulation
+    pilot = pilot_scores(design, added.tests, sim)
+    return power_table(pilot, design.seeds, added.alpha, tuple(sim["discounts"]), sim["reps"])
 
 
 def describe(design: BranchDesign) -> str:
@@ -513,6 +662,17 @@ def describe(design: BranchDesign) -> str:
     lines.append(
         f"  power: {design.power:.3f} ({sim['planning_test']}, discount {sim['planning_discount']:g})"
     )
+    if design.amendment:
+        added, sim = design.amendment, design.amendment.power_simulation
+        lines.append(f"  amendment, {added.added} (Holm among its tests at {added.alpha:g}):")
+        for n, t in added.tests.items():
+            control = f"where each {t.treatment} branch started" if t.control == START else t.control
+            kind = "Wilcoxon, paired" if design.paired(t) else "Mann-Whitney"
+            lines.append(f"    {n}: {t.treatment} against {control} in {t.env}, {kind}, {t.alternative}")
+        lines += [
+            f"    power, {case}: " + ", ".join(f"{k} {v:.3f}" for k, v in p.items())
+            for case, p in sim["power"].items()
+        ]
     return "\n".join(lines)
 
 

@@ -146,6 +146,12 @@ def file_commit(path: Path) -> str | None:
     return out.stdout.strip() or None if out.returncode == 0 else None
 
 
+def commit_time(commit: str | None) -> str | None:
+    """When `commit` was committed, ISO 8601 with its offset (None if unknown to git)."""
+    out = commits.git("show", "-s", "--format=%cI", commit, cwd=DESIGNS_DIR) if commit else None
+    return out.stdout.strip() or None if out is not None and out.returncode == 0 else None
+
+
 def precedes(design: str | None, commit: str | None) -> bool | None:
     """Whether commit `design` is an ancestor of (or is) `commit`; None if either is unknown to git."""
     if not design or not commit:
