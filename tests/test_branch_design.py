@@ -212,7 +212,7 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
 
 
 @pytest.mark.slow
-def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path):
+def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys):
     """The path a design's run takes, in this process: a TINY run packed as a record without checkpoint is
     the material; a branch trains from it with `branch_config`, and once it has the process file `pinned.run`
     writes, `record` packs it with the machine the file measured and `summarise` finds it as designed."""
@@ -252,7 +252,9 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path):
         logs.read_config(run_dir)["init_from"]
         == f"{records_root}/tiny/material/social-s0-0@{TINY.iterations}"
     )
+    capsys.readouterr()
     assert branch_design.record(design, runs_root, records_root) == []  # no process file yet
+    assert f"  1 branches not started under {runs_root}\n" in capsys.readouterr().out  # the social arm
     pinned.write_run_file(run_dir, "python -m jaxsocial.train", commits.head_commit(), 1, pinned.now(), rc=0)
     assert branch_design.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
     provenance = logs.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)

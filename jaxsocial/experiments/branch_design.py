@@ -273,15 +273,18 @@ def run(
 def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Path]:
     """Pack every finished branch under `runs_root` that has no record yet into the records root, with its
     process's provenance (the machine it measured); every one is checked before the first is written."""
-    packing = []
+    packing, not_started = [], 0
     for seed in design.source_seeds():
         for arm in design.arms:
             name = design.run_name(arm, seed)
             run_dir, target = runs_root / name, records_root / name
             if target.exists():
                 continue
-            if rundirs.branch_state(run_dir, design.iterations) != "done":
+            state = rundirs.branch_state(run_dir, design.iterations)
+            not_started += state == "missing"
+            if state == "partial":
                 print(f"  {name}: not finished, not recorded")
+            if state != "done":
                 continue
             try:
                 run_info = pinned.run_provenance(run_dir, None, None)
@@ -290,6 +293,8 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
                 continue
             records.packable(run_dir)
             packing.append((run_dir, target, pinned.with_measured(run_info, None, None, run_dir), name))
+    if not_started:
+        print(f"  {not_started} branches not started under {runs_root}")
     for run_dir, _, run_info, _ in packing:
         if run_info["rc"] != 0:
             raise ValueError(f"{run_dir}: its process exited with {run_info['rc']}; not a result to record")
