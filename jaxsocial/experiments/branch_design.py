@@ -479,7 +479,7 @@ def families(block: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
     return out + ([("amendment", block["amendment"]["tests"])] if "amendment" in block else [])
 
 
-def test_lines(family: str, entries: dict[str, Any], environments: dict[str, Any]) -> list[str]:
+def family_lines(family: str, entries: dict[str, Any], environments: dict[str, Any]) -> list[str]:
     """One line a test of a tested family: its rows' means, p-values and whether it is rejected."""
     lines = []
     for name, entry in entries.items():
@@ -492,6 +492,7 @@ def test_lines(family: str, entries: dict[str, Any], environments: dict[str, Any
 
 
 def check_lines(checks: dict[str, Any], indent: str = "  ") -> list[str]:
+    """One line a check: yes or NO, or its count."""
     return [f"{indent}{k}: {('yes' if v else 'NO') if isinstance(v, bool) else v}" for k, v in checks.items()]
 
 
@@ -499,15 +500,15 @@ def verdict(summary: dict[str, Any]) -> str:
     """The summary's tests and checks, for people."""
     block, environments = summary["preregistered"], summary["environments"]
     lines = [f"{summary['design']}: {summary['recorded']} branches recorded; alpha {block['alpha']:g}, Holm"]
-    lines += test_lines("primary", block["primary"], environments)
-    lines += test_lines("secondary", block["secondary"], environments)
+    lines += family_lines("primary", block["primary"], environments)
+    lines += family_lines("secondary", block["secondary"], environments)
     lines += check_lines({k: v for k, v in block["checks"].items() if isinstance(v, bool)})
     if not block["valid"]:
         lines.append("NOT VALID: the result above does not test the design (see the checks)")
     if "amendment" in block:
         added = block["amendment"]
         lines.append(f"amendment, {added['added']} (Holm among its tests at {added['alpha']:g}):")
-        lines += test_lines("amendment", added["tests"], environments) + check_lines(added["checks"])
+        lines += family_lines("amendment", added["tests"], environments) + check_lines(added["checks"])
         if not added["valid"]:
             lines.append("NOT VALID: the amendment's tests do not test it (see its checks)")
     return "\n".join(lines)
