@@ -2,6 +2,7 @@
 analysis of recorded branches against scipy, and a refused design."""
 
 import dataclasses
+import datetime
 import json
 import math
 import shutil
@@ -87,6 +88,9 @@ def test_the_amendment_tests_each_branch_against_where_it_started():
     assert pilot["social_fades"]["differences"] == [
         s["zero_shot"][solo3]["learner"] - s["branches"]["social"][solo3] for s in social
     ]  # a fall is positive
+    committed = prereg.commit_time(prereg.file_commit(branch_design.amendment_path("mixing")))
+    assert datetime.datetime.fromisoformat(committed) >= datetime.datetime.fromisoformat("2026-12-01T22:44Z")
+    assert prereg.commit_time(None) is None
 
 
 def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path):
