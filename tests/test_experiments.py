@@ -199,7 +199,8 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
     assert dirs == [base / "social_rec-s0-2" / f"s{s}" for s in range(3)] + [
         base / "social_rec-s3-5" / f"s{s}" for s in range(3, 6)
     ]
-    assert runner.status(recipes.condition_config(scale, "social_rec", 0, 6, str(tmp_path)), dirs) == "done"
+    social_rec = recipes.condition_config(scale, "social_rec", 0, 6, str(tmp_path))
+    assert runner.status(social_rec, dirs) == "finished"
     runs = summaries.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 6, str(tmp_path))
     assert runs.missing == ["solo_pred", "social_pred"]
     assert runs.missing_seeds == {"social_none": [1, 2, 3, 4, 5]}
@@ -266,7 +267,7 @@ def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
     before = (run_dir / logs.METRICS_FILE).stat().st_mtime_ns
     capsys.readouterr()
     cli.main(["run", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs)])
-    assert capsys.readouterr().out.count(": done") == 3
+    assert capsys.readouterr().out.count(": finished") == 3
     assert (run_dir / logs.METRICS_FILE).stat().st_mtime_ns == before  # not retrained
 
 

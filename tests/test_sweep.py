@@ -145,7 +145,7 @@ def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, c
     rows = [r | {"kl/0": 0.0} for r in logs.read_metrics(took_off)]  # slot 0 is a learner
     (took_off / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
     logs.write_json(took_off / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
-    assert sweep.seed_state(short, 3, runs) == "done"  # stopped early at return 6 >= 5
+    assert sweep.seed_state(short, 3, runs) == "finished"  # stopped early at return 6 >= 5
     with pytest.raises(ValueError, match="stopped early past the plateau"):
         sweep.extend(short, long, [3], runs)
     assert not any((tmp_path / f"{long.name}-s{s}").exists() for s in (1, 2, 3))

@@ -247,7 +247,7 @@ def run(
     missing = missing_sources(design, records_root)
     if missing:
         raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
-    jobs, counts = [], {"done": 0, "partial": 0, "missing": 0}
+    jobs, counts = [], {"finished": 0, "partial": 0, "missing": 0}
     for seed in design.source_seeds():
         for arm in design.arms:
             cfg = branch_config(design, arm, seed, runs_root, records_root)
@@ -257,7 +257,7 @@ def run(
             flags = config_flags(cfg) + (["--resume"] if state == "partial" else [])
             if dry_run:
                 print(f"  {cfg.run_name}: {state}\n    python -m jaxsocial.train {' '.join(flags)}")
-            elif state != "done":
+            elif state != "finished":
                 jobs.append(pinned.Job(cfg.run_name, pinned.train_command(flags), run_dir))
     print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
     pending = counts["partial"] + counts["missing"]
@@ -284,7 +284,7 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
             not_started += state == "missing"
             if state == "partial":
                 print(f"  {name}: not finished, not recorded")
-            if state != "done":
+            if state != "finished":
                 continue
             try:
                 run_info = pinned.run_provenance(run_dir, None, None)

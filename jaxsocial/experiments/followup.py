@@ -205,7 +205,7 @@ def run(
             print(f"  {source.name}-{arm}: {state}")
             if dry_run:
                 print("    python -m jaxsocial.train " + " ".join(flags))
-            elif state != "done":
+            elif state != "finished":
                 resume = ["--resume"] if state == "partial" else []
                 jobs.append(
                     pinned.Job(f"{source.name}-{arm}", pinned.train_command([*flags, *resume]), run_dir)

@@ -18,10 +18,10 @@ def seed_dirs(cfg: TrainConfig) -> list[Path]:
 
 
 def branch_state(run_dir: Path, iterations: int) -> str:
-    """'done' (`run_dir` logged `iterations` rows), 'partial' (it exists: training resumes it), or
+    """'finished' (`run_dir` logged `iterations` rows), 'partial' (it exists: training resumes it), or
     'missing'."""
     rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
-    return "done" if rows >= iterations else "partial" if run_dir.is_dir() else "missing"
+    return "finished" if rows >= iterations else "partial" if run_dir.is_dir() else "missing"
 
 
 def condition_seed_dirs(

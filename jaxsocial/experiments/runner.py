@@ -53,10 +53,10 @@ def evaluation_outputs(
 
 
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:
-    """'done' (each seed's directory `dirs` logged every iteration), 'partial' (the config's own run
+    """'finished' (each seed's directory `dirs` logged every iteration), 'partial' (the config's own run
     directory exists, so training resumes it) or 'missing'."""
     if all(len(logs.read_metrics(d)) >= cfg.iterations for d in dirs):
-        return "done"
+        return "finished"
     return "partial" if (outputs.run_path(cfg) / logs.CONFIG_FILE).exists() else "missing"
 
 
@@ -102,7 +102,7 @@ def run(
         for cfg in cfgs
     }
     if train_missing:
-        to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != "done"]
+        to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != "finished"]
         print_cost(recipe, scale, to_train, cores, max_runs)
     prefix = f"[{recipe.name}/{scale.name}]"
     jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
@@ -204,14 +204,14 @@ def train_programs(
             flags = config_flags(cfg)
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
-            elif state != "done" and train_missing and cores:
+            elif state != "finished" and train_missing and cores:
                 resume = ["--resume"] if state == "partial" else []
                 job = pinned.Job(label, pinned.train_command([*flags, *resume]), outputs.run_path(cfg))
                 jobs.append((cfg.seed, job))
-            elif state != "done" and train_missing:
+            elif state != "finished" and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == "partial"))
                 dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = seed_dirs(cfg)
-            elif state != "done" and name not in skipped:
+            elif state != "finished" and name not in skipped:
                 skipped.append(name)
     return jobs, skipped
 

@@ -123,25 +123,25 @@ def run_dir(setting: Setting, seed: int, runs_dir: str) -> Path:
 
 
 def seed_state(setting: Setting, seed: int, runs_dir: str) -> str:
-    """'done' (every iteration of `setting` logged, or stopped early past the plateau), 'partial' (its run
+    """'finished' (every iteration of `setting` logged, or stopped early past the plateau), 'partial' (its run
     directory exists: training resumes it) or 'missing'."""
     directory = run_dir(setting, seed, runs_dir)
     if not (directory / logs.CONFIG_FILE).is_file():
         return "missing"
     rows = logs.read_metrics(directory) if logs.has_metrics(directory) else []
     finished = len(rows) >= setting.iterations or records.stopped_early(logs.read_config(directory), rows)
-    return "done" if finished else "partial"
+    return "finished" if finished else "partial"
 
 
 def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> list[int]:
-    """Train `seeds` of `setting` that are not done, each in its own process pinned to one of `cores`
+    """Train `seeds` of `setting` that have not finished, each in its own process pinned to one of `cores`
     (`pinned.run`); an unfinished seed (a sitting stopped it, or `extend` started it) resumes from its latest
     checkpoint. Returns the exit codes of the processes run."""
     jobs = []
     for seed in seeds:
         state = seed_state(setting, seed, runs_dir)
         print(f"{setting.name} seed {seed}: {state}")
-        if state != "done":
+        if state != "finished":
             flags = train_flags(setting, seed, runs_dir) + (["--resume"] if state == "partial" else [])
             label = f"{setting.name} seed {seed}"
             jobs.append(pinned.Job(label, pinned.train_command(flags), run_dir(setting, seed, runs_dir)))
@@ -163,7 +163,7 @@ def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) 
     for seed, (source, target) in zip(seeds, pairs, strict=True):
         if target.exists():
             raise ValueError(f"{target} exists: extend only starts a run")
-        if seed_state(shorter, seed, runs_dir) != "done" or not (source / pinned.RUN_FILE).is_file():
+        if seed_state(shorter, seed, runs_dir) != "finished" or not (source / pinned.RUN_FILE).is_file():
             raise ValueError(f"{source}: not a finished run of {shorter.name} by `run`; nothing to extend")
         if records.stopped_early(logs.read_config(source), logs.read_metrics(source)):
             raise ValueError(f"{source} stopped early past the plateau: nothing to extend")
