@@ -568,19 +568,19 @@ def pilot_scores(
             raise ValueError(
                 f"design {design.name}, test {name}: power is simulated for one-sided tests only"
             )
-        treatment = [s["branches"][test.treatment][test.env] for s in sources]
+        sign = -1.0 if test.alternative == "less" else 1.0  # scores negated: a fall is a rise
+        treatment = [sign * s["branches"][test.treatment][test.env] for s in sources]
         if test.control == START:
-            control = [s["zero_shot"][test.env]["learner"] for s in sources]
+            control = [sign * s["zero_shot"][test.env]["learner"] for s in sources]
         elif design.paired(test):
-            control = [s["branches"][test.control][test.env] for s in sources]
+            control = [sign * s["branches"][test.control][test.env] for s in sources]
         else:
             where = sim["pilot_control"]
             summary = logs.read_json(Path(where["summary"]))
-            control = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
-            out[name] = {"treatment": treatment, "control": control}
+            per_seed = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
+            out[name] = {"treatment": treatment, "control": [sign * c for c in per_seed]}
             continue
-        sign = -1.0 if test.alternative == "less" else 1.0
-        out[name] = {"differences": [sign * (t - c) for t, c in zip(treatment, control, strict=True)]}
+        out[name] = {"differences": [t - c for t, c in zip(treatment, control, strict=True)]}
     return out
 
 
