@@ -645,6 +645,20 @@ def amendment_power(design: BranchDesign) -> dict[str, dict[str, float]]:
     return power_table(pilot, design.seeds, added.alpha, tuple(sim["discounts"]), sim["reps"])
 
 
+def describe_test(design: BranchDesign, name: str, test: Test) -> str:
+    """One test of the design, for people."""
+    control = f"where each {test.treatment} branch started" if test.control == START else test.control
+    kind = "Wilcoxon, paired" if design.paired(test) else "Mann-Whitney"
+    return f"    {name}: {test.treatment} against {control} in {test.env}, {kind}, {test.alternative}"
+
+
+def power_lines(power: dict[str, dict[str, float]], prefix: str) -> list[str]:
+    """One line a discount of a power table, each test's power and that of all and any of them."""
+    return [
+        f"{prefix}{case}: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()) for case, row in power.items()
+    ]
+
+
 def describe(design: BranchDesign) -> str:
     """The design, its tests and its power, for people."""
     sim = design.power_simulation
@@ -658,27 +672,17 @@ def describe(design: BranchDesign) -> str:
     ]
     for family, tests in (("primary", design.primary), ("secondary", design.secondary)):
         lines.append(f"  {family} (Holm at {design.alpha:g}):")
-        for n, t in tests.items():
-            kind = "Wilcoxon, paired" if design.paired(t) else "Mann-Whitney"
-            lines.append(f"    {n}: {t.treatment} against {t.control} in {t.env}, {kind}, {t.alternative}")
+        lines += [describe_test(design, n, t) for n, t in tests.items()]
     lines.append(f"  power by simulation ({sim['reps']} simulated designs a discount):")
-    lines += [
-        f"    {case}: " + ", ".join(f"{k} {v:.3f}" for k, v in p.items()) for case, p in sim["power"].items()
-    ]
+    lines += power_lines(sim["power"], "    ")
     lines.append(
         f"  power: {design.power:.3f} ({sim['planning_test']}, discount {sim['planning_discount']:g})"
     )
     if design.amendment:
-        added, sim = design.amendment, design.amendment.power_simulation
+        added = design.amendment
         lines.append(f"  amendment, {added.added} (Holm among its tests at {added.alpha:g}):")
-        for n, t in added.tests.items():
-            control = f"where each {t.treatment} branch started" if t.control == START else t.control
-            kind = "Wilcoxon, paired" if design.paired(t) else "Mann-Whitney"
-            lines.append(f"    {n}: {t.treatment} against {control} in {t.env}, {kind}, {t.alternative}")
-        lines += [
-            f"    power, {case}: " + ", ".join(f"{k} {v:.3f}" for k, v in p.items())
-            for case, p in sim["power"].items()
-        ]
+        lines += [describe_test(design, n, t) for n, t in added.tests.items()]
+        lines += power_lines(added.power_simulation["power"], "    power, ")
     return "\n".join(lines)
 
 
