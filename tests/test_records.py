@@ -12,6 +12,7 @@ from conftest import needs_records
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import (
+    branch_design,
     evaluation_design,
     followup,
     paths,
@@ -269,8 +270,8 @@ def test_a_record_keeps_its_checkpoint_only_with_a_reason():
 
 def _rederivations() -> dict[str, functools.partial]:
     """Every committed summary made from the committed records alone (file name) -> the command that writes
-    it, run from the repository root: the `figure` command it names, the follow-ups', the sweep's and its
-    map, and the pooled summaries."""
+    it, run from the repository root: the `figure` command it names (the CLI's or a design module's), the
+    follow-ups', the sweep's and its map, and the pooled summaries."""
     science = REPO / paths.SCIENCE
     out = {}
     for path in sorted(science.glob("*.json")):
@@ -282,6 +283,8 @@ def _rederivations() -> dict[str, functools.partial]:
             out[path.name] = functools.partial(followup.main, ["figure", summary["design"]])
         elif command.startswith("python -m jaxsocial.experiments.evaluation_design figure "):
             out[path.name] = functools.partial(evaluation_design.main, command.split()[3:])
+        elif command.startswith("python -m jaxsocial.experiments.branch_design figure "):
+            out[path.name] = functools.partial(branch_design.main, command.split()[3:])
     out[paths.SWEEP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["figure"])
     committed = ["--summary", str(science / "sweep.json")]
     out[paths.MAP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["map", *committed])
@@ -292,7 +295,8 @@ def _rederivations() -> dict[str, functools.partial]:
 
 def _records_read(name: str) -> tuple[str, ...]:
     """The folders under benchmarks/results/ that re-deriving the committed summary `name` reads: its
-    scale's records, the sweep's, an evaluation design's, or none (the map reads the sweep's summary)."""
+    scale's records, the sweep's, an evaluation design's, a branch design's and its material's, or none (the
+    map reads the sweep's summary)."""
     summary = logs.read_json(REPO / paths.SCIENCE / name)
     command = (summary.get("command") or "").split()
     if name == paths.MAP_SUMMARY.name + ".json":
@@ -301,6 +305,9 @@ def _records_read(name: str) -> tuple[str, ...]:
         return (f"records/{sweep.RECORDS_SUBDIR}",)
     if "evaluation_design" in " ".join(command[:3]):
         return (f"records/{evaluation_design.load(summary['design']).records}",)
+    if "branch_design" in " ".join(command[:3]):
+        design = branch_design.load(summary["design"])
+        return (f"records/{design.records}", f"records/{design.out}")
     if "--scale" in command:
         return (f"records/{command[command.index('--scale') + 1]}",)
     return ("records/laptop",)  # the follow-ups' and the pooled laptop summaries
