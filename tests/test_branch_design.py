@@ -15,7 +15,7 @@ from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats, train
-from jaxsocial.experiments import branch_design, commits, kinds, paths, pinned, prereg, records
+from jaxsocial.experiments import branch_design, commits, kinds, paths, pinned, prereg, records, rundirs
 from jaxsocial.run import logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef
@@ -294,3 +294,23 @@ def test_run_starts_only_max_runs_branches_in_seed_order(tmp_path, monkeypatch, 
     assert "starting 4 of 120 pending runs (--max-runs)" in out
     pace = next(line for line in out.splitlines() if line.startswith("[mixing] at the pace of its records: "))
     assert pace.endswith(("for 4 more, 1 at a time", "whose pace may differ")), pace  # this CPU's or not
+
+
+def test_run_resumes_a_begun_branch_and_skips_a_finished_one(tmp_path, monkeypatch, capsys):
+    """A branch's state (`rundirs.branch_state`): one that logged every iteration is not started again, one
+    begun resumes (`--resume`), one never begun starts afresh."""
+    started = {}
+    monkeypatch.setattr(
+        pinned, "run", lambda jobs, cores, flags: started.update({j.label: j.argv for j in jobs}) or [0]
+    )
+    finished, begun = (tmp_path / MIXING.run_name(arm, MIXING.seed) for arm in ("mixed", "social"))
+    for run_dir, rows in ((finished, MIXING.iterations), (begun, MIXING.iterations - 1)):
+        run_dir.mkdir(parents=True)
+        logs.MetricsLog(run_dir).append({"iteration": i + 1} for i in range(rows))
+    assert rundirs.branch_state(tmp_path / "nowhere", MIXING.iterations) == rundirs.MISSING
+    with pytest.raises(SystemExit):
+        branch_design.main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "2"])
+    assert "[mixing] branches: 1 finished, 1 partial, 118 missing" in capsys.readouterr().out
+    resumed, fresh = MIXING.run_name("social", MIXING.seed), MIXING.run_name("alone", MIXING.seed)
+    assert list(started) == [resumed, fresh]
+    assert "--resume" in started[resumed] and "--resume" not in started[fresh]

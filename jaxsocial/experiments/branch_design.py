@@ -247,20 +247,20 @@ def run(
     missing = missing_sources(design, records_root)
     if missing:
         raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
-    jobs, counts = [], {"finished": 0, "partial": 0, "missing": 0}
+    jobs, counts = [], dict.fromkeys((rundirs.FINISHED, rundirs.PARTIAL, rundirs.MISSING), 0)
     for seed in design.source_seeds():
         for arm in design.arms:
             cfg = branch_config(design, arm, seed, runs_root, records_root)
             run_dir = runs_root / cfg.run_name
             state = rundirs.branch_state(run_dir, design.iterations)
             counts[state] += 1
-            flags = config_flags(cfg) + (["--resume"] if state == "partial" else [])
+            flags = config_flags(cfg) + rundirs.resume_flags(state)
             if dry_run:
                 print(f"  {cfg.run_name}: {state}\n    python -m jaxsocial.train {' '.join(flags)}")
-            elif state != "finished":
+            elif state != rundirs.FINISHED:
                 jobs.append(pinned.Job(cfg.run_name, pinned.train_command(flags), run_dir))
     print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
-    pending = counts["partial"] + counts["missing"]
+    pending = counts[rundirs.PARTIAL] + counts[rundirs.MISSING]
     starting = min(pending, max_runs or pending)
     pace = run_times.recorded_pace(records_root / design.out, starting, len(cores)) if pending else None
     if pace:
@@ -281,10 +281,10 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
             if target.exists():
                 continue
             state = rundirs.branch_state(run_dir, design.iterations)
-            not_started += state == "missing"
-            if state == "partial":
+            not_started += state == rundirs.MISSING
+            if state == rundirs.PARTIAL:
                 print(f"  {name}: not finished, not recorded")
-            if state != "finished":
+            if state != rundirs.FINISHED:
                 continue
             try:
                 run_info = pinned.run_provenance(run_dir, None, None)

@@ -205,11 +205,9 @@ def run(
             print(f"  {source.name}-{arm}: {state}")
             if dry_run:
                 print("    python -m jaxsocial.train " + " ".join(flags))
-            elif state != "finished":
-                resume = ["--resume"] if state == "partial" else []
-                jobs.append(
-                    pinned.Job(f"{source.name}-{arm}", pinned.train_command([*flags, *resume]), run_dir)
-                )
+            elif state != rundirs.FINISHED:
+                command = pinned.train_command([*flags, *rundirs.resume_flags(state)])
+                jobs.append(pinned.Job(f"{source.name}-{arm}", command, run_dir))
     if dry_run:
         return []
     for source in found:

@@ -11,6 +11,14 @@ from jaxsocial.experiments.recipes import Scale
 from jaxsocial.run import logs, outputs, rundir
 from jaxsocial.run.config import TrainConfig
 
+FINISHED, PARTIAL, MISSING = "finished", "partial", "missing"
+"""A run's state: every iteration logged; begun (its directory is there: training resumes it); not begun."""
+
+
+def resume_flags(state: str) -> list[str]:
+    """The `train` flags that go on with a run in `state`: `--resume` for a PARTIAL one."""
+    return ["--resume"] if state == PARTIAL else []
+
 
 def seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
@@ -18,10 +26,9 @@ def seed_dirs(cfg: TrainConfig) -> list[Path]:
 
 
 def branch_state(run_dir: Path, iterations: int) -> str:
-    """'finished' (`run_dir` logged `iterations` rows), 'partial' (it exists: training resumes it), or
-    'missing'."""
+    """FINISHED (`run_dir` logged `iterations` rows), PARTIAL (it exists: training resumes it), or MISSING."""
     rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
-    return "finished" if rows >= iterations else "partial" if run_dir.is_dir() else "missing"
+    return FINISHED if rows >= iterations else PARTIAL if run_dir.is_dir() else MISSING
 
 
 def condition_seed_dirs(

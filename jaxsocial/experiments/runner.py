@@ -13,7 +13,14 @@ from typing import Any
 from jaxsocial import evaluate, train
 from jaxsocial.experiments import kinds, paths, pinned, prereg, recipes, run_times, xla_flags
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.experiments.rundirs import condition_seed_dirs, seed_dirs
+from jaxsocial.experiments.rundirs import (
+    FINISHED,
+    MISSING,
+    PARTIAL,
+    condition_seed_dirs,
+    resume_flags,
+    seed_dirs,
+)
 from jaxsocial.run import logs, outputs
 from jaxsocial.run.config import TrainConfig, setup
 from jaxsocial.run.flags import config_flags
@@ -53,11 +60,11 @@ def evaluation_outputs(
 
 
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:
-    """'finished' (each seed's directory `dirs` logged every iteration), 'partial' (the config's own run
-    directory exists, so training resumes it) or 'missing'."""
+    """FINISHED (each seed's directory `dirs` logged every iteration), PARTIAL (the config's own run
+    directory exists, so training resumes it) or MISSING."""
     if all(len(logs.read_metrics(d)) >= cfg.iterations for d in dirs):
-        return "finished"
-    return "partial" if (outputs.run_path(cfg) / logs.CONFIG_FILE).exists() else "missing"
+        return FINISHED
+    return PARTIAL if (outputs.run_path(cfg) / logs.CONFIG_FILE).exists() else MISSING
 
 
 def run(
@@ -102,7 +109,7 @@ def run(
         for cfg in cfgs
     }
     if train_missing:
-        to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != "finished"]
+        to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != FINISHED]
         print_cost(recipe, scale, to_train, cores, max_runs)
     prefix = f"[{recipe.name}/{scale.name}]"
     jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
@@ -204,14 +211,13 @@ def train_programs(
             flags = config_flags(cfg)
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
-            elif state != "finished" and train_missing and cores:
-                resume = ["--resume"] if state == "partial" else []
-                job = pinned.Job(label, pinned.train_command([*flags, *resume]), outputs.run_path(cfg))
-                jobs.append((cfg.seed, job))
-            elif state != "finished" and train_missing:
-                train.run(dataclasses.replace(cfg, resume=state == "partial"))
+            elif state != FINISHED and train_missing and cores:
+                command = pinned.train_command([*flags, *resume_flags(state)])
+                jobs.append((cfg.seed, pinned.Job(label, command, outputs.run_path(cfg))))
+            elif state != FINISHED and train_missing:
+                train.run(dataclasses.replace(cfg, resume=state == PARTIAL))
                 dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = seed_dirs(cfg)
-            elif state != "finished" and name not in skipped:
+            elif state != FINISHED and name not in skipped:
                 skipped.append(name)
     return jobs, skipped
 

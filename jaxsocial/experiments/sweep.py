@@ -37,7 +37,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import conditions, paths, pinned, plot_figures, recipes, records, takeoff
+from jaxsocial.experiments import conditions, paths, pinned, plot_figures, recipes, records, rundirs, takeoff
 from jaxsocial.run import logs, metrics, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -123,14 +123,14 @@ def run_dir(setting: Setting, seed: int, runs_dir: str) -> Path:
 
 
 def seed_state(setting: Setting, seed: int, runs_dir: str) -> str:
-    """'finished' (every iteration of `setting` logged, or stopped early past the plateau), 'partial' (its run
-    directory exists: training resumes it) or 'missing'."""
+    """`rundirs.FINISHED` (every iteration of `setting` logged, or stopped early past the plateau), PARTIAL
+    (its run directory exists: training resumes it) or MISSING."""
     directory = run_dir(setting, seed, runs_dir)
     if not (directory / logs.CONFIG_FILE).is_file():
-        return "missing"
+        return rundirs.MISSING
     rows = logs.read_metrics(directory) if logs.has_metrics(directory) else []
     finished = len(rows) >= setting.iterations or records.stopped_early(logs.read_config(directory), rows)
-    return "finished" if finished else "partial"
+    return rundirs.FINISHED if finished else rundirs.PARTIAL
 
 
 def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> list[int]:
@@ -141,8 +141,8 @@ def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> 
     for seed in seeds:
         state = seed_state(setting, seed, runs_dir)
         print(f"{setting.name} seed {seed}: {state}")
-        if state != "finished":
-            flags = train_flags(setting, seed, runs_dir) + (["--resume"] if state == "partial" else [])
+        if state != rundirs.FINISHED:
+            flags = train_flags(setting, seed, runs_dir) + rundirs.resume_flags(state)
             label = f"{setting.name} seed {seed}"
             jobs.append(pinned.Job(label, pinned.train_command(flags), run_dir(setting, seed, runs_dir)))
     return pinned.run(jobs, cores) if jobs else []
@@ -163,7 +163,8 @@ def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) 
     for seed, (source, target) in zip(seeds, pairs, strict=True):
         if target.exists():
             raise ValueError(f"{target} exists: extend only starts a run")
-        if seed_state(shorter, seed, runs_dir) != "finished" or not (source / pinned.RUN_FILE).is_file():
+        finished = seed_state(shorter, seed, runs_dir) == rundirs.FINISHED
+        if not finished or not (source / pinned.RUN_FILE).is_file():
             raise ValueError(f"{source}: not a finished run of {shorter.name} by `run`; nothing to extend")
         if records.stopped_early(logs.read_config(source), logs.read_metrics(source)):
             raise ValueError(f"{source} stopped early past the plateau: nothing to extend")
