@@ -269,13 +269,20 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     assert summary["environments"][solo]["social"]["per_seed"] == [None]
 
 
-@needs_records("records/laptop/prereg-experts")
+@needs_records("records/laptop/prereg-experts", "records/laptop/prereg-mixing")
 def test_figure_stays_blind_until_every_branch_is_recorded(tmp_path, capsys):
-    """The committed records hold some of the design's branches: `figure` says how many and writes nothing."""
-    branch_design.main(["figure", "mixing", "--science", str(tmp_path)])
+    """With one branch short of the design (the committed records but the last), `figure` says how many are
+    in and writes nothing."""
+    records_root, science = tmp_path / "records", tmp_path / "science"
+    (records_root / MIXING.out).mkdir(parents=True)
+    (records_root / MIXING.records).symlink_to((paths.RECORDS / MIXING.records).resolve())
+    committed = sorted((paths.RECORDS / MIXING.out).iterdir())
+    for branch in committed[:-1]:
+        (records_root / MIXING.out / branch.name).symlink_to(branch.resolve())
+    branch_design.main(["figure", "mixing", "--records", str(records_root), "--science", str(science)])
     out = capsys.readouterr().out
-    assert "branches recorded; the results stay blind until every branch is in" in out
-    assert "mean" not in out and not any(tmp_path.iterdir())
+    assert f"[mixing] {len(committed) - 1} of 120 branches recorded; the results stay blind" in out
+    assert "mean" not in out and not science.exists()
 
 
 @needs_records("records/laptop/prereg-experts")
