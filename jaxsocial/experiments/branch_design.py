@@ -536,7 +536,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
             if e["env"] == env
         ]
         ax.set_xticks(range(len(arms)), arms, rotation=20, ha="right", fontsize=8)
-        ax.set_title("\n".join([env, *tests]), fontsize=8)
+        ax.set_title("\n".join([plot_figures.env_title(env), *tests]), fontsize=8)
         ax.set_ylabel("learner return per episode")
     fig.suptitle(
         f"{summary['design']}: {summary['iterations']} iterations from each record's policy, "
