@@ -11,6 +11,8 @@ import matplotlib
 import numpy as np
 import pytest
 
+from jaxsocial.experiments import branch_design
+
 REPO = Path(__file__).parent.parent
 NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
 SOCIAL = REPO / "notebooks" / "social_learning.ipynb"
@@ -82,6 +84,8 @@ def test_social_learning_notebook_shows_committed_results_without_training(
         assert f"{condition:<24} beside new experts, 4 goals: {mean:6.2f} [{low:6.2f}, {high:6.2f}]" in (
             printed
         )
+    mixing = json.loads((REPO / "benchmarks/results/science/mixing.json").read_text())
+    assert ns["committed"]["mixing"] == mixing and branch_design.verdict(mixing) in printed
     assert f"No committed learner at {tmp_path / 'no-record'}" in printed and ns["record_episode"] is None
     hint = "run predictions --scale laptop --seeds 2 --cores 0 1"  # the scale where learners learn
     assert "No laptop-scale runs under" in printed and hint in printed

@@ -35,7 +35,8 @@ DECLARED = {
     ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
     (
         "docs/experiments.md",
-        "`mixing`: does mixing solo episodes in keep the solo skill? (pre-registered; in progress)",
+        "`mixing`: does mixing solo episodes in keep the solo skill? "
+        "(pre-registered; holds against all-social)",
     ),
     ("docs/experiments.md", "The GPU scale: social learning appears in some seeds *(no records)*"),
     ("docs/experiments.md", "Pre-registration"),
