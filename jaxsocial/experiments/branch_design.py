@@ -241,7 +241,7 @@ def run(
     dry_run: bool = False,
     max_runs: int | None = None,
 ) -> list[int]:
-    """Train every branch not done yet, seed by seed (each source seed's arms before the next seed), one
+    """Train every branch not finished yet, seed by seed (each source seed's arms before the next seed), one
     process a core; a begun branch resumes; only the first `max_runs` start (`pinned.first_runs`). Nothing
     starts if a source record is missing. Returns the exit codes of those started."""
     missing = missing_sources(design, records_root)

@@ -191,7 +191,7 @@ def run(
     plan: Plan, from_dir: str, runs_dir: str, cores: list[int], command: str, dry_run: bool = False
 ) -> list[int]:
     """Evaluate every learned seed (in this process; `command` is this one, for their provenance) and train
-    its branches (one process per core, seed by seed); what is done already is kept, an interrupted branch
+    its branches (one process per core, seed by seed); what has finished is kept, an interrupted branch
     resumes. Returns the branches' exit codes."""
     found = sources(plan, from_dir)
     names = ", ".join(s.name for s in found) or "none"
@@ -206,8 +206,8 @@ def run(
             if dry_run:
                 print("    python -m jaxsocial.train " + " ".join(flags))
             elif state != rundirs.FINISHED:
-                command = pinned.train_command([*flags, *rundirs.resume_flags(state)])
-                jobs.append(pinned.Job(f"{source.name}-{arm}", command, run_dir))
+                train_argv = pinned.train_command([*flags, *rundirs.resume_flags(state)])
+                jobs.append(pinned.Job(f"{source.name}-{arm}", train_argv, run_dir))
     if dry_run:
         return []
     for source in found:

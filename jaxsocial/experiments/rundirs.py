@@ -1,5 +1,5 @@
 """Where a recipe's seeds are: the run directory of each seed of a condition, whichever of the condition's
-runs holds it (`condition_seed_dirs`). Read by the runner (what is done), the figures and the records."""
+runs holds it (`condition_seed_dirs`). Read by the runner (what has finished), the figures and the records."""
 
 from __future__ import annotations
 

@@ -80,7 +80,7 @@ def run(
     seeds_per_program: int | None = None,
     max_runs: int | None = None,
 ) -> None:
-    """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 that is not done yet.
+    """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 not finished yet.
 
     Every config is validated before anything trains, so a bad recipe fails at once. `dry_run` prints the
     commands and what is done instead. With `train_missing=False` nothing trains: the conditions already
@@ -198,7 +198,7 @@ def train_programs(
     train_missing: bool,
     cores: tuple[int, ...],
 ) -> tuple[list[tuple[int, pinned.Job]], list[str]]:
-    """Say each program's state and, for those not done: print its command (`dry_run`), make it a job for
+    """Say each program's state and, for those not finished: print its command (`dry_run`), make it a job for
     a pinned process (with `cores`; returned with its first seed, not started), train it in this process
     (updating `dirs`), or, without `train_missing`, skip its condition (returned)."""
     skipped, jobs = [], []
@@ -212,8 +212,8 @@ def train_programs(
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
             elif state != FINISHED and train_missing and cores:
-                command = pinned.train_command([*flags, *resume_flags(state)])
-                jobs.append((cfg.seed, pinned.Job(label, command, outputs.run_path(cfg))))
+                train_argv = pinned.train_command([*flags, *resume_flags(state)])
+                jobs.append((cfg.seed, pinned.Job(label, train_argv, outputs.run_path(cfg))))
             elif state != FINISHED and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == PARTIAL))
                 dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = seed_dirs(cfg)
