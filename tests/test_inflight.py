@@ -14,11 +14,11 @@ from jaxsocial.experiments import inflight, verify
 from jaxsocial.run import metrics
 
 
-def test_a_packed_state_resumes_exactly(tmp_path):
-    """Two seeds vmapped in one program, as on a GPU (and as `two_seed_run`: the tiny-runs group compiles
-    that program once)."""
+def test_a_packed_state_resumes_exactly(tmp_path, two_seed_run):
+    """Two seeds vmapped in one program, as on a GPU: half the run, packed as a device block leaves it, then
+    unpacked and resumed, equals the whole run (`two_seed_run`, the same program, which the tiny-runs group
+    trains once)."""
     two_seeds = dataclasses.replace(TINY, run_name="run", seeds=2, seed_batching="vmap")
-    whole = train.run(dataclasses.replace(two_seeds, runs_dir=str(tmp_path / "a")))
     half = train.run(dataclasses.replace(two_seeds, runs_dir=str(tmp_path / "b"), iterations=2))
     progress = "run (2 seeds)  2/4 [ 50%] 0.5 it/s env-steps/s=64 return[0 learner]=0.25 eta 0:00:04\n"
     (half / "device-20261127T122903.log").write_text(progress)  # as a device block leaves its log
@@ -35,7 +35,7 @@ def test_a_packed_state_resumes_exactly(tmp_path):
     assert not list(resumed.rglob("policy"))  # policies are left out: a resumed run exports its own
     train.run(dataclasses.replace(two_seeds, runs_dir=str(resumed.parent), resume=True))
     for seed in ("s0", "s1"):
-        rows, expected = metrics.read_rows(resumed / seed), metrics.read_rows(whole / seed)
+        rows, expected = metrics.read_rows(resumed / seed), metrics.read_rows(two_seed_run / seed)
         assert len(rows) == 4 and verify.first_difference(expected, rows) is None
 
 
