@@ -134,7 +134,7 @@ def pytest_configure(config):
 
 
 SHARED_RUNS = {"test_cli_errors", "test_inflight", "test_plot", "test_regimes", "test_render", "test_scale",
-               "test_train"}  # fmt: skip
+               "test_train", "test_verify"}  # fmt: skip
 """Test files that train TINY's programs (`two_seed_run` and single-seed runs of TINY)."""
 
 
