@@ -133,8 +133,8 @@ def pytest_configure(config):
     compile_cache.enable(cache, min_compile_seconds=1.0)
 
 
-SHARED_RUNS = {"test_cli_errors", "test_inflight", "test_plot", "test_regimes", "test_render", "test_scale",
-               "test_train", "test_verify"}  # fmt: skip
+SHARED_RUNS = {"test_cli_errors", "test_inflight", "test_init_from", "test_loggers", "test_plot",
+               "test_regimes", "test_render", "test_scale", "test_train", "test_verify"}  # fmt: skip
 """Test files that train TINY's programs (`two_seed_run` and single-seed runs of TINY)."""
 
 
