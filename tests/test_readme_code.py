@@ -12,9 +12,10 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def python_blocks() -> dict[str, str]:
-    """README heading -> the Python block under it (one a section)."""
+    """README heading -> the Python block under it (one a section). Every fenced block is split out whole, so
+    that a shell comment is not taken for a heading."""
     blocks, heading = {}, None
-    for part in re.split(r"(^#+ [^\n]*$|^```python\n.*?^```$)", README.read_text(), flags=re.M | re.S):
+    for part in re.split(r"(^#+ [^\n]*$|^```\w*\n.*?^```$)", README.read_text(), flags=re.M | re.S):
         if part.startswith("#"):
             heading = part.lstrip("# ")
         elif part.startswith("```python"):
