@@ -133,6 +133,7 @@ def test_a_paired_difference_is_the_t_interval_and_wilcoxon_of_the_differences()
         assert stats.paired_difference([], []) == {"n": 0, "mean": None, "ci95": None, "wilcoxon_p": None}
 
 
+@needs_records("records/laptop/prereg-experts")  # the branches' sources
 def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeypatch):
     design = dataclasses.replace(MIXING, seeds=6)
     rng = np.random.default_rng(1)
@@ -303,6 +304,7 @@ def test_run_starts_only_max_runs_branches_in_seed_order(tmp_path, monkeypatch, 
     assert pace.endswith(("for 4 more, 1 at a time", "whose pace may differ")), pace  # this CPU's or not
 
 
+@needs_records("records/laptop/prereg-experts")  # the branches' sources
 def test_run_resumes_a_begun_branch_and_skips_a_finished_one(tmp_path, monkeypatch, capsys):
     """A branch's state (`rundirs.branch_state`): one that logged every iteration is not started again, one
     begun resumes (`--resume`), one never begun starts afresh."""
