@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from conftest import needs_records
+from doc_sections import sections
 
 REPO = Path(__file__).resolve().parents[1]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
@@ -50,28 +51,12 @@ DECLARED = {
 """(file, heading) of the sections whose numbers must be checked: the results the project reports."""
 
 SOURCES = re.compile(r"^<!--\s*numbers:\s*(.*?)\s*-->", re.S | re.M)
-HEADING = re.compile(r"#+ (.*)$")
 CODE = re.compile(r"```.*?```|`[^`\n]*`", re.S)
 DECIMAL = re.compile(
     r"(?<![A-Za-wyz\d_.\-])((?:-?\d{1,3}(?:,\d{3})*\.\d+|-?\d+\.\d+)(?:e-?\d+)?)([kMG%]?)(?![\w.]\d|\d)"
 )
 SCALE = {"": 1.0, "k": 1e3, "M": 1e6, "G": 1e9, "%": 0.01}
 NUMBER_IN_TEXT = re.compile(r"(-?\d+(?:\.\d+)?(?:e-?\d+)?)([kMG%]?)")
-
-
-def sections(path: Path) -> list[tuple[str, str]]:
-    """(heading, text up to the next heading) of a markdown file; '#' lines inside code fences are not
-    headings, and the text before the first heading is left out."""
-    out: list[tuple[str, str]] = []
-    fenced = False
-    for line in path.read_text().splitlines(keepends=True):
-        fenced ^= line.startswith("```")
-        heading = None if fenced else HEADING.match(line)
-        if heading:
-            out.append((heading.group(1).strip(), ""))
-        elif out:
-            out[-1] = (out[-1][0], out[-1][1] + line)
-    return out
 
 
 def numbers(x) -> list[float]:

@@ -7,20 +7,20 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import pytest
+from doc_sections import sections
 
 README = Path(__file__).resolve().parents[1] / "README.md"
+PYTHON_BLOCK = re.compile(r"^```python\n(.*?)^```$", re.M | re.S)
 
 
 def python_blocks() -> dict[str, str]:
-    """README heading -> the Python block under it (one a section). Every fenced block is split out whole, so
-    that a shell comment is not taken for a heading."""
-    blocks, heading = {}, None
-    for part in re.split(r"(^#+ [^\n]*$|^```\w*\n.*?^```$)", README.read_text(), flags=re.M | re.S):
-        if part.startswith("#"):
-            heading = part.lstrip("# ")
-        elif part.startswith("```python"):
-            assert heading not in blocks, f"two Python blocks under {heading!r}: give each a test"
-            blocks[heading] = part.removeprefix("```python\n").removesuffix("```")
+    """README heading -> the Python block in its section (one a section)."""
+    blocks = {}
+    for heading, text in sections(README):
+        found = PYTHON_BLOCK.findall(text)
+        assert len(found) <= 1, f"{len(found)} Python blocks under {heading!r}: give each a test"
+        if found:
+            blocks[heading] = found[0]
     return blocks
 
 
