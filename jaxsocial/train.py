@@ -1,9 +1,9 @@
-"""Training runs from a `TrainConfig`: `run` (start-up, then `train_chunks`, the loop over the steps of
-`jaxsocial.run.driver` and of `Outputs`, what process 0 writes: metrics rows, evaluations, progress),
-`make_train` (a whole run as one pure function), `compiled_program` and the CLI. This is the one place a
-whole `TrainConfig` is taken apart: the compiled loop (`jaxsocial.run.loop`) gets its `ProgramConfig`, the
-driver its `ProgramConfig` and `DriverConfig`. The configuration and its validation are in
-`jaxsocial.run.config`.
+"""Training runs from a `TrainConfig`: `run` (validate, prepare and lock the run directory, then
+`train_chunks`, the loop over the steps of `jaxsocial.run.driver` and of `Outputs`, what process 0 writes:
+metrics rows, evaluations, progress), `make_train` (a whole run as one pure function), `compiled_program` and
+the CLI. This is the one place a whole `TrainConfig` is taken apart: the compiled loop (`jaxsocial.run.loop`)
+gets its `ProgramConfig`, the driver its `ProgramConfig` and `DriverConfig`. The configuration and its
+validation are in `jaxsocial.run.config`.
 
     python -m jaxsocial.train --env goalcycle3            # small default, a few minutes on 2 CPU cores
     python -m jaxsocial.train --preset paper --env goalcycle3
@@ -15,11 +15,9 @@ import dataclasses
 import functools
 import sys
 from pathlib import Path
-from typing import Any
 
 import jax
 
-from jaxsocial import evaluate
 from jaxsocial.agents import population
 from jaxsocial.env import registry
 from jaxsocial.run import (
@@ -112,9 +110,7 @@ def run(cfg: TrainConfig) -> Path:
     distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
     try:
         distributed.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
-        main = distributed.is_main()  # evaluates and writes; the others train alongside
-        learner_eval = evaluate.make_learner_eval(cfg.eval_envs, cfg.net, cfg.eval_episodes) if main else None
-        train_chunks(cfg, static, mesh, run_dir, seeds, learner_eval)
+        train_chunks(cfg, static, mesh, run_dir, seeds)
         if cfg.resume:  # a resumed run's config is rewritten once it has succeeded
             distributed.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
     finally:
@@ -129,11 +125,10 @@ def train_chunks(
     mesh: jax.sharding.Mesh,
     run_dir: Path,
     seeds: list[SeedRun],
-    learner_eval: Any,
 ) -> None:
     """The training loop of `run` in its prepared (and locked) run directory, over the steps of `Driver`
-    and `Outputs`: chunk after chunk, plan, compile, run, write rows (evaluating with `learner_eval`, on
-    process 0), switch stage, save and show progress.
+    and `Outputs`: chunk after chunk, plan, compile, run, write rows (with evaluations, on process 0),
+    switch stage, save and show progress.
     Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
     nothing non-finite is ever saved."""
     driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
@@ -141,7 +136,7 @@ def train_chunks(
         if distributed.is_main():
             print(nothing_to_train(driver.it, cfg.iterations))
         return
-    out = Outputs.open(cfg, static, mesh, seeds, driver.it, learner_eval)
+    out = Outputs.open(cfg, static, mesh, seeds, driver.it)
     try:
         while driver.it < cfg.iterations:
             n = plan_chunk(driver.driver_cfg, cfg.chunk_iterations, static.stages, driver.stage, driver.it)

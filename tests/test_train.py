@@ -304,6 +304,11 @@ def test_cli_end_to_end(tmp_path):
         ({"eval_envs": ("goalcycle4:penalty=abc,nope=1",)}, "unknown EnvParams field"),
         ({"eval_envs": ("goalcycle4",), "eval_every": 0}, "eval_every"),
         ({"eval_envs": ("goalcycle4",), "eval_episodes": 0}, "eval_episodes"),
+        (
+            {"eval_envs": ("goalcycle4:observation=symbolic",)},
+            "eval env \"goalcycle4:observation='symbolic'\"",
+        ),
+        ({"env_args": "solo_prob=0.5", "slots": "random,learner,random"}, "--env-args: solo episodes keep"),
         ({"env_args": "penalty=abc"}, "penalty='abc' must be of type float"),
         ({"net": NetworkConfig(aux="attention", n_others=3)}, "net.n_others 2"),
         (
@@ -316,6 +321,18 @@ def test_bad_config_fails_before_compiling(tmp_path, changes, message):
     with pytest.raises(ValueError, match=message):
         run(dataclasses.replace(TINY, runs_dir=str(tmp_path), **changes))
     assert not any(tmp_path.iterdir())  # nothing written
+
+
+def test_setup_builds_each_evaluation_environment_with_its_default_companions():
+    cfg = dataclasses.replace(TINY, eval_envs=("goalcycle4", "goalcycle3-solo:width=7"))
+    evals = config.setup(cfg, load_frozen=False).eval_envs
+    assert [str(e.spec) for e in evals] == ["goalcycle4", "goalcycle3-solo:width=7"]
+    assert [(e.env_params.n_goals, e.env_params.width, e.env_params.n_agents) for e in evals] == [
+        (4, 13, 3),
+        (3, 7, 1),
+    ]
+    gc4, solo = (e.pop for e in evals)  # the learner in slot 0 beside the environment's scripted experts
+    assert gc4.learners == (0,) and gc4.experts == (1, 2) and solo.learners == (0,) and not solo.experts
 
 
 @pytest.mark.slow  # a learning test; test_ppo and test_network check the attention loss itself

@@ -145,7 +145,6 @@ def test_write_rows_keeps_rows_and_warns_at_the_first_non_finite_iteration(tmp_p
         "x",
         [metrics_log],
         [logs.make_logger(None, tmp_path, {})],
-        None,
     )
     losses = {"policy_loss": np.zeros((3, 1))}
     for first, finite, compile_s in [

@@ -173,6 +173,15 @@ class NetworkConfig:
                 f"environment gives {tuple(params.obs_shape)}"
             )
 
+    def check_others(self, n_agents: int) -> None:
+        """ValueError unless the attention head (if any) locates the other agents of an environment of
+        `n_agents`: `n_others` = n_agents - 1."""
+        if self.attention and self.n_others != n_agents - 1:
+            raise ValueError(
+                f"net.aux={self.aux!r}: the attention loss locates the {n_agents - 1} other agent slots, so "
+                f"it needs net.n_others {n_agents - 1} (got net.n_others {self.n_others})"
+            )
+
     @property
     def unresolved(self) -> bool:
         """Some choice is still "auto" (`autotune.resolve` makes it concrete)."""

@@ -125,7 +125,8 @@ def default_slots(env_params: EnvParams) -> str:
 def run_slots(slots: tuple[Slot, ...], env_params: EnvParams) -> tuple[Slot, ...]:
     """A training run's slots: `slots` (a run's `--slots`), or the environment's default where empty;
     checked for one per agent and a learner (ValueError)."""
-    return check_slots(slots or parse_slot_list(default_slots(env_params)), env_params.n_agents)
+    default = default_slots(env_params)
+    return check_slots(slots or parse_slot_list(default), env_params.n_agents)
 
 
 def require_rgb(env_params: EnvParams, where: str) -> None:
@@ -171,6 +172,15 @@ class Population:
         read them (scripted experts and random slots read none), and with `cloned` the demonstrators, whose
         views behaviour cloning trains on."""
         return tuple(sorted(set(self.neural) | set(self.demonstrators if cloned else ())))
+
+    def check_solo_learners(self, env_params: EnvParams, where: str) -> None:
+        """ValueError if a learner would sit out the solo episodes of `env_params` (which keep only the first
+        `solo_agents` slots); `where` names the environment."""
+        if env_params.solo_prob > 0 and any(i >= env_params.solo_agents for i in self.learners):
+            raise ValueError(
+                f"{where}: solo episodes keep only the first solo_agents={env_params.solo_agents} slots, but "
+                f"learners are in slots {self.learners}; put learners first or raise solo_agents"
+            )
 
     def validate(self, env_params: EnvParams) -> None:
         """Raise ValueError if a scripted expert cannot play this environment."""

@@ -259,6 +259,15 @@ def resume_conflicts(saved: dict[str, Any], new: dict[str, Any]) -> list[str]:
     return [k for k in logs.config_diff(saved, new) if k.split(".")[0] in FIXED_FIELDS]
 
 
+class EvalEnv(NamedTuple):
+    """An environment the first learner is evaluated in during training (`TrainConfig.eval_envs`): its spec,
+    its default companions (`population.default_population`) and its parameters."""
+
+    spec: specs.EnvSpec
+    pop: population.Population
+    env_params: EnvParams
+
+
 class Setup(NamedTuple):
     """Everything static about a run, validated (`setup`)."""
 
@@ -267,6 +276,7 @@ class Setup(NamedTuple):
     stages: tuple[schedule.Stage, ...]
     frozen_params: Any  # stacked params of frozen slots, or None (also None when not loaded)
     stage_envs: tuple[EnvParams, ...]  # the environment of stages -1, 0, 1, ...
+    eval_envs: tuple[EvalEnv, ...] = ()
 
     def stage(self, index: int) -> EnvParams:
         """The environment of stage `index` (-1: before the first stage)."""
@@ -283,44 +293,56 @@ def with_env_observation(cfg: TrainConfig) -> TrainConfig:
     return dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, obs=env_params.observation))
 
 
-def _check_stage(
-    cfg: TrainConfig, env_params: EnvParams, first: EnvParams, pop: population.Population, where: str
-) -> None:
-    changed = [f for f in schedule.STRUCTURAL_FIELDS if getattr(env_params, f) != getattr(first, f)]
-    if changed:
-        raise ValueError(f"{where} changes {changed}, which set array shapes; a stage may not change them")
-    cfg.net.check_env(env_params, where)
-    if env_params.solo_prob > 0 and any(i >= env_params.solo_agents for i in pop.learners):
-        raise ValueError(
-            f"{where}: solo episodes keep only the first solo_agents={env_params.solo_agents} slots, but "
-            f"learners are in slots {pop.learners}; put learners first or raise solo_agents"
-        )
-    pop.validate(env_params)
-
-
 def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
-    """Validate the config (its settings, then every stage's environment and the slots in it) and load frozen
-    policies; raises ValueError before anything compiles. Builds each stage's environment once
-    (`jaxsocial.make`); a run calls this once."""
+    """Validate the config and load frozen policies; raises ValueError before anything compiles. First the
+    settings alone, then the environments are built (`environments`: each stage's, each evaluation's) and
+    the slots, and each part checks what it owns: the network the environments it sees, the population its
+    experts and solo episodes, PPO its batch. A run calls this once."""
     _check_settings(cfg)
+    stage_envs, eval_params = environments(cfg)
+    env_params = stage_envs[0]
+    pop = population.Population(population.run_slots(cfg.slots, env_params))
+    wheres = ["--env-args", *(f"stage {i}" for i in range(len(cfg.stages)))]
+    for where, stage_params in zip(wheres, stage_envs, strict=True):
+        cfg.net.check_env(stage_params, where)
+        pop.check_solo_learners(stage_params, where)
+        pop.validate(stage_params)
+    for spec, params in eval_params:
+        cfg.net.check_env(params, f"eval env {str(spec)!r}")
+    cfg.net.check_others(env_params.n_agents)
+    if cfg.algo == "ppo":
+        ppo_config.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
+    elif not pop.demonstrators:
+        raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
+    evals = tuple(EvalEnv(spec, population.default_population(p), p) for spec, p in eval_params)
+    frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
+    return Setup(env_params, pop, cfg.stages, frozen, stage_envs, evals)
+
+
+def environments(cfg: TrainConfig) -> tuple[tuple[EnvParams, ...], list[tuple[specs.EnvSpec, EnvParams]]]:
+    """The environment before the stages and of each stage (`Setup.stage_envs`; ValueError where a stage
+    changes what sets array shapes, `schedule.STRUCTURAL_FIELDS`), and each evaluation environment's
+    (spec, parameters)."""
     stages = range(len(cfg.stages))
     overrides = [
         cfg.env_overrides,
         *({**cfg.env_overrides, **schedule.overrides_at(cfg.stages, i)} for i in stages),
     ]
     stage_envs = tuple(registry.make(cfg.env, **o)[1] for o in overrides)  # before the stages, then each
-    env_params = stage_envs[0]
-    pop = population.Population(population.run_slots(cfg.slots, env_params))
-    wheres = ["--env-args", *(f"stage {i}" for i in stages)]
-    for where, stage_params in zip(wheres, stage_envs, strict=True):
-        _check_stage(cfg, stage_params, env_params, pop, where)
-    _check_learners(cfg, env_params, pop)
-    frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
-    return Setup(env_params, pop, cfg.stages, frozen, stage_envs)
+    first = stage_envs[0]
+    for i, stage_params in zip(stages, stage_envs[1:], strict=True):
+        if changed := [
+            f for f in schedule.STRUCTURAL_FIELDS if getattr(stage_params, f) != getattr(first, f)
+        ]:
+            raise ValueError(
+                f"stage {i} changes {changed}, which set array shapes; a stage may not change them"
+            )
+    return stage_envs, [(spec, registry.env_params(spec.name, spec.args)) for spec in cfg.eval_envs]
 
 
 def _check_settings(cfg: TrainConfig) -> None:
-    """ValueError for a setting out of range, checked without building anything."""
+    """ValueError for a setting out of range, or settings that do not go together, checked without building
+    anything."""
     if cfg.algo not in ALGOS:
         raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
     for name in ("num_envs", "rollout_steps", "keep_checkpoints"):
@@ -338,49 +360,24 @@ def _check_settings(cfg: TrainConfig) -> None:
         raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
     if cfg.eval_envs and cfg.eval_every < 1:
         raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
+    if cfg.eval_envs and cfg.eval_episodes < 1:
+        raise ValueError(f"eval_episodes={cfg.eval_episodes} must be >= 1")
     if cfg.seeds > 1 and any(stage.threshold is not None for stage in cfg.stages):
         raise ValueError(
             "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
             "triggered by the return would start at another iteration for each seed: train them one by one"
         )
-
-
-def _check_learners(cfg: TrainConfig, env_params: EnvParams, pop: population.Population) -> None:
-    """ValueError where the learners' algorithm, network or evaluation does not fit the slots `pop` of the
-    environment `env_params`."""
-    if cfg.algo == "bc" and not pop.demonstrators:
-        raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
     if cfg.algo == "bc" and cfg.net.n_actions != NUM_ACTIONS:
         raise ValueError(
             f"--algo bc clones demonstrators that use all {NUM_ACTIONS} actions (scripted experts idle with "
             f"'done' and act at random with epsilon), so net.n_actions must be {NUM_ACTIONS}, not "
             f"{cfg.net.n_actions}"
         )
-    if cfg.net.attention and (cfg.algo != "ppo" or cfg.net.n_others != env_params.n_agents - 1):
+    if cfg.net.attention and cfg.algo != "ppo":
         raise ValueError(
-            f"net.aux={cfg.net.aux!r}: the attention loss trains PPO learners to locate the "
-            f"{env_params.n_agents - 1} other agent slots, so it needs --algo ppo and net.n_others "
-            f"{env_params.n_agents - 1} (got --algo {cfg.algo}, net.n_others {cfg.net.n_others})"
+            f"net.aux={cfg.net.aux!r}: the attention loss trains PPO learners, so it needs --algo ppo (got "
+            f"--algo {cfg.algo})"
         )
-    if cfg.algo == "ppo":
-        ppo_config.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
-    if cfg.eval_envs:
-        check_eval_envs(cfg.eval_envs, cfg.net, cfg.eval_episodes)  # what make_learner_eval checks
-
-
-def check_eval_envs(
-    eval_envs: tuple[specs.EnvSpec, ...], net_cfg: NetworkConfig, episodes: int
-) -> list[tuple[specs.EnvSpec, EnvParams]]:
-    """(spec, parameters) of each evaluation environment of a training run (`TrainConfig.eval_envs`), checked
-    for the network `net_cfg` to act in and `episodes` >= 1: ValueError otherwise."""
-    if episodes < 1:
-        raise ValueError(f"eval_episodes={episodes} must be >= 1")
-    parsed = []
-    for spec in eval_envs:
-        env_params = registry.env_params(spec.name, spec.args)
-        net_cfg.check_env(env_params, f"eval env {str(spec)!r}")
-        parsed.append((spec, env_params))
-    return parsed
 
 
 def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig:

@@ -14,7 +14,7 @@ import dataclasses
 import json
 from pathlib import Path
 
-from jaxsocial.run import checkpoint, config, rundir
+from jaxsocial.run import checkpoint, rundir
 from jaxsocial.run.config import PRESETS, TrainConfig
 
 REPO = Path(__file__).resolve().parents[2]
@@ -76,7 +76,10 @@ def measured_for(cfg: TrainConfig) -> Measured | None:
     the iterations and what only the driver does); None otherwise."""
     if cfg.preset not in MEASURED:
         return None
-    preset = config.with_env_observation(PRESETS[cfg.preset])
+    preset = PRESETS[
+        cfg.preset
+    ]  # its network's observations are its environment's, as `cfg`'s (`config.setup`)
+    preset = dataclasses.replace(preset, net=dataclasses.replace(preset.net, obs=cfg.net.obs))
     same = (cfg.program, cfg.env, cfg.env_args, cfg.slots, cfg.stages) == (
         preset.program,
         preset.env,

@@ -56,6 +56,7 @@ def make_program(
     `compiled`); `mesh`: the devices the environments will be split over (the PPO update then splits its
     minibatches over them too).
     """
+    devices = distributed.data_parallel(mesh)
     w = rollout.wiring(
         pop,
         env_params,
@@ -66,7 +67,6 @@ def make_program(
         program_cfg.num_envs,
         program_cfg.rollout_steps,
     )
-    devices = distributed.data_parallel(mesh)
 
     def iteration(state: RunnerState, frozen_params):
         state, losses, (return_sum, episodes) = rollout.iteration(w, state, frozen_params, devices)

@@ -1,7 +1,7 @@
 """What a training run writes and says, on process 0: its directory (`run_path`, `seed_runs`,
 `prepare_run_dir`, `write_configs`), each seed's metrics rows with evaluations, the progress line, and the
-lines it ends with (`Outputs`, `outcome`, `stop_message`). `jaxsocial.train.train_chunks` calls them between
-the steps of `jaxsocial.run.driver`; the file names and layout are `jaxsocial.run.rundir`'s and
+lines it ends with (`Outputs`, `outcome`, `stop_message`). `jaxsocial.train.train_chunks` calls them
+between the steps of `jaxsocial.run.driver`; the file names and layout are `jaxsocial.run.rundir`'s and
 `jaxsocial.run.logs`'."""
 
 from __future__ import annotations
@@ -19,6 +19,8 @@ import numpy as np
 
 from jaxsocial import specs, stats
 from jaxsocial.agents import population
+from jaxsocial.agents.episodes import play_episodes
+from jaxsocial.agents.network_config import NetworkConfig
 from jaxsocial.run import config, distributed, logs, metrics, nonfinite, rundir, schedule
 from jaxsocial.run.chunks import Check, Chunk, evaluates, seed_part
 from jaxsocial.run.config import TrainConfig, config_dict
@@ -83,6 +85,21 @@ def reached(threshold: float | None, learner_return: float | None) -> bool:
     return threshold is not None and learner_return is not None and learner_return >= threshold
 
 
+def learner_returns(
+    key: jax.Array, params: Any, eval_envs: tuple[config.EvalEnv, ...], net_cfg: NetworkConfig, episodes: int
+) -> dict[str, float]:
+    """Evaluation during training: one learner's `params` (unstacked) in slot 0 of each evaluation
+    environment (`config.Setup.eval_envs`), beside that environment's default companions, for `episodes`
+    episodes (`episodes.play_episodes`): {spec text: the learner's mean return over the episodes it took part
+    in}."""
+    stacked = jax.tree.map(lambda x: x[None], params)
+    returns = {}
+    for env, k in zip(eval_envs, jax.random.split(key, len(eval_envs)), strict=True):
+        played = jax.device_get(play_episodes(k, env.pop, net_cfg, env.env_params, stacked, episodes))
+        returns[str(env.spec)] = float(played.returns[played.present[:, 0], 0].mean())
+    return returns
+
+
 @dataclasses.dataclass
 class Outputs:
     """What process 0 writes while training: each seed's metrics rows (`metrics.jsonl` and its logger's)
@@ -94,7 +111,6 @@ class Outputs:
     desc: str  # the run, as progress lines name it
     metrics_logs: list[logs.MetricsLog]  # each seed's
     extras: list[logs.Logger]  # each seed's `cfg.logger`
-    learner_eval: Any  # `evaluate.make_learner_eval`'s, or None
     progress: logs.Progress | None = None  # from the first chunk on, with `cfg.progress`
     nonfinite_iterations: list[int] = dataclasses.field(default_factory=list)
     evaluated: bool = False  # an evaluation (and its compile) has run
@@ -107,21 +123,19 @@ class Outputs:
         mesh: jax.sharding.Mesh,
         seeds: list[SeedRun],
         start: int,
-        learner_eval: Any,
     ) -> Outputs:
-        """The outputs of a run that continues after iteration `start` (later metrics rows are dropped),
-        evaluating with `learner_eval` (`evaluate.make_learner_eval`'s; None: no evaluations)."""
+        """The outputs of a run that continues after iteration `start` (later metrics rows are dropped)."""
         parts = [f"{cfg.seeds} seeds"] if cfg.seeds > 1 else []
         parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
         name = run_name(cfg)
         desc = f"{name} ({', '.join(parts)})" if parts else name
         if not distributed.is_main():
-            return cls(cfg, static, seeds, desc, [], [], None)
+            return cls(cfg, static, seeds, desc, [], [])
         metrics_logs = [logs.MetricsLog(s.dir) for s in seeds]
         for metrics_log in metrics_logs:
             metrics_log.truncate_after(start)
         extras = [logs.make_logger(cfg.logger, s.dir, s.config) for s in seeds]
-        return cls(cfg, static, seeds, desc, metrics_logs, extras, learner_eval)
+        return cls(cfg, static, seeds, desc, metrics_logs, extras)
 
     @property
     def shows_progress(self) -> bool:
@@ -175,7 +189,8 @@ class Outputs:
         host_params = jax.device_get(seed_part(params, k, self.cfg.seeds))  # replicated: local
         first = jax.tree.map(lambda x: x[0], host_params)
         key = jax.random.fold_in(jax.random.key(self.seeds[k].seed), end)
-        return metrics.eval_fields(self.learner_eval(key, first))
+        returns = learner_returns(key, first, self.static.eval_envs, self.cfg.net, self.cfg.eval_episodes)
+        return metrics.eval_fields(returns)
 
     def show_progress(self, it: int, stage: int, pooled: dict[str, np.ndarray], sps: float) -> None:
         """The progress line after iteration `it`, now in `stage`, with the chunk's metrics over all seeds
