@@ -47,14 +47,19 @@ def lower_all(repo: Path) -> dict:
     from conftest import TINY
 
     import jaxsocial
-    from jaxsocial.run import config, loop
+    from jaxsocial.run import loop
+
+    try:
+        from jaxsocial.run.startup import setup
+    except ImportError:  # a tree from before run/startup.py, where setup was the config's
+        from jaxsocial.run.config import setup
 
     if not Path(jaxsocial.__file__).is_relative_to(repo.resolve()):
         raise SystemExit(f"imported jaxsocial from {jaxsocial.__file__}, not from {repo}")
     key = jax.random.key(0)
     out = {}
     for name, cfg in variants(TINY).items():
-        static = config.setup(cfg, load_frozen=False)
+        static = setup(cfg, load_frozen=False)
         init, run_chunk = loop.make_program(cfg.program, static.stage(-1), static.pop)
         state = jax.eval_shape(init, key)
         parts = {

@@ -61,7 +61,7 @@ from reproducibility import (
 from run_info import REPO, portable, write_json
 
 from jaxsocial.experiments import pinned
-from jaxsocial.run import autotune, logs
+from jaxsocial.run import autotune, logs, startup
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
 DOT_KS = (27, 256, 288, 432, 1024, 8192)
@@ -189,7 +189,7 @@ def recipe_hashes() -> tuple[dict[str, str], int]:
     cfg = config.config_from_dict(logs.read_config(REFERENCE))
     cfg = dataclasses.replace(cfg, iterations=1, chunk_iterations=1, compile_cache=None)
     init, run_chunk, _ = train.make_train(cfg)
-    frozen = policy_io.load_frozen(config.setup(cfg, load_frozen=False).pop, cfg.net)
+    frozen = policy_io.load_frozen(startup.setup(cfg, load_frozen=False).pop, cfg.net)
     state = jax.jit(init)(jax.random.key(cfg.seed))
     one_iteration = jax.jit(lambda state: run_chunk(state, frozen, 1)).lower(state).compile()
     hashes = state_hashes("init", state)

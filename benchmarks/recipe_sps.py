@@ -101,14 +101,18 @@ def worker(name: str) -> None:
     from jaxsocial.experiments import recipes
 
     try:
-        from jaxsocial.run import config, loop
+        from jaxsocial.run import loop
     except ImportError:  # a tree from before the run/ package (--against 191032c, the baseline)
-        from jaxsocial import config, loop
+        from jaxsocial import loop
+    try:
+        from jaxsocial.run.startup import setup
+    except ImportError:  # a tree from before run/startup.py, where setup was the config's
+        from jaxsocial.run.config import setup
 
     scale, condition, extra = recipe(name)
     flags = [*recipes.condition_flags(recipes.SCALES[scale], condition, 0, 1, "/tmp/unused"), *extra]
     base = train.parse_args(flags)
-    static = config.setup(base, load_frozen=False)
+    static = setup(base, load_frozen=False)
     m, k = base.ppo.num_minibatches, base.ppo.recompute_every
     programs, compile_s = {}, {}
     for variant, (mb, every) in {"full": (m, k), "once": (m, m), "one": (1, 1)}.items():

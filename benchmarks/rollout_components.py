@@ -38,7 +38,7 @@ from jaxsocial import train
 from jaxsocial.agents import acting, rollout
 from jaxsocial.env import core
 from jaxsocial.experiments import recipes
-from jaxsocial.run import config
+from jaxsocial.run import startup
 
 PROGRAMS = ("env", "render", "experts", "rollout", "update")
 COMPONENTS = ("env", "render", "experts", "network", "update")
@@ -52,7 +52,7 @@ def programs(name: str) -> tuple[dict, rollout.RunnerState, int]:
         [*recipes.condition_flags(recipes.SCALES[scale], condition, 0, 1, "/tmp/unused"), *extra]
     )
     cfg = dataclasses.replace(cfg, ppo=dataclasses.replace(cfg.ppo, kl_target=1e9, kl_hard_limit=1e9))
-    static = config.setup(cfg, load_frozen=False)
+    static = startup.setup(cfg, load_frozen=False)
     p = cfg.program
     w = rollout.wiring(static.pop, static.env_params, p.net, p.ppo, p.bc, p.algo, p.num_envs, p.rollout_steps)
     n_agents = w.env_params.n_agents

@@ -361,7 +361,7 @@ def train_run(name: str):
 def section_train(args: argparse.Namespace) -> dict:
     """End-to-end training throughput of `TRAIN_RUNS` (``--presets``) in each of ``--dtypes``: one compiled
     chunk of iterations (rollout of every slot + PPO update of every learner), joint env-steps/s."""
-    from jaxsocial.run.config import setup
+    from jaxsocial.run.startup import setup
     from jaxsocial.train import make_train
 
     rows = []

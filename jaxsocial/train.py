@@ -1,9 +1,7 @@
 """Training runs from a `TrainConfig`: `run` (validate, prepare and lock the run directory, then
-`train_chunks`, the loop over the steps of `jaxsocial.run.driver` and of `Outputs`, what process 0 writes:
-metrics rows, evaluations, progress), `make_train` (a whole run as one pure function), `compiled_program` and
-the CLI. This is the one place a whole `TrainConfig` is taken apart: the compiled loop (`jaxsocial.run.loop`)
-gets its `ProgramConfig`, the driver its `ProgramConfig` and `DriverConfig`. The configuration and its
-validation are in `jaxsocial.run.config`.
+`jaxsocial.run.driver.train_chunks`, the loop over the driver's steps), `make_train` (a whole run as one pure
+function), `compiled_program` and the CLI. The configuration is `jaxsocial.run.config`'s, its validation and
+static part `jaxsocial.run.startup`'s.
 
     python -m jaxsocial.train --env goalcycle3            # small default, a few minutes on 2 CPU cores
     python -m jaxsocial.train --preset paper --env goalcycle3
@@ -18,41 +16,33 @@ from pathlib import Path
 
 import jax
 
-from jaxsocial.agents import population
 from jaxsocial.env import registry
 from jaxsocial.run import (
     compile_cache,
-    config,
     cost,
     distributed,
     flags,
     init_from,
     logs,
     loop,
-    metrics,
     nonfinite,
     policy_io,
     runlock,
+    startup,
 )
-from jaxsocial.run.chunks import check_chunk, checkpoint_due, plan_chunk, pool_seeds
 from jaxsocial.run.config import PRESETS, TrainConfig, config_from_dict
-from jaxsocial.run.driver import Driver, stage_program
+from jaxsocial.run.driver import stage_program, train_chunks
 from jaxsocial.run.outputs import (
-    Outputs,
-    nothing_to_train,
     prepare_run_dir,
-    reached,
     run_path,
     seed_runs,
-    stop_message,
     write_configs,
 )
-from jaxsocial.run.rundir import SeedRun
 
 
 def make_train(cfg: TrainConfig):
     """The pure training functions of `cfg`, a config without stages (a run's driver switches them),
-    validated first (`config.setup`).
+    validated first (`startup.setup`).
 
     Returns `(init, run_chunk, train)`: `init` and `run_chunk` as `loop.make_program` builds them for
     `cfg.program`; `train(key) -> (state, metrics)` is the whole run of `cfg.iterations` (it loads frozen
@@ -60,7 +50,7 @@ def make_train(cfg: TrainConfig):
     """
     if cfg.stages:
         raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
-    static = config.setup(cfg, load_frozen=False)
+    static = startup.setup(cfg, load_frozen=False)
     init, run_chunk = loop.make_program(cfg.program, static.env_params, static.pop)
 
     def train(key: jax.Array):
@@ -71,8 +61,8 @@ def make_train(cfg: TrainConfig):
 
 def compiled_program(cfg: TrainConfig, stage: int = -1) -> loop.Program:
     """The compiled `Program` of `cfg` in `stage` (-1: before the first) on its devices, validated first
-    (`config.setup`; frozen policies are not loaded), as a run's driver compiles it."""
-    static = config.setup(cfg, load_frozen=False)
+    (`startup.setup`; frozen policies are not loaded), as a run's driver compiles it."""
+    static = startup.setup(cfg, load_frozen=False)
     return stage_program(cfg.program, static, loop.data_mesh(cfg.program, cfg.devices), stage)
 
 
@@ -82,15 +72,15 @@ def run(cfg: TrainConfig) -> Path:
     The run goes through the stages of `cfg.stages` (one compiled program each, switched between chunks);
     metrics rows record the stage, and checkpoints the stage to resume in. The run directory is locked
     (`runlock`) from before it is written until the run ends; a live run's directory raises RunLockedError.
-    A non-finite iteration raises `nonfinite.NonFiniteError` (see `train_chunks`). Several seeds train in one
-    program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`). In a
-    multi-process run every process calls this with the same config (and its own process_id); only process 0
-    writes logs, metrics and progress.
+    A non-finite iteration raises `nonfinite.NonFiniteError` (see `driver.train_chunks`). Several seeds train
+    in one program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`).
+    In a multi-process run every process calls this with the same config (and its own process_id); only
+    process 0 writes logs, metrics and progress.
     """
     distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
-    static = config.setup(cfg)  # validate before touching the disk or compiling; once per run
+    static = startup.setup(cfg)  # validate before touching the disk or compiling; once per run
     branching = cfg.init_from is not None and not cfg.resume  # a resumed run loads its own state
     numbers = list(range(cfg.seed, cfg.seed + cfg.seeds))
     if branching:
@@ -104,7 +94,7 @@ def run(cfg: TrainConfig) -> Path:
     trained = cost.trained_iterations(cfg, run_dir)
     if distributed.is_main() and trained < cfg.iterations:  # before "auto" measures the machine and compiling
         print(cost.estimate(cfg, trained), flush=True)
-    cfg = config.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
+    cfg = startup.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
     seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)
     distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
@@ -117,52 +107,6 @@ def run(cfg: TrainConfig) -> Path:
         if distributed.is_main():
             lock.release()
     return run_dir
-
-
-def train_chunks(
-    cfg: TrainConfig,
-    static: config.Setup,
-    mesh: jax.sharding.Mesh,
-    run_dir: Path,
-    seeds: list[SeedRun],
-) -> None:
-    """The training loop of `run` in its prepared (and locked) run directory, over the steps of `Driver`
-    and `Outputs`: chunk after chunk, plan, compile, run, write rows (with evaluations, on process 0),
-    switch stage, save and show progress.
-    Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
-    nothing non-finite is ever saved."""
-    driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
-    if driver.it >= cfg.iterations:
-        if distributed.is_main():
-            print(nothing_to_train(driver.it, cfg.iterations))
-        return
-    out = Outputs.open(cfg, static, mesh, seeds, driver.it)
-    try:
-        while driver.it < cfg.iterations:
-            n = plan_chunk(driver.driver_cfg, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
-            compile_s = driver.compile(n, announce=out.compiling)
-            out.start_progress(driver.it, compile_s)
-            chunk = driver.run_chunk(n)
-            check = check_chunk(chunk.finite, static.pop.learners, cfg.seeds, cfg.on_nonfinite)
-            out.write_rows(chunk, check, compile_s, driver.state.params)
-            if check.stop:
-                raise nonfinite.NonFiniteError(stop_message(cfg, driver.it, check.failure, driver.last_saved))
-            driver.it += n
-            pooled = pool_seeds(chunk.metrics, cfg.seeds)
-            learner_return = metrics.learner_return(pooled, static.pop)
-            driver.switch_stage(learner_return)
-            stop = reached(cfg.stop_at_return, learner_return)
-            if stop or checkpoint_due(driver.driver_cfg, driver.it, driver.last_saved):
-                driver.save(check.healthy_end)
-            out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
-            if stop:
-                if distributed.is_main():
-                    print(f"stopped after iteration {driver.it}: the learners' return {learner_return:.3g} "
-                          f"reached --stop-at-return {cfg.stop_at_return:g}")  # fmt: skip
-                break
-    finally:
-        out.close()
-    out.report(run_dir, driver.it, learner_return if stop else None)
 
 
 USAGE = """Train independent conv-LSTM PPO learners (or behaviour cloning) beside experts in a jaxsocial
@@ -225,7 +169,7 @@ def parse_args(argv: list[str]) -> TrainConfig:
         TrainConfig, default=default, args=argv, description=usage, prog="python -m jaxsocial.train"
     )
     if not any(arg.partition("=")[0] == "--net.obs" for arg in argv):  # the network takes the env's views
-        cfg = config.with_env_observation(cfg)
+        cfg = startup.with_env_observation(cfg)
     return cfg if saved is None else dataclasses.replace(cfg, resume=True, overwrite=False)
 
 

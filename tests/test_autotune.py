@@ -275,7 +275,7 @@ def test_mixed_layers_compute_what_xla_computes():
 
 
 def test_a_training_run_records_what_auto_chose(tmp_path, monkeypatch, counted):
-    """The trainer resolves "auto" at start-up (`config.resolve_network`): config.json names every layer, as
+    """The trainer resolves "auto" at start-up (`startup.resolve_network`): config.json names every layer, as
     the tuning it cached chose (timings made up by `counted`; `test_real_measurements` measures)."""
     from conftest import TINY as TINY_RUN
 

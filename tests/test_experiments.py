@@ -15,7 +15,7 @@ from conftest import needs_records
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import conditions, kinds, paths, plot_figures, recipes, runner, summaries, takeoff
-from jaxsocial.run import config, logs, metrics, schedule
+from jaxsocial.run import config, logs, metrics, schedule, startup
 
 
 @pytest.mark.parametrize("scale", sorted(recipes.SCALES))
@@ -25,7 +25,7 @@ def test_every_condition_is_a_valid_run(scale):
         per_seed = [(3, 1), (4, 1)] if cond.program_per_seed else [(3, 2)]
         assert [(cfg.seed, cfg.seeds) for cfg in programs] == per_seed
         for cfg in programs:
-            config.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
+            startup.setup(cfg, load_frozen=False)  # raises on any invalid setting, compiles nothing
             assert cfg.iterations == recipes.SCALES[scale].iterations
             assert cfg.run_name == f"{scale}/{name}-s{cfg.seed}-{cfg.seed + cfg.seeds - 1}"
             assert cfg.env == cond.env

@@ -18,6 +18,7 @@ ABOVE_TOOLS = (
     "jaxsocial.run.driver",
     "jaxsocial.run.loop",
     "jaxsocial.run.config",
+    "jaxsocial.run.startup",
     "jaxsocial.experiments",
 )
 

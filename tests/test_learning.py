@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import RUN_FAST, SOLO_LEARNING, mean_return
 
-from jaxsocial.agents.bc import BCConfig
+from jaxsocial.agents.bc_config import BCConfig
 from jaxsocial.agents.fast import precision
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.run.config import TrainConfig

@@ -135,7 +135,8 @@ def test_every_recipe_kind_is_registered():
 def test_tools_import_no_training_or_experiments(module):
     code = (
         f"import {module}, sys; bad = [m for m in sys.modules if m.startswith(('jaxsocial.experiments', "
-        "'jaxsocial.train', 'jaxsocial.run.config', 'jaxsocial.run.loop', 'jaxsocial.evaluate'))]; "
+        "'jaxsocial.train', 'jaxsocial.run.config', 'jaxsocial.run.startup', 'jaxsocial.run.loop', "
+        "'jaxsocial.evaluate'))]; "
         "assert not bad, bad"
     )
     root = Path(__file__).resolve().parents[1]

@@ -18,7 +18,7 @@ from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
 from jaxsocial.run import logs, policy_io, schedule
-from jaxsocial.run.config import setup
+from jaxsocial.run.startup import setup
 from jaxsocial.specs import PolicyRef
 from jaxsocial.train import run
 

@@ -18,7 +18,7 @@ from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.network import init as init_params
 from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env.observe import observe
-from jaxsocial.run import checkpoint, config, logs, loop, policy_io, rundir
+from jaxsocial.run import checkpoint, config, logs, loop, policy_io, rundir, startup
 from jaxsocial.run.config import PRESETS
 from jaxsocial.train import make_train, parse_args, run
 
@@ -93,7 +93,7 @@ def test_the_run_ends_with_its_outcome():
         return [{"iteration": 1, "return/0": learner_return, "episodes/0": 2, "return/1": 38.0,
                  "episodes/1": 2, "return/2": 39.0, "episodes/2": 2}]  # fmt: skip
 
-    social = config.setup(PRESETS["small"], load_frozen=False)  # a learner beside two experts, penalty 1.5
+    social = startup.setup(PRESETS["small"], load_frozen=False)  # a learner beside two experts, penalty 1.5
     plateau = outcome(rows(0.9), social, 512_000)
     assert plateau.startswith("final return (last 10% of the iterations): learner 0.9, expert:explorer 38")
     assert "on the one-tile plateau" in plateau
@@ -105,12 +105,12 @@ def test_the_run_ends_with_its_outcome():
     assert "learner nan" in unfinished and "plateau" not in unfinished
     assert "no episode of the learner ended in the last 10% of the iterations (5,120 env-steps" in unfinished
     learners_only = dataclasses.replace(PRESETS["small"], slots=parse_slot_list("learner,learner,learner"))
-    three = outcome(rows(0.9), config.setup(learners_only, load_frozen=False), 512_000)
+    three = outcome(rows(0.9), startup.setup(learners_only, load_frozen=False), 512_000)
     assert (
         "on the one-tile plateau" in three and "beside experts" not in three
     )  # no experts: no such expectation
     assert three.endswith("after 512,000 env-steps under the 1.5 penalty")
-    no_penalty = config.setup(dataclasses.replace(PRESETS["small"], env_args="penalty=0"), load_frozen=False)
+    no_penalty = startup.setup(dataclasses.replace(PRESETS["small"], env_args="penalty=0"), load_frozen=False)
     assert "plateau" not in outcome(rows(0.9), no_penalty, 512_000)
     # a run stopped by --stop-at-return: its last chunk, not the diluted final window, says what happened
     stopped = outcome(rows(0.9), social, 12_861_440, stopped_at=5.58)
@@ -154,7 +154,7 @@ def test_a_checkpoint_holding_every_slots_views_resumes_the_same_run(tiny_runs):
     runs_dir = tiny_runs["runs_dir"]
     cut = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="every_view", iterations=2))
     ckpt_dir = cut / "checkpoints"
-    static = config.setup(TINY, load_frozen=False)
+    static = startup.setup(TINY, load_frozen=False)
     env_params = static.stage(-1)
     init, _ = loop.make_program(TINY.program, env_params, static.pop)
     state = checkpoint.restore(ckpt_dir, jax.eval_shape(init, jax.random.key(0)), 2)
@@ -325,7 +325,7 @@ def test_bad_config_fails_before_compiling(tmp_path, changes, message):
 
 def test_setup_builds_each_evaluation_environment_with_its_default_companions():
     cfg = dataclasses.replace(TINY, eval_envs=("goalcycle4", "goalcycle3-solo:width=7"))
-    evals = config.setup(cfg, load_frozen=False).eval_envs
+    evals = startup.setup(cfg, load_frozen=False).eval_envs
     assert [str(e.spec) for e in evals] == ["goalcycle4", "goalcycle3-solo:width=7"]
     assert [(e.env_params.n_goals, e.env_params.width, e.env_params.n_agents) for e in evals] == [
         (4, 13, 3),

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial.run import config, logs, metrics, nonfinite, outputs, schedule
+from jaxsocial.run import logs, metrics, nonfinite, outputs, schedule, startup
 from jaxsocial.run.chunks import Check, Chunk, check_chunk, checkpoint_due, evaluates, plan_chunk, pool_seeds
 from jaxsocial.run.driver import Driver
 
@@ -113,7 +113,7 @@ def chunk_metrics(returns, episodes):
 
 def test_a_stage_starts_at_its_iteration_or_once_the_learners_return_reaches_it():
     cfg = dataclasses.replace(TINY, iterations=8, stages="2:penalty=0.5;return>=5:penalty=1.0")
-    static = config.setup(cfg)
+    static = startup.setup(cfg)
     driver = Driver(cfg.program, cfg.driver, static, None, [], "", None, stage=-1, frozen=None, it=2)
     driver.switch_stage(None)  # iteration 2, whatever the return
     assert driver.stage == 0
@@ -136,7 +136,7 @@ def test_pooled_seeds_read_as_one_seeds_iterations():
 
 def test_write_rows_keeps_rows_and_warns_at_the_first_non_finite_iteration(tmp_path, capsys):
     cfg = dataclasses.replace(TINY, iterations=6, on_nonfinite="warn")
-    static = config.setup(cfg)
+    static = startup.setup(cfg)
     metrics_log = logs.MetricsLog(tmp_path)
     out = outputs.Outputs(
         cfg,

@@ -10,7 +10,6 @@ Shapes: T rollout steps, B demonstration streams (environments x demonstrators).
 
 from __future__ import annotations
 
-import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -18,23 +17,8 @@ import jax.numpy as jnp
 import optax
 
 from jaxsocial.agents import network
+from jaxsocial.agents.bc_config import BCConfig
 from jaxsocial.agents.network import NetworkConfig
-
-
-@dataclasses.dataclass(frozen=True)
-class BCConfig:
-    """Behaviour-cloning hyperparameters."""
-
-    lr: float = 3e-4
-    """Adam learning rate."""
-    epochs: int = 4
-    """Gradient steps on each iteration's demonstrations (the whole batch each time)."""
-    max_grad_norm: float = 0.5
-    """Global gradient-norm clip."""
-
-    def __post_init__(self):
-        if self.epochs < 1 or self.lr <= 0:
-            raise ValueError(f"BCConfig: need epochs >= 1 and lr > 0, got {self.epochs} and {self.lr}")
 
 
 class Demonstration(NamedTuple):

@@ -23,7 +23,7 @@ import numpy as np
 
 from jaxsocial.experiments import plot_figures, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.run import config, logs, metrics
+from jaxsocial.run import logs, metrics, startup
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 from jaxsocial.stats import ct_score, kaplan_meier, learned_seed_tests, separations, summary
 
@@ -139,8 +139,8 @@ def takeoffs(runs) -> dict[str, dict[str, Any]]:
 
 def experts_of(cfg) -> tuple[tuple[int, ...], Any]:
     """A run's scripted-expert slots, and what decides their returns: their specs and every stage's
-    environment (`config.setup`)."""
-    setup = config.setup(cfg, load_frozen=False)
+    environment (`startup.setup`)."""
+    setup = startup.setup(cfg, load_frozen=False)
     experts = setup.pop.experts
     return experts, (tuple(setup.pop.slots[k] for k in experts), setup.stage_envs)
 

@@ -23,7 +23,7 @@ import dataclasses
 
 from jaxsocial.experiments import paths, prereg
 from jaxsocial.experiments.conditions import CONDITIONS, PENALTY_CONDITIONS, Condition
-from jaxsocial.run import config, schedule
+from jaxsocial.run import config, schedule, startup
 from jaxsocial.run.config import PRESETS, TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import EnvArgsFlag, EnvSpec
@@ -321,7 +321,7 @@ def _stages(scale: Scale, cond: Condition) -> tuple[schedule.Stage, ...]:
 
 def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> TrainConfig:
     """The `TrainConfig` of a condition: the scale's with the condition's changes (validated by
-    `config.setup` when it runs)."""
+    `startup.setup` when it runs)."""
     cond, base = CONDITIONS[condition], scale.config
     net = dataclasses.replace(base.net, aux=cond.aux, n_actions=cond.n_actions or base.net.n_actions)
     evaluation = {}
@@ -345,7 +345,7 @@ def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_d
         run_name=run_name(scale, condition, seed, seeds),
         **evaluation,
     )
-    return config.with_env_observation(cfg)
+    return startup.with_env_observation(cfg)
 
 
 def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[str]:

@@ -22,8 +22,9 @@ from jaxsocial.experiments.rundirs import (
     seed_dirs,
 )
 from jaxsocial.run import logs, outputs
-from jaxsocial.run.config import TrainConfig, setup
+from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
+from jaxsocial.run.startup import setup
 from jaxsocial.specs import EnvSpec
 
 BLIND_SCORE = "written (blind until every seed is in)"

@@ -1,6 +1,6 @@
-"""A training run's configuration: `TrainConfig` (every field a command-line flag), the presets, and
-`setup(cfg) -> Setup`, the validated static part of a run (environment of every stage, slots, frozen
-policies), computed once per run before anything is written or compiled.
+"""A training run's configuration: `TrainConfig` (every field a command-line flag), the presets, and its
+config.json form (`config_dict`, `config_from_dict`). Its validation and static part are
+`jaxsocial.run.setup`'s.
 
 `TrainConfig` is three configs in one: `RunConfig` (what the run is), `ProgramConfig` (what the compiled
 program is built from: with the environment and the slots, the key of the compiled-program cache) and
@@ -11,18 +11,14 @@ one of them, so a new field is placed by where it is declared.
 from __future__ import annotations
 
 import dataclasses
-from typing import Annotated, Any, NamedTuple
-
-import jax
+from typing import Annotated, Any
 
 from jaxsocial import specs
-from jaxsocial.agents import network_config, population, ppo_config
-from jaxsocial.agents.bc import BCConfig
-from jaxsocial.agents.network import NetworkConfig
+from jaxsocial.agents import network_config, population
+from jaxsocial.agents.bc_config import BCConfig
+from jaxsocial.agents.network_config import NetworkConfig
 from jaxsocial.agents.ppo_config import PPOConfig
-from jaxsocial.env import registry
-from jaxsocial.env.types import NUM_ACTIONS, EnvParams
-from jaxsocial.run import autotune, logs, policy_io, schedule
+from jaxsocial.run import logs, schedule
 from jaxsocial.specs import CheckpointRef, EnvFlag, TextField
 
 STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VALUE,...;...")
@@ -257,145 +253,6 @@ def resume_conflicts(saved: dict[str, Any], new: dict[str, Any]) -> list[str]:
     written differently, e.g. 'width=9, height=9', and fields added since at their defaults do not differ)."""
     saved = config_dict(config_from_dict(saved))
     return [k for k in logs.config_diff(saved, new) if k.split(".")[0] in FIXED_FIELDS]
-
-
-class EvalEnv(NamedTuple):
-    """An environment the first learner is evaluated in during training (`TrainConfig.eval_envs`): its spec,
-    its default companions (`population.default_population`) and its parameters."""
-
-    spec: specs.EnvSpec
-    pop: population.Population
-    env_params: EnvParams
-
-
-class Setup(NamedTuple):
-    """Everything static about a run, validated (`setup`)."""
-
-    env_params: EnvParams  # before the first stage (`--env` with `--env-args`)
-    pop: population.Population
-    stages: tuple[schedule.Stage, ...]
-    frozen_params: Any  # stacked params of frozen slots, or None (also None when not loaded)
-    stage_envs: tuple[EnvParams, ...]  # the environment of stages -1, 0, 1, ...
-    eval_envs: tuple[EvalEnv, ...] = ()
-
-    def stage(self, index: int) -> EnvParams:
-        """The environment of stage `index` (-1: before the first stage)."""
-        return self.stage_envs[index + 1]
-
-
-def with_env_observation(cfg: TrainConfig) -> TrainConfig:
-    """`cfg` with `net.obs` the observations its environment gives (`--env` with `--env-args`: "rgb" or
-    "symbolic"); `cfg` itself if that environment cannot be built (`setup` then says why)."""
-    try:
-        _, env_params = registry.make(cfg.env, **cfg.env_overrides)
-    except ValueError:
-        return cfg
-    return dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, obs=env_params.observation))
-
-
-def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
-    """Validate the config and load frozen policies; raises ValueError before anything compiles. First the
-    settings alone, then the environments are built (`environments`: each stage's, each evaluation's) and
-    the slots, and each part checks what it owns: the network the environments it sees, the population its
-    experts and solo episodes, PPO its batch. A run calls this once."""
-    _check_settings(cfg)
-    stage_envs, eval_params = environments(cfg)
-    env_params = stage_envs[0]
-    pop = population.Population(population.run_slots(cfg.slots, env_params))
-    wheres = ["--env-args", *(f"stage {i}" for i in range(len(cfg.stages)))]
-    for where, stage_params in zip(wheres, stage_envs, strict=True):
-        cfg.net.check_env(stage_params, where)
-        pop.check_solo_learners(stage_params, where)
-        pop.validate(stage_params)
-    for spec, params in eval_params:
-        cfg.net.check_env(params, f"eval env {str(spec)!r}")
-    cfg.net.check_others(env_params.n_agents)
-    if cfg.algo == "ppo":
-        ppo_config.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
-    elif not pop.demonstrators:
-        raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
-    evals = tuple(EvalEnv(spec, population.default_population(p), p) for spec, p in eval_params)
-    frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
-    return Setup(env_params, pop, cfg.stages, frozen, stage_envs, evals)
-
-
-def environments(cfg: TrainConfig) -> tuple[tuple[EnvParams, ...], list[tuple[specs.EnvSpec, EnvParams]]]:
-    """The environment before the stages and of each stage (`Setup.stage_envs`; ValueError where a stage
-    changes what sets array shapes, `schedule.STRUCTURAL_FIELDS`), and each evaluation environment's
-    (spec, parameters)."""
-    stages = range(len(cfg.stages))
-    overrides = [
-        cfg.env_overrides,
-        *({**cfg.env_overrides, **schedule.overrides_at(cfg.stages, i)} for i in stages),
-    ]
-    stage_envs = tuple(registry.make(cfg.env, **o)[1] for o in overrides)  # before the stages, then each
-    first = stage_envs[0]
-    for i, stage_params in zip(stages, stage_envs[1:], strict=True):
-        if changed := [
-            f for f in schedule.STRUCTURAL_FIELDS if getattr(stage_params, f) != getattr(first, f)
-        ]:
-            raise ValueError(
-                f"stage {i} changes {changed}, which set array shapes; a stage may not change them"
-            )
-    return stage_envs, [(spec, registry.env_params(spec.name, spec.args)) for spec in cfg.eval_envs]
-
-
-def _check_settings(cfg: TrainConfig) -> None:
-    """ValueError for a setting out of range, or settings that do not go together, checked without building
-    anything."""
-    if cfg.algo not in ALGOS:
-        raise ValueError(f"unknown --algo {cfg.algo!r}; choose one of {ALGOS}")
-    for name in ("num_envs", "rollout_steps", "keep_checkpoints"):
-        value = getattr(cfg, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name}={value!r} must be a whole number >= 1 (for every --algo)")
-    for name in ("iterations", "chunk_iterations", "checkpoint_every"):
-        if getattr(cfg, name) < 1:
-            raise ValueError(f"{name}={getattr(cfg, name)} must be >= 1")
-    if isinstance(cfg.seeds, bool) or not isinstance(cfg.seeds, int) or cfg.seeds < 1:
-        raise ValueError(f"seeds must be a whole number >= 1, got {cfg.seeds!r}")
-    if cfg.on_nonfinite not in ON_NONFINITE:
-        raise ValueError(f"unknown on_nonfinite {cfg.on_nonfinite!r}; choose from {ON_NONFINITE}")
-    if cfg.seed_batching not in SEED_BATCHING:
-        raise ValueError(f"unknown seed_batching {cfg.seed_batching!r}; choose from {SEED_BATCHING}")
-    if cfg.eval_envs and cfg.eval_every < 1:
-        raise ValueError(f"eval_every={cfg.eval_every} must be >= 1")
-    if cfg.eval_envs and cfg.eval_episodes < 1:
-        raise ValueError(f"eval_episodes={cfg.eval_episodes} must be >= 1")
-    if cfg.seeds > 1 and any(stage.threshold is not None for stage in cfg.stages):
-        raise ValueError(
-            "--seeds > 1 trains the seeds in one program, which is in one stage at a time; a stage "
-            "triggered by the return would start at another iteration for each seed: train them one by one"
-        )
-    if cfg.algo == "bc" and cfg.net.n_actions != NUM_ACTIONS:
-        raise ValueError(
-            f"--algo bc clones demonstrators that use all {NUM_ACTIONS} actions (scripted experts idle with "
-            f"'done' and act at random with epsilon), so net.n_actions must be {NUM_ACTIONS}, not "
-            f"{cfg.net.n_actions}"
-        )
-    if cfg.net.attention and cfg.algo != "ppo":
-        raise ValueError(
-            f"net.aux={cfg.net.aux!r}: the attention loss trains PPO learners, so it needs --algo ppo (got "
-            f"--algo {cfg.algo})"
-        )
-
-
-def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig:
-    """`cfg` with its network's "auto" choices (`--net.dtype auto`, `--net.conv-impl auto`) made for this
-    machine (`autotune.resolve`: measured once, then cached) at the frames of one gradient step (PPO: a
-    minibatch; BC: every demonstrator slot of `pop`'s rollout), so that config.json and saved policies name
-    what ran; `cfg` itself when nothing is "auto". ValueError in a multi-process run, whose processes could
-    measure differently."""
-    if not cfg.net.unresolved:
-        return cfg
-    if jax.process_count() > 1:
-        raise ValueError("--net.dtype/--net.conv-impl 'auto' are chosen per machine: give them concretely")
-    frames = (
-        cfg.ppo.minibatch_segments * cfg.ppo.segment_length
-        if cfg.algo == "ppo"
-        else cfg.num_envs * cfg.rollout_steps * len(pop.demonstrators)
-    )
-    return dataclasses.replace(cfg, net=autotune.resolve(cfg.net, frames))
 
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:

@@ -78,7 +78,7 @@ def measured_for(cfg: TrainConfig) -> Measured | None:
         return None
     preset = PRESETS[
         cfg.preset
-    ]  # its network's observations are its environment's, as `cfg`'s (`config.setup`)
+    ]  # its network's observations are its environment's, as `cfg`'s (`startup.setup`)
     preset = dataclasses.replace(preset, net=dataclasses.replace(preset.net, obs=cfg.net.obs))
     same = (cfg.program, cfg.env, cfg.env_args, cfg.slots, cfg.stages) == (
         preset.program,

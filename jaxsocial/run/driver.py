@@ -1,8 +1,8 @@
-"""The training driver's state between chunks (`Driver`) and its steps: start-up (from scratch, a checkpoint
-or `--init-from`), compiling a chunk, running it and saving every seed's checkpoint and policy. What it
-decides from its `DriverConfig` (`driver_cfg`) and a chunk's results (planning, non-finite checks) is
-`jaxsocial.run.chunks`; `jaxsocial.train.train_chunks` loops over the steps; what process 0 writes (metrics
-rows, evaluations, progress) is `jaxsocial.run.outputs.Outputs`.
+"""The training driver's state between chunks (`Driver`), its steps (start-up from scratch, a checkpoint or
+`--init-from`; compiling a chunk, running it, saving every seed's checkpoint and policy) and `train_chunks`,
+the loop over them. What it decides from its `DriverConfig` (`driver_cfg`) and a chunk's results (planning,
+non-finite checks) is `jaxsocial.run.chunks`; what process 0 writes (metrics rows, evaluations, progress) is
+`jaxsocial.run.outputs.Outputs`.
 """
 
 from __future__ import annotations
@@ -21,24 +21,26 @@ from jaxsocial.agents import population, rollout
 from jaxsocial.agents.rollout import RunnerState
 from jaxsocial.run import (
     checkpoint,
-    config,
     distributed,
     init_from,
     loop,
+    metrics,
     nonfinite,
     policy_io,
     rundir,
     schedule,
+    startup,
 )
-from jaxsocial.run.chunks import Chunk, seed_part
-from jaxsocial.run.config import DriverConfig, ProgramConfig
+from jaxsocial.run.chunks import Chunk, check_chunk, checkpoint_due, plan_chunk, pool_seeds, seed_part
+from jaxsocial.run.config import DriverConfig, ProgramConfig, TrainConfig
 from jaxsocial.run.loop import Program
+from jaxsocial.run.outputs import Outputs, nothing_to_train, reached, stop_message
 from jaxsocial.run.rundir import SeedRun
 from jaxsocial.specs import CheckpointRef
 
 
 def stage_program(
-    program_cfg: ProgramConfig, static: config.Setup, mesh: jax.sharding.Mesh, stage: int
+    program_cfg: ProgramConfig, static: startup.Setup, mesh: jax.sharding.Mesh, stage: int
 ) -> Program:
     """The compiled program of `program_cfg` in `stage` (-1: before the first), cached by `loop.compiled`
     (stages with the same environment share one)."""
@@ -64,7 +66,7 @@ def restore_state(
 def source_state(seed_dir: Path, iteration: int) -> RunnerState:
     """The RunnerState of the source's checkpoint `iteration` (host arrays)."""
     source = init_from.source_config(seed_dir)
-    static = config.setup(source, load_frozen=False)
+    static = startup.setup(source, load_frozen=False)
     init, _ = loop.make_program(source.program, static.stage(-1), static.pop)
     template = jax.eval_shape(init, jax.random.key(0))
     observers = rollout.program_observers(static.pop, source.program.algo)
@@ -106,7 +108,7 @@ class Driver:
 
     program: ProgramConfig
     driver_cfg: DriverConfig
-    static: config.Setup
+    static: startup.Setup
     mesh: jax.sharding.Mesh
     seeds: list[SeedRun]
     slots: str  # the run's slots as text (`population.format_slots`), in every exported policy
@@ -122,7 +124,7 @@ class Driver:
         cls,
         program: ProgramConfig,
         driver_cfg: DriverConfig,
-        static: config.Setup,
+        static: startup.Setup,
         mesh: jax.sharding.Mesh,
         seeds: list[SeedRun],
         slots: str,
@@ -235,3 +237,50 @@ class Driver:
             self.state, self.stage = distributed.put(host, program.shardings), stage
             return
         raise ValueError(f"cannot resume: no readable checkpoint in {[str(d) for d in ckpt_dirs]}")
+
+
+def train_chunks(
+    cfg: TrainConfig,
+    static: startup.Setup,
+    mesh: jax.sharding.Mesh,
+    run_dir: Path,
+    seeds: list[SeedRun],
+) -> None:
+    """The training loop of `jaxsocial.train.run` in its prepared (and locked) run directory, over the steps
+    of `Driver` and `Outputs`: chunk after chunk, plan, compile, run, write rows (with evaluations, on
+    process 0), switch stage, save and show progress. Here a whole `TrainConfig` is taken apart: the
+    driver gets its `ProgramConfig` and `DriverConfig`, `Outputs` keeps it whole.
+    Stops at the first non-finite iteration (`NonFiniteError`) unless `cfg.on_nonfinite` is 'warn';
+    nothing non-finite is ever saved."""
+    driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
+    if driver.it >= cfg.iterations:
+        if distributed.is_main():
+            print(nothing_to_train(driver.it, cfg.iterations))
+        return
+    out = Outputs.open(cfg, static, mesh, seeds, driver.it)
+    try:
+        while driver.it < cfg.iterations:
+            n = plan_chunk(driver.driver_cfg, cfg.chunk_iterations, static.stages, driver.stage, driver.it)
+            compile_s = driver.compile(n, announce=out.compiling)
+            out.start_progress(driver.it, compile_s)
+            chunk = driver.run_chunk(n)
+            check = check_chunk(chunk.finite, static.pop.learners, cfg.seeds, cfg.on_nonfinite)
+            out.write_rows(chunk, check, compile_s, driver.state.params)
+            if check.stop:
+                raise nonfinite.NonFiniteError(stop_message(cfg, driver.it, check.failure, driver.last_saved))
+            driver.it += n
+            pooled = pool_seeds(chunk.metrics, cfg.seeds)
+            learner_return = metrics.learner_return(pooled, static.pop)
+            driver.switch_stage(learner_return)
+            stop = reached(cfg.stop_at_return, learner_return)
+            if stop or checkpoint_due(driver.driver_cfg, driver.it, driver.last_saved):
+                driver.save(check.healthy_end)
+            out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
+            if stop:
+                if distributed.is_main():
+                    print(f"stopped after iteration {driver.it}: the learners' return {learner_return:.3g} "
+                          f"reached --stop-at-return {cfg.stop_at_return:g}")  # fmt: skip
+                break
+    finally:
+        out.close()
+    out.report(run_dir, driver.it, learner_return if stop else None)

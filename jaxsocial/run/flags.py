@@ -16,7 +16,7 @@ import dataclasses
 import sys
 from typing import Any
 
-from jaxsocial.run import config
+from jaxsocial.run import config, startup
 from jaxsocial.run.config import PRESETS, TrainConfig
 
 ALWAYS = ("preset", "env", "iterations", "seed", "seeds")
@@ -88,7 +88,7 @@ def config_flags(cfg: TrainConfig) -> list[str]:
     if cfg.preset not in PRESETS:
         raise ValueError(f"unknown preset {cfg.preset!r}; choose one of {sorted(PRESETS)}")
     preset = PRESETS[cfg.preset]
-    derived_obs = config.with_env_observation(dataclasses.replace(cfg, net=preset.net)).net.obs  # as parsed
+    derived_obs = startup.with_env_observation(dataclasses.replace(cfg, net=preset.net)).net.obs  # as parsed
     reference = dataclasses.replace(preset, net=dataclasses.replace(preset.net, obs=derived_obs))
     names = [*ALWAYS, *(f.name for f in dataclasses.fields(cfg) if f.name not in ALWAYS)]
     flags = []

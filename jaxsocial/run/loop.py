@@ -6,8 +6,7 @@ as a `Program` placed on a device mesh (several seeds in one program), cached pe
 One iteration = a rollout of `rollout_steps` steps in `num_envs` environments followed by one update of
 every learner, whose losses, parameters and optimiser state are checked for non-finite values
 (`jaxsocial.run.nonfinite`). A chunk of iterations is one `lax.scan` inside one `jit`; the driver
-(`jaxsocial.train.train_chunks` over the steps of `jaxsocial.run.driver`) loops over chunks to log,
-checkpoint and draw progress.
+(`jaxsocial.run.driver.train_chunks`) loops over chunks to log, checkpoint and draw progress.
 """
 
 from __future__ import annotations
@@ -47,7 +46,7 @@ def make_program(
     mesh: jax.sharding.Mesh | None = None,
 ):
     """The pure training functions of one program: `program_cfg` in the validated environment `env_params`
-    with the slots `pop` (see `config.setup`): `jaxsocial.agents.rollout.iteration` in a scan.
+    with the slots `pop` (see `startup.setup`): `jaxsocial.agents.rollout.iteration` in a scan.
 
     Returns `(init, run_chunk)`: `init(key) -> RunnerState`; `run_chunk(state, frozen_params, n) ->
     (state, metrics)` runs n iterations (static n) in one scan, with the frozen slots' stacked params (or
@@ -120,7 +119,7 @@ def compiled(
     pop: population.Population,
 ) -> Program:
     """The `Program` of `program_cfg` in the validated environment `env_params` with the slots `pop`
-    (`config.Setup`) on `mesh` (`data_mesh`), shared between runs whose programs are the same (tests,
+    (`startup.Setup`) on `mesh` (`data_mesh`), shared between runs whose programs are the same (tests,
     notebooks, sweeps and a run's stages of one environment compile once)."""
     init, run_chunk = make_program(program_cfg, env_params, pop, mesh)
     replicated = distributed.replicated(mesh)

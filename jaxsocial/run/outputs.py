@@ -1,7 +1,7 @@
 """What a training run writes and says, on process 0: its directory (`run_path`, `seed_runs`,
 `prepare_run_dir`, `write_configs`), each seed's metrics rows with evaluations, the progress line, and the
-lines it ends with (`Outputs`, `outcome`, `stop_message`). `jaxsocial.train.train_chunks` calls them
-between the steps of `jaxsocial.run.driver`; the file names and layout are `jaxsocial.run.rundir`'s and
+lines it ends with (`Outputs`, `outcome`, `stop_message`). `jaxsocial.run.driver.train_chunks` calls them
+between the steps of the `Driver`; the file names and layout are `jaxsocial.run.rundir`'s and
 `jaxsocial.run.logs`'."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from jaxsocial import specs, stats
 from jaxsocial.agents import population
 from jaxsocial.agents.episodes import play_episodes
 from jaxsocial.agents.network_config import NetworkConfig
-from jaxsocial.run import config, distributed, logs, metrics, nonfinite, rundir, schedule
+from jaxsocial.run import config, distributed, logs, metrics, nonfinite, rundir, schedule, startup
 from jaxsocial.run.chunks import Check, Chunk, evaluates, seed_part
 from jaxsocial.run.config import TrainConfig, config_dict
 from jaxsocial.run.rundir import SeedRun
@@ -86,10 +86,10 @@ def reached(threshold: float | None, learner_return: float | None) -> bool:
 
 
 def learner_returns(
-    key: jax.Array, params: Any, eval_envs: tuple[config.EvalEnv, ...], net_cfg: NetworkConfig, episodes: int
+    key: jax.Array, params: Any, eval_envs: tuple[startup.EvalEnv, ...], net_cfg: NetworkConfig, episodes: int
 ) -> dict[str, float]:
     """Evaluation during training: one learner's `params` (unstacked) in slot 0 of each evaluation
-    environment (`config.Setup.eval_envs`), beside that environment's default companions, for `episodes`
+    environment (`startup.Setup.eval_envs`), beside that environment's default companions, for `episodes`
     episodes (`episodes.play_episodes`): {spec text: the learner's mean return over the episodes it took part
     in}."""
     stacked = jax.tree.map(lambda x: x[None], params)
@@ -106,7 +106,7 @@ class Outputs:
     with evaluations, the progress line and messages. Empty on the other processes, where it does nothing."""
 
     cfg: TrainConfig
-    static: config.Setup
+    static: startup.Setup
     seeds: list[SeedRun]
     desc: str  # the run, as progress lines name it
     metrics_logs: list[logs.MetricsLog]  # each seed's
@@ -119,7 +119,7 @@ class Outputs:
     def open(
         cls,
         cfg: TrainConfig,
-        static: config.Setup,
+        static: startup.Setup,
         mesh: jax.sharding.Mesh,
         seeds: list[SeedRun],
         start: int,
@@ -250,7 +250,7 @@ def reproduce_line(run_dir: Path) -> str:
     )
 
 
-def over_seeds(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], static: config.Setup) -> str:
+def over_seeds(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], static: startup.Setup) -> str:
     """The first learner's final return over a run's seeds: their mean and each seed's value."""
     learner = static.pop.learners[0]
     finals = [metrics.final_return(rows, learner) for rows in seed_rows]
@@ -266,7 +266,7 @@ takeoffs came after 4.5M (docs/experiments.md)."""
 
 
 def outcome(
-    rows: list[dict[str, Any]], static: config.Setup, env_steps: int, stopped_at: float | None = None
+    rows: list[dict[str, Any]], static: startup.Setup, env_steps: int, stopped_at: float | None = None
 ) -> str:
     """What a run's metrics `rows` (its first seed's, `env_steps` of them) show: each slot's final return
     (the last 10% of the iterations) and, for the first learner, whether it left the one-tile plateau, and
