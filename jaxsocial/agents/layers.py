@@ -1,5 +1,5 @@
 """The plain Flax layers both networks are built of: `Dense`, `MLP` and `LSTM` (the paper's reference
-`paper_net.PaperActorCritic` and the `modules.ActorCritic` that runs), and the LSTM state `Carry` and per-step
+`network.PaperActorCritic` and the `modules.ActorCritic` that runs), and the LSTM state `Carry` and per-step
 `Output` they pass on.
 
 LSTM gates are ordered (i, f, g, o) like PyTorch, with one bias. Initialisation: dense layers orthogonal with

@@ -1,4 +1,4 @@
-"""The network's Flax linen modules as they run: `ActorCritic`, the function `paper_net.PaperActorCritic`
+"""The network's Flax linen modules as they run: `ActorCritic`, the function `network.PaperActorCritic`
 computes in plain layers, with the same params tree, computed faster. Its `Encoder` and `Decoder` (the
 auxiliary frame head) run their convolutions (`Conv`) in frame batches and in the kernel `conv_impl` picks
 (`fast/`); `Embed` maps symbolic views; `LSTM`, `MLP` and `Dense` are `layers`'. `network` applies them to
@@ -6,8 +6,8 @@ a params dict.
 
 Conventions: conv kernels are HWIO ``[3, 3, C_in, C_out]``, and the conv layers take and return HWNC
 activations (`conv`); deconv kernels are ``[3, 3, C_in, C_out]`` with torch ConvTranspose2d (scatter)
-semantics. Every layer creates its params with `initialisers.param`, with the distributions of `paper_net`
-and `layers`.
+semantics. Every layer creates its params with `initialisers.param`, with the distributions of
+`network.PaperActorCritic` and `layers`.
 """
 
 from __future__ import annotations
