@@ -10,7 +10,8 @@
     python -m jaxsocial.experiments.evaluation_design run transfer    # a pre-registered design over records
     python -m jaxsocial.experiments.branch_design run mixing --cores 0 1   # one that trains on from records
 
-The modules form three layers, in the order the work flows (`tests/test_layers.py` keeps the arrows so):
+The modules form three layers, in the order the work flows (`tests/test_experiment_layers.py` keeps the
+arrows so):
 
 * plan, which imports neither of the others: `conditions` (what each changes, its label), `recipes`
   (conditions x scales), `prereg` (pre-registered
