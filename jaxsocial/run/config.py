@@ -1,6 +1,6 @@
 """A training run's configuration: `TrainConfig` (every field a command-line flag), the presets, and its
 config.json form (`config_dict`, `config_from_dict`). Its validation and static part are
-`jaxsocial.run.setup`'s.
+`jaxsocial.run.startup`'s.
 
 `TrainConfig` is three configs in one: `RunConfig` (what the run is), `ProgramConfig` (what the compiled
 program is built from: with the environment and the slots, the key of the compiled-program cache) and

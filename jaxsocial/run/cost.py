@@ -76,9 +76,8 @@ def measured_for(cfg: TrainConfig) -> Measured | None:
     the iterations and what only the driver does); None otherwise."""
     if cfg.preset not in MEASURED:
         return None
-    preset = PRESETS[
-        cfg.preset
-    ]  # its network's observations are its environment's, as `cfg`'s (`startup.setup`)
+    # the preset's network takes its environment's observations, as `cfg`'s does (`startup.setup` checks)
+    preset = PRESETS[cfg.preset]
     preset = dataclasses.replace(preset, net=dataclasses.replace(preset.net, obs=cfg.net.obs))
     same = (cfg.program, cfg.env, cfg.env_args, cfg.slots, cfg.stages) == (
         preset.program,

@@ -37,7 +37,7 @@ class Setup(NamedTuple):
     stages: tuple[schedule.Stage, ...]
     frozen_params: Any  # stacked params of frozen slots, or None (also None when not loaded)
     stage_envs: tuple[EnvParams, ...]  # the environment of stages -1, 0, 1, ...
-    eval_envs: tuple[EvalEnv, ...] = ()
+    eval_envs: tuple[EvalEnv, ...]  # `TrainConfig.eval_envs`, built
 
     def stage(self, index: int) -> EnvParams:
         """The environment of stage `index` (-1: before the first stage)."""
@@ -60,7 +60,7 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     the slots, and each part checks what it owns: the network the environments it sees, the population its
     experts and solo episodes, PPO its batch. A run calls this once."""
     _check_settings(cfg)
-    stage_envs, eval_params = environments(cfg)
+    stage_envs, eval_envs = environments(cfg)
     env_params = stage_envs[0]
     pop = population.Population(population.run_slots(cfg.slots, env_params))
     wheres = ["--env-args", *(f"stage {i}" for i in range(len(cfg.stages)))]
@@ -68,14 +68,14 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
         cfg.net.check_env(stage_params, where)
         pop.check_solo_learners(stage_params, where)
         pop.validate(stage_params)
-    for spec, params in eval_params:
-        cfg.net.check_env(params, f"eval env {str(spec)!r}")
+    for spec, eval_env in eval_envs:
+        cfg.net.check_env(eval_env, f"eval env {str(spec)!r}")
     cfg.net.check_others(env_params.n_agents)
     if cfg.algo == "ppo":
         ppo_config.validate(cfg.ppo, cfg.rollout_steps, cfg.num_envs)
     elif not pop.demonstrators:
         raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
-    evals = tuple(EvalEnv(spec, population.default_population(p), p) for spec, p in eval_params)
+    evals = tuple(EvalEnv(spec, population.default_population(e), e) for spec, e in eval_envs)
     frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
     return Setup(env_params, pop, cfg.stages, frozen, stage_envs, evals)
 
