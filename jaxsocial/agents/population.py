@@ -125,8 +125,10 @@ def default_slots(env_params: EnvParams) -> str:
 def run_slots(slots: tuple[Slot, ...], env_params: EnvParams) -> tuple[Slot, ...]:
     """A training run's slots: `slots` (a run's `--slots`), or the environment's default where empty;
     checked for one per agent and a learner (ValueError)."""
-    default = default_slots(env_params)
-    return check_slots(slots or parse_slot_list(default), env_params.n_agents)
+    if not slots:
+        default = default_slots(env_params)
+        slots = parse_slot_list(default)
+    return check_slots(slots, env_params.n_agents)
 
 
 def require_rgb(env_params: EnvParams, where: str) -> None:
