@@ -12,8 +12,9 @@ from test_regimes import save_policy
 import jaxsocial
 from jaxsocial import evaluate
 from jaxsocial.agents import population
+from jaxsocial.agents.episodes import Episodes, play_episodes
 from jaxsocial.env import registry
-from jaxsocial.evaluate import Episodes, EvalConfig
+from jaxsocial.evaluate import EvalConfig
 from jaxsocial.run import policy_io
 from jaxsocial.specs import EnvSpec
 
@@ -78,7 +79,7 @@ def test_cases_play_the_same_episodes_until_the_experts_leave(saved_learner):
     params = population.stack([policy_io.load_policy(saved_learner, net)])
     cases = evaluate.ct_cases(env_params)
     out = {
-        name: jax.device_get(evaluate.play_episodes(jax.random.key(3), pop, net, case, params, CT_EPISODES))
+        name: jax.device_get(play_episodes(jax.random.key(3), pop, net, case, params, CT_EPISODES))
         for name, case in cases.items()
     }
     first_half = {name: r.returns - r.late_returns for name, r in out.items()}

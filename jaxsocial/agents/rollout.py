@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import optax
 
 from jaxsocial.agents import acting, bc, network, population, ppo
+from jaxsocial.agents.bc_config import BCConfig
 from jaxsocial.agents.devices import ONE_DEVICE, Devices
 from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env import core, observe
@@ -82,7 +83,7 @@ class Wiring:
     env_params: EnvParams
     net_cfg: network.NetworkConfig
     ppo_cfg: PPOConfig
-    bc_cfg: bc.BCConfig
+    bc_cfg: BCConfig
     algo: str
     num_envs: int
     rollout_steps: int
@@ -111,7 +112,7 @@ def wiring(
     env_params: EnvParams,
     net_cfg: network.NetworkConfig,
     ppo_cfg: PPOConfig,
-    bc_cfg: bc.BCConfig,
+    bc_cfg: BCConfig,
     algo: str,
     num_envs: int,
     rollout_steps: int,
