@@ -29,6 +29,7 @@ from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
 ANALYSES = ("counts", "takeoff")
+LEARNED_BY = ("final_return", "takeoff")
 TAKEOFF_TEST = "holm(logrank-greater, mannwhitney-greater)"
 """A 'takeoff' design's primary family: the one-sided log-rank test of the takeoffs and the one-sided
 Mann-Whitney U test of the per-seed 4-goal returns, Holm-corrected at the design's alpha."""
@@ -83,10 +84,29 @@ class Design:
     recorded flags must hold (`seed_problems`): `pinned.CROSS_CPU_XLA_FLAGS` for designs since 2026-11-28, so
     that a seed trains bit for bit alike on the CPU kinds measured. None (designs before this field): XLA's
     defaults, whose bits differ between CPU models."""
+    borrowed: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Arms whose seeds an earlier design trained: arm ('treatment' or 'control') -> that design's name. Such
+    an arm's conditions are read from the other design's records at its seeds, budget and folder, and are
+    never trained by this design; they must be conditions of the same arm there."""
+    learned_by: str = "final_return"
+    """What makes a seed count as learned: 'final_return' (its final return exceeds `learned_threshold`) or
+    'takeoff' (it took off, `takeoff.seed_takeoff` at `learned_threshold`, within the design's iterations;
+    borrowed arms are counted the same way)."""
+    stop_at_return: float | None = None
+    """Each seed's run ends early at the first chunk whose learner return reaches this
+    (`DriverConfig.stop_at_return`; None: every run trains all its iterations). Only with
+    `learned_by` 'takeoff', which an early stop cannot change once the seed has taken off."""
 
     @property
     def arm_seeds(self) -> dict[str, int]:
         return {"treatment": self.seeds * len(self.treatment), "control": self.seeds * len(self.control)}
+
+    @property
+    def trained_conditions(self) -> tuple[str, ...]:
+        """The conditions this design trains: those of its arms that are not `borrowed`."""
+        return tuple(
+            c for arm in ("treatment", "control") if arm not in self.borrowed for c in getattr(self, arm)
+        )
 
 
 def deviations(name: str, directory: Path) -> list[dict[str, str]]:
@@ -119,6 +139,20 @@ def load(name: str) -> Design:
         raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
     if design.xla_flags is not None:
         xla_flags.check(design.xla_flags, f"design {name}'s xla_flags")
+    if design.learned_by not in LEARNED_BY:
+        raise ValueError(f"design {name}: unknown learned_by {design.learned_by!r}; choose from {LEARNED_BY}")
+    if design.stop_at_return is not None and design.learned_by != "takeoff":
+        raise ValueError(f"design {name}: an early stop (stop_at_return) needs learned_by 'takeoff'")
+    for arm, source in design.borrowed.items():
+        if arm not in ("treatment", "control") or source == name:
+            raise ValueError(
+                f"design {name}: borrowed arm {arm!r} from {source!r}: name the other arm's design"
+            )
+        lender = load(source)
+        if not set(getattr(design, arm)) <= set(getattr(lender, arm)):
+            raise ValueError(f"design {name}: its {arm} {getattr(design, arm)} is not among {source}'s {arm}")
+    if len(design.borrowed) > 1:
+        raise ValueError(f"design {name}: at most one arm may be borrowed (it trains the other)")
     return design
 
 
@@ -338,12 +372,24 @@ def describe(design: Design, env_steps_per_run: int) -> str:
     rates = success_rates(design, env_steps_per_run)
     n = design.arm_seeds
     last = design.seed + design.seeds - 1
+    learned = {
+        "final_return": f"final return > {design.learned_threshold:g}",
+        "takeoff": f"took off (a window's return > {design.learned_threshold:g}) within the budget",
+    }[design.learned_by]
+    stop = "" if design.stop_at_return is None else f", each run stopping at return {design.stop_at_return:g}"
+
+    def arm(name: str) -> str:
+        lender = design.borrowed.get(name)
+        source = "" if lender is None else f", borrowed: {lender}'s records, not trained again"
+        return f"  {name} ({n[name]} seeds): {', '.join(getattr(design, name))}{source}"
+
     lines = [
         f"{design.name}: {design.scale} scale, {design.iterations} iterations "
-        f"({env_steps_per_run / 1e6:.1f}M env-steps per seed), seeds {design.seed}..{last} per condition",
-        f"  treatment ({n['treatment']} seeds): {', '.join(design.treatment)}",
-        f"  control ({n['control']} seeds): {', '.join(design.control)}",
-        f"  learned: final return > {design.learned_threshold:g}; {design.test} at alpha {design.alpha:g}",
+        f"({env_steps_per_run / 1e6:.1f}M env-steps per seed{stop}), seeds {design.seed}..{last} per "
+        "condition trained",
+        arm("treatment"),
+        arm("control"),
+        f"  learned: {learned}; {design.test} at alpha {design.alpha:g}",
         "  assumed P(learned by the end): "
         + ", ".join(
             f"{arm} {rates[arm]:.3f} (hazard {h:g} per 1M env-steps)"

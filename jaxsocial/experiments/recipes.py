@@ -241,6 +241,9 @@ RECIPES = {
         Recipe("pred8", "The prediction loss in 8x8, pre-registered: PPO + pred beside the experts and alone",
                ("solo_pred", "social_pred"), "curves", hypotheses=(("social_pred", "solo_pred"),),
                design="pred8"),
+        Recipe("nopenalty8", "No penalty in 8x8, pre-registered: solo PPO + pred without the penalty against "
+               "pred8's solo learners under it", ("solo_pred_nopenalty",), "curves", ("goalcycle3-solo",),
+               design="nopenalty8"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves",
                hypotheses=(("social_pred", "solo_pred"), ("social_pred_imperfect", "solo_pred"))),
@@ -268,16 +271,17 @@ RECIPES = {
 
 
 def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
-    """The scale `recipe` runs at: `scale`, with the design's iterations and its own runs folder
+    """The scale `recipe` runs at: `scale`, with the design's iterations, early stop and its own runs folder
     (`Scale.runs_subdir`) where the recipe carries a design for this scale."""
     if recipe.design is None:
         return scale
     design = prereg.load(recipe.design)
     if design.scale != scale.name:
         return scale
+    budget = {"iterations": design.iterations, "stop_at_return": design.stop_at_return}
     return dataclasses.replace(
         scale,
-        config=dataclasses.replace(scale.config, iterations=design.iterations),
+        config=dataclasses.replace(scale.config, **budget),
         eval_episodes=design.eval_episodes or scale.eval_episodes,
         runs_subdir=f"prereg-{design.name}",
     )
