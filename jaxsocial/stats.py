@@ -304,8 +304,14 @@ def learned_seed_tests(
             entry[f"{test}_holm"] = adjusted[pair]
     out["exploratory"] = explored
     for entry in (*out["stated"].values(), *explored.values()):
-        entry.update({k: round(v, 4) for k, v in entry.items() if k != "learned"})
+        entry.update({k: round_p(v, 4) for k, v in entry.items() if k != "learned"})
     return out
+
+
+def round_p(value: float, decimals: int) -> float:
+    """`value` to `decimals` decimals, or to 3 significant digits below 10**-decimals, so that a positive
+    p-value never reads 0."""
+    return round(value, decimals) if abs(value) >= 10.0**-decimals else float(f"{value:.3g}")
 
 
 def _count_tests(a: tuple[int, int], b: tuple[int, int], alternative: str) -> dict[str, Any]:

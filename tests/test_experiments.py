@@ -150,6 +150,18 @@ def test_learned_seed_tests_state_their_direction():
     assert "one-sided" in tests["method"] and "Holm" in tests["method"]
 
 
+def test_learned_seed_tests_never_print_a_small_p_as_zero():
+    """4 decimals, or 3 significant digits below 1e-4: pred8's 30 of 40 against 6 of 40 once read 0.0."""
+    conditions = {
+        c: {"seeds_above_one_tile": k, "final_returns": [1.0] * 40} for c, k in (("a", 30), ("b", 6))
+    }
+    stated = stats.learned_seed_tests(conditions, (("a", "b"),))["stated"]["a > b"]
+    assert stated == {"learned": [30, 40, 6, 40], "fisher_p": 4.75e-08, "boschloo_p": 1.8e-08}
+    assert stats.round_p(0.123456, 4) == 0.1235 and stats.round_p(1e-4, 4) == 1e-4
+    assert stats.round_p(9.996e-5, 4) == 0.0001 and stats.round_p(9.99e-5, 4) == 9.99e-05
+    assert stats.round_p(0.0, 4) == 0.0 and stats.round_p(1.0, 4) == 1.0
+
+
 def test_every_stated_comparison_names_the_recipes_conditions():
     for recipe in recipes.RECIPES.values():
         for a, b in recipe.hypotheses:

@@ -30,7 +30,7 @@ DECLARED = {
     ("docs/experiments.md", "Results"),
     (
         "docs/experiments.md",
-        "`pred8`: do the experts decide whether a learner with the prediction loss learns? "
+        "`pred8`: do more learners with the prediction loss learn within 20.0M env-steps beside the experts? "
         "(pre-registered; holds)",
     ),
     ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
