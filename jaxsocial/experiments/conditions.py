@@ -50,6 +50,9 @@ MIXING_RETURN = 10.0
 plateau (about 1; `metrics.LEARNED_RETURN` is 2) and below the experts' 26-39, so the learner has learned
 from them, as the paper's social agent had when it was switched (its Fig. 6)."""
 IMPERFECT_EXPERT = Slot("expert", expert=ExpertSpec("explorer", epsilon=0.2, forget=0.01))
+HALF_EXPERT = Slot("expert", expert=ExpertSpec("explorer", epsilon=0.4, forget=0.02))
+"""`IMPERFECT_EXPERT`'s imperfection doubled: in 8x8 Goal Cycle it scores about half the near-optimal
+explorer's return (`benchmarks/results/expert_returns_8x8.json`), so a learner can beat it (`imperfect8`)."""
 EXPERT_DROPOUT = (("dropout_prob", 0.5), ("dropin_prob", 0.25))
 """Cultural-transmission training (not in the paper): each expert leaves half the episodes and joins a quarter
 of them, at a uniform random step (`EnvParams.dropout_prob`, `dropin_prob`)."""
@@ -93,6 +96,11 @@ CONDITIONS = {
         "social PPO + aux pred, imperfect experts",
         "pred",
         slots=(Slot("learner"), IMPERFECT_EXPERT, IMPERFECT_EXPERT),
+    ),
+    "social_pred_imperfect_half": Condition(
+        "social PPO + aux pred, experts at half strength",
+        "pred",
+        slots=(Slot("learner"), HALF_EXPERT, HALF_EXPERT),
     ),
     "bc": Condition("behaviour cloning", "none", algo="bc", n_actions=7),  # the experts' 7 (they idle)
     **PENALTY_CONDITIONS,

@@ -418,22 +418,31 @@ def pilot_scores(design: EvaluationDesign) -> dict[str, tuple[list[float], list[
     records) splits each arm into its seeds that took off (`takeoff_power.seed_lift`) and those that did not;
     a simulated seed of the arm is one that took off with the probability `material_took_off[arm]` (what
     the material's own design found before any of this design's evaluations), then a uniform draw among
-    the pilot's seeds of that kind. Returned as one pool per arm whose uniform draws have those weights."""
+    the pilot's seeds of that kind: of its own arm, or, where `power_simulation['plateau_from_both_arms']`
+    holds, for a seed that did not take off, of both arms (a pilot arm in which every seed took off has no
+    plateau seeds of its own). Returned as one pool per arm whose uniform draws have those weights."""
     from jaxsocial.experiments import takeoff_power
 
     sim = design.power_simulation
+    arms = (("treatment", sim["pilot_treatment"]), ("control", sim["pilot_control"]))
     out = {}
     for name, test in design.primary.items():
-        pools = []
-        for arm, condition in (("treatment", sim["pilot_treatment"]), ("control", sim["pilot_control"])):
+        split = {}
+        for arm, condition in arms:
             result = logs.read_json(Path(sim["pilot"]) / f"{env_tag(test.env)}-{condition}.json")
-            took_off = [
-                takeoff_power.seed_lift(Path(c))["takeoff"] is not None for c in result["checkpoints"]
-            ]
+            took_off = np.array(
+                [takeoff_power.seed_lift(Path(c))["takeoff"] is not None for c in result["checkpoints"]]
+            )
             values = np.array(scores(result))
-            groups = [(values[np.array(took_off)], sim["material_took_off"][arm])]
-            groups.append((values[~np.array(took_off)], 1.0 - sim["material_took_off"][arm]))
-            pools.append(weighted_pool(groups))
+            split[arm] = (values[took_off], values[~took_off])
+        plateau_of_both = np.concatenate([split[arm][1] for arm, _ in arms])
+        pools = []
+        for arm, _ in arms:
+            lifted, plateau = split[arm]
+            if sim.get("plateau_from_both_arms", False):
+                plateau = plateau_of_both
+            rate = sim["material_took_off"][arm]
+            pools.append(weighted_pool([(lifted, rate), (plateau, 1.0 - rate)]))
         out[name] = (pools[0], pools[1])
     return out
 

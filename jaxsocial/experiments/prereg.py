@@ -30,6 +30,7 @@ from jaxsocial.run import config, logs
 DESIGNS_DIR = Path(__file__).parent / "designs"
 ANALYSES = ("counts", "takeoff")
 LEARNED_BY = ("final_return", "takeoff")
+SECONDARY_MEASURES = ("learned", "above_experts")
 TAKEOFF_TEST = "holm(logrank-greater, mannwhitney-greater)"
 """A 'takeoff' design's primary family: the one-sided log-rank test of the takeoffs and the one-sided
 Mann-Whitney U test of the per-seed 4-goal returns, Holm-corrected at the design's alpha."""
@@ -92,6 +93,12 @@ class Design:
     """What makes a seed count as learned: 'final_return' (its final return exceeds `learned_threshold`) or
     'takeoff' (it took off, `takeoff.seed_takeoff` at `learned_threshold`, within the design's iterations;
     borrowed arms are counted the same way)."""
+    secondary: dict[str, dict[str, Any]] = dataclasses.field(default_factory=dict)
+    """A 'counts' design's secondary tests, Holm-corrected among themselves at `alpha`: name -> {'statement',
+    'arm' (this design's 'treatment' or 'control'), 'against' ('DESIGN:ARM', an arm of a finished design,
+    read from its records), 'measure' ('learned', as `learned_by` counts; or 'above_experts', the seeds whose
+    final return exceeds their own experts' final return in the same run), 'alternative' (Boschloo's
+    'greater', 'less' or 'two-sided')}."""
     stop_at_return: float | None = None
     """Each seed's run ends early at the first chunk whose learner return reaches this
     (`DriverConfig.stop_at_return`; None: every run trains all its iterations). Only with
@@ -151,6 +158,19 @@ def load(name: str) -> Design:
         lender = load(source)
         if not set(getattr(design, arm)) <= set(getattr(lender, arm)):
             raise ValueError(f"design {name}: its {arm} {getattr(design, arm)} is not among {source}'s {arm}")
+    for test_name, test in design.secondary.items():
+        other, _, other_arm = test["against"].partition(":")
+        if test["arm"] not in ("treatment", "control") or other_arm not in ("treatment", "control"):
+            raise ValueError(f"design {name}: secondary {test_name} names an unknown arm")
+        if test["measure"] not in SECONDARY_MEASURES or test["alternative"] not in (
+            "greater",
+            "less",
+            "two-sided",
+        ):
+            raise ValueError(
+                f"design {name}: secondary {test_name}: a measure of {SECONDARY_MEASURES} and an alternative"
+            )
+        load(other)
     if len(design.borrowed) > 1:
         raise ValueError(f"design {name}: at most one arm may be borrowed (it trains the other)")
     return design
@@ -320,23 +340,29 @@ def preregistered_takeoff(
 def seed_problems(
     design: Design, conditions: dict[str, list[dict[str, Any] | None]], expected: dict[str, dict[str, Any]]
 ) -> list[str]:
-    """What keeps each design seed from counting: missing, unfinished, trained for other iterations or with
-    other run or program settings than `expected` (each condition's config.json values of the design's
-    command), at another commit than `design.training_commit`, or without the design's `xla_flags`.
+    """What keeps each design seed it trains from counting: missing, unfinished (short of its iterations and
+    not ended by the design's early stop), trained for other iterations, another early stop or with other run
+    or program settings than `expected` (each condition's config.json values of the design's command), at
+    another commit than `design.training_commit`, or without the design's `xla_flags`.
 
     conditions: per condition the seeds design.seed.. in order, each None (no run holds it) or
-    {'config': its config.json, 'rows': metrics rows logged, 'commit' and 'xla_flags': its record's, or
-    None}; a config.json with fields renamed since is read under today's names (`config.modern_keys`)."""
+    {'config': its config.json, 'rows': metrics rows logged, 'finished': whether its run is over
+    (`rundirs.finished`), 'commit' and 'xla_flags': its record's, or None}; a config.json with fields
+    renamed since is read under today's names (`config.modern_keys`)."""
     problems = []
-    for c in (*design.treatment, *design.control):
+    for c in design.trained_conditions:
         seeds = conditions.get(c, [])
         for offset in range(design.seeds):
             s, run = design.seed + offset, seeds[offset] if offset < len(seeds) else None
             if run is None:
                 problems.append(f"{c} seed {s}: missing")
                 continue
-            if run["rows"] < design.iterations:
+            if run["rows"] < design.iterations and not (design.stop_at_return and run.get("finished")):
                 problems.append(f"{c} seed {s}: unfinished ({run['rows']} of {design.iterations} iterations)")
+            if run["config"].get("stop_at_return") != design.stop_at_return:
+                problems.append(
+                    f"{c} seed {s}: trained with stop_at_return {run['config'].get('stop_at_return')}"
+                )
             if run["config"].get("iterations") != design.iterations:
                 problems.append(f"{c} seed {s}: trained for {run['config'].get('iterations')} iterations")
             saved = config.modern_keys(run["config"])
@@ -402,6 +428,12 @@ def describe(design: Design, env_steps_per_run: int) -> str:
             test, n["treatment"], rates["treatment"], n["control"], rates["control"], design.alpha
         )
         lines.append(f"    with {test}: {power:.3f}")
+    if design.secondary:
+        lines.append(f"  secondary (Boschloo, Holm among themselves at {design.alpha:g}):")
+    for name, test in design.secondary.items():
+        lines.append(
+            f"    {name}: {test['measure']}, {test['arm']} against {test['against']}, {test['alternative']}"
+        )
     return "\n".join(lines)
 
 

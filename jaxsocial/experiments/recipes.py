@@ -244,6 +244,9 @@ RECIPES = {
         Recipe("nopenalty8", "No penalty in 8x8, pre-registered: solo PPO + pred without the penalty against "
                "pred8's solo learners under it", ("solo_pred_nopenalty",), "curves", ("goalcycle3-solo",),
                design="nopenalty8"),
+        Recipe("imperfect8", "Experts at half strength in 8x8, pre-registered (paper Fig. 4): social PPO + "
+               "pred beside them against pred8's solo learners", ("social_pred_imperfect_half",), "curves",
+               design="imperfect8"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves",
                hypotheses=(("social_pred", "solo_pred"), ("social_pred_imperfect", "solo_pred"))),

@@ -6,7 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from jaxsocial.experiments import recipes
+from jaxsocial.experiments import recipes, records
 from jaxsocial.experiments.recipes import Scale
 from jaxsocial.run import logs, outputs, rundir
 from jaxsocial.run.config import TrainConfig
@@ -23,6 +23,15 @@ def resume_flags(state: str) -> list[str]:
 def seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
     return [s.dir for s in outputs.seed_runs(cfg, outputs.run_path(cfg))]
+
+
+def finished(seed_dir: Path, iterations: int) -> bool:
+    """Whether the run in `seed_dir` is over: it logged `iterations` rows, or its `stop_at_return` ended it
+    earlier (`records.stopped_early`), so resuming it would train past its stop."""
+    if not logs.has_metrics(seed_dir):
+        return False
+    rows = logs.read_metrics(seed_dir)
+    return len(rows) >= iterations or records.stopped_early(logs.read_config(seed_dir), rows)
 
 
 def branch_state(run_dir: Path, iterations: int) -> str:

@@ -18,6 +18,7 @@ from jaxsocial.experiments.rundirs import (
     MISSING,
     PARTIAL,
     condition_seed_dirs,
+    finished,
     resume_flags,
     seed_dirs,
 )
@@ -61,9 +62,9 @@ def evaluation_outputs(
 
 
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:
-    """FINISHED (each seed's directory `dirs` logged every iteration), PARTIAL (the config's own run
-    directory exists, so training resumes it) or MISSING."""
-    if all(len(logs.read_metrics(d)) >= cfg.iterations for d in dirs):
+    """FINISHED (each seed's directory `dirs` logged every iteration, or its early stop ended it), PARTIAL
+    (the config's own run directory exists, so training resumes it) or MISSING."""
+    if all(finished(d, cfg.iterations) for d in dirs):
         return FINISHED
     return PARTIAL if (outputs.run_path(cfg) / logs.CONFIG_FILE).exists() else MISSING
 
@@ -227,7 +228,7 @@ def evaluate_finished(recipe: Recipe, scale: Scale, dirs: dict[str, list[Path]],
     """Make what the recipe's kind evaluates of every seed in `dirs` that logged every iteration and lacks
     it; a blind design's scores are not shown."""
     for name, seed_dirs_ in dirs.items():
-        for seed_dir in [d for d in seed_dirs_ if len(logs.read_metrics(d)) >= scale.iterations]:
+        for seed_dir in [d for d in seed_dirs_ if finished(d, scale.iterations)]:
             for evaluation, spec, out in evaluation_outputs(recipe, scale, seed_dir):
                 if out.exists():
                     continue

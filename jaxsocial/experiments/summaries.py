@@ -157,7 +157,7 @@ def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
 
     conditions, expected = {}, {}
     design_seeds = range(design.seed, design.seed + design.seeds)
-    for c in (*design.treatment, *design.control):
+    for c in design.trained_conditions:
         expected[c] = settings(
             recipes.condition_config(runs.scale, c, design.seed, design.seeds, runs.runs_dir)
         )
@@ -169,6 +169,7 @@ def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
             else {
                 "config": logs.read_config(d) if (d / logs.CONFIG_FILE).is_file() else {},
                 "rows": len(metrics.read_rows(d)),
+                "finished": rundirs.finished(d, design.iterations),
                 "commit": records.run_field(d, "commit"),
                 "xla_flags": records.run_field(d, "xla_flags"),
             }
@@ -222,8 +223,8 @@ def incomplete_design(runs: RecipeRuns) -> str | None:
     design = prereg.load(runs.recipe.design)
     if runs.scale.name != design.scale:
         return None
-    arms = (*design.treatment, *design.control)
-    finished = sum(len(rows) >= design.iterations for c in arms for rows in runs.rows.get(c, []))
+    arms = design.trained_conditions
+    finished = sum(rundirs.finished(d, design.iterations) for c in arms for d in runs.seed_dirs.get(c, []))
     total = design.seeds * len(arms)
     return None if finished == total else f"design {design.name}: {finished} of {total} runs finished"
 

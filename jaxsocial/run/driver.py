@@ -278,7 +278,8 @@ def train_chunks(
             out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
             if stop:
                 if distributed.is_main():
-                    print(f"stopped after iteration {driver.it}: the learners' return {learner_return:.3g} "
+                    shown = "" if cfg.blind else f" {learner_return:.3g}"  # a blind run shows no return
+                    print(f"stopped after iteration {driver.it}: the learners' return{shown} "
                           f"reached --stop-at-return {cfg.stop_at_return:g}")  # fmt: skip
                 break
     finally:
