@@ -72,7 +72,12 @@ def test_takeoff_and_the_fraction_learned():
 
 DESIGNED = sorted(r.name for r in recipes.RECIPES.values() if r.design)
 COUNT_DESIGNS = [name for name in DESIGNED if prereg.load(recipes.RECIPES[name].design).analysis == "counts"]
-TAKEOFF_DESIGNS = [name for name in DESIGNED if name not in COUNT_DESIGNS]
+TAKEOFF_DESIGNS = [
+    name for name in DESIGNED if prereg.load(recipes.RECIPES[name].design).analysis == "takeoff"
+]
+ZERO_SHOT_DESIGNS = [
+    name for name in DESIGNED if prereg.load(recipes.RECIPES[name].design).analysis == "zero_shot"
+]
 LARGE_ARMS = 20
 """Count designs with more seeds an arm are tested in the slow suite only: Boschloo's p-value of each of the
 (n + 1)^2 tables is a scipy optimisation, 1,681 of them at pred8's 40 seeds an arm."""
@@ -97,7 +102,7 @@ def test_the_committed_design_has_the_power_it_states(name, capsys, monkeypatch)
     assert scale.iterations == design.iterations and scale.runs_subdir == f"prereg-{design.name}"
 
     assert recipes.recipe_scale(recipe, recipes.TINY) == recipes.TINY  # the budget is the design scale's
-    assert set(design.treatment + design.control) == set(recipe.conditions)
+    assert set(design.trained_conditions) == set(recipe.conditions)  # a borrowed arm is not trained again
     assert design.seed >= 100 and design.training_commit is None  # fresh seeds; runs follow the design
     cfg = recipes.condition_config(scale, recipe.conditions[0], design.seed, design.seeds, "r")
     assert prereg.power_of(design, scale.iterations * cfg.num_envs * cfg.rollout_steps) == pytest.approx(
@@ -139,6 +144,20 @@ def test_the_takeoff_design_has_the_power_it_states(name, capsys):
         p = stored[test]
         se = math.sqrt(p * (1 - p) / reps + p * (1 - p) / design.power_simulation["reps"])
         assert abs(again[test] - p) <= 4 * se + 1e-9
+    cli.main(["power", name])
+    assert f"power: {design.power:.3f}" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", ZERO_SHOT_DESIGNS)
+def test_the_zero_shot_design_has_the_power_it_states(name, capsys):
+    """Every stated power re-simulated exactly (`prereg.zero_shot_power`), and printed by `power`."""
+    design = prereg.load(recipes.RECIPES[name].design)
+    sim = design.power_simulation
+    n = design.arm_seeds
+    for case, stated in sim["power"].items():
+        p_above = float(case.removeprefix("P "))
+        assert prereg.zero_shot_power(n["treatment"], n["control"], p_above, design.alpha) == stated
+    assert design.power == sim["power"][f"P {sim['assumed_p_social_above_cloner']:g}"]
     cli.main(["power", name])
     assert f"power: {design.power:.3f}" in capsys.readouterr().out
 
@@ -241,6 +260,48 @@ def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monk
     monkeypatch.setattr(prereg, "DESIGNS_DIR", tmp_path)
     with pytest.raises(ValueError, match="design h1_bad's xla_flags: 'b=2' is not an XLA flag"):
         prereg.load("h1_bad")
+
+
+def test_a_design_may_borrow_an_arm_of_a_finished_design(tmp_path, monkeypatch):
+    """nopenalty8 trains only its treatment; its control is pred8's solo arm. A borrowed arm must be the
+    same arm of another design, one arm at most, and an early stop needs the takeoff count."""
+    design = prereg.load("nopenalty8")
+    assert design.borrowed == {"control": "pred8"} and design.trained_conditions == ("solo_pred_nopenalty",)
+    assert design.learned_by == "takeoff" and design.stop_at_return == 5.0
+    assert prereg.load("imperfect8").trained_conditions == ("social_pred_imperfect_half",)
+    for name in ("pred8", "nopenalty8"):
+        (tmp_path / f"{name}.json").write_text(prereg.path_of(name).read_text())
+    monkeypatch.setattr(prereg, "DESIGNS_DIR", tmp_path)
+    base = logs.read_json(tmp_path / "nopenalty8.json")
+    bad = {
+        "not among pred8's treatment": {"borrowed": {"treatment": "pred8"}},
+        "name the other arm's design": {"borrowed": {"control": "bad"}},
+        "at most one arm may be borrowed": {"borrowed": {"control": "pred8", "treatment": "pred8"}},
+        "an early stop .* needs learned_by 'takeoff'": {"learned_by": "final_return"},
+        "unknown learned_by": {"learned_by": "never"},
+    }
+    for message, change in bad.items():
+        (tmp_path / "bad.json").write_text(json.dumps({**base, "name": "bad", **change}))
+        with pytest.raises(ValueError, match=message):
+            prereg.load("bad")
+
+
+def test_a_seed_its_early_stop_ended_counts_as_finished():
+    """A design with `stop_at_return` accepts a seed that stopped before its iterations, and no other."""
+    design = dataclasses.replace(prereg.load("nopenalty8"), seeds=1)
+    config_ = {"iterations": design.iterations, "stop_at_return": design.stop_at_return}
+    stopped = {"config": config_, "rows": 20, "finished": True, "commit": None}
+    settings = {"solo_pred_nopenalty": {}}
+    flags = {"xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {design.xla_flags}"}
+    assert prereg.seed_problems(design, {"solo_pred_nopenalty": [stopped | flags]}, settings) == []
+    cut = stopped | flags | {"finished": False}
+    assert prereg.seed_problems(design, {"solo_pred_nopenalty": [cut]}, settings) == [
+        f"solo_pred_nopenalty seed 500: unfinished (20 of {design.iterations} iterations)"
+    ]
+    other = stopped | flags | {"config": {**config_, "stop_at_return": None}}
+    assert prereg.seed_problems(design, {"solo_pred_nopenalty": [other]}, settings) == [
+        "solo_pred_nopenalty seed 500: trained with stop_at_return None"
+    ]
 
 
 def test_designs_since_the_cross_cpu_flags_name_them():

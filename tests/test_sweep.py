@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from jaxsocial import train
-from jaxsocial.experiments import recipes, sweep, takeoff
+from jaxsocial.experiments import recipes, rundirs, runner, sweep, takeoff
 from jaxsocial.run import logs
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -146,6 +146,8 @@ def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, c
     (took_off / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
     logs.write_json(took_off / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
     assert sweep.seed_state(short, 3, runs) == "finished"  # stopped early at return 6 >= 5
+    assert rundirs.finished(took_off, 4) and not rundirs.finished(tmp_path / f"{short.name}-s1", 4)
+    assert runner.status(long, [took_off]) == rundirs.FINISHED  # a recipe's run is not resumed past its stop
     with pytest.raises(ValueError, match="stopped early past the plateau"):
         sweep.extend(short, long, [3], runs)
     assert not any((tmp_path / f"{long.name}-s{s}").exists() for s in (1, 2, 3))

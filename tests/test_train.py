@@ -80,7 +80,14 @@ def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, c
     run_dir = run(cfg)
     assert len(logs.read_metrics(run_dir)) == TINY.chunk_iterations < TINY.iterations
     assert checkpoint.latest_step(run_dir / rundir.POLICY_DIR) == TINY.chunk_iterations  # saved at the stop
-    assert f"stopped after iteration {TINY.chunk_iterations}" in capsys.readouterr().out
+    assert (
+        f"stopped after iteration {TINY.chunk_iterations}: the learners' return -" in capsys.readouterr().out
+    )
+    run(dataclasses.replace(cfg, run_name="blind", blind=True))
+    assert (
+        f"stopped after iteration {TINY.chunk_iterations}: the learners' return reached"
+        in capsys.readouterr().out
+    )
     never = run(dataclasses.replace(cfg, run_name="never", stop_at_return=1e9))
     assert len(logs.read_metrics(never)) == TINY.iterations
 

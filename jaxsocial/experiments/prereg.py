@@ -28,7 +28,9 @@ from jaxsocial.experiments import commits, xla_flags
 from jaxsocial.run import config, logs
 
 DESIGNS_DIR = Path(__file__).parent / "designs"
-ANALYSES = ("counts", "takeoff")
+ANALYSES = ("counts", "takeoff", "zero_shot")
+ZERO_SHOT_TEST = "mannwhitney-greater"
+"""A 'zero_shot' design's primary test: one-sided Mann-Whitney U of the arms' per-seed zero-shot returns."""
 LEARNED_BY = ("final_return", "takeoff")
 SECONDARY_MEASURES = ("learned", "above_experts")
 TAKEOFF_TEST = "holm(logrank-greater, mannwhitney-greater)"
@@ -65,9 +67,13 @@ class Design:
     'takeoff' design, that of the takeoff test at the planning discount (`power_simulation`)."""
     rationale: str = ""
     analysis: str = "counts"
-    """'counts': one exact test of learned-seed counts (`test`); 'takeoff': the tests of `tests`."""
+    """'counts': one exact test of learned-seed counts (`test`); 'takeoff': the tests of `tests`; 'zero_shot':
+    one Mann-Whitney test of the arms' per-seed returns in `tests['primary']`'s environment."""
     tests: dict[str, Any] = dataclasses.field(default_factory=dict)
-    """A 'takeoff' design's tests: {'primary': {name: statement}, 'secondary': {...}, 'correction': ...}."""
+    """A 'takeoff' design's tests: {'primary': {name: statement}, 'secondary': {...}, 'correction': ...}. A
+    'zero_shot' design's: {'primary': {name: {'env', 'alternative', 'statement'}}, 'borrowed_scores': the
+    evaluation design whose evaluation of that environment scores the borrowed arm, with the same episodes
+    and evaluation seed as this design's own evaluations}."""
     eval_episodes: int | None = None
     """Episodes of every evaluation after training (None: the scale's)."""
     power_simulation: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -106,7 +112,12 @@ class Design:
 
     @property
     def arm_seeds(self) -> dict[str, int]:
-        return {"treatment": self.seeds * len(self.treatment), "control": self.seeds * len(self.control)}
+        """Each arm's seeds: its conditions times the seeds of the design that trains them."""
+        return {
+            arm: len(getattr(self, arm))
+            * (load(self.borrowed[arm]).seeds if arm in self.borrowed else self.seeds)
+            for arm in ("treatment", "control")
+        }
 
     @property
     def trained_conditions(self) -> tuple[str, ...]:
@@ -139,7 +150,9 @@ def load(name: str) -> Design:
     design = Design(**raw)
     if design.analysis not in ANALYSES:
         raise ValueError(f"design {name}: unknown analysis {design.analysis!r}; choose from {ANALYSES}")
-    tests = stats.TESTS if design.analysis == "counts" else (TAKEOFF_TEST,)
+    tests = {"counts": stats.TESTS, "takeoff": (TAKEOFF_TEST,), "zero_shot": (ZERO_SHOT_TEST,)}[
+        design.analysis
+    ]
     if design.test not in tests:
         raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {tests}")
     if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
@@ -150,6 +163,8 @@ def load(name: str) -> Design:
         raise ValueError(f"design {name}: unknown learned_by {design.learned_by!r}; choose from {LEARNED_BY}")
     if design.stop_at_return is not None and design.learned_by != "takeoff":
         raise ValueError(f"design {name}: an early stop (stop_at_return) needs learned_by 'takeoff'")
+    if len(design.borrowed) > 1:
+        raise ValueError(f"design {name}: at most one arm may be borrowed (it trains the other)")
     for arm, source in design.borrowed.items():
         if arm not in ("treatment", "control") or source == name:
             raise ValueError(
@@ -171,8 +186,6 @@ def load(name: str) -> Design:
                 f"design {name}: secondary {test_name}: a measure of {SECONDARY_MEASURES} and an alternative"
             )
         load(other)
-    if len(design.borrowed) > 1:
-        raise ValueError(f"design {name}: at most one arm may be borrowed (it trains the other)")
     return design
 
 
@@ -395,6 +408,8 @@ def describe(design: Design, env_steps_per_run: int) -> str:
     """The design and its power, for people."""
     if design.analysis == "takeoff":
         return describe_takeoff(design, env_steps_per_run)
+    if design.analysis == "zero_shot":
+        return describe_zero_shot(design, env_steps_per_run)
     rates = success_rates(design, env_steps_per_run)
     n = design.arm_seeds
     last = design.seed + design.seeds - 1
@@ -457,6 +472,52 @@ def describe_takeoff(design: Design, env_steps_per_run: int) -> str:
         ),
         f"  power: {design.power:.3f} (the takeoff test at {design.seeds} seeds an arm, discount "
         f"{sim.get('planning_discount')})",
+    ]
+    return "\n".join(lines)
+
+
+def zero_shot_power(
+    n_treatment: int, n_control: int, p_above: float, alpha: float, reps: int = 4000, rng_seed: int = 0
+) -> float:
+    """The power of the one-sided Mann-Whitney U test (treatment greater) at `alpha` with these seeds an arm,
+    when a treatment seed's score beats a control seed's with probability `p_above`: scores drawn from two
+    unit normal distributions `sqrt(2) * Phi^-1(p_above)` apart, `reps` simulated designs (numpy `rng_seed`);
+    rounded to 3 decimals."""
+    import numpy as np
+    from scipy import stats as scipy_stats
+
+    rng = np.random.default_rng(rng_seed)
+    shift = np.sqrt(2) * scipy_stats.norm.ppf(p_above)
+    rejected = [
+        scipy_stats.mannwhitneyu(
+            rng.normal(shift, 1, n_treatment), rng.normal(0, 1, n_control), alternative="greater"
+        ).pvalue
+        <= alpha
+        for _ in range(reps)
+    ]
+    return round(float(np.mean(rejected)), 3)
+
+
+def describe_zero_shot(design: Design, env_steps_per_run: int) -> str:
+    """A 'zero_shot' design, its test and its power, for people."""
+    last = design.seed + design.seeds - 1
+    sim = design.power_simulation
+    lines = [
+        f"{design.name}: {design.scale} scale, {design.iterations} iterations "
+        f"({env_steps_per_run / 1e6:.1f}M env-steps per seed), seeds {design.seed}..{last} trained",
+        *(
+            f"  {arm}: {', '.join(getattr(design, arm))}"
+            + (f", borrowed: {design.borrowed[arm]}'s records" if arm in design.borrowed else "")
+            for arm in ("treatment", "control")
+        ),
+        *(
+            f"  primary: {name}, {t['env']}, Mann-Whitney {t['alternative']} at alpha {design.alpha:g}, "
+            f"{design.eval_episodes} episodes a policy"
+            for name, t in design.tests["primary"].items()
+        ),
+        f"  the borrowed arm's scores: the evaluation design {design.tests['borrowed_scores']}",
+        f"  power ({sim['method']}): " + ", ".join(f"{k} {v:.3f}" for k, v in sim["power"].items()),
+        f"  power: {design.power:.3f}",
     ]
     return "\n".join(lines)
 

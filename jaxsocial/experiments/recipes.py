@@ -247,6 +247,9 @@ RECIPES = {
         Recipe("imperfect8", "Experts at half strength in 8x8, pre-registered (paper Fig. 4): social PPO + "
                "pred beside them against pred8's solo learners", ("social_pred_imperfect_half",), "curves",
                design="imperfect8"),
+        Recipe("imitation8", "Imitation in 8x8, pre-registered (paper Fig. 5): behaviour cloning of the "
+               "experts against pred8's social learners, zero-shot", ("bc",), "curves",
+               ("goalcycle4", "fourrooms:width=9,height=9", "maze:width=7,height=7"), design="imitation8"),
         Recipe("imperfect", "Near-optimal vs imperfect experts (paper Fig. 4)",
                ("solo_pred", "social_pred", "social_pred_imperfect"), "curves",
                hypotheses=(("social_pred", "solo_pred"), ("social_pred_imperfect", "solo_pred"))),

@@ -20,7 +20,8 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import kinds, paths, prereg, recipes, records, rundirs
+from jaxsocial import stats
+from jaxsocial.experiments import kinds, paths, prereg, recipes, records, rundirs, takeoff
 from jaxsocial.experiments.conditions import CONDITIONS
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
@@ -192,9 +193,11 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     }
     if runs.recipe.design is not None:
         design = prereg.load(runs.recipe.design)
-        learned = {
-            c: [final_return(rows) > design.learned_threshold for rows in r] for c, r in runs.rows.items()
-        }
+        learned = learned_flags(design, runs)
+        borrowed, lent_problems = borrowed_arms(design, runs.runs_dir)
+        if borrowed:
+            out["borrowed"] = borrowed
+            learned |= {c: block["learned"] for block in borrowed.values() for c, block in block.items()}
         if design.analysis == "takeoff":
             out["preregistered"] = prereg.preregistered_takeoff(design, out, runs.commits())
         else:
@@ -204,7 +207,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
             design.seed,
             design.seeds,
         )
-        problems = design_problems(runs, design)
+        problems = design_problems(runs, design) + lent_problems
         out["preregistered"]["problems"] = problems
         out["preregistered"]["deviations"] = prereg.deviations(design.name, paths.DEVIATIONS)
         checks = out["preregistered"]["checks"]
@@ -212,6 +215,47 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
             v for v in checks.values() if isinstance(v, bool)
         )
     return out
+
+
+def learned_flags(design: prereg.Design, runs: RecipeRuns) -> dict[str, list[bool]]:
+    """Per condition of `runs`, each seed's learned flag as the design counts it (`Design.learned_by`): its
+    final return above the threshold, or its takeoff (`takeoff.seed_takeoff` at the threshold) within the
+    design's iterations."""
+    out = {}
+    for c, seed_rows in runs.rows.items():
+        if design.learned_by == "final_return":
+            out[c] = [final_return(rows) > design.learned_threshold for rows in seed_rows]
+            continue
+        per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
+        lifts = [takeoff.seed_takeoff(rows, per_iteration, design.learned_threshold) for rows in seed_rows]
+        out[c] = [lift is not None and lift <= design.iterations for lift in lifts]
+    return out
+
+
+def borrowed_arms(design: prereg.Design, runs_dir: str) -> tuple[dict[str, Any], list[str]]:
+    """The design's borrowed arms read from their lenders' records under `runs_dir`: per arm, per condition,
+    its source, each seed's learned flag as this design counts it, final return and takeoff; and what keeps
+    a lent seed from counting in its own design (`design_problems` of the lender, each line prefixed)."""
+    out: dict[str, Any] = {}
+    problems = []
+    for arm, name in design.borrowed.items():
+        lender = prereg.load(name)
+        recipe = next(r for r in recipes.RECIPES.values() if r.design == name)
+        runs = RecipeRuns(recipe, recipes.recipe_scale(recipe, recipes.SCALES[lender.scale]), lender.seed,
+                          lender.seeds, runs_dir)  # fmt: skip
+        learned, lifts = learned_flags(design, runs), takeoffs(runs)
+        out[arm] = {
+            c: {
+                "design": name,
+                "seeds": [lender.seed, lender.seed + lender.seeds - 1],
+                "learned": learned[c],
+                "final_return": stats.summary([final_return(rows) for rows in runs.rows[c]]),
+                "takeoff_env_steps": lifts[c]["takeoff_env_steps"],
+            }
+            for c in getattr(design, arm)
+        }
+        problems += [f"borrowed from {name}: {p}" for p in design_problems(runs, lender)]
+    return out, problems
 
 
 def incomplete_design(runs: RecipeRuns) -> str | None:
