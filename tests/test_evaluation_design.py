@@ -190,7 +190,7 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
 
 
 @pytest.mark.slow
-@needs_records("records/laptop/prereg-h1_early", "records/laptop/prereg-experts")  # pilots: takeoffs weight pools
+@needs_records("records/laptop/prereg-h1_early", "records/laptop/prereg-experts")  # the pilots
 @pytest.mark.parametrize("name", sorted(p.stem for p in ed.DESIGNS_DIR.glob("*.json")))
 def test_a_committed_design_has_the_power_it_states(name):
     """The whole power table, recomputed from the committed pilot with the design's seed of the simulation."""
