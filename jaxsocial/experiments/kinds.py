@@ -214,15 +214,16 @@ def summarise_transfer(runs) -> dict[str, Any]:
 def zero_shot_returns(runs) -> dict[str, Any]:
     """Per environment spec of the recipe's `transfer_envs`: each condition's learner return after training
     (stats over its seeds of each seed's mean episode return) and, as 'experts', the environment's scripted
-    experts' (per slot, over episodes; random distractors are not experts)."""
+    experts' (per slot, over episodes; random distractors are not experts). Conditions a design borrows
+    (`runs.lenders`) were evaluated as their own design says, and are left out."""
     conditions: dict[str, Any] = {}
+    evaluated = {c: dirs for c, dirs in runs.seed_dirs.items() if c not in runs.lenders}
     for spec in transfer_specs(runs.recipe, runs.scale):
         per_cond: dict[str, Any] = {
-            c: summary([_read_eval(d, spec)[0]["mean_return"] for d in dirs])
-            for c, dirs in runs.seed_dirs.items()
+            c: summary([_read_eval(d, spec)[0]["mean_return"] for d in dirs]) for c, dirs in evaluated.items()
         }
         # The environment's own experts, from one evaluation (every evaluation plays the same episodes).
-        first = _read_eval(next(iter(runs.seed_dirs.values()))[0], spec)
+        first = _read_eval(next(iter(evaluated.values()))[0], spec)
         experts = [s for s in first if s["kind"] == "expert"]
         per_cond["experts"] = {
             "per_slot": [{"mean": round(s["mean_return"], 4), "ci95": _rounded(s["ci95"])} for s in experts],

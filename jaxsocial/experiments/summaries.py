@@ -20,7 +20,6 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import stats
 from jaxsocial.experiments import kinds, paths, prereg, recipes, records, rundirs, takeoff
 from jaxsocial.experiments.conditions import CONDITIONS
 from jaxsocial.experiments.kinds import takeoffs
@@ -33,25 +32,21 @@ from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 class RecipeRuns:
     """The run directories of a recipe at a scale and seed range, with their metrics. Seeds without metrics
     are left out of their condition (`missing_seeds`), and conditions without any are left out (`missing`);
-    FileNotFoundError if all are."""
+    FileNotFoundError if all are. A design's arm borrowed from another design (`Design.borrowed`, at the
+    design's scale) is read from that design's records at its seeds: its conditions join the recipe's, and
+    `lenders` names their design."""
 
     def __init__(
         self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, pick: tuple[str, ...] = ()
     ):
         self.recipe, self.scale = recipe, scale
-        self.configs = {  # the first program's (conditions trained one program per seed: the first seed's)
-            c: recipes.condition_programs(scale, c, seed, seeds, runs_dir)[0] for c in recipe.conditions
-        }
-        self.seed_dirs, self.rows, self.missing_seeds, self.dirs_by_seed = {}, {}, {}, {}
+        self.configs, self.seed_dirs, self.rows, self.missing_seeds, self.dirs_by_seed = {}, {}, {}, {}, {}
         for c in recipe.conditions:
-            dirs = rundirs.condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick)
-            rows = [metrics.read_rows(d) for d in dirs]
-            self.dirs_by_seed[c] = [d if r else None for d, r in zip(dirs, rows, strict=True)]
-            self.seed_dirs[c] = [d for d, r in zip(dirs, rows, strict=True) if r]
-            self.rows[c] = [r for r in rows if r]
-            absent = [s for s, r in zip(range(seed, seed + seeds), rows, strict=True) if not r]
-            if absent and self.rows[c]:
-                self.missing_seeds[c] = absent
+            self._read(c, scale, seed, seeds, runs_dir, pick)
+        self.lenders = lenders(recipe, scale)
+        for c, lender in self.lenders.items():
+            lent_scale = recipes.recipe_scale(design_recipe(lender.name), recipes.SCALES[lender.scale])
+            self._read(c, lent_scale, lender.seed, lender.seeds, runs_dir, pick)
         self.missing = [c for c, seed_rows in self.rows.items() if not seed_rows]
         if len(self.missing) == len(self.configs):
             raise FileNotFoundError(
@@ -62,6 +57,21 @@ class RecipeRuns:
         for c in self.missing:  # drawn without them; the summary lists them
             del self.configs[c], self.seed_dirs[c], self.rows[c]
         self.seed, self.seeds, self.runs_dir = seed, seeds, runs_dir
+
+    def _read(
+        self, c: str, scale: Scale, seed: int, seeds: int, runs_dir: str, pick: tuple[str, ...]
+    ) -> None:
+        """Read condition `c`'s seeds seed..seed+seeds-1 at `scale`: its first program's config (a condition
+        trained one program per seed: the first seed's), its seed directories and metrics rows."""
+        self.configs[c] = recipes.condition_programs(scale, c, seed, seeds, runs_dir)[0]
+        dirs = rundirs.condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick)
+        rows = [metrics.read_rows(d) for d in dirs]
+        self.dirs_by_seed[c] = [d if r else None for d, r in zip(dirs, rows, strict=True)]
+        self.seed_dirs[c] = [d for d, r in zip(dirs, rows, strict=True) if r]
+        self.rows[c] = [r for r in rows if r]
+        absent = [s for s, r in zip(range(seed, seed + seeds), rows, strict=True) if not r]
+        if absent and self.rows[c]:
+            self.missing_seeds[c] = absent
 
     def flags(self, condition: str) -> list[str]:
         """The training command line of a condition's (first) program."""
@@ -96,14 +106,25 @@ class RecipeRuns:
         return {"training_runs": runs, "unrecorded": unrecorded}
 
     def commits(self) -> dict[str, str | None]:
-        """Each seed directory's recorded training commit (None: no record)."""
-        return {str(d): records.run_field(d, "commit") for dirs in self.seed_dirs.values() for d in dirs}
+        """Each seed directory's recorded training commit (None: no record), borrowed conditions aside (they
+        were trained for their own design)."""
+        return {
+            str(d): records.run_field(d, "commit")
+            for c, dirs in self.seed_dirs.items()
+            if c not in self.lenders
+            for d in dirs
+        }
 
     def header(self, command: str) -> dict[str, Any]:
+        def short(seed_dir: Path, rows: list[dict[str, Any]], iterations: int) -> bool:
+            return len(rows) < iterations and not records.stopped_early(logs.read_config(seed_dir), rows)
+
         unfinished = {
             c: [len(r) for r in rows]
             for c, rows in self.rows.items()
-            if any(len(r) < self.configs[c].iterations for r in rows)
+            if any(
+                short(d, r, self.configs[c].iterations) for d, r in zip(self.seed_dirs[c], rows, strict=True)
+            )
         }
         cfg = next(iter(self.configs.values()))
         return {
@@ -126,7 +147,24 @@ class RecipeRuns:
             "unfinished_runs": unfinished,
             "missing_conditions": self.missing,
             "missing_seeds": self.missing_seeds,
+            **({"borrowed": {c: lender.name for c, lender in self.lenders.items()}} if self.lenders else {}),
         }
+
+
+def design_recipe(name: str) -> Recipe:
+    """The recipe that carries design `name`."""
+    return next(r for r in recipes.RECIPES.values() if r.design == name)
+
+
+def lenders(recipe: Recipe, scale: Scale) -> dict[str, prereg.Design]:
+    """The conditions the recipe's design borrows at its own scale, each with the design it borrows from
+    ({} for a recipe without a design or at another scale)."""
+    if recipe.design is None:
+        return {}
+    design = prereg.load(recipe.design)
+    if design.scale != scale.name:
+        return {}
+    return {c: prereg.load(name) for arm, name in design.borrowed.items() for c in getattr(design, arm)}
 
 
 def outcome_lines(summary: dict[str, Any]) -> list[str]:
@@ -194,10 +232,6 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     if runs.recipe.design is not None:
         design = prereg.load(runs.recipe.design)
         learned = learned_flags(design, runs)
-        borrowed, lent_problems = borrowed_arms(design, runs.runs_dir)
-        if borrowed:
-            out["borrowed"] = borrowed
-            learned |= {c: block["learned"] for block in borrowed.values() for c, block in block.items()}
         if design.analysis == "takeoff":
             out["preregistered"] = prereg.preregistered_takeoff(design, out, runs.commits())
         else:
@@ -207,7 +241,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
             design.seed,
             design.seeds,
         )
-        problems = design_problems(runs, design) + lent_problems
+        problems = design_problems(runs, design) + lent_problems(runs)
         out["preregistered"]["problems"] = problems
         out["preregistered"]["deviations"] = prereg.deviations(design.name, paths.DEVIATIONS)
         checks = out["preregistered"]["checks"]
@@ -232,30 +266,17 @@ def learned_flags(design: prereg.Design, runs: RecipeRuns) -> dict[str, list[boo
     return out
 
 
-def borrowed_arms(design: prereg.Design, runs_dir: str) -> tuple[dict[str, Any], list[str]]:
-    """The design's borrowed arms read from their lenders' records under `runs_dir`: per arm, per condition,
-    its source, each seed's learned flag as this design counts it, final return and takeoff; and what keeps
-    a lent seed from counting in its own design (`design_problems` of the lender, each line prefixed)."""
-    out: dict[str, Any] = {}
-    problems = []
-    for arm, name in design.borrowed.items():
+def lent_problems(runs: RecipeRuns) -> list[str]:
+    """What keeps a borrowed seed from counting in the design that trained it (`design_problems` of the
+    lender's own runs under the same runs folder), each line naming the lender."""
+    out = []
+    for name in sorted({lender.name for lender in runs.lenders.values()}):
         lender = prereg.load(name)
-        recipe = next(r for r in recipes.RECIPES.values() if r.design == name)
-        runs = RecipeRuns(recipe, recipes.recipe_scale(recipe, recipes.SCALES[lender.scale]), lender.seed,
-                          lender.seeds, runs_dir)  # fmt: skip
-        learned, lifts = learned_flags(design, runs), takeoffs(runs)
-        out[arm] = {
-            c: {
-                "design": name,
-                "seeds": [lender.seed, lender.seed + lender.seeds - 1],
-                "learned": learned[c],
-                "final_return": stats.summary([final_return(rows) for rows in runs.rows[c]]),
-                "takeoff_env_steps": lifts[c]["takeoff_env_steps"],
-            }
-            for c in getattr(design, arm)
-        }
-        problems += [f"borrowed from {name}: {p}" for p in design_problems(runs, lender)]
-    return out, problems
+        recipe = design_recipe(name)
+        scale = recipes.recipe_scale(recipe, recipes.SCALES[lender.scale])
+        lent = RecipeRuns(recipe, scale, lender.seed, lender.seeds, runs.runs_dir)
+        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, lender)]
+    return out
 
 
 def incomplete_design(runs: RecipeRuns) -> str | None:
