@@ -41,6 +41,22 @@ def test_first_difference_names_the_row_and_field():
     assert verify.first_difference([{"x": float("nan")}], [{"x": float("nan")}]) is None
 
 
+def test_an_evaluation_at_the_retrainings_end_is_not_a_difference():
+    """A run evaluates when it ends: a re-training cut short of the record evaluates where the record did
+    not, and only that evaluation is set aside; every other field, and any earlier evaluation, is compared."""
+    recorded = [{"iteration": 1, "loss/0": 0.5, "eval/goalcycle4": 1.0}, {"iteration": 2, "loss/0": 0.25}]
+    retrained = [dict(recorded[0]), {"iteration": 2, "loss/0": 0.25, "eval/goalcycle4": 3.0}]
+    assert verify.first_difference(recorded, verify.without_final_evaluation(retrained, recorded)) is None
+    changed = [dict(recorded[0]), {"iteration": 2, "loss/0": 0.3, "eval/goalcycle4": 3.0}]
+    assert (
+        verify.first_difference(recorded, verify.without_final_evaluation(changed, recorded))["field"]
+        == "loss/0"
+    )
+    earlier = [dict(recorded[0], **{"eval/goalcycle4": 2.0}), retrained[1]]
+    d = verify.first_difference(recorded, verify.without_final_evaluation(earlier, recorded))
+    assert (d["iteration"], d["field"]) == (1, "eval/goalcycle4")
+
+
 @pytest.mark.slow
 def test_a_retrained_record_is_exact_up_to_a_changed_row(tiny_record, tmp_path, capsys):
     """The last row of a copy is changed: the re-training must equal every row before it bit for bit, and

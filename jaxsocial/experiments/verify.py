@@ -150,6 +150,19 @@ def _both_nan(a: Any, b: Any) -> bool:
     return isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b)
 
 
+def without_final_evaluation(
+    retrained: list[dict[str, Any]], recorded: list[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """`retrained` without the evaluations its last row holds where the record's row of that iteration has
+    none: a run evaluates when it ends, so a re-training cut short of the record's length evaluates at an
+    iteration where the record did not (its training fields are still compared)."""
+    if not retrained or len(retrained) > len(recorded):
+        return retrained
+    last, theirs = retrained[-1], recorded[len(retrained) - 1]
+    kept = {k: v for k, v in last.items() if not (metrics.is_eval_key(k) and k not in theirs)}
+    return [*retrained[:-1], kept]
+
+
 def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Path | None = None) -> dict:
     """Re-train the first `iterations` of a record and compare (see the module docstring). `work_dir`: where
     the new run goes (default: a temporary directory, removed afterwards)."""
@@ -162,7 +175,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
     cores = record_cores(record_dir)
     with tempfile.TemporaryDirectory(prefix="jaxsocial-verify-") as tmp:
         run_dir = retrain(record_dir, iterations, Path(work_dir or tmp))
-        retrained = metrics.read_rows(run_dir)
+        retrained = without_final_evaluation(metrics.read_rows(run_dir), recorded)
     difference = first_difference(recorded, retrained)
     return {
         "record": str(record_dir),
