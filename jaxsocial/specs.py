@@ -65,8 +65,12 @@ class EnvSpec:
 
 def join_env_in(obj: Any) -> None:
     """Move the overrides of a frozen dataclass's `env` (``NAME:ARGS``) into its `env_args` (parsed pairs), in
-    place (`EnvSpec.extended`): `env` is then a name alone."""
-    env = EnvSpec.parse(obj.env).extended(obj.env_args)
+    place (`EnvSpec.extended`): `env` is then a name alone. ValueError naming `--env` for bad overrides."""
+    try:
+        spec = EnvSpec.parse(obj.env)
+    except ValueError as err:
+        raise ValueError(f"--env {obj.env}: {err} (write NAME or NAME:field=value,...)") from err
+    env = spec.extended(obj.env_args)
     object.__setattr__(obj, "env", env.name)
     object.__setattr__(obj, "env_args", env.args)
 

@@ -120,6 +120,9 @@ def test_assignments_refuse_what_is_not_field_value():
     assert syntax.parse_assignments(" ,a = 1,, b=x=y:z ,") == [("a", "1"), ("b", "x=y:z")]
     with pytest.raises(ValueError, match="entry 'b' is not field=value"):
         syntax.parse_assignments("a=1,b")
+    for make in (config.TrainConfig, evaluate.EvalConfig):  # a bad --env names the flag it came from
+        with pytest.raises(ValueError, match="--env goalcycle3:penalty: entry 'penalty' is not field=value"):
+            make(env="goalcycle3:penalty")
     assert syntax.parse_assignments("xla,", bare=True) == [(None, "xla"), (None, "")]  # nothing skipped
     with pytest.raises(ValueError, match="unknown implementation ''"):
         network_config.parse_conv_impl("xla,")

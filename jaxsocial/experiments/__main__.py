@@ -329,7 +329,13 @@ def list_recipes() -> None:
         print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")
     for s in recipes.SCALES.values():
         per_run = s.iterations * s.config.num_envs * s.config.rollout_steps
-        unmeasured = "seconds" if s.name == "tiny" else "no measured CPU rate (meant for GPUs)"
+        unmeasured = (
+            "under a minute, most of it compiling"
+            if s.name == "tiny"
+            else "no measured CPU rate (meant for GPUs)"
+            if s.for_gpus
+            else "no measured CPU rate (a design's `run --dry-run` gives its records' pace on this CPU kind)"
+        )
         cost = recipes.cost(s, 1, per_run, 1) or unmeasured
         print(f"scale {s.name}: {s.iterations} iterations; one run: {cost}\n  {s.note}")
 

@@ -14,7 +14,8 @@ Scales:
     sample per env-step, 20.0M env-steps a seed, each seed on one core (`run --cores 0 1`; `LAPTOP.note`);
   * `paper`: the paper's settings (`--preset paper`: 13x13 Goal Cycle, the paper's network and PPO, 375M
     env-steps per run); meant for GPUs;
-  * `tiny`: seconds per run, for tests and the notebook's smoke run (learns nothing).
+  * `tiny`: under a minute a run, most of it compiling, for tests and the notebook's smoke run (learns
+    nothing).
 """
 
 from __future__ import annotations
@@ -63,6 +64,8 @@ class Scale:
     rate: Rate | None = None
     """A measured speed of its runs, for the cost `experiments run` states before training (None: not
     measured on a CPU)."""
+    for_gpus: bool = False
+    """Sized for GPUs (the gpu and paper scales): too slow on CPU cores to plan on them."""
 
     @property
     def iterations(self) -> int:
@@ -107,6 +110,7 @@ CPU = Scale(
 
 GPU = Scale(
     name="gpu",
+    for_gpus=True,
     config=dataclasses.replace(
         CPU.config,
         iterations=600,
@@ -147,6 +151,7 @@ LAPTOP = Scale(
 
 PAPER = Scale(
     name="paper",
+    for_gpus=True,
     config=PRESETS["paper"],
     eval_every=200,
     eval_episodes=100,
