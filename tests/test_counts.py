@@ -5,6 +5,7 @@ import dataclasses
 import functools
 import json
 import math
+import types
 
 import numpy as np
 import pytest
@@ -12,7 +13,17 @@ from conftest import needs_records
 
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import commits, paths, pinned, prereg, recipes, takeoff, takeoff_power
+from jaxsocial.experiments import (
+    commits,
+    kinds,
+    paths,
+    pinned,
+    prereg,
+    recipes,
+    summaries,
+    takeoff,
+    takeoff_power,
+)
 from jaxsocial.run import config, logs
 
 
@@ -371,3 +382,46 @@ def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
     assert said.endswith(prereg.verdict(block) + "\n") and said.rstrip().endswith(
         "NOT VALID: the result above does not test the design (see the problems listed)"
     )
+
+
+@pytest.mark.slow
+@needs_records("records/laptop8/prereg-pred8")
+def test_secondary_tests_count_each_arm_as_the_design_says():
+    """imperfect8's secondary tests on pred8's social arm standing in for its own: the counts are pred8's
+    (30 of 40 learned; no learner ended above its experts), so each arm equals the other."""
+    runs = summaries.design_runs("pred8", str(paths.RECORDS))
+    design = dataclasses.replace(prereg.load("imperfect8"), treatment=("social_pred",), borrowed={})
+    tests = summaries.secondary_tests(design, runs)
+    assert tests["fewer_than_good_experts"]["counts"] == [30, 40, 30, 40]
+    assert tests["fewer_than_good_experts"]["p"] == 1.0 and not tests["fewer_than_good_experts"]["rejected"]
+    assert tests["above_own_experts"]["counts"] == [0, 40, 0, 40]
+    assert set(tests["above_own_experts"]) >= {"p", "p_holm", "rejected", "measure", "alternative"}
+
+
+def test_a_zero_shot_design_compares_the_borrowed_scores_with_its_own_seeds(tmp_path, monkeypatch):
+    """imitation8's block from hand-written evaluations: the borrowed arm's from the evaluation design's
+    file, the trained arm's from each seed's own; a protocol other than the design's fails its check."""
+    design = prereg.load("imitation8")
+    env = design.tests["primary"]["goalcycle4_8x8"]["env"]
+
+    def result(scores, episodes=128):
+        return {"episodes_per_checkpoint": episodes, "seed": 0,
+                "results": [{"per_seed_mean": scores, "mean_return": scores[0]}]}  # fmt: skip
+
+    science = tmp_path / "science"
+    (science / "transfer8").mkdir(parents=True)
+    logs.write_json(science / "transfer8" / f"{paths.env_tag(env)}-social_pred.json", result([5.0] * 40))
+    monkeypatch.setattr(paths, "SCIENCE", science)
+    seed_dirs = [tmp_path / f"bc-s{s}" for s in range(580, 590)]
+    for k, d in enumerate(seed_dirs):
+        kinds.eval_path(d, env).parent.mkdir(parents=True)
+        logs.write_json(kinds.eval_path(d, env), result([-1.0 - k], episodes=128 if k else 64))
+    runs = types.SimpleNamespace(lenders={"social_pred": "pred8"}, seed_dirs={"bc": seed_dirs}, commits=dict)
+    block = summaries.preregistered_zero_shot(design, runs)
+    assert (
+        block["result"]["goalcycle4_8x8"]["n"] == [40, 10] and block["result"]["goalcycle4_8x8"]["rejected"]
+    )
+    assert block["result"]["scores"]["control"]["mean"] == pytest.approx(-5.5)
+    assert (
+        block["checks"]["seeds_as_designed"] and not block["checks"]["evaluated_as_designed"]
+    )  # seed 580: 64

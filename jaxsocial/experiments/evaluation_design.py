@@ -119,11 +119,6 @@ def load(name: str) -> EvaluationDesign:
     return design
 
 
-def env_tag(env: str) -> str:
-    """A file-name-safe form of an environment spec (as `kinds.eval_path` writes evaluations)."""
-    return env.rstrip(":").replace(":", "_").replace(",", "_")
-
-
 def out_dir(design: EvaluationDesign, science: Path) -> Path:
     return science / design.name
 
@@ -149,7 +144,7 @@ class Evaluation:
     slot: str | None
 
     def path(self, out: Path) -> Path:
-        return out / f"{env_tag(self.env)}-{self.player}.json"
+        return out / f"{paths.env_tag(self.env)}-{self.player}.json"
 
 
 def evaluations(design: EvaluationDesign, records_root: Path) -> list[Evaluation]:
@@ -429,7 +424,7 @@ def pilot_scores(design: EvaluationDesign) -> dict[str, tuple[list[float], list[
     for name, test in design.primary.items():
         split = {}
         for arm, condition in arms:
-            result = logs.read_json(Path(sim["pilot"]) / f"{env_tag(test.env)}-{condition}.json")
+            result = logs.read_json(Path(sim["pilot"]) / f"{paths.env_tag(test.env)}-{condition}.json")
             took_off = np.array(
                 [takeoff_power.seed_lift(Path(c))["takeoff"] is not None for c in result["checkpoints"]]
             )

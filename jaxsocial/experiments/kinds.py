@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import plot_figures, predictions, recipes, records, takeoff
+from jaxsocial.experiments import paths, plot_figures, predictions, recipes, records, takeoff
 from jaxsocial.experiments.recipes import Recipe, Scale
 from jaxsocial.run import logs, metrics, startup
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
@@ -39,7 +39,7 @@ EVAL_DIR = logs.EVAL_DIR
 
 
 def eval_path(seed_dir: Path, spec: str) -> Path:
-    return seed_dir / EVAL_DIR / f"{spec.replace(':', '_').replace(',', '_')}.json"
+    return seed_dir / EVAL_DIR / f"{paths.env_tag(spec)}.json"
 
 
 def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
@@ -94,6 +94,12 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
     return _read_json(eval_path(seed_dir, spec))["results"]
+
+
+def read_eval_file(seed_dir: Path, spec: str) -> dict[str, Any] | None:
+    """A seed's whole evaluation in `spec` (`jaxsocial.evaluate`'s result), None if it has none yet."""
+    path = eval_path(seed_dir, spec)
+    return logs.read_json(path) if path.is_file() else None
 
 
 # ----------------------------------------------------------------------------------------------------------

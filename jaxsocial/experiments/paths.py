@@ -107,3 +107,9 @@ def require_checkout() -> None:
             "--results ~/jaxsocial/benchmarks/results; an installed jaxsocial package holds the library, "
             "not the experiments' records)"
         )
+
+
+def env_tag(env: str) -> str:
+    """A file-name-safe form of an environment spec, as evaluations are named ('maze:width=7,height=7' ->
+    'maze_width=7_height=7')."""
+    return env.rstrip(":").replace(":", "_").replace(",", "_")

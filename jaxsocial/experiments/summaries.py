@@ -20,6 +20,7 @@ import shlex
 from pathlib import Path
 from typing import Any
 
+from jaxsocial import stats
 from jaxsocial.experiments import kinds, paths, prereg, recipes, records, rundirs, takeoff
 from jaxsocial.experiments.conditions import CONDITIONS
 from jaxsocial.experiments.kinds import takeoffs
@@ -234,8 +235,12 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         learned = learned_flags(design, runs)
         if design.analysis == "takeoff":
             out["preregistered"] = prereg.preregistered_takeoff(design, out, runs.commits())
+        elif design.analysis == "zero_shot":
+            out["preregistered"] = preregistered_zero_shot(design, runs)
         else:
             out["preregistered"] = prereg.preregistered(design, learned, runs.commits())
+            if design.secondary:
+                out["preregistered"]["secondary"] = secondary_tests(design, runs)
         out["preregistered"]["checks"]["scale_as_designed"] = runs.scale.name == design.scale
         out["preregistered"]["checks"]["seeds_as_designed"] &= (runs.seed, runs.seeds) == (
             design.seed,
@@ -266,17 +271,106 @@ def learned_flags(design: prereg.Design, runs: RecipeRuns) -> dict[str, list[boo
     return out
 
 
+def design_runs(name: str, runs_dir: str) -> RecipeRuns:
+    """The runs of design `name` at its own scale and seeds, under `runs_dir`."""
+    design, recipe = prereg.load(name), design_recipe(name)
+    scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
+    return RecipeRuns(recipe, scale, design.seed, design.seeds, runs_dir)
+
+
 def lent_problems(runs: RecipeRuns) -> list[str]:
     """What keeps a borrowed seed from counting in the design that trained it (`design_problems` of the
     lender's own runs under the same runs folder), each line naming the lender."""
     out = []
     for name in sorted({lender.name for lender in runs.lenders.values()}):
-        lender = prereg.load(name)
-        recipe = design_recipe(name)
-        scale = recipes.recipe_scale(recipe, recipes.SCALES[lender.scale])
-        lent = RecipeRuns(recipe, scale, lender.seed, lender.seeds, runs.runs_dir)
-        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, lender)]
+        lent = design_runs(name, runs.runs_dir)
+        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, prereg.load(name))]
     return out
+
+
+def above_experts(runs: RecipeRuns, condition: str) -> list[bool]:
+    """Per seed of `condition`: whether its learner's final return exceeds the mean final return of the
+    scripted experts in its own run."""
+    slots, _ = kinds.experts_of(runs.configs[condition])
+    out = []
+    for rows in runs.rows[condition]:
+        experts = [final_return(rows, k) for k in slots if k in metrics.slots(rows[0])]
+        out.append(bool(experts) and final_return(rows) > sum(experts) / len(experts))
+    return out
+
+
+def seed_measure(
+    design: prereg.Design, runs: RecipeRuns, conditions: tuple[str, ...], name: str
+) -> list[bool]:
+    """The pooled per-seed flags of `conditions` for a secondary test's measure: 'learned' (as `design`
+    counts it) or 'above_experts'."""
+    flags = (
+        learned_flags(design, runs) if name == "learned" else {c: above_experts(runs, c) for c in conditions}
+    )
+    return [flag for c in conditions for flag in flags[c]]
+
+
+def secondary_tests(design: prereg.Design, runs: RecipeRuns) -> dict[str, dict[str, Any]]:
+    """A counts design's secondary tests (`Design.secondary`): per test, the counts of this design's arm and
+    of the other design's arm (read from its records under the same runs folder), Boschloo's p-value with
+    the stated alternative, Holm-corrected among themselves at the design's alpha."""
+    entries = {}
+    for name, test in design.secondary.items():
+        own = seed_measure(design, runs, getattr(design, test["arm"]), test["measure"])
+        other, _, other_arm = test["against"].partition(":")
+        theirs = seed_measure(
+            design, design_runs(other, runs.runs_dir), getattr(prereg.load(other), other_arm), test["measure"]
+        )
+        counts = [sum(own), len(own), sum(theirs), len(theirs)]
+        p = stats.boschloo(*counts, test["alternative"]) if own and theirs else None
+        entries[name] = {
+            "counts": counts,
+            "measure": test["measure"],
+            "alternative": test["alternative"],
+            "p": p,
+        }
+    return prereg.holm_family(entries, design.alpha)
+
+
+def preregistered_zero_shot(design: prereg.Design, runs: RecipeRuns) -> dict[str, Any]:
+    """A 'zero_shot' design's `preregistered` block: its primary environment's per-seed scores (mean learner
+    return per episode), the borrowed arm's from the evaluation design `tests['borrowed_scores']`
+    (`<science>/<design>/<env tag>-<condition>.json`), the trained arm's from each seed's own evaluation;
+    the one-sided Mann-Whitney test; and the checks (both arms evaluated with the design's episodes and
+    evaluation seed 0, the design before every run it trains)."""
+    ((name, test),) = design.tests["primary"].items()
+    source = paths.SCIENCE / design.tests["borrowed_scores"]
+    scores, protocols = {}, []
+    for arm in ("treatment", "control"):
+        scores[arm] = []
+        for c in getattr(design, arm):
+            if c in runs.lenders:
+                path = source / f"{paths.env_tag(test['env'])}-{c}.json"
+                result = logs.read_json(path) if path.is_file() else None
+                scores[arm] += (
+                    [] if result is None else [float(v) for v in result["results"][0]["per_seed_mean"]]
+                )
+                results = [result]
+            else:
+                results = [kinds.read_eval_file(d, test["env"]) for d in runs.seed_dirs.get(c, [])]
+                scores[arm] += [r["results"][0]["mean_return"] for r in results if r is not None]
+            protocols += [None if r is None else (r["episodes_per_checkpoint"], r["seed"]) for r in results]
+    result = stats.mann_whitney(scores["treatment"], scores["control"], test["alternative"])
+    commit = prereg.design_commit(design.name)
+    checks = prereg.commit_checks(commit, runs.commits())
+    checks["seeds_as_designed"] = [len(scores["treatment"]), len(scores["control"])] == [
+        design.arm_seeds["treatment"],
+        design.arm_seeds["control"],
+    ]
+    checks["evaluated_as_designed"] = all(p == (design.eval_episodes, 0) for p in protocols)
+    return {
+        "commit": commit,
+        "primary": {name: test, "treatment": list(design.treatment), "control": list(design.control),
+                    "test": design.test, "alpha": design.alpha},
+        "result": {name: result | {"rejected": result["p"] is not None and result["p"] <= design.alpha},
+                   "scores": {arm: stats.summary(v) if v else None for arm, v in scores.items()}},
+        "checks": checks,
+    }  # fmt: skip
 
 
 def incomplete_design(runs: RecipeRuns) -> str | None:
