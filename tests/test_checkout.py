@@ -2,6 +2,7 @@
 is read or written, where the working directory holds none; every command's `--results DIR` points them at
 a checkout's results from anywhere."""
 
+import re
 from pathlib import Path
 
 import pytest
@@ -75,3 +76,19 @@ def test_a_command_reads_the_results_it_is_pointed_at(tmp_path, monkeypatch, cap
         assert f"[mixing] {recorded} of 120 branches recorded" in capsys.readouterr().out
     else:
         assert (science / "mixing.json").exists()
+
+
+def test_a_code_only_clone_says_how_to_fetch_the_records_a_command_reads(tmp_path, monkeypatch):
+    """Where a committed records folder is left out of the checkout, `figure` and an evaluation design name
+    the folder and the exact `git sparse-checkout add` line, not a training command."""
+    (tmp_path / paths.SCIENCE).mkdir(parents=True)  # a checkout's results, without records/
+    monkeypatch.chdir(tmp_path)
+    figure = ["figure", "h1_laptop", "--scale", "laptop", "--runs-dir", str(paths.RECORDS)]
+    fetch = "git sparse-checkout add '/benchmarks/results/records/laptop/prereg-h1_laptop/'"
+    with pytest.raises(SystemExit, match=re.escape(fetch)):
+        cli.main(figure)
+    with pytest.raises(
+        FileNotFoundError,
+        match=re.escape("git sparse-checkout add '/benchmarks/results/records/laptop/prereg-experts/'"),
+    ):
+        evaluation_design.run(evaluation_design.load("transfer"), paths.RECORDS, paths.SCIENCE)

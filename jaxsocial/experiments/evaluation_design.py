@@ -175,7 +175,8 @@ def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
 
     missing = missing_records(design, records_root)
     if missing:
-        raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
+        hint = paths.missing_records(records_root / design.records)
+        raise FileNotFoundError(hint or f"the design's material is incomplete: {', '.join(missing)}")
     out = out_dir(design, science)
     todo = [e for e in evaluations(design, records_root) if not e.path(out).exists()]
     print(f"[{design.name}] {len(todo)} of {len(evaluations(design, records_root))} evaluations to play")

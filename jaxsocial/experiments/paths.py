@@ -113,3 +113,16 @@ def env_tag(env: str) -> str:
     """A file-name-safe form of an environment spec, as evaluations are named ('maze:width=7,height=7' ->
     'maze_width=7_height=7')."""
     return env.rstrip(":").replace(":", "_").replace(",", "_")
+
+
+def missing_records(folder: Path | str) -> str | None:
+    """Where `folder` is a committed records folder this checkout lacks (a code-only clone leaves
+    `benchmarks/results/records/` out: README, "Set up"), the line that says so and how to fetch it; None
+    where it is here or is not under the committed records."""
+    folder = Path(folder)
+    if folder.exists() or not folder.is_relative_to(RECORDS):
+        return None
+    return (
+        f"{folder}/ is not in this checkout (a code-only clone leaves the records out); fetch it with: "
+        f"git sparse-checkout add '/{folder.as_posix()}/'"
+    )

@@ -50,10 +50,11 @@ class RecipeRuns:
             self._read(c, lent_scale, lender.seed, lender.seeds, runs_dir, pick)
         self.missing = [c for c, seed_rows in self.rows.items() if not seed_rows]
         if len(self.missing) == len(self.configs):
+            where = Path(runs_dir) / scale.runs_root
             raise FileNotFoundError(
-                f"no metrics for any condition of {recipe.name} under {runs_dir}/{scale.runs_root}: "
-                f"run `python -m jaxsocial.experiments run {recipe.name} --scale {scale.name} "
-                f"--seeds {seeds}` first"
+                paths.missing_records(where)
+                or f"no metrics for any condition of {recipe.name} under {where}: run `python -m "
+                f"jaxsocial.experiments run {recipe.name} --scale {scale.name} --seeds {seeds}` first"
             )
         for c in self.missing:  # drawn without them; the summary lists them
             del self.configs[c], self.seed_dirs[c], self.rows[c]
