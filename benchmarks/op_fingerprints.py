@@ -32,9 +32,16 @@ how the `dot_k<K>` products sum (`dot_blocks`: the blocks of K whose emulated FM
 equal the product bit for bit), the operations that differ from this kind's default, and, against every other
 kind's committed file, the operations that differ there. A run on a second kind thus names what disagrees.
 
+`--compare` measures nothing: it reads the committed kinds' files and prints the tables docs/experiments.md
+quotes ("Does the training re-run?"; `jaxsocial.experiments.cpu_kinds.markdown`): each kind's instruction
+sets, caches and settings; per pair of kinds, whether they agree under the designs' cross-CPU flags
+(`pinned.CROSS_CPU_XLA_FLAGS` after the single-core ones) and the first operation that differs; and per pair
+and setting both measured, how many operations and fingerprints differ. A test checks the docs against it.
+
     python benchmarks/op_fingerprints.py                      # every setting
     python benchmarks/op_fingerprints.py --settings default portable
     python benchmarks/op_fingerprints.py --settings default --all-cores
+    python benchmarks/op_fingerprints.py --compare            # the committed kinds' tables, nothing measured
 """
 
 from __future__ import annotations
@@ -60,7 +67,7 @@ from reproducibility import (
 )
 from run_info import REPO, portable, write_json
 
-from jaxsocial.experiments import pinned
+from jaxsocial.experiments import cpu_kinds, pinned
 from jaxsocial.run import autotune, logs, startup
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
@@ -239,6 +246,15 @@ def summary(names: list[str]) -> str:
     return "exact" if not names else f"{len(names)} differ, first {', '.join(names[:4])}"
 
 
+CROSS_CPU = f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"
+"""The $XLA_FLAGS the designs' seeds train with since 2026-11-28 (the `no_platform_math` setting)."""
+
+
+def compared(where=OUT_DIR) -> str:
+    """The committed kinds' tables (`cpu_kinds.markdown`) under the designs' cross-CPU flags."""
+    return cpu_kinds.markdown(cpu_kinds.read_kinds(where), CROSS_CPU)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     kind_arguments(parser, OUT_DIR)
@@ -246,9 +262,14 @@ def main() -> None:
     parser.add_argument(
         "--all-cores", action="store_true", help="also the default setting seeing every core (`all_cores`)"
     )
+    parser.add_argument(
+        "--compare", action="store_true", help="print the committed kinds' tables (nothing is measured)"
+    )
     args = parser.parse_args()
     if args.child:
         return child()
+    if args.compare:
+        return print(compared())
     path, found = this_kind(args.out_dir)
     for name in ["default", *(s for s in args.settings if s != "default")]:
         if name in args.settings or name not in found["settings"]:

@@ -138,7 +138,13 @@ def test_a_difference_names_its_possible_causes_and_how_to_reproduce():
     )
     crossed = {**result, "xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"}
     assert "platform-dependent" not in verify.report(crossed)
-    assert "any of the CPU models measured alike" in verify.report(crossed).splitlines()[-1]
+    alike = {"expected": "exact expected", "says": "exact expected: they agree", "alike": ["a third CPU"]}
+    said = verify.report({**crossed, "prediction": alike}).splitlines()
+    assert said[0] == "prediction: exact expected: they agree" and said[1].startswith("r: first 1 iterations")
+    assert said[-1].endswith(
+        "on a one CPU or a kind whose operation fingerprints agree with it under those flags (a third CPU), "
+        "with the same package versions"
+    )
     assert "platform-dependent" not in verify.report({**result, "exact": True})
     unpinned = {**result, "cores": {"record": 1, "here": 2}}
     assert "counts of cores differ that is expected" in verify.report(unpinned)
@@ -213,3 +219,81 @@ def test_the_cores_a_records_process_saw(tmp_path, monkeypatch, run, cores):
     assert verify.record_cores(tmp_path) == cores
     monkeypatch.setattr(pinned, "visible_cores", lambda pid=0: [4, 5])
     assert verify.retraining_cores(cores) == ([4] if cores == 1 else None)  # 2 or 3: as many or more here
+
+
+ZEN3, ZEN5 = "AMD EPYC (family 25, model 1)", "AMD EPYC (family 26, model 2)"
+INTEL = "Intel(R) Xeon(R) Processor (family 6, model 167)"
+
+
+def fingerprints(cpu: str, hashes: dict[str, str]) -> dict:
+    flags = f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"
+    return {"cpu": cpu, "settings": {"cross": {"xla_flags": flags, "visible_cores": 1, "hashes": hashes}}}
+
+
+@pytest.fixture
+def predicted(tmp_path, monkeypatch):
+    """`verify.prediction` of a record trained on a Zen 5 with the designs' flags, re-trained on an Intel
+    kind whose fingerprints agree with it and beside a Zen 3 whose do not (hand-built files)."""
+    kinds = [
+        fingerprints(ZEN5, {"dot": "1", "init/params": "2"}),
+        fingerprints(INTEL, {"dot": "1", "init/params": "2"}),
+        fingerprints(ZEN3, {"dot": "x", "init/params": "2"}),
+    ]
+    monkeypatch.setattr(verify.cpu_kinds, "read_kinds", lambda where=None: kinds)
+    monkeypatch.setattr(verify.autotune, "cpu_model", lambda: INTEL)
+    flags = f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"
+    versions = pinned.environment()["versions"]
+
+    def predict(cores=1, here=1, **run):
+        run = {"cpu": ZEN5, "xla_flags": flags, "versions": versions, **run}
+        (tmp_path / records.PROVENANCE_FILE).write_text(json.dumps({"run": run}))
+        return verify.prediction(tmp_path, cores, here)
+
+    return predict
+
+
+def test_the_prediction_reads_the_kinds_files(predicted):
+    said = predicted()
+    assert said["expected"] == "exact expected" and said["alike"] == [INTEL]
+    assert (
+        said["says"]
+        == f"exact expected: {ZEN5} (the record's) and {INTEL} (here) agree on all 2 fingerprints under cross"
+    )
+    said = predicted(cpu=ZEN3)
+    assert said["expected"] == "expected to differ" and said["alike"] == []
+    assert said["says"].endswith("differ in 1 of 2 fingerprints under cross (1 of 1 operations), first dot")
+    said = predicted(cpu="AMD EPYC (family 25, model 17), 2 cores, AVX512-BF16, no AMX")  # no file
+    assert said["says"].startswith("no fingerprint file for AMD EPYC (family 25, model 17), 2 cores")
+    assert said["expected"] == "unknown" and said["says"].endswith(": unknown")
+    assert predicted(cpu=None, device=f"{INTEL}, one core per seed")["says"].startswith("exact expected: the")
+
+
+def test_the_prediction_weighs_the_cores_and_the_versions_first(predicted):
+    said = predicted(cores=2, here=1)
+    assert said["expected"] == "expected to differ"
+    assert (
+        said["says"] == "expected to differ, because its process saw 2 cores and the re-training sees 1 core"
+    )
+    assert predicted(cores=None)["says"] == "the record does not say how many cores its process saw: unknown"
+    said = predicted(versions={**pinned.environment()["versions"], "jaxlib": "0.0.1"})
+    assert said["expected"] == "unknown" and said["says"].startswith(
+        "package versions differ (jaxlib: record 0.0.1, here "
+    )
+
+
+def test_verify_says_its_prediction_before_it_trains_and_reports_it_first(
+    tiny_record, tmp_path, monkeypatch, capsys
+):
+    """The re-training replaced by the record itself (equal rows): the prediction is printed before
+    `retrain` is called, is in the result, and is the report's first line."""
+    printed = []
+
+    def retrain(record_dir, iterations, work_dir):
+        printed.append(capsys.readouterr().out)
+        return tiny_record
+
+    monkeypatch.setattr(verify, "retrain", retrain)
+    result = verify.verify(tiny_record, iterations=4)
+    assert result["exact"] and result["prediction"]["expected"] == "unknown"  # trained here: no CPU recorded
+    assert printed == [f"prediction: {result['prediction']['says']}\n"]
+    assert verify.report(result).splitlines()[0] == f"prediction: {result['prediction']['says']}"

@@ -35,11 +35,17 @@ tests' optimisation level, the settings of benchmarks/reproducibility.py); the n
 bit for bit without it (measured on an Intel Xeon family 6 model 167)."""
 CROSS_CPU_XLA_FLAGS = "--xla_cpu_enable_platform_dependent_math=false"
 """XLA's CPU numerics without its "platform dependent math", whose approximate reciprocal square root (in
-the orthogonal initialiser) AMD and Intel CPUs round differently; the training step itself computes the same
-bits on both by default. Pre-registered designs since 2026-11-28 train with it (`prereg.Design.xla_flags`):
-under it the laptop recipe trains bit for bit alike on an Intel Xeon (family 6, model 167) and an AMD EPYC
-(family 26, model 2), at no speed cost (docs/experiments.md, "Does the training re-run?"). Eigen, which
-computes the conv layers' weight gradients, sizes its blocks from the CPU's caches (alike on those two)."""
+the orthogonal initialiser) AMD and Intel CPUs round differently. Pre-registered designs since 2026-11-28
+train with it (`prereg.Design.xla_flags`), at no speed cost. It does not make every CPU kind agree: after the
+single-core flags, the committed operation fingerprints show `CROSS_CPU_KINDS` agreeing and no other kind
+measured under it agreeing with them (an AVX2 kind differs in Eigen's transposed products and the orthogonal
+initialiser); `cpu_kinds` reads the files, `verify` predicts from them (docs/experiments.md, "Does the
+training re-run?")."""
+CROSS_CPU_KINDS = ("AMD EPYC (family 26, model 2)", "Intel(R) Xeon(R) Processor (family 6, model 167)")
+"""The CPU kinds (`autotune.cpu_model`) whose committed operation fingerprints all agree under
+`SINGLE_CORE_XLA_FLAGS` then `CROSS_CPU_XLA_FLAGS`: every fingerprint, the laptop recipe's state after one
+iteration included (measured in processes whose cores were not recorded). A test derives the agreement
+from the files and fails where this says more or less than they show."""
 RUN_FILE = "process.json"
 ENVIRONMENT_FIELDS = ("cpu_features", "cache_sizes", "versions")
 """The fields of `environment`."""

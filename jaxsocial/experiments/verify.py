@@ -12,10 +12,12 @@ was, since XLA's CPU bits depend on how many cores a process sees even single-th
 (`TIMING_FIELDS`). The report says **exact**, or the first row and field that differ with both values and
 the size of the difference, and names the CPU of the record and of this machine, the cores each process
 saw, and where their instruction sets, cache sizes or package versions differ (`pinned.environment`):
-bitwise agreement is expected on the same CPU model, commit and count of cores, and across the models
-measured only for a record trained with `pinned.CROSS_CPU_XLA_FLAGS`, which the report points to where a
-record without them differs; it ends with what re-trains the record bit for bit (`how_to_reproduce`).
-Nothing is written into the record.
+bitwise agreement is expected on the same CPU model, commit and count of cores, and across models only
+where their committed operation fingerprints agree under the record's $XLA_FLAGS (`cpu_kinds`). Before it
+trains it says what to expect (`prediction`: "exact expected", "expected to differ, because ..." or
+unknown, from the record's CPU and this machine's, the record's flags and the kinds' fingerprint files, the
+cores and the package versions), and its report starts with that; it ends with what re-trains the record
+bit for bit (`how_to_reproduce`). Nothing is written into the record.
 
 Run it from a worktree of the record's commit for the strict check; on today's code it checks that the
 mathematics did not change since, where the configs map. The laptop and cpu scales have no schedule over
@@ -35,7 +37,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import commits, pinned, records, xla_flags
+from jaxsocial.experiments import commits, cpu_kinds, pinned, records, xla_flags
 from jaxsocial.run import autotune, config, logs, metrics
 from jaxsocial.run.flags import config_flags
 
@@ -173,6 +175,8 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
     if len(recorded) < iterations:
         raise ValueError(f"--iterations {iterations}: the record logged only {len(recorded)} rows")
     cores = record_cores(record_dir)
+    expected = prediction(record_dir, cores, pinned.cores_seen(retraining_cores(cores)))
+    print(f"prediction: {expected['says']}", flush=True)
     with tempfile.TemporaryDirectory(prefix="jaxsocial-verify-") as tmp:
         run_dir = retrain(record_dir, iterations, Path(work_dir or tmp))
         retrained = without_final_evaluation(metrics.read_rows(run_dir), recorded)
@@ -180,6 +184,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
     return {
         "record": str(record_dir),
         "iterations": iterations,
+        "prediction": expected,
         "exact": difference is None and len(retrained) == len(recorded),
         "rows": [len(recorded), len(retrained)],
         "first_difference": difference,
@@ -193,6 +198,36 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
         "xla_flags": retraining_flags(record_dir),
         "cores": {"record": cores, "here": pinned.cores_seen(retraining_cores(cores))},
     }
+
+
+def record_cpu(record_dir: Path) -> str | None:
+    """The CPU the record trained on: its provenance's `cpu`, else its `device` (older records name the CPU
+    and its family and model there)."""
+    return records.run_field(record_dir, "cpu") or records.run_field(record_dir, "device")
+
+
+def prediction(record_dir: Path, cores: int | None, cores_here: int | None) -> dict:
+    """What re-training the record here should give, said before it trains (`cpu_kinds.predict`'s dict, with
+    `alike`: the kinds whose fingerprints all equal the record's kind's under its flags): expected to differ
+    where this process cannot see as many cores as the record's did, unknown where the count is not recorded
+    or the package versions differ, else from the record's CPU and this one's under the record's flags."""
+    cpu, flags = record_cpu(record_dir), retraining_flags(record_dir)
+    kinds = cpu_kinds.read_kinds()
+    alike = {"alike": cpu_kinds.alike(kinds, cpu, flags)}
+    theirs, mine = records.run_field(record_dir, "versions"), pinned.environment()["versions"]
+    if cores is None:
+        said = "the record does not say how many cores its process saw: unknown"
+        return cpu_kinds.expectation(cpu_kinds.UNKNOWN, said) | alike
+    if cores != cores_here:
+        said = f"expected to differ, because its process saw {_count(cores)} and the re-training sees "
+        return cpu_kinds.expectation(cpu_kinds.DIFFER, said + _count(cores_here)) | alike
+    if theirs and theirs != mine:
+        changed = "; ".join(
+            f"{p}: record {theirs.get(p)}, here {v}" for p, v in mine.items() if theirs.get(p) != v
+        )
+        said = f"package versions differ ({changed}): unknown"
+        return cpu_kinds.expectation(cpu_kinds.UNKNOWN, said) | alike
+    return cpu_kinds.predict(cpu, autotune.cpu_model(), flags, cores, kinds) | alike
 
 
 def environment_differences(record: dict, here: dict) -> list[str]:
@@ -211,7 +246,8 @@ def environment_differences(record: dict, here: dict) -> list[str]:
 def report(result: dict) -> str:
     """A verification's result, for people."""
     head = f"{result['record']}: first {result['iterations']} iterations re-trained"
-    lines = [head]
+    expected = result.get("prediction")
+    lines = [f"prediction: {expected['says']}", head] if expected else [head]
     if result["exact"]:
         lines.append(f"  exact: every row equal ({result['compared']})")
     elif result["first_difference"] is None:
@@ -252,10 +288,12 @@ def how_to_reproduce(result: dict) -> str:
     """What re-trains the record bit for bit, as measured (docs/experiments.md, "Does the training
     re-run?")."""
     flags, cores, cpu = result["xla_flags"], result["cores"]["record"], result["cpu"]["record"]
-    if xla_flags.hold(flags, pinned.CROSS_CPU_XLA_FLAGS):
-        cpus = "any of the CPU models measured alike (docs/experiments.md)"
-    else:
-        cpus = f"a {cpu}" if cpu else "its CPU model (not recorded)"
+    cpus = f"a {cpu}" if cpu else "its CPU model (not recorded)"
+    alike = (result.get("prediction") or {}).get("alike")
+    if alike:
+        cpus += (
+            f" or a kind whose operation fingerprints agree with it under those flags ({', '.join(alike)})"
+        )
     seen = "as many cores as its process did (not recorded)" if cores is None else _count(cores)
     return (
         f"  bit for bit it re-trains from commit {result['commit']['record'] or '(not recorded)'}, with "
