@@ -118,11 +118,14 @@ def env_tag(env: str) -> str:
 def missing_records(folder: Path | str) -> str | None:
     """Where `folder` is a committed records folder this checkout lacks (a code-only clone leaves
     `benchmarks/results/records/` out: README, "Set up"), the line that says so and how to fetch it; None
-    where it is here or is not under the committed records."""
-    folder = Path(folder)
-    if folder.exists() or not folder.is_relative_to(RECORDS):
+    where it is here or is not under the committed records. `folder` may be relative to the checkout's
+    root or absolute."""
+    folder, n = Path(folder), len(RECORDS.parts)
+    starts = [i for i in range(len(folder.parts)) if folder.parts[i : i + n] == RECORDS.parts]
+    if folder.exists() or not starts:
         return None
+    inside = Path(*folder.parts[starts[-1] :]).as_posix()
     return (
-        f"{folder}/ is not in this checkout (a code-only clone leaves the records out); fetch it with: "
-        f"git sparse-checkout add '/{folder.as_posix()}/'"
+        f"{inside}/ is not in this checkout (a code-only clone leaves the records out); fetch it with: "
+        f"git sparse-checkout add '/{inside}/'"
     )
