@@ -36,6 +36,11 @@ DECLARED = {
     ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
     (
         "docs/experiments.md",
+        "`nopenalty8`: without the penalty, do solo learners leave the low-return regime? "
+        "(pre-registered; holds as tested)",
+    ),
+    (
+        "docs/experiments.md",
         "`mixing`: does mixing solo episodes in keep the solo skill? "
         "(pre-registered; holds against all-social)",
     ),
