@@ -135,7 +135,7 @@ def episode_video(
     """uint8 frames of a `learner_episode`, one per step (the map and every agent's view;
     `pictures.render_frame`), each view titled with its slot's kind ('learner 0', 'expert 1', ...) and return
     so far, with `predicted` uint8[T, 21, 21, 3] (`predicted_views`) beside the learner's view under `title`
-    (`pictures.DECODER_TITLES` by the network's frame loss)."""
+    (`pictures.DECODER_TITLES` by the network's frame loss); the learner is framed in white on the map."""
     names = [f"{slot.kind} {i}" for i, slot in enumerate(episode["pop"].slots)]
     frames = []
     for t in range(len(episode["actions"])):
@@ -145,7 +145,15 @@ def episode_video(
         titles = pictures.agent_titles(names, episode["rewards"][:t])
         frames.append(
             pictures.render_frame(
-                state, episode["obs"][t], episode["env_params"], reward, tile, extra, titles, title
+                state,
+                episode["obs"][t],
+                episode["env_params"],
+                reward,
+                tile,
+                extra,
+                titles,
+                title,
+                marked=(episode["learner"],),
             )
         )
     return frames

@@ -124,6 +124,31 @@ def test_render_map_shows_every_agent_on_a_shared_cell():
     )
 
 
+def test_a_marked_agent_is_framed_in_white_whatever_its_colour():
+    """The learner of a video is framed in white (`marked`), under a shared cell's strip; other cells and
+    unmarked agents are drawn as before."""
+    params = fixed_params()
+    state = scene(params)
+    plain = render_map(state, params, tile=TILE, fov=False)
+    marked = render_map(state, params, tile=TILE, fov=False, marked=(1,))
+    width = max(2, TILE // 8)
+    framed = cell(marked, 6, 5)  # agent 1, alone on bonus tile 1
+    white = pictures.MARK_COLOR
+    assert (framed[:width] == white).all() and (framed[:, -width:] == white).all()
+    np.testing.assert_array_equal(
+        framed[width:-width, width:-width], cell(plain, 6, 5)[width:-width, width:-width]
+    )
+    outside = np.ones(plain.shape[:2], bool)
+    outside[5 * TILE : 6 * TILE, 6 * TILE : 7 * TILE] = False
+    np.testing.assert_array_equal(marked[outside], plain[outside])  # nothing else changes
+    shared = cell(render_map(state, params, tile=TILE, fov=False, marked=(0,)), 3, 3)  # agent 0 is not drawn
+    np.testing.assert_array_equal(shared[:STRIP], cell(plain, 3, 3)[:STRIP])  # the strip stays on top
+    assert (shared[STRIP:, :width] == white).all()
+    np.testing.assert_array_equal(
+        render_map(state, params, tile=3, marked=(1,)), render_map(state, params, tile=3)
+    )
+
+
 def test_render_map_prestige_colour():
     _, params = jaxsocial.make("goalcycle3", max_steps=5)
     image = render_map(scene(params, prestige=[0.0, 0.0, 20.0]), params, tile=3)

@@ -118,7 +118,24 @@ def _shared_strip(cell: np.ndarray, colors: np.ndarray) -> None:
         cell[: height - 1, px[0] : px[-1] + (len(px) == 1)] = color
 
 
-def render_map(state: EnvState, env_params: EnvParams, tile: int = 12, fov: bool = True) -> np.ndarray:
+MARK_COLOR = np.array((255, 255, 255), np.uint8)
+"""The frame around a marked agent's cell on the map (the learner in a trained learner's video)."""
+
+
+def _frame(cell: np.ndarray, width: int) -> None:
+    """Paint, in place, a `MARK_COLOR` frame `width` pixels wide along the edges of a uint8[tile, tile, 3]
+    cell."""
+    cell[:width], cell[-width:], cell[:, :width], cell[:, -width:] = (
+        MARK_COLOR,
+        MARK_COLOR,
+        MARK_COLOR,
+        MARK_COLOR,
+    )
+
+
+def render_map(
+    state: EnvState, env_params: EnvParams, tile: int = 12, fov: bool = True, marked: Sequence[int] = ()
+) -> np.ndarray:
     """The whole map as uint8[H * tile, W * tile, 3] (rows along y).
 
     Tiles are flat colours (wall (74, 65, 42), bonus yellow, goal green, empty black); each occupied cell
@@ -126,7 +143,9 @@ def render_map(state: EnvState, env_params: EnvParams, tile: int = 12, fov: bool
     direction, in its current colour, blended over a bonus tile or goal exactly as in the observations.
     With `tile >= 6`, a cell holding k > 1 agents gets a black strip along its top with k segments, one per
     agent (drawn one first) in its current colour; with `fov` too, each active agent's field of view gets a
-    thin outline in its identity colour.
+    thin outline in its identity colour. With `tile >= 6`, the cell of each present agent in `marked` gets
+    a white frame (`MARK_COLOR`, `max(2, tile // 8)` pixels wide, under any shared-cell strip), so that agent
+    can be found at a glance whatever its prestige colour.
     """
     if tile < 1:
         raise ValueError(f"tile={tile} must be >= 1")
@@ -143,6 +162,9 @@ def render_map(state: EnvState, env_params: EnvParams, tile: int = 12, fov: bool
         image[y * t : (y + 1) * t, x * t : (x + 1) * t] = cell
     image = upscale(image, t, tile)
     if tile >= 6:
+        for (x, y), agents in cells.items():
+            if set(agents) & set(marked):
+                _frame(image[y * tile : (y + 1) * tile, x * tile : (x + 1) * tile], max(2, tile // 8))
         for (x, y), agents in cells.items():
             if len(agents) > 1:
                 _shared_strip(image[y * tile : (y + 1) * tile, x * tile : (x + 1) * tile], colors[agents])
@@ -260,6 +282,7 @@ def render_frame(
     predicted: Mapping[int, np.ndarray] | None = None,
     titles: Sequence[str] | None = None,
     predicted_title: str = PREDICTED_TITLE,
+    marked: Sequence[int] = (),
 ) -> np.ndarray:
     """One video frame, uint8[h, w, 3]: the map on the left, every agent's view on the right, each panel
     under its title.
@@ -275,6 +298,7 @@ def render_frame(
             "agent i").
         predicted_title: the title over a `predicted` panel (`DECODER_TITLES`: "reconstructed view" for a
             reconstruction loss).
+        marked: agents framed in white on the map (`render_map`), e.g. the learner.
     """
     state = _as_numpy(state)
     if obs is None or np.ndim(obs) != 4 or np.shape(obs)[-1] != 3:
@@ -286,7 +310,7 @@ def render_frame(
         titles = ["learner's view" if i in predicted else f"agent {i}" for i in range(n)]
     if len(titles) != n:
         raise ValueError(f"{len(titles)} titles for {n} agents")
-    world = render_map(state, env_params, tile)
+    world = render_map(state, env_params, tile, marked=marked)
     panels = _view_panels(obs, reward, tile, predicted, titles, predicted_title)
     map_title = f"step {int(np.asarray(state.time))} of {env_params.max_steps}"
     progress = min(1.0, float(np.asarray(state.time)) / env_params.max_steps)
