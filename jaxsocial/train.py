@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import shlex
 import sys
 from pathlib import Path
 
@@ -27,6 +28,7 @@ from jaxsocial.run import (
     loop,
     nonfinite,
     policy_io,
+    provenance,
     runlock,
     startup,
 )
@@ -66,7 +68,7 @@ def compiled_program(cfg: TrainConfig, stage: int = -1) -> loop.Program:
     return stage_program(cfg.program, static, loop.data_mesh(cfg.program, cfg.devices), stage)
 
 
-def run(cfg: TrainConfig) -> Path:
+def run(cfg: TrainConfig, command: str | None = None) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory.
 
     The run goes through the stages of `cfg.stages` (one compiled program each, switched between chunks);
@@ -75,7 +77,9 @@ def run(cfg: TrainConfig) -> Path:
     A non-finite iteration raises `nonfinite.NonFiniteError` (see `driver.train_chunks`). Several seeds train
     in one program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`).
     In a multi-process run every process calls this with the same config (and its own process_id); only
-    process 0 writes logs, metrics and progress.
+    process 0 writes logs, metrics and progress. Process 0 records itself in the run directory
+    (`provenance.recorded`: `command`, default the `python -m jaxsocial.train` line of the config it trains;
+    the commit and whether the package's files were its; the machine), unless a runner records it.
     """
     distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
     if cfg.compile_cache:
@@ -100,9 +104,11 @@ def run(cfg: TrainConfig) -> Path:
     distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
     try:
         distributed.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
-        train_chunks(cfg, static, mesh, run_dir, seeds)
-        if cfg.resume:  # a resumed run's config is rewritten once it has succeeded
-            distributed.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
+        command = command or shlex.join(["python", "-m", "jaxsocial.train", *flags.config_flags(cfg)])
+        with provenance.recorded(run_dir, command, cfg.resume, distributed.is_main()):
+            train_chunks(cfg, static, mesh, run_dir, seeds)
+            if cfg.resume:  # a resumed run's config is rewritten once it has succeeded
+                distributed.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
     finally:
         if distributed.is_main():
             lock.release()
@@ -174,9 +180,10 @@ def parse_args(argv: list[str]) -> TrainConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    cfg = parse_args(sys.argv[1:] if argv is None else argv)
+    argv = sys.argv[1:] if argv is None else argv
+    cfg = parse_args(argv)
     try:
-        run(cfg)
+        run(cfg, shlex.join(["python", "-m", "jaxsocial.train", *argv]))
     except (ValueError, FileExistsError, FileNotFoundError, nonfinite.NonFiniteError) as err:
         raise SystemExit(f"error: {err}") from err
     except OSError as err:  # e.g. an unwritable runs_dir or a full disk while checkpointing

@@ -15,9 +15,10 @@ from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats, train
-from jaxsocial.experiments import branch_design, commits, kinds, paths, pinned, prereg, records, rundirs
-from jaxsocial.run import logs, metrics
+from jaxsocial.experiments import branch_design, kinds, paths, pinned, prereg, records, rundirs
+from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.flags import config_flags
+from jaxsocial.run.provenance import PARENT_WRITES
 from jaxsocial.specs import CheckpointRef
 
 MIXING = branch_design.load("mixing")
@@ -217,7 +218,7 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
 
 
 @pytest.mark.slow
-def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys):
+def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys, monkeypatch):
     """The path a design's run takes, in this process: a TINY run packed as a record without checkpoint is
     the material; a branch trains from it with `branch_config`, and once it has the process file `pinned.run`
     writes, `record` packs it with the machine the file measured and `summarise` finds it as designed."""
@@ -252,6 +253,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     (tmp_path / "tiny.json").write_text(json.dumps(raw))
     design = branch_design.load("tiny", tmp_path)
     cfg = branch_design.branch_config(design, "mixed", 0, runs_root, records_root)
+    monkeypatch.setenv(PARENT_WRITES, "1")  # as `pinned.run` starts it: the runner writes its file
     run_dir = train.run(cfg)
     assert (
         logs.read_config(run_dir)["init_from"]
@@ -260,7 +262,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     capsys.readouterr()
     assert branch_design.record(design, runs_root, records_root) == []  # no process file yet
     assert f"  1 branches not started under {runs_root}\n" in capsys.readouterr().out  # the social arm
-    pinned.write_run_file(run_dir, "python -m jaxsocial.train", commits.head_commit(), 1, pinned.now(), rc=0)
+    pinned.write_run_file(run_dir, "python -m jaxsocial.train", checkout.tree(), 1, pinned.now(), rc=0)
     assert branch_design.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
     provenance = logs.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
     assert provenance["run"]["device"].endswith(", one core per seed")

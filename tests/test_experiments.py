@@ -560,7 +560,8 @@ def test_vmapped_seed_programs_write_one_record_per_seed(tmp_path, capsys):
         for name in ("s0-1", "s2-2")
     ))  # fmt: skip
     record = ["record", "predictions", "--scale", "tiny", "--seeds", "3", "--runs-dir", str(runs)]
-    cli.main([*record, "--out-dir", str(out), "--commands-log", str(log), "--device", "test", "--jax", "0"])
+    cli.main([*record, "--out-dir", str(out), "--commands-log", str(log), "--device", "test", "--jax", "0",
+              "--allow-dirty"])  # fmt: skip
     for seed, record in enumerate([out / "tiny/social_pred-s0-1/s0", out / "tiny/social_pred-s0-1/s1",
                                    out / "tiny/social_pred-s2-2"]):  # fmt: skip
         assert logs.read_config(record)["seed"] == seed and len(metrics.read_rows(record)) == 4

@@ -113,7 +113,8 @@ def test_a_recipe_trains_seed_by_seed_on_pinned_cores(tmp_path, monkeypatch):
         run_dir = runs / "tiny" / f"bc-s{s}-{s}"
         assert len(logs.read_metrics(run_dir)) == 4 and (run_dir / pinned.RUN_FILE).is_file()
         assert f"--seed {s} --seeds 1" in json.loads((run_dir / pinned.RUN_FILE).read_text())["command"]
-    cli.main(["record", *common, "--device", "a CPU", "--jax", "0.0", "--out-dir", str(records_dir)])
+    recorded = ["--device", "a CPU", "--jax", "0.0", "--out-dir", str(records_dir), "--allow-dirty"]
+    cli.main(["record", *common, *recorded])  # --allow-dirty: the tree may hold uncommitted work
     provenance = json.loads((records_dir / "tiny" / "bc-s1-1" / "provenance.json").read_text())
     assert provenance["run"]["device"] == "a CPU" and provenance["run"]["cores"] == 1
     cli.main(["figure", *common[:-2], "--runs-dir", str(records_dir), "--out-dir", str(tmp_path / "fig")])
@@ -167,7 +168,7 @@ def test_a_designs_seeds_train_with_its_xla_flags(tmp_path, monkeypatch):
     monkeypatch.setattr(
         pinned, "run", lambda jobs, cores, xla_flags: given.append(xla_flags) or [0] * len(jobs)
     )
-    command = ["run", "h1_laptop", "--scale", "laptop", "--runs-dir", str(tmp_path)]
+    command = ["run", "h1_laptop", "--scale", "laptop", "--runs-dir", str(tmp_path), "--allow-dirty"]
     cli.main([*command, "--cores", "0"])
     assert given == [flags]
     monkeypatch.setenv("XLA_FLAGS", pinned.SINGLE_CORE_XLA_FLAGS)

@@ -31,6 +31,8 @@ SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"
 --scale tiny --seeds 2 --runs-dir benchmarks/results/records --out-dir benchmarks/results/science`)."""
 RECIPE = recipes.RECIPES["no_penalty"]
 TINY_RECORDS = needs_records("records/tiny")
+UNCOMMITTED = ["--allow-dirty"]
+"""`record` on the tree as it is, uncommitted work included (tests/test_provenance.py tests the refusal)."""
 
 
 @pytest.fixture
@@ -155,7 +157,7 @@ def test_record_command_keeps_existing_records_and_refuses_failed_runs(in_repo, 
     log = _commands_log(tmp_path)
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(paths.RECORDS),
             "--commands-log", str(log), "--device", "a CPU", "--jax", "0.1",
-            "--out-dir", str(tmp_path / "r")]  # fmt: skip
+            "--out-dir", str(tmp_path / "r"), *UNCOMMITTED]  # fmt: skip
     cli.main(argv)
     packed = sorted((tmp_path / "r").rglob(records.PROVENANCE_FILE))
     assert len(packed) == 4
@@ -194,7 +196,7 @@ def _record_all_but_one_seed(tmp_path: Path, spoil) -> Path:
     spoil(spoiled)
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
             "--commands-log", str(_commands_log(tmp_path)), "--device", "a CPU", "--jax", "0.1",
-            "--out-dir", str(tmp_path / "r")]  # fmt: skip
+            "--out-dir", str(tmp_path / "r"), *UNCOMMITTED]  # fmt: skip
     cli.main(argv)
     packed = {p.parent.relative_to(tmp_path / "r") for p in (tmp_path / "r").rglob(records.PROVENANCE_FILE)}
     every = {p.parent.relative_to(runs) for p in runs.rglob(records.PROVENANCE_FILE)}
@@ -234,7 +236,7 @@ def test_record_command_skips_seeds_whose_command_has_not_ended(in_repo, tmp_pat
     runs = tmp_path / "runs"
     shutil.copytree(REPO / paths.RECORDS / "tiny", runs / "tiny")  # records hold no run file
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
-            "--device", "a CPU", "--jax", "0.1", "--out-dir", str(tmp_path / "r")]  # fmt: skip
+            "--device", "a CPU", "--jax", "0.1", "--out-dir", str(tmp_path / "r"), *UNCOMMITTED]  # fmt: skip
     cli.main(argv)
     assert capsys.readouterr().out.count(f"{pinned.RUN_FILE} does not exist") == 4
     assert not (tmp_path / "r").exists()

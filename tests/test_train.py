@@ -1,6 +1,7 @@
 """The trainer: determinism, resume, frozen slots, independent learners, the CLI and bad input."""
 
 import dataclasses
+import hashlib
 import json
 import os
 import shutil
@@ -18,7 +19,18 @@ from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.network import init as init_params
 from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env.observe import observe
-from jaxsocial.run import checkpoint, config, logs, loop, policy_io, rundir, startup
+from jaxsocial.run import (
+    autotune,
+    checkout,
+    checkpoint,
+    config,
+    logs,
+    loop,
+    policy_io,
+    provenance,
+    rundir,
+    startup,
+)
 from jaxsocial.run.config import PRESETS
 from jaxsocial.train import make_train, parse_args, run
 
@@ -175,6 +187,31 @@ def test_a_checkpoint_holding_every_slots_views_resumes_the_same_run(tiny_runs):
     assert checkpoint.leaf_shapes(ckpt_dir)[".obs"] == every.shape
     resumed = run(dataclasses.replace(TINY, runs_dir=str(runs_dir), run_name="every_view", resume=True))
     assert metrics_without_speed(resumed) == metrics_without_speed(tiny_runs["full"])
+
+
+def test_a_plain_run_records_its_code_and_machine(tiny_runs):
+    """`train.run` (what `python -m jaxsocial.train` calls) writes the process file a runner writes: its
+    command, the commit, whether the package's files were its (with the diff that rebuilds them where not),
+    the CPU, visible cores, flags and versions; the resumed run keeps the process before it (issue 84)."""
+    info = logs.read_json(tiny_runs["full"] / provenance.RUN_FILE)
+    assert info["command"].startswith(
+        "python -m jaxsocial.train --preset small --env goalcycle3 --iterations 4"
+    )
+    assert "--run-name full" in info["command"] and info["cores"] is None
+    assert info["rc"] == 0 and info["ended"] >= info["started"] and "earlier" not in info
+    assert len(info["commit"]) == 40 and info["no_commit_reason"] is None  # trained from this checkout
+    if info["dirty"]:  # uncommitted work under jaxsocial/: its diff, as hashed
+        diff = (tiny_runs["full"] / info["tree_diff"]).read_bytes()
+        assert hashlib.sha256(diff).hexdigest() == info["tree_diff_sha256"]
+    else:
+        assert info["dirty"] is False and info["tree_diff"] is None
+    assert info["cpu"] == autotune.cpu_model() and info["visible_cores"] == provenance.visible_cores()
+    assert info["xla_flags"] == os.environ.get("XLA_FLAGS", "")
+    assert {k: info[k] for k in provenance.ENVIRONMENT_FIELDS} == provenance.environment()
+    assert set(checkout.TREE_FIELDS) <= set(info)
+    resumed = logs.read_json(tiny_runs["resumed"] / provenance.RUN_FILE)
+    assert resumed["rc"] == 0 and [p["rc"] for p in resumed["earlier"]] == [0]
+    assert "--iterations 2" in resumed["earlier"][0]["command"] and "--resume" in resumed["command"]
 
 
 def test_checkpoints_every_checkpoint_every_iterations(tiny_runs):

@@ -13,7 +13,7 @@ from conftest import TINY
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import pinned, records, verify
-from jaxsocial.run import config, logs, metrics
+from jaxsocial.run import autotune, config, logs, metrics
 from jaxsocial.run.flags import config_flags
 
 TWO_CORES = len(pinned.visible_cores() or []) >= 2
@@ -285,7 +285,8 @@ def test_verify_says_its_prediction_before_it_trains_and_reports_it_first(
     tiny_record, tmp_path, monkeypatch, capsys
 ):
     """The re-training replaced by the record itself (equal rows): the prediction is printed before
-    `retrain` is called, is in the result, and is the report's first line."""
+    `retrain` is called, is in the result, and is the report's first line. The record is a plain run
+    (`train.run` in this process): its process file holds what a record's provenance would."""
     printed = []
 
     def retrain(record_dir, iterations, work_dir):
@@ -294,6 +295,7 @@ def test_verify_says_its_prediction_before_it_trains_and_reports_it_first(
 
     monkeypatch.setattr(verify, "retrain", retrain)
     result = verify.verify(tiny_record, iterations=4)
-    assert result["exact"] and result["prediction"]["expected"] == "unknown"  # trained here: no CPU recorded
+    assert result["exact"] and result["cpu"]["record"] == autotune.cpu_model()  # from its process file
+    assert "not recorded" not in verify.report(result)  # a plain run says what a record says (issue 84)
     assert printed == [f"prediction: {result['prediction']['says']}\n"]
     assert verify.report(result).splitlines()[0] == f"prediction: {result['prediction']['says']}"

@@ -11,7 +11,7 @@ from conftest import needs_records
 
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import paths, pinned, records, verify
-from jaxsocial.run import autotune, logs, metrics
+from jaxsocial.run import autotune, checkout, logs, metrics
 
 REPO = Path(__file__).resolve().parents[1]
 TINY_RECORDS = REPO / paths.RECORDS / "tiny"
@@ -21,10 +21,11 @@ RECORD = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2"]
 @needs_records("records/tiny")
 def test_record_takes_the_device_each_runs_process_measured(tmp_path, monkeypatch):
     monkeypatch.chdir(REPO)
+    monkeypatch.setattr(checkout, "tree", lambda root=None: checkout.Tree("abc", False))  # as after a commit
     runs = tmp_path / "runs"
     shutil.copytree(TINY_RECORDS, runs / "tiny")
     for run_dir in (runs / "tiny").iterdir():  # as `run --cores` leaves them: a process file each
-        pinned.write_run_file(run_dir, "python -m jaxsocial.train", "abc", 1, pinned.now(), rc=0)
+        pinned.write_run_file(run_dir, "python -m jaxsocial.train", checkout.tree(), 1, pinned.now(), rc=0)
     out = tmp_path / "records"
     cli.main([*RECORD, "--runs-dir", str(runs), "--out-dir", str(out)])
     provenances = [records.read_provenance(p.parent)["run"] for p in out.rglob(records.PROVENANCE_FILE)]

@@ -7,9 +7,10 @@ import argparse
 import importlib
 import re
 from pathlib import Path
+from typing import Any
 
 from jaxsocial.experiments import paths, pinned, prereg, recipes, records, rundirs, runner, summaries, verify
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
 RECIPE_COMMANDS = {
@@ -111,6 +112,12 @@ def _run_options(p: argparse.ArgumentParser) -> None:
         help="with --cores: start only the first N pending runs, seed by seed (those that can end within "
         "a sitting); a later call resumes from the rest",
     )
+    p.add_argument(
+        "--allow-dirty",
+        action="store_true",
+        help="train a pre-registered design's runs although jaxsocial/ differs from its commit (refused "
+        "otherwise; every run records the commit and the diff that rebuilds its code either way)",
+    )
 
 
 def _figure_options(p: argparse.ArgumentParser) -> None:
@@ -131,7 +138,7 @@ def _record_options(p: argparse.ArgumentParser) -> None:
         "--commands-log",
         default=None,
         help="log of the training commands: '<ISO date> <commit> <command with --run-name>' lines "
-        f"(default: each run's {pinned.RUN_FILE}, which `run --cores` writes)",
+        f"(default: each run's {pinned.RUN_FILE}, which every training process writes)",
     )
     p.add_argument(
         "--device",
@@ -146,6 +153,12 @@ def _record_options(p: argparse.ArgumentParser) -> None:
         "recorded; required with --commands-log)",
     )
     p.add_argument("--overwrite", action="store_true", help="replace existing records")
+    p.add_argument(
+        "--allow-dirty",
+        action="store_true",
+        help="record although jaxsocial/ differs from its commit here, or the runs trained from such a tree "
+        "(refused otherwise); their records carry the diffs that rebuild the code",
+    )
     p.add_argument(
         "--final-checkpoint",
         choices=records.CHECKPOINT_CHOICES,
@@ -197,47 +210,27 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
     """Pack every finished seed of the recipe that has no record yet (or every one, with --overwrite); seeds
     still training or not evaluated yet (the evaluations the recipe's kind asks for) are skipped with a note,
-    and everything is checked before the first write."""
-    commands = records.read_commands_log(args.commands_log) if args.commands_log else None
-    runs_dir = Path(args.runs_dir)
-    threshold = prereg.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
-    plan = []
-    for condition in recipe.conditions:
-        dirs = rundirs.condition_seed_dirs(
-            scale, condition, args.seed, args.seeds, args.runs_dir, tuple(args.pick)
+    and everything is checked before the first write. Unless --allow-dirty, a dirty tree here
+    (`checkout.tree`) and runs whose process file says they trained from one are refused first."""
+    tree = checkout.tree()
+    if tree.dirty and not args.allow_dirty:
+        raise ValueError(
+            f"refusing to record from a dirty tree: {tree.describe()}, so a record made now would name a "
+            'commit it may not be rebuilt from. Commit first (docs/your-experiment.md, "4. Record it"), or '
+            "pass --allow-dirty to record anyway (each record then says packed_dirty). Nothing was recorded"
         )
-        for seed_dir in dirs:
-            if not seed_dir.is_dir():
-                print(f"  {condition}: no run {seed_dir}, skipped")
-                continue
-            try:
-                iteration, rows = records.packable(seed_dir)
-            except (ValueError, FileNotFoundError) as err:  # still training, or stopped: not a result yet
-                print(f"  {condition}: {err}; skipped")
-                continue
-            outputs = runner.evaluation_outputs(recipe, scale, seed_dir)
-            unevaluated = [spec for _, spec, out in outputs if not out.exists()]
-            if unevaluated:  # a record holds the seed's evaluations: `run --no-train` makes them
-                print(f"  {condition}: {seed_dir} not evaluated yet in {', '.join(unevaluated)}; skipped")
-                continue
-            relative = seed_dir.relative_to(runs_dir)
-            one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
-            run_name = relative.parent if one_of_several else relative
-            if commands is None:
-                try:
-                    run = pinned.run_provenance(runs_dir / run_name, args.device, args.jax)
-                except FileNotFoundError as err:  # its command has not ended yet (or was not `pinned`)
-                    print(f"  {condition}: {err}; skipped")
-                    continue
-                run = pinned.with_measured(run, args.device, args.jax, seed_dir)
-            else:
-                run = records.run_provenance(str(run_name), commands, args.device, args.jax)
-            if run["rc"] not in (None, 0):
-                raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
-            reason = records.checkpoint_reason(args.final_checkpoint, final_return(rows), threshold)
-            if reason:
-                records.require_checkpoint(seed_dir, iteration)
-            plan.append((seed_dir, relative, run, reason))
+    plan = record_plan(args, recipe, scale)
+    dirty = [
+        f"{seed_dir} ({', '.join(diffs)})"
+        for seed_dir, _, run, _ in plan
+        if (diffs := records.dirty_diffs(run))
+    ]
+    if dirty and not args.allow_dirty:
+        raise ValueError(
+            f"refusing to record runs trained from a dirty tree, whose process file names the diff that "
+            f"rebuilds their code from its commit: {', '.join(dirty)}. Train them again from a commit, or "
+            "pass --allow-dirty to record them with their diffs. Nothing was recorded"
+        )
     for seed_dir, relative, run, reason in plan:
         record_dir = Path(args.out_dir) / relative
         if record_dir.exists() and any(record_dir.iterdir()) and not args.overwrite:
@@ -249,6 +242,70 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB"
             f"{with_checkpoint})"
         )
+
+
+def record_plan(
+    args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale
+) -> list[tuple[Path, Path, dict[str, Any], str | None]]:
+    """What `record` packs: each finished and evaluated seed's directory, its path under --runs-dir, its
+    run's provenance and why its final checkpoint goes in (None: it does not); each other seed is skipped
+    with a note. ValueError for a run that failed or whose diff is missing or altered."""
+    commands = records.read_commands_log(args.commands_log) if args.commands_log else None
+    threshold = prereg.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
+    plan = []
+    for condition in recipe.conditions:
+        for seed_dir in rundirs.condition_seed_dirs(
+            scale, condition, args.seed, args.seeds, args.runs_dir, tuple(args.pick)
+        ):
+            planned = _record_seed(args, recipe, scale, condition, seed_dir, commands, threshold)
+            if planned is not None:
+                plan.append(planned)
+    return plan
+
+
+def _record_seed(
+    args: argparse.Namespace,
+    recipe: recipes.Recipe,
+    scale: recipes.Scale,
+    condition: str,
+    seed_dir: Path,
+    commands: dict[str, dict[str, Any]] | None,
+    threshold: float,
+) -> tuple[Path, Path, dict[str, Any], str | None] | None:
+    """One seed of `record_plan` (None: skipped, with a note)."""
+    if not seed_dir.is_dir():
+        print(f"  {condition}: no run {seed_dir}, skipped")
+        return None
+    try:
+        iteration, rows = records.packable(seed_dir)
+    except (ValueError, FileNotFoundError) as err:  # still training, or stopped: not a result yet
+        print(f"  {condition}: {err}; skipped")
+        return None
+    outputs = runner.evaluation_outputs(recipe, scale, seed_dir)
+    unevaluated = [spec for _, spec, out in outputs if not out.exists()]
+    if unevaluated:  # a record holds the seed's evaluations: `run --no-train` makes them
+        print(f"  {condition}: {seed_dir} not evaluated yet in {', '.join(unevaluated)}; skipped")
+        return None
+    runs_dir = Path(args.runs_dir)
+    relative = seed_dir.relative_to(runs_dir)
+    one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
+    run_name = relative.parent if one_of_several else relative
+    if commands is None:
+        try:
+            run = pinned.run_provenance(runs_dir / run_name, args.device, args.jax)
+        except FileNotFoundError as err:  # its command has not ended yet (or recorded no process file)
+            print(f"  {condition}: {err}; skipped")
+            return None
+        run = pinned.with_measured(run, args.device, args.jax, seed_dir)
+    else:
+        run = records.run_provenance(str(run_name), commands, args.device, args.jax)
+    if run["rc"] not in (None, 0):
+        raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
+    records.tree_diffs(seed_dir, run)
+    reason = records.checkpoint_reason(args.final_checkpoint, final_return(rows), threshold)
+    if reason:
+        records.require_checkpoint(seed_dir, iteration)
+    return seed_dir, relative, run, reason
 
 
 def run_verify(args: argparse.Namespace) -> None:
@@ -314,6 +371,7 @@ def main(argv: list[str] | None = None) -> None:
                 cores=tuple(args.cores),
                 seeds_per_program=args.vmap_seeds,
                 max_runs=args.max_runs,
+                allow_dirty=args.allow_dirty,
             )
         elif args.command == "record":
             record(args, recipe, scale)

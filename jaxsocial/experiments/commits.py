@@ -1,18 +1,10 @@
 """Which commit: `git` in a directory, and the commit checked out here. The plan (a design's commit),
-launch (each process's commit) and analysis (a record's commit) all ask it."""
+launch (each process's commit) and analysis (a record's commit) all ask it. Both are
+`jaxsocial.run.checkout`'s, which training runs use too (with whether the package's files are the commit's:
+`checkout.tree`)."""
 
 from __future__ import annotations
 
-import subprocess
-from pathlib import Path
+from jaxsocial.run.checkout import git, head_commit
 
-
-def git(*args: str, cwd: str | Path = ".") -> subprocess.CompletedProcess:
-    """`git args...` in `cwd`, its output captured as text."""
-    return subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=30)
-
-
-def head_commit() -> str | None:
-    """The commit checked out in the working directory (None outside a git repository)."""
-    out = git("rev-parse", "HEAD")
-    return out.stdout.strip() if out.returncode == 0 else None
+__all__ = ["git", "head_commit"]

@@ -35,7 +35,6 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.experiments import (
-    commits,
     conditions,
     kinds,
     paths,
@@ -47,7 +46,7 @@ from jaxsocial.experiments import (
     rundirs,
     runner,
 )
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
@@ -184,7 +183,7 @@ def evaluate_source(plan: Plan, source: Source, out_dir: Path, command: str) -> 
             f"  {source.name} in {spec} ({evaluation.protocol}): {evaluation.score(result):.3f}", flush=True
         )
     if written:  # how they were made, as a training run's process records it
-        pinned.write_run_file(out_dir, command, commits.head_commit(), None, started, 0)
+        pinned.write_run_file(out_dir, command, checkout.tree(), None, started, 0)
 
 
 def run(

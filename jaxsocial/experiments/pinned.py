@@ -3,19 +3,19 @@ a time as cores are given: on 2 cores, two such processes train 1.6x the env-ste
 (docs/performance.md, "The science recipe"). The sweep runs its seeds this way, and `experiments run
 --cores` a recipe's seeds.
 
-Each run directory gets `RUN_FILE`: what the runner knows of its process (command, commit, cores, the cores
-it could see, CPU, start, end, exit status), written once the process has made the directory (end and
-status null until it ends) and again when it ends. A run resumed by a later process, maybe on another
-machine, keeps the earlier processes' entries under `earlier`, a killed one's with a null end. Records take
-it as the run's provenance (`records.pack`); its log goes beside the run directory (`<run_dir>.log`).
+Each run directory gets `RUN_FILE` (`jaxsocial.run.provenance`): what the runner knows of its process
+(command, commit and whether the package's files were that commit's, with the diff beside it where not, cores,
+the cores it could see, CPU, start, end, exit status), written once the process has made the directory (end
+and status null until it ends) and again when it ends; the training process itself writes none
+(`provenance.PARENT_WRITES`). A run resumed by a later process, maybe on another machine, keeps the earlier
+processes' entries under `earlier`, a killed one's with a null end. Records take it as the run's provenance
+(`records.pack`); its log goes beside the run directory (`<run_dir>.log`).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import datetime
-import importlib.metadata
 import os
 import shlex
 import shutil
@@ -25,8 +25,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import commits, records, xla_flags
-from jaxsocial.run import autotune, compile_cache, logs
+from jaxsocial.experiments import records, xla_flags
+from jaxsocial.run import checkout, compile_cache, logs, provenance
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
 """What each pinned process adds to the caller's $XLA_FLAGS (`process_xla_flags`). Until 2026-11-27 it ended
@@ -46,16 +46,19 @@ CROSS_CPU_KINDS = ("AMD EPYC (family 26, model 2)", "Intel(R) Xeon(R) Processor 
 `SINGLE_CORE_XLA_FLAGS` then `CROSS_CPU_XLA_FLAGS`: every fingerprint, the laptop recipe's state after one
 iteration included (measured in processes whose cores were not recorded). A test derives the agreement
 from the files and fails where this says more or less than they show."""
-RUN_FILE = "process.json"
-ENVIRONMENT_FIELDS = ("cpu_features", "cache_sizes", "versions")
-"""The fields of `environment`."""
-MACHINE_FIELDS = ("cpu", "xla_flags", "visible_cores", *ENVIRONMENT_FIELDS)
-"""What `RUN_FILE` says of where the run trained, beside `records.RUN_FIELDS`: the CPU (model, family and
-model numbers, `autotune.cpu_model`), the process's $XLA_FLAGS, the cores it could run on (`visible_cores`:
-XLA's CPU bits depend on how many) and its `environment`; records carry them in provenance, and `verify`
-compares them with the machine it re-trains on, and re-trains on as many cores."""
-VERSIONED = ("jax", "jaxlib", "flax", "optax", "numpy")
-"""The packages whose versions a run's floats depend on."""
+# The process file and what it says of the machine, `jaxsocial.run.provenance`'s (a plain training run writes
+# it too), under the names this module's callers use.
+RUN_FILE = provenance.RUN_FILE
+ENVIRONMENT_FIELDS = provenance.ENVIRONMENT_FIELDS
+MACHINE_FIELDS = provenance.MACHINE_FIELDS
+VERSIONED = provenance.VERSIONED
+visible_cores = provenance.visible_cores
+machine = provenance.machine
+environment = provenance.environment
+package_version = provenance.package_version
+now = provenance.now
+earlier_processes = provenance.earlier_processes
+write_run_file = provenance.write_run_file
 POLL_SECONDS = 2.0
 
 
@@ -78,12 +81,6 @@ def train_command(flags: list[str]) -> tuple[str, ...]:
     every process after the first loads it (benchmarks/compile_time.py measures what that saves)."""
     cache = [] if "--compile-cache" in flags else ["--compile-cache", str(compile_cache.default_dir())]
     return ("-m", "jaxsocial.train", *flags, *cache)
-
-
-def visible_cores(pid: int = 0) -> list[int] | None:
-    """The CPU cores process `pid` (0: this one) may run on, sorted (`os.sched_getaffinity`; None where the OS
-    has no such call)."""
-    return sorted(os.sched_getaffinity(pid)) if hasattr(os, "sched_getaffinity") else None
 
 
 def pin(cores: list[int] | None) -> list[str]:
@@ -125,33 +122,35 @@ def first_runs(jobs: list[Job], max_runs: int | None) -> list[Job]:
 def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[int]:
     """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (`pin`) with a
     single-threaded XLA after the caller's $XLA_FLAGS and before `extra_xla_flags` (`process_xla_flags`);
-    write `RUN_FILE`, with the cores the process could see, into each run directory the process created.
-    Returns the exit codes, in the order of `jobs`."""
+    write `RUN_FILE`, with the cores the process could see and the package's files as they were when it
+    started (`checkout.tree`), into each run directory the process created. Returns the exit codes, in the
+    order of `jobs`."""
     if not cores:
         raise ValueError("give at least one core")
-    commit, process_flags = commits.head_commit(), process_xla_flags(extra_xla_flags)
+    process_flags = process_xla_flags(extra_xla_flags)
+    env = {**os.environ, "XLA_FLAGS": process_flags, provenance.PARENT_WRITES: "1"}
     pending, active, codes = list(enumerate(jobs)), {}, {}
     free = list(cores)
     while pending or active:
         while pending and free:
-            (i, job), core = pending.pop(0), free.pop(0)
+            (i, job), core, tree = pending.pop(0), free.pop(0), checkout.tree()
             job.log.parent.mkdir(parents=True, exist_ok=True)
             proc = subprocess.Popen(
                 [*pin([core]), sys.executable, *job.argv],
                 stdout=job.log.open("w"),
                 stderr=subprocess.STDOUT,
-                env={**os.environ, "XLA_FLAGS": process_flags},
+                env=env,
             )
-            active[i] = (proc, core, now(), None, None)  # None: its RUN_FILE not written yet
+            active[i] = (proc, core, now(), tree, None, None)  # None: its RUN_FILE not written yet
             print(f"{job.label}: core {core}, log {job.log}", flush=True)
         time.sleep(POLL_SECONDS)
-        for i, (proc, core, started, earlier, seen) in list(active.items()):
+        for i, (proc, core, started, tree, earlier, seen) in list(active.items()):
             job = jobs[i]
-            process = (job.run_dir, shlex.join(["python", *job.argv]), commit, 1, started)
+            process = (job.run_dir, shlex.join(["python", *job.argv]), tree, 1, started)
             if earlier is None and (job.run_dir / logs.CONFIG_FILE).is_file():
                 earlier = earlier_processes(job.run_dir)  # its directory is there: say so before it ends
                 seen = visible_cores(proc.pid)  # python itself runs, pinned; `poll` has not reaped it
-                active[i] = (proc, core, started, earlier, seen)
+                active[i] = (proc, core, started, tree, earlier, seen)
                 if proc.poll() is None:
                     write_run_file(*process, None, process_flags, earlier, seen)
             rc = proc.poll()
@@ -166,73 +165,9 @@ def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[in
     return [codes[i] for i in range(len(jobs))]
 
 
-def earlier_processes(run_dir: Path) -> list[dict[str, Any]]:
-    """The processes that trained `run_dir` before (its `RUN_FILE`'s entries, oldest first; [] if none)."""
-    path = Path(run_dir) / RUN_FILE
-    if not path.is_file():
-        return []
-    last = logs.read_json(path)
-    return [*last.pop("earlier", []), last]
-
-
-def write_run_file(
-    run_dir: Path,
-    command: str,
-    commit: str | None,
-    cores: int | None,
-    started: str,
-    rc: int | None,
-    xla_flags: str | None = None,
-    earlier: list[dict[str, Any]] | None = None,
-    seen: list[int] | None = None,
-) -> None:
-    """Write `RUN_FILE` into `run_dir`: what made it (command, commit, cores), where (this machine's CPU, the
-    process's $XLA_FLAGS, the cores it could see (`seen`, None: not measured), the `environment`:
-    `MACHINE_FIELDS`), when (start, and now as its end unless `rc` is None: still running) and its exit
-    status, with the `earlier` processes of a resumed run."""
-    info = {
-        "command": command,
-        "commit": commit,
-        "cores": cores,
-        **machine(xla_flags),
-        "visible_cores": seen,
-        "started": started,
-        "ended": None if rc is None else now(),
-        "rc": rc,
-    }
-    logs.write_json(Path(run_dir) / RUN_FILE, info | ({"earlier": earlier} if earlier else {}))
-
-
-def machine(xla_flags: str | None) -> dict[str, Any]:
-    """Where a process with $XLA_FLAGS `xla_flags` trains (`MACHINE_FIELDS`): this CPU (`autotune.cpu_model`),
-    the flags, the cores this process sees (`visible_cores`: a process it starts sees the same unless pinned)
-    and the `environment`. A GPU block logs it in its commands log (`records.read_commands_log`): its flags
-    say whether `--xla_gpu_deterministic_ops` was on."""
-    seen = visible_cores()
-    return {"cpu": autotune.cpu_model(), "xla_flags": xla_flags, "visible_cores": seen, **environment()}
-
-
-def environment() -> dict[str, Any]:
-    """What besides the program and its XLA flags decides the floats a CPU run computes: the instruction sets
-    present (`autotune.NUMERICS_FLAGS`; XLA's code and YNNPACK's kernels follow them), the cache sizes (Eigen
-    sizes its blocks from them) and the versions of the `VERSIONED` packages (None: not installed)."""
-    return {
-        "cpu_features": sorted(autotune.NUMERICS_FLAGS & autotune.cpu_flags()),
-        "cache_sizes": autotune.cache_sizes(),
-        "versions": {package: package_version(package) for package in VERSIONED},
-    }
-
-
-def package_version(package: str) -> str | None:
-    """An installed package's version (None: not installed)."""
-    try:
-        return importlib.metadata.version(package)
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
 class RunNotEnded(FileNotFoundError):
-    """A run has no `RUN_FILE` of an ended process: not trained by `run`, or its process has not ended."""
+    """A run has no `RUN_FILE` of an ended process: trained before training wrote one (by other means than
+    `run`, before 2026-12-03), or its process has not ended."""
 
 
 def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, Any]:
@@ -241,11 +176,15 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     if the run has none, or its process has not ended."""
     path = Path(run_dir) / RUN_FILE
     if not path.is_file():
-        raise RunNotEnded(f"{path} does not exist: the run was not trained by `pinned.run`")
+        raise RunNotEnded(
+            f"{path} does not exist: the run was not trained by `pinned.run`, nor by a `train` that writes "
+            "one (since 2026-12-03)"
+        )
     info = logs.read_json(path)
     if info.get("ended") is None:
         raise RunNotEnded(f"{path}: its process (started {info.get('started')}) has not ended")
-    machine = {k: info[k] for k in MACHINE_FIELDS if k in info}  # runs written before these fields lack them
+    later = (*MACHINE_FIELDS, *checkout.TREE_FIELDS)
+    machine = {k: info[k] for k in later if k in info}  # runs written before these fields lack them
     return (
         {k: info.get(k) for k in records.RUN_FIELDS}
         | machine
@@ -268,8 +207,3 @@ def with_measured(run: dict, device: str | None, jax_version: str | None, seed_d
     if unknown:
         raise ValueError(f"{seed_dir}: its {RUN_FILE} does not say; give {' and '.join(unknown)}")
     return run
-
-
-def now() -> str:
-    """The current UTC time, ISO 8601 to the second (what `RUN_FILE` records)."""
-    return datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")

@@ -12,7 +12,12 @@ A record is itself a run directory, so every tool that reads a run reads a recor
   learned (about 1.5 MB at the laptop scale);
 * `eval/*.json`, the evaluations after training (`logs.EVAL_DIR`);
 * `provenance.json`: how the run was made (`run`: the exact command, git commit, device, jax version, start
-  date, exit status, as given to `pack`) and how the record was made (`record`: source, date, packing commit).
+  date, exit status, as given to `pack`; from a run's process file also whether the package's files were the
+  commit's, the CPU, visible cores and package versions) and how the record was made (`record`: source, date,
+  packing commit and whether the package's files were its);
+* `tree-<sha256 prefix>.diff`, where the run trained from a dirty tree: the diff its provenance names
+  (`tree_diff`, `tree_diff_sha256`), which `git apply` applies to a checkout of its commit to rebuild the code
+  it ran (`jaxsocial.run.checkout`).
 
 Records mirror the run directories: `<runs_dir>/<scale>/<run>/s<seed>/` packs to
 `<records_dir>/<scale>/<run>/s<seed>/`.
@@ -22,6 +27,7 @@ from __future__ import annotations
 
 import datetime
 import gzip
+import hashlib
 import json
 import re
 import shutil
@@ -30,8 +36,7 @@ from typing import Any
 
 import jax
 
-from jaxsocial.experiments import commits
-from jaxsocial.run import checkpoint, logs, metrics, rundir
+from jaxsocial.run import checkout, checkpoint, logs, metrics, provenance, rundir
 
 PROVENANCE_FILE = "provenance.json"
 ORBAX_COMMIT_NOTE = "commit_success.txt"
@@ -48,9 +53,53 @@ def read_provenance(seed_dir: str | Path) -> dict[str, Any] | None:
     return None
 
 
-def run_field(seed_dir: str | Path, key: str) -> Any:
-    """One field of the `run` part of a seed's record provenance (None without a record, or without it)."""
-    return ((read_provenance(seed_dir) or {}).get("run") or {}).get(key)
+def run_field(seed_dir: str | Path, key: str, process_file: bool = False) -> Any:
+    """One field of the `run` part of a seed's record provenance (None without a record, or without it); with
+    `process_file`, a run directory that is no record answers from its process file (`provenance.RUN_FILE`,
+    which holds the same fields of the last process that trained it)."""
+    recorded = read_provenance(seed_dir)
+    if recorded is None and process_file:
+        return (read_process_file(seed_dir) or {}).get(key)
+    return ((recorded or {}).get("run") or {}).get(key)
+
+
+def read_process_file(seed_dir: str | Path) -> dict[str, Any] | None:
+    """The process file of a seed's run directory (the seed's directory or the run's holding it; None if
+    neither has one)."""
+    for where in (Path(seed_dir), Path(seed_dir).parent):
+        if (where / provenance.RUN_FILE).is_file():
+            return logs.read_json(where / provenance.RUN_FILE)
+    return None
+
+
+def processes(run: dict[str, Any]) -> list[dict[str, Any]]:
+    """The processes a run's provenance describes: its last, then those before it (`earlier`, if resumed)."""
+    return [run, *run.get("earlier", [])]
+
+
+def dirty_diffs(run: dict[str, Any]) -> list[str]:
+    """The diff files named by the run's processes that trained from a dirty tree ([] if none did)."""
+    return [process.get("tree_diff") or "no diff" for process in processes(run) if process.get("dirty")]
+
+
+def tree_diffs(seed_dir: str | Path, run: dict[str, Any]) -> list[Path]:
+    """The diff files a run's provenance names (its `tree_diff` and its earlier processes'), where its process
+    file is (the seed's directory or the run's holding it): ValueError if one is missing or its sha256 is not
+    the one recorded."""
+    found = []
+    for process in processes(run):
+        name, sha256 = process.get("tree_diff"), process.get("tree_diff_sha256")
+        if not name:
+            continue
+        paths = [
+            where / name for where in (Path(seed_dir), Path(seed_dir).parent) if (where / name).is_file()
+        ]
+        if not paths:
+            raise ValueError(f"{seed_dir}: its run trained from a dirty tree, and its diff {name} is missing")
+        if hashlib.sha256(paths[0].read_bytes()).hexdigest() != sha256:
+            raise ValueError(f"{paths[0]}: its sha256 is not the {sha256} its run recorded")
+        found.append(paths[0])
+    return found
 
 
 def read_commands_log(path: str | Path) -> dict[str, dict[str, Any]]:
@@ -132,10 +181,12 @@ def pack(
     run's provenance (`RUN_FIELDS`), `source` the seed's name under its runs root (e.g. 'cpu/RUN/s0'); with a
     `checkpoint_reason` (why a follow-up branches from it; the provenance keeps it) the checkpoint of the
     final policy's iteration goes in too. Checks everything before writing (`packable`; FileExistsError if
-    the record exists, unless `overwrite`). Returns it."""
+    the record exists, unless `overwrite`; ValueError if a diff the run names is missing or altered:
+    `tree_diffs`, which go in too). Returns it."""
     seed_dir, record_dir = Path(seed_dir), Path(record_dir)
     final_checkpoint = checkpoint_reason is not None
     iteration, rows = packable(seed_dir, final_checkpoint)
+    diffs, tree = tree_diffs(seed_dir, run), checkout.tree()
     planned = logs.read_config(seed_dir)["iterations"]
     if record_dir.exists() and any(record_dir.iterdir()):
         if not overwrite:
@@ -159,6 +210,8 @@ def pack(
         )
     if (seed_dir / logs.EVAL_DIR).is_dir():
         shutil.copytree(seed_dir / logs.EVAL_DIR, record_dir / logs.EVAL_DIR)
+    for diff in diffs:
+        shutil.copy2(diff, record_dir / diff.name)
     provenance = {
         "run": run,
         "record": {
@@ -169,7 +222,8 @@ def pack(
             "checkpoint_iteration": iteration if final_checkpoint else None,
             "checkpoint_reason": checkpoint_reason,
             "packed": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-            "packed_at_commit": commits.head_commit(),
+            "packed_at_commit": tree.commit,
+            "packed_dirty": tree.dirty,
             "packed_with_jax": jax.__version__,
         },
     }

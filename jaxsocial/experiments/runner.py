@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import shlex
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from jaxsocial.experiments.rundirs import (
     resume_flags,
     seed_dirs,
 )
-from jaxsocial.run import logs, outputs
+from jaxsocial.run import checkout, logs, outputs
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.startup import setup
@@ -81,6 +82,7 @@ def run(
     cores: tuple[int, ...] = (),
     seeds_per_program: int | None = None,
     max_runs: int | None = None,
+    allow_dirty: bool = False,
 ) -> None:
     """Train and evaluate what `recipe` needs at `scale` for seeds seed..seed+seeds-1 not finished yet.
 
@@ -98,7 +100,7 @@ def run(
     `max_runs`: start only the first that many of the pinned processes (`pinned.first_runs`).
     A design's runs at its own scale train and are evaluated blind (no return or score shown), with its
     `xla_flags` (ValueError if it has them and no `cores` are given, unless this process's $XLA_FLAGS end in
-    them: they must be set before XLA starts).
+    them: they must be set before XLA starts), and from a clean tree unless `allow_dirty` (`tree_checked`).
     """
     per_program = seeds_per_program or (1 if cores else None)
     programs, blind, design_flags = validated_programs(recipe, scale, seed, seeds, runs_dir, per_program)
@@ -112,6 +114,7 @@ def run(
     }
     if train_missing:
         to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != FINISHED]
+        tree_checked(recipe, blind, bool(to_train) and not dry_run, allow_dirty)
         print_cost(recipe, scale, to_train, cores, max_runs)
     prefix = f"[{recipe.name}/{scale.name}]"
     jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
@@ -145,6 +148,28 @@ def validated_programs(
             setup(cfg, load_frozen=False)
     design_flags = (prereg.load(recipe.design).xla_flags if blind else None) or ""
     return programs, blind, design_flags
+
+
+def tree_checked(recipe: Recipe, blind: bool, training: bool, allow_dirty: bool) -> None:
+    """Before anything trains (`training`): ValueError if the package's files differ from their commit
+    (`checkout.tree`) and the runs are a pre-registered design's (`blind`), unless `allow_dirty`; a warning
+    on stderr otherwise. Each run's process file records the commit and the diff either way."""
+    tree = checkout.tree() if training else None
+    if tree is None or not tree.dirty:
+        return
+    if blind and not allow_dirty:
+        raise ValueError(
+            f"refusing to train the pre-registered design {recipe.design} from a dirty tree: "
+            f"{tree.describe()}. A design's runs come from a clean worktree at its commit "
+            '(docs/experiments.md, "Pre-registration"): commit or stash the changes, or pass --allow-dirty '
+            "to train anyway (each run's process file then says dirty and names the diff beside it). Nothing "
+            "was trained"
+        )
+    print(
+        f"warning: {tree.describe()}: each run records the commit and the diff beside its {pinned.RUN_FILE}; "
+        "commit before recording (docs/your-experiment.md)",
+        file=sys.stderr,
+    )
 
 
 def xla_flags_held(recipe: Recipe, design_flags: str) -> None:

@@ -19,9 +19,11 @@ unknown, from the record's CPU and this machine's, the record's flags and the ki
 cores and the package versions), and its report starts with that; it ends with what re-trains the record
 bit for bit (`how_to_reproduce`). Nothing is written into the record.
 
-Run it from a worktree of the record's commit for the strict check; on today's code it checks that the
-mathematics did not change since, where the configs map. The laptop and cpu scales have no schedule over
-the run's length, so their first K iterations are those of the full run.
+A run directory that is no record verifies too: its process file (`provenance.RUN_FILE`, which every
+training run writes) says what a record's provenance says. Run it from a worktree of the record's commit
+(with the record's `tree-*.diff` applied where its run trained from a dirty tree) for the strict check; on
+today's code it checks that the mathematics did not change since, where the configs map. The laptop and cpu
+scales have no schedule over the run's length, so their first K iterations are those of the full run.
 """
 
 from __future__ import annotations
@@ -37,8 +39,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import commits, cpu_kinds, pinned, records, xla_flags
-from jaxsocial.run import autotune, config, logs, metrics
+from jaxsocial.experiments import cpu_kinds, pinned, records, xla_flags
+from jaxsocial.run import autotune, checkout, config, logs, metrics
 from jaxsocial.run.flags import config_flags
 
 TIMING_FIELDS = (metrics.SPEED, metrics.COMPILE_S)
@@ -57,16 +59,22 @@ def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
     return train_in_process(cfg, work_dir, retraining_flags(record_dir), cores)
 
 
+def record_field(record_dir: Path, key: str) -> Any:
+    """One field of the record's run provenance; of a run directory that is no record, its process file's
+    (what `train` or `pinned` wrote: a plain `python -m jaxsocial.train` run verifies as a record does)."""
+    return records.run_field(record_dir, key, process_file=True)
+
+
 def record_cores(record_dir: Path) -> int | None:
     """How many CPU cores the record's training process could see: its provenance's `visible_cores`; for a
     record from before that field, the runner's rule: one where `pinned.run` gave it a core (`cores` 1) or
     its device says "one core per" seed or branch, else all the "N cores" of its device (None: not said)."""
-    visible = records.run_field(record_dir, "visible_cores")
+    visible = record_field(record_dir, "visible_cores")
     if visible:
         return len(visible)
-    if records.run_field(record_dir, "cores") == 1:
+    if record_field(record_dir, "cores") == 1:
         return 1
-    device = records.run_field(record_dir, "device") or ""
+    device = record_field(record_dir, "device") or ""
     if "one core per" in device:
         return 1
     count = re.search(r"(\d+) cores", device)
@@ -83,7 +91,7 @@ def retraining_cores(count: int | None) -> list[int] | None:
 def retraining_flags(record_dir: Path) -> str:
     """The $XLA_FLAGS the record's provenance records (a record without them: the single-core flags where its
     run had one core, else this process's)."""
-    xla_flags = records.run_field(record_dir, "xla_flags")
+    xla_flags = record_field(record_dir, "xla_flags")
     if xla_flags is None:
         one_core = record_cores(record_dir) == 1
         xla_flags = pinned.SINGLE_CORE_XLA_FLAGS if one_core else os.environ.get("XLA_FLAGS", "")
@@ -177,6 +185,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
     cores = record_cores(record_dir)
     expected = prediction(record_dir, cores, pinned.cores_seen(retraining_cores(cores)))
     print(f"prediction: {expected['says']}", flush=True)
+    here = checkout.tree()
     with tempfile.TemporaryDirectory(prefix="jaxsocial-verify-") as tmp:
         run_dir = retrain(record_dir, iterations, Path(work_dir or tmp))
         retrained = without_final_evaluation(metrics.read_rows(run_dir), recorded)
@@ -189,12 +198,19 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
         "rows": [len(recorded), len(retrained)],
         "first_difference": difference,
         "compared": "every field of every row but " + ", ".join(TIMING_FIELDS),
-        "cpu": {"record": records.run_field(record_dir, "device"), "here": autotune.cpu_model()},
+        "cpu": {
+            "record": record_field(record_dir, "device") or record_field(record_dir, "cpu"),
+            "here": autotune.cpu_model(),
+        },
         "environment": {
-            "record": {field: records.run_field(record_dir, field) for field in pinned.ENVIRONMENT_FIELDS},
+            "record": {field: record_field(record_dir, field) for field in pinned.ENVIRONMENT_FIELDS},
             "here": pinned.environment(),
         },
-        "commit": {"record": records.run_field(record_dir, "commit"), "here": commits.head_commit()},
+        "commit": {"record": record_field(record_dir, "commit"), "here": here.commit},
+        "tree": {
+            "record": {k: record_field(record_dir, k) for k in checkout.TREE_FIELDS},
+            "here": here.fields(),
+        },
         "xla_flags": retraining_flags(record_dir),
         "cores": {"record": cores, "here": pinned.cores_seen(retraining_cores(cores))},
     }
@@ -203,7 +219,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
 def record_cpu(record_dir: Path) -> str | None:
     """The CPU the record trained on: its provenance's `cpu`, else its `device` (older records name the CPU
     and its family and model there)."""
-    return records.run_field(record_dir, "cpu") or records.run_field(record_dir, "device")
+    return record_field(record_dir, "cpu") or record_field(record_dir, "device")
 
 
 def prediction(record_dir: Path, cores: int | None, cores_here: int | None) -> dict:
@@ -214,7 +230,7 @@ def prediction(record_dir: Path, cores: int | None, cores_here: int | None) -> d
     cpu, flags = record_cpu(record_dir), retraining_flags(record_dir)
     kinds = cpu_kinds.read_kinds()
     alike = {"alike": cpu_kinds.alike(kinds, cpu, flags)}
-    theirs, mine = records.run_field(record_dir, "versions"), pinned.environment()["versions"]
+    theirs, mine = record_field(record_dir, "versions"), pinned.environment()["versions"]
     if cores is None:
         said = "the record does not say how many cores its process saw: unknown"
         return cpu_kinds.expectation(cpu_kinds.UNKNOWN, said) | alike
@@ -275,9 +291,18 @@ def report(result: dict) -> str:
             " process sees, even single-threaded (docs/experiments.md)"
         )
     lines += environment_differences(result["environment"]["record"], result["environment"]["here"])
-    lines.append(f"  commit: record {result['commit']['record']}; here {result['commit']['here']}")
+    tree = result.get("tree") or {"record": {}, "here": {}}
+    lines.append(
+        f"  commit: record {result['commit']['record']}{_dirty(tree['record'])}; "
+        f"here {result['commit']['here']}{_dirty(tree['here'])}"
+    )
     lines.append(how_to_reproduce(result))
     return "\n".join(lines)
+
+
+def _dirty(tree: dict) -> str:
+    """What a commit line adds for a tree (`checkout.Tree.fields`): nothing where clean or not recorded."""
+    return f" with jaxsocial/ changed ({tree.get('tree_diff')})" if tree.get("dirty") else ""
 
 
 def _count(cores: int | None) -> str:
@@ -295,8 +320,12 @@ def how_to_reproduce(result: dict) -> str:
             f" or a kind whose operation fingerprints agree with it under those flags ({', '.join(alike)})"
         )
     seen = "as many cores as its process did (not recorded)" if cores is None else _count(cores)
+    diff = ((result.get("tree") or {}).get("record") or {}).get("tree_diff")
+    commit = (result["commit"]["record"] or "(not recorded)") + (
+        f" with its {diff} applied (git apply)" if diff else ""
+    )
     return (
-        f"  bit for bit it re-trains from commit {result['commit']['record'] or '(not recorded)'}, with "
+        f"  bit for bit it re-trains from commit {commit}, with "
         f"$XLA_FLAGS '{flags}', in a process that sees {seen} (verify pins itself so), on {cpus}, with the "
         "same package versions"
     )

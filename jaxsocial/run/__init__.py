@@ -2,4 +2,5 @@
 (`loop`), the driver's steps between chunks and the loop over them (`driver`), the stages (`schedule`), the
 run directory (`rundir`, `runlock`, `logs`, `metrics`, `checkpoint`), branching from another run
 (`init_from`), devices (`distributed`), the machine's choice of kernels and dtype (`autotune`), the compile
-cache and the non-finite checks."""
+cache, the non-finite checks, and what a run records of the code and machine it ran on (`checkout`: the
+commit and whether the package's files were its; `provenance`: the process file)."""
