@@ -381,7 +381,9 @@ def test_a_curves_recipe_with_transfer_envs_summarises_its_zero_shot_returns(tmp
                 kinds.eval_path(seed_dir, spec).parent.mkdir(parents=True, exist_ok=True)
                 logs.write_json(kinds.eval_path(seed_dir, spec), {"results": results})
     configs = {c: recipes.condition_config(scale, c, 0, 1, str(tmp_path)) for c in learner}
-    runs = SimpleNamespace(recipe=recipe, scale=scale, rows=rows, configs=configs, seed_dirs=seed_dirs)
+    runs = SimpleNamespace(
+        recipe=recipe, scale=scale, rows=rows, configs=configs, seed_dirs=seed_dirs, lenders={}
+    )
     summary = kinds.summarise_curves(runs)
     assert list(summary)[-2:] == ["zero_shot", "conditions"]
     for spec in specs:
