@@ -425,9 +425,7 @@ def describe(design: Design, env_steps_per_run: int) -> str:
         return f"  {name} ({n[name]} seeds): {', '.join(getattr(design, name))}{source}"
 
     lines = [
-        f"{design.name}: {design.scale} scale, {design.iterations} iterations "
-        f"({env_steps_per_run / 1e6:.1f}M env-steps per seed{stop}), seeds {design.seed}..{last} per "
-        "condition trained",
+        f"{_budget(design, env_steps_per_run)}{stop}), seeds {design.seed}..{last} per condition trained",
         arm("treatment"),
         arm("control"),
         f"  learned: {learned}; {design.test} at alpha {design.alpha:g}",
@@ -452,13 +450,20 @@ def describe(design: Design, env_steps_per_run: int) -> str:
     return "\n".join(lines)
 
 
+def _budget(design: Design, env_steps_per_run: int, digits: int = 1) -> str:
+    """The first words of a design's description: its name, scale and budget, up to the parenthesis."""
+    return (
+        f"{design.name}: {design.scale} scale, {design.iterations} iterations "
+        f"({env_steps_per_run / 1e6:.{digits}f}M env-steps per seed"
+    )
+
+
 def describe_takeoff(design: Design, env_steps_per_run: int) -> str:
     """A 'takeoff' design, its tests and its simulated power, for people."""
     last = design.seed + design.seeds - 1
     sim = design.power_simulation
     lines = [
-        f"{design.name}: {design.scale} scale, {design.iterations} iterations "
-        f"({env_steps_per_run / 1e6:.2f}M env-steps per seed), seeds {design.seed}..{last} per condition",
+        f"{_budget(design, env_steps_per_run, digits=2)}), seeds {design.seed}..{last} per condition",
         f"  treatment: {', '.join(design.treatment)}; control: {', '.join(design.control)}",
         f"  primary ({design.tests.get('correction', '')}, alpha {design.alpha:g}):",
         *(f"    {name}: {text}" for name, text in design.tests.get("primary", {}).items()),
@@ -503,8 +508,7 @@ def describe_zero_shot(design: Design, env_steps_per_run: int) -> str:
     last = design.seed + design.seeds - 1
     sim = design.power_simulation
     lines = [
-        f"{design.name}: {design.scale} scale, {design.iterations} iterations "
-        f"({env_steps_per_run / 1e6:.1f}M env-steps per seed), seeds {design.seed}..{last} trained",
+        f"{_budget(design, env_steps_per_run)}), seeds {design.seed}..{last} trained",
         *(
             f"  {arm}: {', '.join(getattr(design, arm))}"
             + (f", borrowed: {design.borrowed[arm]}'s records" if arm in design.borrowed else "")
