@@ -34,7 +34,10 @@ DECLARED = {
         "(pre-registered; holds)",
     ),
     ("docs/experiments.md", "`transfer`: H2 in Four Rooms and Maze (pre-registered; not significant)"),
-    ("docs/experiments.md", "`transfer8`: H2 from the learners that needed the experts (pre-registered; holds)"),
+    (
+        "docs/experiments.md",
+        "`transfer8`: H2 from the learners that needed the experts (pre-registered; holds)",
+    ),
     (
         "docs/experiments.md",
         "`nopenalty8`: without the penalty, do solo learners leave the low-return regime? "
