@@ -384,7 +384,14 @@ def incomplete_design(runs: RecipeRuns) -> str | None:
     if runs.scale.name != design.scale:
         return None
     arms = design.trained_conditions
-    finished = sum(rundirs.finished(d, design.iterations) for c in arms for d in runs.seed_dirs.get(c, []))
+
+    def over(c: str, rows: list[dict[str, Any]]) -> bool:  # every iteration logged, or the design's stop
+        if len(rows) >= design.iterations or design.stop_at_return is None:
+            return len(rows) >= design.iterations
+        stop = {"stop_at_return": design.stop_at_return, "chunk_iterations": runs.configs[c].chunk_iterations}
+        return records.stopped_early(stop, rows)
+
+    finished = sum(over(c, rows) for c in arms for rows in runs.rows.get(c, []))
     total = design.seeds * len(arms)
     return None if finished == total else f"design {design.name}: {finished} of {total} runs finished"
 
