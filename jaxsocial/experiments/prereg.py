@@ -360,7 +360,7 @@ def seed_problems(
 
     conditions: per condition the seeds design.seed.. in order, each None (no run holds it) or
     {'config': its config.json, 'rows': metrics rows logged, 'finished': whether its run is over
-    (`records.run_over`), 'commit' and 'xla_flags': its record's, or None}; a config.json with fields
+    (`rundirs.finished`), 'commit' and 'xla_flags': its record's, or None}; a config.json with fields
     renamed since is read under today's names (`config.modern_keys`)."""
     problems = []
     for c in design.trained_conditions:

@@ -257,13 +257,6 @@ def require_checkpoint(seed_dir: str | Path, iteration: int) -> None:
         raise FileNotFoundError(f"{seed_dir} has no checkpoint of its final iteration {iteration}")
 
 
-def run_over(config: dict[str, Any], rows: list[dict[str, Any]], iterations: int) -> bool:
-    """Whether a run with `config` (its config.json, or the fields `stopped_early` reads) that logged `rows`
-    is over: every one of `iterations` logged, or its `stop_at_return` ended it (resuming it would train past
-    its stop)."""
-    return len(rows) >= iterations or stopped_early(config, rows)
-
-
 def stopped_early(config: dict[str, Any], rows: list[dict[str, Any]]) -> bool:
     """Whether a run's metrics end where its `stop_at_return` stopped it: the learners' mean return over its
     last chunk's rows reached the threshold."""

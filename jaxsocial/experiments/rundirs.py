@@ -30,7 +30,8 @@ def finished(seed_dir: Path, iterations: int) -> bool:
     earlier (`records.stopped_early`), so resuming it would train past its stop."""
     if not logs.has_metrics(seed_dir):
         return False
-    return records.run_over(logs.read_config(seed_dir), logs.read_metrics(seed_dir), iterations)
+    rows = logs.read_metrics(seed_dir)
+    return len(rows) >= iterations or records.stopped_early(logs.read_config(seed_dir), rows)
 
 
 def branch_state(run_dir: Path, iterations: int) -> str:

@@ -118,12 +118,14 @@ class RecipeRuns:
         }
 
     def header(self, command: str) -> dict[str, Any]:
+        def short(seed_dir: Path, rows: list[dict[str, Any]], iterations: int) -> bool:
+            return len(rows) < iterations and not records.stopped_early(logs.read_config(seed_dir), rows)
+
         unfinished = {
             c: [len(r) for r in rows]
             for c, rows in self.rows.items()
             if any(
-                not records.run_over(logs.read_config(d), r, self.configs[c].iterations)
-                for d, r in zip(self.seed_dirs[c], rows, strict=True)
+                short(d, r, self.configs[c].iterations) for d, r in zip(self.seed_dirs[c], rows, strict=True)
             )
         }
         cfg = next(iter(self.configs.values()))
@@ -202,22 +204,19 @@ def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
         )
         read = runs.dirs_by_seed.get(c, [])  # seeds runs.seed, runs.seed + 1, ...
         dirs = [read[i] if 0 <= (i := s - runs.seed) < len(read) else None for s in design_seeds]
-        conditions[c] = [None if d is None else seed_state(d, design.iterations) for d in dirs]
+        conditions[c] = [
+            None
+            if d is None
+            else {
+                "config": logs.read_config(d) if (d / logs.CONFIG_FILE).is_file() else {},
+                "rows": len(metrics.read_rows(d)),
+                "finished": rundirs.finished(d, design.iterations),
+                "commit": records.run_field(d, "commit"),
+                "xla_flags": records.run_field(d, "xla_flags"),
+            }
+            for d in dirs
+        ]
     return prereg.seed_problems(design, conditions, expected)
-
-
-def seed_state(seed_dir: Path, iterations: int) -> dict[str, Any]:
-    """What `prereg.seed_problems` reads of a design seed's directory: its config.json ({} if none), rows
-    logged, whether its run is over (`records.run_over`), and its record's commit and XLA flags."""
-    config = logs.read_config(seed_dir) if (seed_dir / logs.CONFIG_FILE).is_file() else {}
-    rows = metrics.read_rows(seed_dir)
-    return {
-        "config": config,
-        "rows": len(rows),
-        "finished": records.run_over(config, rows, iterations),
-        "commit": records.run_field(seed_dir, "commit"),
-        "xla_flags": records.run_field(seed_dir, "xla_flags"),
-    }
 
 
 def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
@@ -386,11 +385,11 @@ def incomplete_design(runs: RecipeRuns) -> str | None:
         return None
     arms = design.trained_conditions
 
-    def over(c: str, rows: list[dict[str, Any]]) -> bool:  # read from the rows alone, under the design's stop
-        if design.stop_at_return is None:
+    def over(c: str, rows: list[dict[str, Any]]) -> bool:  # every iteration logged, or the design's stop
+        if len(rows) >= design.iterations or design.stop_at_return is None:
             return len(rows) >= design.iterations
         stop = {"stop_at_return": design.stop_at_return, "chunk_iterations": runs.configs[c].chunk_iterations}
-        return records.run_over(stop, rows, design.iterations)
+        return records.stopped_early(stop, rows)
 
     finished = sum(over(c, rows) for c in arms for rows in runs.rows.get(c, []))
     total = design.seeds * len(arms)

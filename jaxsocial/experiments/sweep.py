@@ -129,7 +129,7 @@ def seed_state(setting: Setting, seed: int, runs_dir: str) -> str:
     if not (directory / logs.CONFIG_FILE).is_file():
         return rundirs.MISSING
     rows = logs.read_metrics(directory) if logs.has_metrics(directory) else []
-    finished = records.run_over(logs.read_config(directory), rows, setting.iterations)
+    finished = len(rows) >= setting.iterations or records.stopped_early(logs.read_config(directory), rows)
     return rundirs.FINISHED if finished else rundirs.PARTIAL
 
 
