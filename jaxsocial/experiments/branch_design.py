@@ -1,5 +1,5 @@
 """Pre-registered designs that train on from committed records: every source seed's final policy starts one
-run per arm, each arm for the same iterations in its own environment, fixed in `branch_designs/<name>.json`
+run per arm, each arm for the same iterations in its own environment, fixed in `designs/<name>.json`
 before any of its runs.
 
     python -m jaxsocial.experiments.branch_design power mixing              # the design and its power
@@ -21,7 +21,7 @@ The power is simulated from a pilot (`pilot_scores`): paired differences and eac
 diluted by a discount (`power_table`).
 
 Tests added after a design's runs began, blind (no result seen: `figure` refuses until every branch is in),
-are an amendment in `branch_designs/amendments/<name>.json`: a family of their own, Holm-corrected among
+are an amendment in `designs/amendments/<name>.json`: a family of their own, Holm-corrected among
 themselves, the design's own tests untouched. Their control may be `start`: where each branch started, its
 source record scored by the evaluation of the design that made it (`<record>/eval/<env>.json`).
 """
@@ -38,15 +38,22 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.env import registry
-from jaxsocial.experiments import kinds, paths, pinned, plot_figures, prereg, records, run_times, rundirs
+from jaxsocial.experiments import (
+    catalogue,
+    kinds,
+    paths,
+    pinned,
+    plot_figures,
+    prereg,
+    records,
+    run_times,
+    rundirs,
+)
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
 
-DESIGNS_DIR = Path(__file__).parent / "branch_designs"
-AMENDMENTS = "amendments"
-"""The folder of `DESIGNS_DIR` that holds the amendments, one `<name>.json` a design."""
 ALTERNATIVES = ("greater", "less", "two-sided")
 START = "start"
 """A test's control that is no arm: the treatment arm's source records, as they were when branched."""
@@ -150,28 +157,17 @@ def start_row(source: str) -> str:
     return f"{source} at the branch"
 
 
-def path_of(name: str, designs_dir: Path = DESIGNS_DIR) -> Path:
-    return designs_dir / f"{name}.json"
-
-
-def amendment_path(name: str, designs_dir: Path = DESIGNS_DIR) -> Path:
-    return designs_dir / AMENDMENTS / f"{name}.json"
-
-
-def load(name: str, designs_dir: Path = DESIGNS_DIR) -> BranchDesign:
-    """The design `<designs_dir>/<name>.json` (FileNotFoundError if none; ValueError if invalid)."""
-    path = path_of(name, designs_dir)
-    if not path.is_file():
-        known = sorted(p.stem for p in designs_dir.glob("*.json"))
-        raise FileNotFoundError(f"no branch design {path}; the designs are {known}")
-    raw = logs.read_json(path)
+def load(name: str) -> BranchDesign:
+    """The branch design `designs/<name>.json` with its amendment, if any (FileNotFoundError if none;
+    ValueError if invalid or of another kind)."""
+    raw = catalogue.read(name, "branch")
     raw["arms"] = {k: Arm(**v) for k, v in raw["arms"].items()}
     for family in ("primary", "secondary"):
         raw[family] = {k: Test(**v) for k, v in raw[family].items()}
     raw["eval_envs"] = tuple(raw["eval_envs"])
     design = BranchDesign(**raw)
-    if amendment_path(name, designs_dir).is_file():
-        added = logs.read_json(amendment_path(name, designs_dir))
+    if catalogue.amendment_path(name).is_file():
+        added = logs.read_json(catalogue.amendment_path(name))
         added["tests"] = {k: Test(**v) for k, v in added["tests"].items()}
         design = dataclasses.replace(design, amendment=Amendment(**added))
     for env in (*(arm.env for arm in design.arms.values()), *design.eval_envs):
@@ -392,7 +388,7 @@ def as_designed(design: BranchDesign, records_root: Path) -> dict[str, Any]:
     return {"every_branch_recorded": recorded == every, "recorded": recorded, "differing": differing}
 
 
-def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESIGNS_DIR) -> dict[str, Any]:
+def summarise(design: BranchDesign, records_root: Path) -> dict[str, Any]:
     """The design's summary: per environment each arm's per-seed scores (`stats.summary`), the tests, and the
     checks that make it valid (the design committed before every run, every branch recorded as designed)."""
     scores = final_scores(design, records_root)
@@ -410,7 +406,7 @@ def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESI
         for d in recorded
         if (d / records.PROVENANCE_FILE).is_file()
     }
-    commit = prereg.file_commit(path_of(design.name, designs_dir))
+    commit = catalogue.design_commit(design.name)
     checks = prereg.commit_checks(commit, {name: p["run"]["commit"] for name, p in provenance.items()})
     designed = as_designed(design, records_root)
     checks |= {"every_branch_recorded": designed["every_branch_recorded"], "differing": designed["differing"]}
@@ -425,7 +421,7 @@ def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESI
     }
     if design.amendment:
         ended = [p["run"].get("ended") for p in provenance.values()]
-        block["amendment"] = amended(design, scores, ended, designs_dir)
+        block["amendment"] = amended(design, scores, ended)
     return {
         "design": design.name,
         "material": {"records": design.records, "seeds": [design.seed, design.seed + design.seeds - 1]},
@@ -441,13 +437,13 @@ def summarise(design: BranchDesign, records_root: Path, designs_dir: Path = DESI
 
 
 def amended(
-    design: BranchDesign, scores: dict[str, dict[str, list]], ended: list[str | None], designs_dir: Path
+    design: BranchDesign, scores: dict[str, dict[str, list]], ended: list[str | None]
 ) -> dict[str, Any]:
     """The amendment's tests, Holm-corrected among themselves, and its checks: committed, and before the
     last of the design's runs ended (how many had: `ended`, the recorded runs' end times), every branch's
     start scored."""
     amendment = design.amendment
-    commit = prereg.file_commit(amendment_path(design.name, designs_dir))
+    commit = catalogue.file_commit(catalogue.amendment_path(design.name))
     when = prereg.commit_time(commit)
     at = datetime.datetime.fromisoformat(when) if when else None
     before = sum(at is not None and e is not None and datetime.datetime.fromisoformat(e) < at for e in ended)
@@ -689,7 +685,7 @@ def describe(design: BranchDesign) -> str:
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.branch_design")
     parser.add_argument("action", choices=("power", "run", "record", "figure"))
-    parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. mixing)")
+    parser.add_argument("design", help="a branch design (e.g. mixing)")
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where the summary and figure go")

@@ -1,5 +1,5 @@
 """Pre-registered designs over committed records: which records' final policies play which environments,
-zero-shot, and how the arms are compared, fixed in `evaluation_designs/<name>.json` before any of its
+zero-shot, and how the arms are compared, fixed in `designs/<name>.json` before any of its
 evaluations runs. Nothing trains: the material is a finished design's records, every seed of its two arms.
 
     python -m jaxsocial.experiments.evaluation_design power transfer      # the design and its power
@@ -30,11 +30,10 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.env import registry
-from jaxsocial.experiments import commits, paths, pinned, prereg
+from jaxsocial.experiments import catalogue, commits, paths, pinned, prereg
 from jaxsocial.run import logs
 from jaxsocial.specs import EnvSpec
 
-DESIGNS_DIR = Path(__file__).parent / "evaluation_designs"
 PROVENANCE = "provenance.jsonl"
 ALTERNATIVES = ("greater", "less", "two-sided")
 
@@ -91,17 +90,10 @@ class EvaluationDesign:
         return {**self.primary, **self.secondary}
 
 
-def path_of(name: str) -> Path:
-    return DESIGNS_DIR / f"{name}.json"
-
-
 def load(name: str) -> EvaluationDesign:
-    """The design `evaluation_designs/<name>.json` (FileNotFoundError if none; ValueError if invalid)."""
-    path = path_of(name)
-    if not path.is_file():
-        known = sorted(p.stem for p in DESIGNS_DIR.glob("*.json"))
-        raise FileNotFoundError(f"no evaluation design {path}; the designs are {known}")
-    raw = logs.read_json(path)
+    """The evaluation design `designs/<name>.json` (FileNotFoundError if none; ValueError if invalid or of
+    another kind)."""
+    raw = catalogue.read(name, "evaluation")
     for family in ("primary", "secondary"):
         raw[family] = {k: Test(**v) for k, v in raw[family].items()}
     raw["references"] = {k: Reference(**v) for k, v in raw["references"].items()}
@@ -280,7 +272,7 @@ def summarise(design: EvaluationDesign, records_root: Path, science: Path) -> di
         }
         played = [r for e, r in results.items() if e.env == env and r is not None]
         per_env[env]["experts"] = experts_return(played[0]) if played else None
-    commit, evaluated = prereg.file_commit(path_of(design.name)), read_provenance(out)
+    commit, evaluated = catalogue.design_commit(design.name), read_provenance(out)
     checks = prereg.commit_checks(commit, {line["file"]: line["commit"] for line in evaluated})
     checks["played_as_designed"] = played_as_designed(design, results)
     block = {
@@ -482,7 +474,7 @@ def describe(design: EvaluationDesign) -> str:
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.evaluation_design")
     parser.add_argument("action", choices=("power", "run", "figure"))
-    parser.add_argument("design", help=f"a design in {DESIGNS_DIR.name}/ (e.g. transfer)")
+    parser.add_argument("design", help="an evaluation design (e.g. transfer)")
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where results and summaries go")
     return parser

@@ -7,7 +7,7 @@ time to takeoff (`takeoff`, one-sided log-rank) and the per-seed zero-shot retur
 4-goal Goal Cycle (one-sided Mann-Whitney U), with secondary tests, the episodes of every evaluation after
 training, and its power by simulation from committed seeds (`takeoff_power`).
 
-The design's commit is the last commit that touched that file; `figure` checks that it is an ancestor of
+The design's commit is the last commit that changed that file (`catalogue.design_commit`); `figure` checks that it is an ancestor of
 every run's recorded commit (`git merge-base --is-ancestor`) and writes
 
     "preregistered": {"commit": ..., "primary": {"treatment": [...], "control": [...], "learned_threshold": x,
@@ -24,10 +24,9 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import commits, xla_flags
+from jaxsocial.experiments import catalogue, commits, xla_flags
 from jaxsocial.run import config, logs
 
-DESIGNS_DIR = Path(__file__).parent / "designs"
 ANALYSES = ("counts", "takeoff", "zero_shot")
 ZERO_SHOT_TEST = "mannwhitney-greater"
 """A 'zero_shot' design's primary test: one-sided Mann-Whitney U of the arms' per-seed zero-shot returns."""
@@ -135,16 +134,10 @@ def deviations(name: str, directory: Path) -> list[dict[str, str]]:
     return logs.read_json(path)["deviations"] if path.is_file() else []
 
 
-def path_of(name: str) -> Path:
-    return DESIGNS_DIR / f"{name}.json"
-
-
 def load(name: str) -> Design:
-    """The design `designs/<name>.json` (FileNotFoundError if there is none; ValueError if it is invalid)."""
-    path = path_of(name)
-    if not path.is_file():
-        raise FileNotFoundError(f"no pre-registered design {path}")
-    raw = logs.read_json(path)
+    """The training design `designs/<name>.json` (FileNotFoundError if there is none; ValueError if it is
+    invalid or of another kind)."""
+    raw = catalogue.read(name, "training")
     for arm in ("treatment", "control"):
         raw[arm] = tuple(raw[arm])
     design = Design(**raw)
@@ -202,20 +195,9 @@ def power_of(design: Design, env_steps_per_run: int) -> float:
                         design.alpha)  # fmt: skip
 
 
-def design_commit(name: str) -> str | None:
-    """The last commit that touched the design's file (None if it is not committed)."""
-    return file_commit(path_of(name))
-
-
-def file_commit(path: Path) -> str | None:
-    """The last commit that touched the file `path` (None if it is not committed)."""
-    out = commits.git("log", "-1", "--format=%H", "--", path.name, cwd=path.parent)
-    return out.stdout.strip() or None if out.returncode == 0 else None
-
-
 def commit_time(commit: str | None) -> str | None:
     """When `commit` was committed, ISO 8601 with its offset (None if unknown to git)."""
-    out = commits.git("show", "-s", "--format=%cI", commit, cwd=DESIGNS_DIR) if commit else None
+    out = commits.git("show", "-s", "--format=%cI", commit, cwd=catalogue.DESIGNS_DIR) if commit else None
     return out.stdout.strip() or None if out is not None and out.returncode == 0 else None
 
 
@@ -223,7 +205,7 @@ def precedes(design: str | None, commit: str | None) -> bool | None:
     """Whether commit `design` is an ancestor of (or is) `commit`; None if either is unknown to git."""
     if not design or not commit:
         return None
-    out = commits.git("merge-base", "--is-ancestor", design, commit, cwd=DESIGNS_DIR)
+    out = commits.git("merge-base", "--is-ancestor", design, commit, cwd=catalogue.DESIGNS_DIR)
     return {0: True, 1: False}.get(out.returncode)
 
 
@@ -235,7 +217,7 @@ def preregistered(
     learned: each condition's per-seed learned flags (final return above the design's threshold);
     run_commits: each seed directory's recorded commit (None: no record of it).
     """
-    commit = design_commit(design.name)
+    commit = catalogue.design_commit(design.name)
     arms = {
         arm: [x for c in getattr(design, arm) for x in learned.get(c, [])] for arm in ("treatment", "control")
     }
@@ -339,7 +321,7 @@ def preregistered_takeoff(
     scored = all(
         len(arm[name]) == designed[key] for key, arm in arms.items() for name in ("goalcycle4", "solo3", "ct")
     )
-    commit = design_commit(design.name)
+    commit = catalogue.design_commit(design.name)
     return {
         "commit": commit,
         "primary": {"treatment": list(design.treatment), "control": list(design.control), "test": design.test,
