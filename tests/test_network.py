@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from float_bounds import assert_trees_within, assert_within, decoder_error, gamma, network_error
+from reference_network import PaperActorCritic
 
 from jaxsocial.agents import network as net
 from jaxsocial.run import checkpoint, policy_io
@@ -315,12 +316,12 @@ def test_flax_modules_are_the_functional_network(small_params):
 
 
 def test_the_paper_network_is_the_network_in_plain_layers(small_params):
-    """`net.PaperActorCritic` (plain Flax layers, NHWC, float32, in one piece) builds the params tree
-    `init` builds and computes `unroll`, `decode` and, weighted and summed, `aux_loss` with the same (random)
-    params, frames in batches of 4 on the fast side. Tolerances: two float32 computations' error bounds
-    (`float_bounds`), plus the sums over a frame's pixels and the frames for the loss."""
+    """`PaperActorCritic` (`reference_network`: plain Flax layers, NHWC, float32, in one piece) builds the
+    params tree `init` builds and computes `unroll`, `decode` and, weighted and summed, `aux_loss` with the
+    same (random) params, frames in batches of 4 on the fast side. Tolerances: two float32 computations'
+    error bounds (`float_bounds`), plus the sums over a frame's pixels and the frames for the loss."""
     cfg = dataclasses.replace(SMALL, aux="pred+attention", frame_batch=4)
-    plain = net.PaperActorCritic(cfg)
+    plain = PaperActorCritic(cfg)
     rng = np.random.default_rng(11)
     obs, resets = _obs(12, (T, B, *net.OBS_SHAPE)), jnp.asarray(rng.random((T, B)) < 0.3)
     carry = _normal(13, net.initial_carry(cfg, (B,)), 0.5)
@@ -357,14 +358,14 @@ def test_the_paper_network_draws_the_documented_distributions():
     """``PaperActorCritic.init``: orthogonal dense weights with their gains, zero dense biases, convs uniform
     within PyTorch's bound; symbolic views are refused."""
     args = (net.initial_carry(SMALL, (B,)), _obs(15, (T, B, *net.OBS_SHAPE)), jnp.zeros((T, B), bool))
-    params = jax.jit(net.PaperActorCritic(SMALL).init)(jax.random.key(3), *args)["params"]
+    params = jax.jit(PaperActorCritic(SMALL).init)(jax.random.key(3), *args)["params"]
     fc = np.asarray(params["fc"]["kernel"])
     np.testing.assert_allclose(fc.T @ fc, 2 * np.eye(SMALL.hidden), atol=1e-5)
     assert not np.any(params["value"]["out"]["bias"]) and not np.any(params["lstm"]["b"])
     for layer, fan_in in (("conv1", 3 * 9), ("deconv3", SMALL.conv_channels[0])):  # deconv3: stride 3
         bound = 1 / np.sqrt(fan_in)
         assert 0.5 * bound < np.abs(params[layer]["kernel"]).max() <= bound
-    symbolic = net.PaperActorCritic(net.NetworkConfig(obs="symbolic"))
+    symbolic = PaperActorCritic(net.NetworkConfig(obs="symbolic"))
     with pytest.raises(ValueError, match="pixel views"):
         symbolic.init(jax.random.key(0), *args)
 

@@ -1,6 +1,6 @@
-"""The plain Flax layers both networks are built of: `Dense`, `MLP` and `LSTM` (the paper's reference
-`network.PaperActorCritic` and the `modules.ActorCritic` that runs), and the LSTM state `Carry` and per-step
-`Output` they pass on.
+"""The plain Flax layers the network is built of: `Dense`, `MLP` and `LSTM` (in the `modules.ActorCritic` that
+runs, and in the tests' reference `PaperActorCritic`, tests/reference_network.py), and the LSTM state `Carry`
+and per-step `Output` they pass on.
 
 LSTM gates are ordered (i, f, g, o) like PyTorch, with one bias. Initialisation: dense layers orthogonal with
 a gain (sqrt(2) hidden, 1 for the value output, 0.01 for the policy and attention outputs) and zero bias; LSTM

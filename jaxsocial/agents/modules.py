@@ -1,13 +1,13 @@
-"""The network's Flax linen modules as they run: `ActorCritic`, the function `network.PaperActorCritic`
-computes in plain layers, with the same params tree, computed faster. Its `Encoder` and `Decoder` (the
-auxiliary frame head) run their convolutions (`Conv`) in frame batches and in the kernel `conv_impl` picks
-(`fast/`); `Embed` maps symbolic views; `LSTM`, `MLP` and `Dense` are `layers`'. `network` applies them to
-a params dict.
+"""The network's Flax linen modules as they run: `ActorCritic`, the network that trains: the function of the
+tests' reference in plain Flax layers (`PaperActorCritic`, tests/reference_network.py), with the same params
+tree, computed faster. Its `Encoder` and `Decoder` (the auxiliary frame head) run their convolutions
+(`Conv`) in frame batches and in the kernel `conv_impl` picks (`fast/`); `Embed` maps symbolic views; `LSTM`,
+`MLP` and `Dense` are `layers`'. `network` applies them to a params dict.
 
 Conventions: conv kernels are HWIO ``[3, 3, C_in, C_out]``, and the conv layers take and return HWNC
 activations (`conv`); deconv kernels are ``[3, 3, C_in, C_out]`` with torch ConvTranspose2d (scatter)
-semantics. Every layer creates its params with `initialisers.param`, with the distributions of
-`network.PaperActorCritic` and `layers`.
+semantics. Every layer creates its params with `initialisers.param`, with the distributions its docstring
+states (`Conv`, `Embed`) or `layers` states.
 """
 
 from __future__ import annotations

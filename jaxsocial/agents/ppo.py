@@ -135,21 +135,16 @@ def _recompute(params, batch: Batch, net_cfg: NetworkConfig, ppo_cfg: PPOConfig)
     last_carry, (carries, values) = jax.lax.scan(unroll_segment, batch.carry0, segments)
     values = values.reshape(n_steps, *values.shape[2:])
     _, last = network.unroll(params, net_cfg, last_carry, batch.obs[-1:], batch.resets[-1:])
-    return _targets(ppo_cfg, batch, carries, jnp.concatenate([values, last.value], axis=0))
+    return Targets(carries, *advantages(ppo_cfg, batch, jnp.concatenate([values, last.value], axis=0)))
 
 
-def rollout_targets(ppo_cfg: PPOConfig, batch: Batch) -> Targets:
-    """The targets of the rollout policy from the values and segment-start states the rollout recorded
-    (`batch.values`, `batch.segment_carries`): `recompute` with the rollout's params, up to float rounding."""
-    return _targets(ppo_cfg, batch, batch.segment_carries, batch.values)
-
-
-def _targets(ppo_cfg: PPOConfig, batch: Batch, carries: network.Carry, values: jax.Array) -> Targets:
-    """Targets from segment-start states and values float32[T+1, E] (the last bootstraps): GAE, where a
-    truncated episode bootstraps from the value of its final observation (`batch.final_values`)."""
+def advantages(ppo_cfg: PPOConfig, batch: Batch, values: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """GAE of values float32[T+1, E] (the last bootstraps) over the batch's rewards, where a truncated
+    episode bootstraps from the value of its final observation (`batch.final_values`): (advantages,
+    returns), float32[T, E] each."""
     truncated = batch.agent_done & ~batch.terminated
     next_values = jnp.where(truncated, batch.final_values, values[1:])
-    advantages, returns = gae(
+    return gae(
         batch.rewards,
         values[:-1],
         next_values,
@@ -158,7 +153,18 @@ def _targets(ppo_cfg: PPOConfig, batch: Batch, carries: network.Carry, values: j
         ppo_cfg.gamma,
         ppo_cfg.gae_lambda,
     )
-    return Targets(carries, advantages, returns)
+
+
+def rollout_advantages(ppo_cfg: PPOConfig, batch: Batch) -> tuple[jax.Array, jax.Array] | None:
+    """The rollout policy's `advantages`, of the values the rollout recorded (`batch.values`); None where the
+    batch holds none (minibatch 0 then recomputes them)."""
+    return None if batch.values is None else advantages(ppo_cfg, batch, batch.values)
+
+
+def rollout_targets(ppo_cfg: PPOConfig, batch: Batch) -> Targets:
+    """The targets of the rollout policy from the values and segment-start states the rollout recorded
+    (`batch.values`, `batch.segment_carries`): `recompute` with the rollout's params, up to float rounding."""
+    return Targets(batch.segment_carries, *rollout_advantages(ppo_cfg, batch))
 
 
 def minibatch(batch: Batch, targets: Targets, idx: jax.Array, length: int) -> dict[str, jax.Array]:
@@ -349,18 +355,23 @@ def update(
     ppo_cfg: PPOConfig,
     batch: Batch,
     dp: Devices = ONE_DEVICE,
+    rollout_gae: tuple[jax.Array, jax.Array] | None = None,
 ) -> tuple[dict, optax.OptState, dict[str, jax.Array]]:
     """One PPO update of one learner on its rollout (the paper's minibatch loop): `num_minibatches`
     `minibatch_step`s in a scan, those after the KL stop skipped (`step_or_skip`).
 
-    Before minibatch 0 the targets are the rollout policy's (`rollout_targets`) where the batch carries the
-    rollout's values, else minibatch 0 recomputes them. Returns new params, optimiser state and metrics
-    (means over the minibatches that ran, the last KL, the minibatches applied, whether it reverted).
-    `dp`: the devices the batch is split over (see the module docstring).
+    Minibatch 0 trains on `rollout_gae`, the rollout policy's advantages and returns float32[T, E]
+    (`rollout_advantages`, which `rollout.ppo_update` computes before it calls this; None: computed here),
+    with the segment-start states the rollout recorded; without them (a batch with no values) minibatch 0
+    recomputes the targets. Returns new params, optimiser state and metrics (means over the minibatches that
+    ran, the last KL, the minibatches applied, whether it reverted). `dp`: the devices the batch is split over
+    (see the module docstring), `batch` laid out over them by the caller (``dp.shard(batch,
+    BATCH_ENV_AXES)``, as `rollout.ppo_update` does).
     """
-    batch = dp.shard(batch, BATCH_ENV_AXES)
-    if batch.values is not None:
-        targets0 = rollout_targets(ppo_cfg, batch)
+    if rollout_gae is None:
+        rollout_gae = rollout_advantages(ppo_cfg, batch)
+    if rollout_gae is not None:
+        targets0 = Targets(batch.segment_carries, *rollout_gae)
     else:
         targets0 = jax.tree.map(
             jnp.zeros_like, jax.eval_shape(lambda: recompute(params, net_cfg, ppo_cfg, batch))

@@ -1,7 +1,7 @@
 """One training iteration, top to bottom (`iteration`): every slot acts in E environments for T steps (one
-`lax.scan`), then the learners learn from them, by PPO (`ppo.update`, learner after learner) or by behaviour
-cloning from the demonstrators (`bc.update`), and the `RunnerState` they carry between iterations.
-`jaxsocial.run.loop.make_program` scans it over iterations.
+`lax.scan`), then the learners learn from them, by PPO (GAE, then `ppo.update`, learner after learner:
+`ppo_update`) or by behaviour cloning from the demonstrators (`bc.update`), and the `RunnerState` they carry
+between iterations. `jaxsocial.run.loop.make_program` scans it over iterations.
 
 Everything static (slots, network, environment, hyperparameters) is a `Wiring`, made once by `wiring`.
 Names: `done` bool[E] an environment's episode ended (`info["done"]`); `agent_done` bool[..., E] an agent's
@@ -221,8 +221,7 @@ def iteration(
     if w.cloning:  # BEHAVIOUR CLONING: the learners fit the demonstrators' actions
         state, losses = bc_update(w, state, traj)
         return state._replace(key=key), losses, ended
-    # ADVANTAGE: each learner's batch, bootstrapped by the values of the views after the last step (GAE
-    # itself runs in `ppo.update`: on the rollout's values first, then recomputed every few minibatches)
+    # BATCH each learner's steps, bootstrapped by the values of the views after the last step
     bootstrap = acting.values(
         w.pop, w.net_cfg, slot_params, state.slots.carry, state.obs, state.resets, w.observers
     )
@@ -230,7 +229,8 @@ def iteration(
     batch = ppo_batch(
         traj, learner_obs, state.resets, bootstrap[: w.n_learners], carry0, w.ppo_cfg.segment_length
     )
-    # UPDATE every learner by PPO, one after another
+    # ADVANTAGE and UPDATE, learner after learner (`ppo_update`): GAE of the values the rollout recorded
+    # (`ppo.rollout_advantages`), then PPO's minibatch loop from them (`ppo.update`, which recomputes them)
     state, losses = ppo_update(w, state, batch, k_update, dp)
     return state._replace(key=key), losses, ended
 
@@ -335,14 +335,17 @@ def ppo_batch(
 def ppo_update(
     w: Wiring, state: RunnerState, batch: ppo.Batch, key: jax.Array, dp: Devices = ONE_DEVICE
 ) -> tuple[RunnerState, dict[str, jax.Array]]:
-    """Every learner's PPO update (`ppo.update`) on its `batch` (`ppo_batch`, stacked [S_l, ...]). Returns
-    the state with the new params and optimiser states, and the losses ({name: float32[S_l]})."""
+    """Every learner's advantages and PPO update on its `batch` (`ppo_batch`, stacked [S_l, ...]): GAE of
+    the values the rollout recorded (`ppo.rollout_advantages`), then `ppo.update` from them. Returns the
+    state with the new params and optimiser states, and the losses ({name: float32[S_l]})."""
 
     # Learners are updated one after another (`lax.map`, same result as a vmap): XLA:CPU stalled on the
     # vmapped paper-size network, whose convolutions in frame batches are themselves a `lax.map`.
     def update(args):
         key, params, opt_state, learner_batch = args
-        return ppo.update(key, params, opt_state, w.net_cfg, w.ppo_cfg, learner_batch, dp)
+        learner_batch = dp.shard(learner_batch, ppo.BATCH_ENV_AXES)  # each device its environments
+        advantages = ppo.rollout_advantages(w.ppo_cfg, learner_batch)  # (advantages, returns) float32[T, E]
+        return ppo.update(key, params, opt_state, w.net_cfg, w.ppo_cfg, learner_batch, dp, advantages)
 
     new_params, new_opt, losses = jax.lax.map(
         update, (jax.random.split(key, w.n_learners), state.params, state.opt_state, batch)
