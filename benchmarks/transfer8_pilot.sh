@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The exploratory pilots of the transfer8 design (jaxsocial/experiments/evaluation_designs/transfer8.json),
+# The exploratory pilots of the transfer8 design (jaxsocial/experiments/designs/transfer8.json),
 # played before it was committed, into benchmarks/results/science/transfer8-evidence/:
 #   sizes: the 8x8 screen's PPO + pred seeds (sweep settings mb8k8_pred_8x8 and mb8k8_solo_pred_8x8, seeds
 #          0-6, other records than pred8's) and a random walker in the learner's slot, beside each

@@ -15,7 +15,7 @@ from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats, train
-from jaxsocial.experiments import branch_design, kinds, paths, pinned, prereg, records, rundirs
+from jaxsocial.experiments import branch_design, catalogue, kinds, paths, pinned, prereg, records, rundirs
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.provenance import PARENT_WRITES
@@ -89,20 +89,21 @@ def test_the_amendment_tests_each_branch_against_where_it_started():
     assert pilot["social_fades"]["differences"] == [
         s["zero_shot"][solo3]["learner"] - s["branches"]["social"][solo3] for s in social
     ]  # a fall is positive
-    committed = prereg.commit_time(prereg.file_commit(branch_design.amendment_path("mixing")))
+    committed = prereg.commit_time(catalogue.file_commit(catalogue.amendment_path("mixing")))
     assert datetime.datetime.fromisoformat(committed) >= datetime.datetime.fromisoformat("2026-12-01T22:44Z")
     assert prereg.commit_time(None) is None
 
 
-def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path):
-    raw = logs.read_json(branch_design.path_of("mixing"))
+def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path, monkeypatch):
+    raw = logs.read_json(catalogue.path_of("mixing"))
+    monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     raw["primary"]["mixed_vs_alone"]["control"] = "solo"
     raw["secondary"]["social_skill"]["env"] = "goalcycle4"
     (tmp_path / "bad.json").write_text(json.dumps(raw))
     with pytest.raises(ValueError, match=r"arm 'solo' is not one of \['alone', 'mixed', 'social', 'start'\]"):
-        branch_design.load("bad", tmp_path)
+        branch_design.load("bad")
     with pytest.raises(FileNotFoundError, match=r"the designs are \['bad'\]"):
-        branch_design.load("mixing", tmp_path)
+        branch_design.load("mixing")
 
 
 def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, float]) -> None:
@@ -160,10 +161,10 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
         provenance = logs.read_json(tmp_path / design.out / name / records.PROVENANCE_FILE)
         provenance["run"]["ended"] = when
         logs.write_json(tmp_path / design.out / name / records.PROVENANCE_FILE, provenance)
-    committed = prereg.file_commit  # the design's commit as it is; the amendment's at 22:00 UTC
-    amendment = branch_design.amendment_path(design.name)
+    committed = catalogue.file_commit  # the design's commit as it is; the amendment's at 22:00 UTC
+    amendment = catalogue.amendment_path(design.name)
     monkeypatch.setattr(
-        prereg, "file_commit", lambda path: "f" * 40 if path == amendment else committed(path)
+        catalogue, "file_commit", lambda path: "f" * 40 if path == amendment else committed(path)
     )
     monkeypatch.setattr(prereg, "commit_time", lambda commit: "2026-12-01T22:00:00+00:00")
     summary = branch_design.summarise(design, tmp_path)
@@ -266,7 +267,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     assert branch_design.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
     provenance = logs.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
     assert provenance["run"]["device"].endswith(", one core per seed")
-    summary = branch_design.summarise(design, records_root, tmp_path)
+    summary = branch_design.summarise(design, records_root)
     assert summary["recorded"] == 1 and summary["preregistered"]["checks"]["differing"] == []
     assert summary["environments"][solo]["mixed"]["per_seed"][0] is not None
     assert summary["environments"][solo]["social"]["per_seed"] == [None]

@@ -14,6 +14,7 @@ from conftest import needs_records
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import (
+    catalogue,
     commits,
     kinds,
     paths,
@@ -211,7 +212,7 @@ def test_preregistered_block():
         "control_seeds": 8,
         "p": round(p, 6),
     }
-    assert block["commit"] == prereg.design_commit("h1_prereg")
+    assert block["commit"] == catalogue.design_commit("h1_prereg")
     checks = block["checks"]
     after = prereg.precedes(block["commit"], head)  # True once the design is committed
     assert checks["runs_not_after_design"] == ["a/s1"] if after else ["a/s0", "a/s1"]  # a/s1 has no commit
@@ -267,8 +268,8 @@ def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monk
         assert len(found) == len(problems) * len(conditions)
         assert all(want in got for want, got in zip(problems * len(conditions), found, strict=True))
     bad = tmp_path / "h1_bad.json"
-    bad.write_text(json.dumps({**logs.read_json(prereg.path_of("h1_prereg")), "xla_flags": "--a=1 b=2"}))
-    monkeypatch.setattr(prereg, "DESIGNS_DIR", tmp_path)
+    bad.write_text(json.dumps({**logs.read_json(catalogue.path_of("h1_prereg")), "xla_flags": "--a=1 b=2"}))
+    monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     with pytest.raises(ValueError, match="design h1_bad's xla_flags: 'b=2' is not an XLA flag"):
         prereg.load("h1_bad")
 
@@ -281,8 +282,8 @@ def test_a_design_may_borrow_an_arm_of_a_finished_design(tmp_path, monkeypatch):
     assert design.learned_by == "takeoff" and design.stop_at_return == 5.0
     assert prereg.load("imperfect8").trained_conditions == ("social_pred_imperfect_half",)
     for name in ("pred8", "nopenalty8"):
-        (tmp_path / f"{name}.json").write_text(prereg.path_of(name).read_text())
-    monkeypatch.setattr(prereg, "DESIGNS_DIR", tmp_path)
+        (tmp_path / f"{name}.json").write_text(catalogue.path_of(name).read_text())
+    monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     base = logs.read_json(tmp_path / "nopenalty8.json")
     bad = {
         "not among pred8's treatment": {"borrowed": {"treatment": "pred8"}},
@@ -320,7 +321,7 @@ def test_designs_since_the_cross_cpu_flags_name_them():
     (`pinned.CROSS_CPU_KINDS`) agree bit for bit, though not with the Zen 3; the designs committed before the
     field keep XLA's defaults (their files may not change)."""
     before = {"experts", "h1_early", "h1_laptop", "h1_prereg", "h1_sooner"}
-    names = sorted(path.stem for path in prereg.DESIGNS_DIR.glob("*.json"))
+    names = catalogue.names("training")
     assert before <= set(names)
     for name in names:
         flags = prereg.load(name).xla_flags

@@ -11,12 +11,12 @@ import pytest
 from conftest import needs_records
 from scipy import stats as scipy_stats
 
+from jaxsocial.experiments import catalogue, paths, prereg
 from jaxsocial.experiments import evaluation_design as ed
-from jaxsocial.experiments import paths, prereg
 
 
 def design_file(tmp_path, **changes) -> ed.EvaluationDesign:
-    """A small design 'tiny_transfer' in `tmp_path` (ed.DESIGNS_DIR must point there), loaded."""
+    """A small design 'tiny_transfer' in `tmp_path` (catalogue.DESIGNS_DIR must point there), loaded."""
     raw = {
         "name": "tiny_transfer",
         "records": "laptop/prereg-h1_early",
@@ -47,7 +47,7 @@ def design_file(tmp_path, **changes) -> ed.EvaluationDesign:
 
 @pytest.fixture
 def designs_dir(tmp_path, monkeypatch):
-    monkeypatch.setattr(ed, "DESIGNS_DIR", tmp_path)
+    monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     return tmp_path
 
 
@@ -60,7 +60,7 @@ def test_a_bad_design_fails_on_load_before_anything_plays(designs_dir):
         design_file(designs_dir, references={"both": {"ckpt": "a", "slot": "random"}})
     with pytest.raises(ValueError, match="two different arms"):
         design_file(designs_dir, control="social_rec")
-    with pytest.raises(FileNotFoundError, match="no evaluation design"):
+    with pytest.raises(FileNotFoundError, match="no design .*the designs are"):
         ed.load("no_such_design")
 
 
@@ -179,7 +179,7 @@ def test_run_refuses_a_design_whose_records_are_missing(designs_dir, tmp_path):
     assert not (tmp_path / "science").exists()
 
 
-@pytest.mark.parametrize("name", sorted(p.stem for p in ed.DESIGNS_DIR.glob("*.json")))
+@pytest.mark.parametrize("name", catalogue.names("evaluation"))
 def test_a_committed_design_names_its_material_and_its_pilot(name):
     design = ed.load(name)
     if not (paths.RECORDS / design.records).is_dir():
@@ -191,7 +191,7 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
 
 @pytest.mark.slow
 @needs_records("records/laptop/prereg-h1_early", "records/laptop/prereg-experts")  # the pilots
-@pytest.mark.parametrize("name", sorted(p.stem for p in ed.DESIGNS_DIR.glob("*.json")))
+@pytest.mark.parametrize("name", catalogue.names("evaluation"))
 def test_a_committed_design_has_the_power_it_states(name):
     """The whole power table, recomputed from the committed pilot with the design's seed of the simulation."""
     design = ed.load(name)

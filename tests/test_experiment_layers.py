@@ -9,6 +9,7 @@ PLAN = (
     "jaxsocial.experiments.paths",
     "jaxsocial.experiments.xla_flags",
     "jaxsocial.experiments.commits",
+    "jaxsocial.experiments.catalogue",
     "jaxsocial.experiments.prereg",
     "jaxsocial.experiments.conditions",
     "jaxsocial.experiments.recipes",

@@ -45,10 +45,12 @@ def test_learned_mixing_switches_each_seed_on_its_own_return(tmp_path, capsys):
     assert schedule.format_stages(first.stages) == f"return>={conditions.MIXING_RETURN!r}:solo_prob=0.75"
     mixed = recipes.condition_config(recipes.GPU, "social_pred_mixed", 0, 2, "r")
     assert schedule.format_stages(mixed.stages) == "200:solo_prob=0.75"
-    cli.main(["run", "mixing", "--scale", "gpu", "--seeds", "2", "--runs-dir", str(tmp_path), "--dry-run"])
+    cli.main(
+        ["run", "fig6_mixing", "--scale", "gpu", "--seeds", "2", "--runs-dir", str(tmp_path), "--dry-run"]
+    )
     out = capsys.readouterr().out
     for seed in (0, 1):
-        assert f"[mixing/gpu] social_pred_mixed_learned s{seed}: missing" in out
+        assert f"[fig6_mixing/gpu] social_pred_mixed_learned s{seed}: missing" in out
         run_name = f"gpu/social_pred_mixed_learned-s{seed}-{seed}"
         command = next(line for line in out.splitlines() if f"--run-name {run_name}" in line)
         assert (
@@ -256,7 +258,7 @@ def mixing_runs(tmp_path_factory):
     """The mixing recipe at the tiny scale, one seed: social PPO + pred with evaluation during training,
     and the same with the switch to 75% solo episodes at a fixed iteration and on the return."""
     root = tmp_path_factory.mktemp("experiments")
-    cli.main(["run", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(root)])
+    cli.main(["run", "fig6_mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(root)])
     return root
 
 
@@ -278,19 +280,19 @@ def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
         }
     before = (run_dir / logs.METRICS_FILE).stat().st_mtime_ns
     capsys.readouterr()
-    cli.main(["run", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs)])
+    cli.main(["run", "fig6_mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs)])
     assert capsys.readouterr().out.count(": finished") == 3
     assert (run_dir / logs.METRICS_FILE).stat().st_mtime_ns == before  # not retrained
 
 
 @pytest.mark.slow
 def test_figure_summarises_the_runs(mixing_runs, tmp_path):
-    cli.main(["figure", "mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs),
+    cli.main(["figure", "fig6_mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs),
               "--out-dir", str(tmp_path)])  # fmt: skip
-    summary = json.loads((tmp_path / "mixing-tiny.json").read_text())
-    assert (tmp_path / "mixing-tiny.png").stat().st_size > 1000
+    summary = json.loads((tmp_path / "fig6_mixing-tiny.json").read_text())
+    assert (tmp_path / "fig6_mixing-tiny.png").stat().st_size > 1000
     assert summary["command"] == (
-        "python -m jaxsocial.experiments figure mixing --scale tiny --seed 0 --seeds 1 "
+        "python -m jaxsocial.experiments figure fig6_mixing --scale tiny --seed 0 --seeds 1 "
         f"--runs-dir {mixing_runs} --out-dir {tmp_path}"
     )
     assert summary["provenance"]["unrecorded"] == [
@@ -421,12 +423,12 @@ def test_figure_leaves_out_conditions_not_run(mixing_runs, tmp_path):
 
 def test_no_train_trains_nothing_and_says_what_it_skipped(tmp_path, capsys):
     cli.main(
-        ["run", "transfer", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path), "--no-train"]
+        ["run", "fig5_transfer", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path), "--no-train"]
     )
     out = capsys.readouterr().out
-    for name in recipes.RECIPES["transfer"].conditions:
+    for name in recipes.RECIPES["fig5_transfer"].conditions:
         assert f"{name}: not trained (--no-train); its unfinished seeds are not evaluated" in out
-    figure = f"figure transfer --scale tiny --seed 0 --seeds 1 --runs-dir {tmp_path}"
+    figure = f"figure fig5_transfer --scale tiny --seed 0 --seeds 1 --runs-dir {tmp_path}"
     assert f"next: python -m jaxsocial.experiments {figure}" in out
     assert not any(tmp_path.iterdir())
 
@@ -435,13 +437,23 @@ def test_no_train_trains_nothing_and_says_what_it_skipped(tmp_path, capsys):
 def test_no_train_evaluates_the_conditions_trained_elsewhere(mixing_runs, capsys):
     """transfer's social_pred was trained by the mixing recipe; its solo_pred and bc were not."""
     cli.main(
-        ["run", "transfer", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs), "--no-train"]
+        [
+            "run",
+            "fig5_transfer",
+            "--scale",
+            "tiny",
+            "--seeds",
+            "1",
+            "--runs-dir",
+            str(mixing_runs),
+            "--no-train",
+        ]
     )
     out = capsys.readouterr().out
     assert "solo_pred: not trained" in out and "bc: not trained" in out
     cfg = recipes.condition_config(recipes.TINY, "social_pred", 0, 1, str(mixing_runs))
     (seed_dir,) = runner.seed_dirs(cfg)
-    for spec in kinds.transfer_specs(recipes.RECIPES["transfer"], recipes.TINY):
+    for spec in kinds.transfer_specs(recipes.RECIPES["fig5_transfer"], recipes.TINY):
         result = json.loads(kinds.eval_path(seed_dir, spec).read_text())
         assert result["checkpoints"] == [str(seed_dir)]
         assert f"social_pred {seed_dir.name} in {spec}" in out

@@ -13,6 +13,7 @@ from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import (
     branch_design,
+    catalogue,
     evaluation_design,
     followup,
     paths,
@@ -272,21 +273,17 @@ def test_a_record_keeps_its_checkpoint_only_with_a_reason():
 
 def _rederivations() -> dict[str, functools.partial]:
     """Every committed summary made from the committed records alone (file name) -> the command that writes
-    it, run from the repository root: the `figure` command it names (the CLI's or a design module's), the
-    follow-ups', the sweep's and its map, and the pooled summaries."""
+    it, run from the repository root: the `figure` command it names (a recipe's or a design's of any kind),
+    the follow-ups', the sweep's and its map, and the pooled summaries."""
     science = REPO / paths.SCIENCE
     out = {}
     for path in sorted(science.glob("*.json")):
         summary = logs.read_json(path)
         command = summary.get("command") or ""
-        if command.startswith("python -m jaxsocial.experiments figure ") and str(paths.RECORDS) in command:
+        if command.startswith("python -m jaxsocial.experiments figure "):
             out[path.name] = functools.partial(cli.main, command.split()[3:])
         elif path.name.startswith("followup-"):
             out[path.name] = functools.partial(followup.main, ["figure", summary["design"]])
-        elif command.startswith("python -m jaxsocial.experiments.evaluation_design figure "):
-            out[path.name] = functools.partial(evaluation_design.main, command.split()[3:])
-        elif command.startswith("python -m jaxsocial.experiments.branch_design figure "):
-            out[path.name] = functools.partial(branch_design.main, command.split()[3:])
     out[paths.SWEEP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["figure"])
     committed = ["--summary", str(science / "sweep.json")]
     out[paths.MAP_SUMMARY.name + ".json"] = functools.partial(sweep.main, ["map", *committed])
@@ -305,9 +302,10 @@ def _records_read(name: str) -> tuple[str, ...]:
         return ()
     if name == paths.SWEEP_SUMMARY.name + ".json":
         return (f"records/{sweep.RECORDS_SUBDIR}",)
-    if "evaluation_design" in " ".join(command[:3]):
+    kind = catalogue.kind_of(summary["design"]) if summary.get("design") in catalogue.names() else None
+    if kind == "evaluation":
         return (f"records/{evaluation_design.load(summary['design']).records}",)
-    if "branch_design" in " ".join(command[:3]):
+    if kind == "branch":
         design = branch_design.load(summary["design"])
         return (f"records/{design.records}", f"records/{design.out}")
     if "--scale" in command:

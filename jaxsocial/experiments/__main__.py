@@ -1,5 +1,7 @@
-"""`python -m jaxsocial.experiments COMMAND ...`: recipes, designs, records and the commands of the modules
-beside it (`DELEGATED`); see `jaxsocial.experiments`."""
+"""`python -m jaxsocial.experiments VERB NAME ...`: recipes, designs of every kind, records and the commands
+of the modules beside it (`DELEGATED`); see `jaxsocial.experiments`. NAME is a recipe or a design; a
+design's kind comes from its file (`catalogue`): a training design is its recipe's, an evaluation or branch
+design goes to its kind's module (`DESIGN_MODULES`)."""
 
 from __future__ import annotations
 
@@ -9,7 +11,18 @@ import re
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import paths, pinned, prereg, recipes, records, rundirs, runner, summaries, verify
+from jaxsocial.experiments import (
+    catalogue,
+    paths,
+    pinned,
+    prereg,
+    recipes,
+    records,
+    rundirs,
+    runner,
+    summaries,
+    verify,
+)
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -30,10 +43,9 @@ def make_parser() -> argparse.ArgumentParser:
         options[name](_recipe_parser(sub, name, help_))
     for name, (_, help_) in DELEGATED.items():
         sub.add_parser(name, help=help_ + f" (python -m jaxsocial.experiments {name} --help)", add_help=False)
-    designed = sorted(r.name for r in recipes.RECIPES.values() if r.design)
-    power = f"a pre-registered design and its power (recipes with a design: {', '.join(designed)})"
+    power = "a pre-registered design and its power"
     p = sub.add_parser("power", help=power, description=power)
-    p.add_argument("recipe", choices=designed)
+    p.add_argument("recipe", choices=catalogue.names(), metavar="DESIGN")
     _verify_parser(sub)
     return parser
 
@@ -56,7 +68,7 @@ def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> Non
 def _recipe_parser(sub, name: str, help_: str) -> argparse.ArgumentParser:
     """The subcommand `name` with the options every recipe command has: the recipe, scale, seeds, runs."""
     p = sub.add_parser(name, help=help_)
-    p.add_argument("recipe", choices=sorted(recipes.RECIPES))
+    p.add_argument("recipe", choices=sorted(recipes.RECIPES), metavar="NAME", help=f"{_names_help()}")
     p.add_argument("--scale", default="cpu", choices=sorted(recipes.SCALES))
     seeds_help = {
         "run": "seeds per condition, trained in one program",
@@ -337,10 +349,49 @@ DELEGATED = {
 `python -m jaxsocial.experiments.sweep ARGS` (the module entry points keep working)."""
 
 
+DESIGN_MODULES = {
+    "evaluation": "jaxsocial.experiments.evaluation_design",
+    "branch": "jaxsocial.experiments.branch_design",
+}
+"""The kinds of design with a module of their own, each with its `VERBS` and `main`: `experiments VERB NAME
+ARGS`, NAME a design of that kind, is that module's `main([VERB, NAME, *ARGS])`."""
+
+
+def _names_help() -> str:
+    """The names a recipe command takes: the recipes, and the designs of the other kinds, with their verbs."""
+    others = [
+        f"{kind} designs ({', '.join(importlib.import_module(module).VERBS)}): "
+        f"{', '.join(catalogue.names(kind))}"
+        for kind, module in DESIGN_MODULES.items()
+    ]
+    return f"a recipe ({', '.join(recipes.RECIPES)}); {'; '.join(others)}"
+
+
+def design_module(argv: list[str]):
+    """The module that acts on the design `VERB NAME ...` names, where its kind has one (None otherwise);
+    SystemExit where VERB is not one of that kind's."""
+    verbs = {verb for module in DESIGN_MODULES.values() for verb in importlib.import_module(module).VERBS}
+    if len(argv) < 2 or argv[0] not in verbs or argv[1] not in catalogue.names():
+        return None
+    kind = catalogue.kind_of(argv[1])
+    if kind not in DESIGN_MODULES:
+        return None
+    module = importlib.import_module(DESIGN_MODULES[kind])
+    if argv[0] not in module.VERBS:
+        raise SystemExit(
+            f"error: {argv[0]} {argv[1]}: the {kind} design {argv[1]} takes {', '.join(module.VERBS)}"
+        )
+    return module
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = paths.take_results_option(argv)
     if argv and argv[0] in DELEGATED:
         importlib.import_module(DELEGATED[argv[0]][0]).main(argv[1:])
+        return
+    module = design_module(argv)
+    if module is not None:
+        module.main(argv)
         return
     args = parse_args(argv)
     if args.command == "list":
@@ -382,9 +433,12 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def list_recipes() -> None:
-    """`list`: every recipe with its conditions, and every scale with the cost of one run."""
+    """`list`: every recipe with its conditions, every design by kind, and every scale with the cost of one
+    run."""
     for r in recipes.RECIPES.values():
         print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")
+    for kind in catalogue.KINDS:
+        print(f"{kind} designs: {', '.join(catalogue.names(kind))}")
     for s in recipes.SCALES.values():
         per_run = s.iterations * s.config.num_envs * s.config.rollout_steps
         unmeasured = (

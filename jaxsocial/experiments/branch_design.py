@@ -2,10 +2,10 @@
 run per arm, each arm for the same iterations in its own environment, fixed in `designs/<name>.json`
 before any of its runs.
 
-    python -m jaxsocial.experiments.branch_design power mixing              # the design and its power
-    python -m jaxsocial.experiments.branch_design run mixing --cores 0 1    # train what is missing (blind)
-    python -m jaxsocial.experiments.branch_design record mixing             # pack the finished runs
-    python -m jaxsocial.experiments.branch_design figure mixing             # summary, tests and figure
+    python -m jaxsocial.experiments power mixing              # the design and its power
+    python -m jaxsocial.experiments run mixing --cores 0 1    # train what is missing (blind)
+    python -m jaxsocial.experiments record mixing             # pack the finished runs
+    python -m jaxsocial.experiments figure mixing             # summary, tests and figure
 
 Run k of an arm starts from the record `<records>/<source>-s<seed+k>-<seed+k>` of the arm's source condition
 (`--init-from`: a record keeps its policy, not its optimiser, so every arm starts with the policy's params
@@ -55,6 +55,8 @@ from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
 
 ALTERNATIVES = ("greater", "less", "two-sided")
+VERBS = ("power", "run", "record", "figure")
+"""What `python -m jaxsocial.experiments VERB NAME` does to a branch design (`main`)."""
 START = "start"
 """A test's control that is no arm: the treatment arm's source records, as they were when branched."""
 
@@ -432,7 +434,7 @@ def summarise(design: BranchDesign, records_root: Path) -> dict[str, Any]:
         "environments": per_env,
         "preregistered": block,
         "machines": sorted({p["run"].get("device") or "unknown" for p in provenance.values()}),
-        "command": f"python -m jaxsocial.experiments.branch_design figure {design.name}",
+        "command": f"python -m jaxsocial.experiments figure {design.name}",
     }
 
 
@@ -683,8 +685,8 @@ def describe(design: BranchDesign) -> str:
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.branch_design")
-    parser.add_argument("action", choices=("power", "run", "record", "figure"))
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=__doc__)
+    parser.add_argument("action", choices=VERBS)
     parser.add_argument("design", help="a branch design (e.g. mixing)")
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
@@ -732,7 +734,3 @@ def main(argv: list[str] | None = None) -> None:
             print(f"wrote {science / design.name}.json and .png")
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
-
-
-if __name__ == "__main__":
-    main()

@@ -57,7 +57,7 @@ def read(name: str, kind: str) -> dict:
     is of another kind)."""
     found = kind_of(name)
     if found != kind:
-        raise ValueError(f"design {name} is a {found} design, not a {kind} one")
+        raise ValueError(f"design {name} is of kind {found}, not {kind}")
     raw = logs.read_json(path_of(name))
     raw.pop("kind", None)
     return raw

@@ -2,9 +2,9 @@
 zero-shot, and how the arms are compared, fixed in `designs/<name>.json` before any of its
 evaluations runs. Nothing trains: the material is a finished design's records, every seed of its two arms.
 
-    python -m jaxsocial.experiments.evaluation_design power transfer      # the design and its power
-    python -m jaxsocial.experiments.evaluation_design run transfer        # play what is missing (blind)
-    python -m jaxsocial.experiments.evaluation_design figure transfer     # summary, tests and figure
+    python -m jaxsocial.experiments power transfer      # the design and its power
+    python -m jaxsocial.experiments run transfer        # play what is missing (blind)
+    python -m jaxsocial.experiments figure transfer     # summary, tests and figure
 
 Every evaluation plays all of an arm's records in one `jaxsocial.evaluate` call (the same `episodes`
 episodes, evaluation seed `eval_seed`, for each record); its result, whose slot 0 holds each record's mean
@@ -36,6 +36,8 @@ from jaxsocial.specs import EnvSpec
 
 PROVENANCE = "provenance.jsonl"
 ALTERNATIVES = ("greater", "less", "two-sided")
+VERBS = ("power", "run", "figure")
+"""What `python -m jaxsocial.experiments VERB NAME` does to an evaluation design (`main`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -291,7 +293,7 @@ def summarise(design: EvaluationDesign, records_root: Path, science: Path) -> di
         "environments": per_env,
         "preregistered": block,
         "machines": sorted({line["cpu"] for line in evaluated}),
-        "command": f"python -m jaxsocial.experiments.evaluation_design figure {design.name}",
+        "command": f"python -m jaxsocial.experiments figure {design.name}",
     }
 
 
@@ -472,8 +474,8 @@ def describe(design: EvaluationDesign) -> str:
 
 
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.evaluation_design")
-    parser.add_argument("action", choices=("power", "run", "figure"))
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=__doc__)
+    parser.add_argument("action", choices=VERBS)
     parser.add_argument("design", help="an evaluation design (e.g. transfer)")
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where results and summaries go")
@@ -494,7 +496,3 @@ def main(argv: list[str] | None = None) -> None:
         draw(summary, science / f"{design.name}.png")
         print(verdict(summary))
         print(f"wrote {science / design.name}.json and .png")
-
-
-if __name__ == "__main__":
-    main()

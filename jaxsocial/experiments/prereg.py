@@ -7,8 +7,8 @@ time to takeoff (`takeoff`, one-sided log-rank) and the per-seed zero-shot retur
 4-goal Goal Cycle (one-sided Mann-Whitney U), with secondary tests, the episodes of every evaluation after
 training, and its power by simulation from committed seeds (`takeoff_power`).
 
-The design's commit is the last commit that changed that file (`catalogue.design_commit`); `figure` checks that it is an ancestor of
-every run's recorded commit (`git merge-base --is-ancestor`) and writes
+The design's commit is the last commit that changed that file (`catalogue.design_commit`); `figure` checks
+that it is an ancestor of every run's recorded commit (`git merge-base --is-ancestor`) and writes
 
     "preregistered": {"commit": ..., "primary": {"treatment": [...], "control": [...], "learned_threshold": x,
                       "test": ..., "alpha": a}, "result": {"treatment_learned": k, "treatment_seeds": n,

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import kinds, paths, prereg, recipes, records, rundirs, takeoff
+from jaxsocial.experiments import catalogue, kinds, paths, prereg, recipes, records, rundirs, takeoff
 from jaxsocial.experiments.conditions import CONDITIONS
 from jaxsocial.experiments.kinds import takeoffs
 from jaxsocial.experiments.recipes import Recipe, Scale
@@ -357,7 +357,7 @@ def preregistered_zero_shot(design: prereg.Design, runs: RecipeRuns) -> dict[str
                 scores[arm] += [r["results"][0]["mean_return"] for r in results if r is not None]
             protocols += [None if r is None else (r["episodes_per_checkpoint"], r["seed"]) for r in results]
     result = stats.mann_whitney(scores["treatment"], scores["control"], test["alternative"])
-    commit = prereg.design_commit(design.name)
+    commit = catalogue.design_commit(design.name)
     checks = prereg.commit_checks(commit, runs.commits())
     checks["seeds_as_designed"] = [len(scores["treatment"]), len(scores["control"])] == [
         design.arm_seeds["treatment"],

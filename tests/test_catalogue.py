@@ -1,0 +1,97 @@
+"""One folder of design files for every kind (`experiments.catalogue`), each design's kind read from its file,
+its commit followed across moves, and one command, `python -m jaxsocial.experiments VERB NAME`, that reaches
+every kind."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pytest
+
+from jaxsocial.experiments import __main__ as cli
+from jaxsocial.experiments import branch_design, catalogue, prereg
+from jaxsocial.experiments import evaluation_design as ed
+
+LOADERS = {"training": prereg.load, "evaluation": ed.load, "branch": branch_design.load}
+
+
+@pytest.mark.parametrize("name", catalogue.names())
+def test_every_committed_design_loads_as_its_kind_and_as_no_other(name):
+    kind = catalogue.kind_of(name)
+    assert LOADERS[kind](name).name == name
+    for other, load in LOADERS.items():
+        if other != kind:
+            with pytest.raises(ValueError, match=f"design {name} is of kind {kind}, not {other}"):
+                load(name)
+
+
+def test_a_file_names_its_kind_or_is_known_by_the_field_only_its_kind_has(tmp_path, monkeypatch):
+    monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
+    files = {
+        "named": {"kind": "branch", "scale": "laptop"},
+        "references": {"references": {}},
+        "arms": {"arms": {}},
+        "neither": {"scale": "laptop"},
+        "unknown": {"kind": "sweep"},
+    }
+    for name, raw in files.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(raw))
+    assert [catalogue.kind_of(n) for n in ("named", "references", "arms", "neither")] == [
+        "branch",
+        "evaluation",
+        "branch",
+        "training",
+    ]
+    with pytest.raises(ValueError, match="unknown kind 'sweep'"):
+        catalogue.kind_of("unknown")
+    assert catalogue.read("named", "branch") == {
+        "scale": "laptop"
+    }  # the kind is the catalogue's, not the design's
+    with pytest.raises(FileNotFoundError, match=r"no design .*missing\.json; the designs are \['arms',"):
+        catalogue.kind_of("missing")
+
+
+def _git(repo, *args: str) -> str:
+    done = subprocess.run(["git", *args], cwd=repo, capture_output=True, text=True, check=True)
+    return done.stdout.strip()
+
+
+def test_a_design_keeps_its_commit_when_its_file_moves_and_takes_a_new_one_when_it_changes(tmp_path):
+    """The design's commit is the last commit that changed its content: a move into another folder (how the
+    evaluation and branch designs joined `designs/`) keeps it, an edit replaces it."""
+    _git(tmp_path, "init", "-q")
+    _git(tmp_path, "config", "user.email", "t@t")
+    _git(tmp_path, "config", "user.name", "t")
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "d.json").write_text('{"name": "d", "seeds": 40}\n')
+    _git(tmp_path, "add", ".")
+    _git(tmp_path, "commit", "-q", "-m", "design")
+    designed = _git(tmp_path, "rev-parse", "HEAD")
+    (tmp_path / "new").mkdir()
+    _git(tmp_path, "mv", "old/d.json", "new/d.json")
+    _git(tmp_path, "commit", "-q", "-m", "move")
+    assert catalogue.file_commit(tmp_path / "new" / "d.json") == designed
+    (tmp_path / "new" / "d.json").write_text('{"name": "d", "seeds": 41}\n')
+    _git(tmp_path, "commit", "-q", "-am", "edit")
+    assert catalogue.file_commit(tmp_path / "new" / "d.json") == _git(tmp_path, "rev-parse", "HEAD")
+    assert catalogue.file_commit(tmp_path / "new" / "none.json") is None
+
+
+@pytest.mark.parametrize("kind", ["evaluation", "branch"])
+def test_one_command_reaches_every_kind_of_design(kind, capsys):
+    """`experiments power NAME` describes a design of any kind; a verb the kind does not take is refused
+    with the verbs it does take."""
+    name = catalogue.names(kind)[0]
+    cli.main(["power", name])
+    assert capsys.readouterr().out.startswith(f"{name}: {'from ' * (kind == 'branch')}the records ")
+    if kind == "evaluation":
+        with pytest.raises(
+            SystemExit, match=f"record {name}: the evaluation design {name} takes power, run, figure"
+        ):
+            cli.main(["record", name])
+
+
+def test_a_training_design_is_its_recipe_s(capsys):
+    cli.main(["power", "pred8"])
+    assert capsys.readouterr().out.startswith("pred8: laptop8 scale, 2442 iterations")
