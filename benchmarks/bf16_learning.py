@@ -2,7 +2,7 @@
 bfloat16, their final returns compared and their curves drawn side by side.
 
 Reads the run directories `RUNS_DIR/<float32 prefix>/<condition>-s0-2` and `RUNS_DIR/<bfloat16 prefix>/...`
-(written by `python -m jaxsocial.train` with the cpu scale's flags of `jaxsocial.experiments.recipes`, the
+(written by `python -m jaxsocial.train` with the cpu scale's flags of `experiments.plan.recipes`, the
 bfloat16 ones with `--net.dtype bfloat16` added) and writes:
 
 * `OUT.json`: per condition and dtype, the learner's final return per seed (`metrics.final_return`: the

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import run_info
 
-from jaxsocial.experiments import conditions, recipes
+from jaxsocial.experiments.plan import conditions, recipes
 from jaxsocial.run import logs, metrics
 
 

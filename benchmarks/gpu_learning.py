@@ -19,7 +19,8 @@ from pathlib import Path
 from run_info import metadata, write_results
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, takeoff, takeoff_power
+from jaxsocial.experiments.analyse import takeoff, takeoff_power
+from jaxsocial.experiments.plan import paths
 from jaxsocial.run import logs
 
 

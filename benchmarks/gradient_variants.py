@@ -154,7 +154,7 @@ def layer_times(fn, inputs: tuple, hlo: str) -> dict[str, float]:
 def main() -> None:
     args = parse_args()
     if args.cpu is not None:  # before XLA starts its backend (importing jaxsocial starts none)
-        from jaxsocial.experiments.pinned import process_xla_flags
+        from jaxsocial.experiments.launch.pinned import process_xla_flags
 
         os.environ["XLA_FLAGS"] = process_xla_flags()
         os.sched_setaffinity(0, {args.cpu})

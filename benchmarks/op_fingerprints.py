@@ -33,7 +33,7 @@ equal the product bit for bit), the operations that differ from this kind's defa
 kind's committed file, the operations that differ there. A run on a second kind thus names what disagrees.
 
 `--compare` measures nothing: it reads the committed kinds' files and prints the tables docs/experiments.md
-quotes ("Does the training re-run?"; `jaxsocial.experiments.cpu_kinds.markdown`): each kind's instruction
+quotes ("Does the training re-run?"; `experiments.analyse.cpu_kinds.markdown`): each kind's instruction
 sets, caches and settings; per pair of kinds, whether they agree under the designs' cross-CPU flags
 (`pinned.CROSS_CPU_XLA_FLAGS` after the single-core ones) and the first operation that differs; and per pair
 and setting both measured, how many operations and fingerprints differ. A test checks the docs against it.
@@ -67,7 +67,8 @@ from reproducibility import (
 )
 from run_info import REPO, portable, write_json
 
-from jaxsocial.experiments import cpu_kinds, pinned
+from jaxsocial.experiments.analyse import cpu_kinds
+from jaxsocial.experiments.launch import pinned
 from jaxsocial.run import autotune, logs, startup
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"

@@ -136,7 +136,7 @@ collect() {
   # carries the raw logs, so a block resumed from git brings back only its own.
   rm -rf "$out/state" && mkdir -p "$out"
   cp .prereg/commands.log "$out/commands.log"
-  python -m jaxsocial.experiments.inflight .prereg/state/*.tgz --out "$out/state"  # the resume state, in git
+  python -m jaxsocial.experiments inflight .prereg/state/*.tgz --out "$out/state"  # the resume state, in git
   for run in "$tmp"/runs/experiments/gpu/*/; do
     local name
     name=$(basename "$run")

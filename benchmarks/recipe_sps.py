@@ -98,7 +98,7 @@ def worker(name: str) -> None:
 
     from jaxsocial import train
     from jaxsocial.agents import population, ppo
-    from jaxsocial.experiments import recipes
+    from jaxsocial.experiments.plan import recipes
 
     try:
         from jaxsocial.run import loop
@@ -206,7 +206,7 @@ def single_core_pairs(recipe: str, trees: dict[str, Path], repeats: int) -> dict
     """Per tree, two single-core workers timing the full program at the same moment: their summed
     env-steps/s, the trees taking turns in every repeat."""
     # this tree's flags, imported here: workers may load an older jaxsocial
-    from jaxsocial.experiments.pinned import SINGLE_CORE_XLA_FLAGS
+    from jaxsocial.experiments.launch.pinned import SINGLE_CORE_XLA_FLAGS
 
     env = {"XLA_FLAGS": SINGLE_CORE_XLA_FLAGS}
     workers = {

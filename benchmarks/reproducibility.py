@@ -29,7 +29,7 @@ from pathlib import Path
 
 from run_info import REPO, metadata, portable, write_json
 
-from jaxsocial.experiments import pinned, verify
+from jaxsocial.experiments.launch import pinned, verify
 from jaxsocial.run import autotune, config, logs, metrics
 
 NO_YNN = "-individual_dot,-individual_convolution,-dot,-eltwise,-reduce"

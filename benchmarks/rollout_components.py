@@ -37,7 +37,7 @@ from run_info import metadata, write_results
 from jaxsocial import train
 from jaxsocial.agents import acting, rollout
 from jaxsocial.env import core
-from jaxsocial.experiments import recipes
+from jaxsocial.experiments.plan import recipes
 from jaxsocial.run import startup
 
 PROGRAMS = ("env", "render", "experts", "rollout", "update")

@@ -17,7 +17,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxsocial.experiments.pinned import package_version
+from jaxsocial.experiments.launch.pinned import package_version
 from jaxsocial.run.autotune import cpu_model  # the model name with its family and model numbers
 
 REPO = Path(__file__).resolve().parent.parent

@@ -1,7 +1,7 @@
 """A saved learner's episode beside its companions, frame by frame: the set-up (`episode_setup`), the episode
 (`play_episode`), its decoder's output at each step (`predicted_views`) and the video frames
 (`episode_video`). Used by `jaxsocial.render --ckpt` and the experiments' predictions figure
-(`jaxsocial.experiments.predictions`)."""
+(`jaxsocial.experiments.analyse.predictions`)."""
 
 from __future__ import annotations
 

@@ -15,7 +15,10 @@ from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats, train
-from jaxsocial.experiments import branch_design, catalogue, kinds, paths, pinned, prereg, records, rundirs
+from jaxsocial.experiments import branch_design
+from jaxsocial.experiments.analyse import kinds, records, rundirs
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import catalogue, paths, prereg
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.provenance import PARENT_WRITES

@@ -10,8 +10,9 @@ import subprocess
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design, catalogue, prereg
+from jaxsocial.experiments import branch_design
 from jaxsocial.experiments import evaluation_design as ed
+from jaxsocial.experiments.plan import catalogue, prereg
 
 LOADERS = {"training": prereg.load, "evaluation": ed.load, "branch": branch_design.load}
 

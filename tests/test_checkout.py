@@ -9,7 +9,9 @@ import pytest
 from conftest import RESULTS, needs_records
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design, evaluation_design, followup, paths, sweep, takeoff_power
+from jaxsocial.experiments import branch_design, evaluation_design, followup, sweep
+from jaxsocial.experiments.analyse import takeoff_power
+from jaxsocial.experiments.plan import paths
 
 COMMANDS = {
     "experiments": (cli.main, ["list"]),

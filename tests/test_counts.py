@@ -13,18 +13,9 @@ from conftest import needs_records
 
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import (
-    catalogue,
-    commits,
-    kinds,
-    paths,
-    pinned,
-    prereg,
-    recipes,
-    summaries,
-    takeoff,
-    takeoff_power,
-)
+from jaxsocial.experiments.analyse import kinds, summaries, takeoff, takeoff_power
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import catalogue, commits, paths, prereg, recipes
 from jaxsocial.run import config, logs
 
 

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 from doc_sections import sections
 
-from jaxsocial.experiments import cpu_kinds, pinned
+from jaxsocial.experiments.analyse import cpu_kinds
+from jaxsocial.experiments.launch import pinned
 from jaxsocial.run import logs, metrics
 
 REPO = Path(__file__).resolve().parents[1]

@@ -11,8 +11,8 @@ import pytest
 from conftest import needs_records
 from scipy import stats as scipy_stats
 
-from jaxsocial.experiments import catalogue, paths, prereg
 from jaxsocial.experiments import evaluation_design as ed
+from jaxsocial.experiments.plan import catalogue, paths, prereg
 
 
 def design_file(tmp_path, **changes) -> ed.EvaluationDesign:

@@ -14,7 +14,9 @@ from conftest import needs_records
 
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import conditions, kinds, paths, plot_figures, recipes, runner, summaries, takeoff
+from jaxsocial.experiments.analyse import kinds, plot_figures, summaries, takeoff
+from jaxsocial.experiments.launch import runner
+from jaxsocial.experiments.plan import conditions, paths, recipes
 from jaxsocial.run import config, logs, metrics, schedule, startup
 
 

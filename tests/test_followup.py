@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from jaxsocial import train
-from jaxsocial.experiments import followup, kinds, pinned, plot_figures, prereg, recipes, records
+from jaxsocial.experiments import followup
+from jaxsocial.experiments.analyse import kinds, plot_figures, records
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import prereg, recipes
 from jaxsocial.run import checkpoint, logs, metrics
 
 pytestmark = pytest.mark.slow

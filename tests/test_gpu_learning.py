@@ -8,7 +8,8 @@ from pathlib import Path
 import pytest
 from conftest import needs_records
 
-from jaxsocial.experiments import paths, takeoff_power
+from jaxsocial.experiments.analyse import takeoff_power
+from jaxsocial.experiments.plan import paths
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.append(str(REPO / "benchmarks"))  # the script and its `run_info`

@@ -10,7 +10,7 @@ from pathlib import Path
 from conftest import TINY, needs_records
 
 from jaxsocial import train
-from jaxsocial.experiments import inflight, verify
+from jaxsocial.experiments.launch import inflight, verify
 from jaxsocial.run import metrics
 
 

@@ -11,7 +11,7 @@ from conftest import TINY
 
 from jaxsocial import train
 from jaxsocial.agents import ppo
-from jaxsocial.experiments import records
+from jaxsocial.experiments.analyse import records
 from jaxsocial.run import checkpoint, driver, init_from, logs, loop, policy_io, startup
 from jaxsocial.specs import CheckpointRef
 

@@ -123,7 +123,8 @@ def test_plot_groups_seeds_over_the_driver_fields():
 
 
 def test_every_recipe_kind_is_registered():
-    from jaxsocial.experiments import kinds, recipes
+    from jaxsocial.experiments.analyse import kinds
+    from jaxsocial.experiments.plan import recipes
 
     for recipe in recipes.RECIPES.values():
         assert kinds.kind_of(recipe) is kinds.KINDS[recipe.kind]

@@ -8,7 +8,8 @@ import jax
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import pinned, prereg
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import prereg
 from jaxsocial.run import autotune, logs
 
 

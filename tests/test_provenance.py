@@ -13,7 +13,9 @@ import pytest
 from conftest import needs_records
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import paths, pinned, records, verify
+from jaxsocial.experiments.analyse import records
+from jaxsocial.experiments.launch import pinned, verify
+from jaxsocial.experiments.plan import paths
 from jaxsocial.run import autotune, checkout, logs, provenance
 
 REPO = Path(__file__).resolve().parents[1]

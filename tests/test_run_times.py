@@ -4,7 +4,8 @@ them before training, on hand-written provenances with known times."""
 from pathlib import Path
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import paths, run_times
+from jaxsocial.experiments.analyse import run_times
+from jaxsocial.experiments.plan import paths
 from jaxsocial.run import autotune, logs
 
 START = "2026-12-01T10:00:00+00:00"

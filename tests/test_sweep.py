@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from jaxsocial import train
-from jaxsocial.experiments import recipes, rundirs, runner, sweep, takeoff
+from jaxsocial.experiments import sweep
+from jaxsocial.experiments.analyse import rundirs, takeoff
+from jaxsocial.experiments.launch import runner
+from jaxsocial.experiments.plan import recipes
 from jaxsocial.run import logs
 from jaxsocial.run.metrics import LEARNED_RETURN
 

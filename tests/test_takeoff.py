@@ -10,7 +10,8 @@ import pytest
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats
-from jaxsocial.experiments import prereg, takeoff, takeoff_power
+from jaxsocial.experiments.analyse import takeoff, takeoff_power
+from jaxsocial.experiments.plan import prereg
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
@@ -175,7 +176,8 @@ def test_a_designs_deviations_reach_its_verdict(tmp_path):
 def test_an_incomplete_design_stays_blind():
     from types import SimpleNamespace
 
-    from jaxsocial.experiments import recipes, summaries
+    from jaxsocial.experiments.analyse import summaries
+    from jaxsocial.experiments.plan import recipes
 
     design = prereg.load("experts")
     done = [{"iteration": i + 1, "return/0": 0.0, "episodes/0": 1} for i in range(design.iterations)]

@@ -12,7 +12,8 @@ from conftest import TINY
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import pinned, records, verify
+from jaxsocial.experiments.analyse import records
+from jaxsocial.experiments.launch import pinned, verify
 from jaxsocial.run import autotune, config, logs, metrics
 from jaxsocial.run.flags import config_flags
 

@@ -10,7 +10,9 @@ import pytest
 from conftest import needs_records
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import paths, pinned, records, verify
+from jaxsocial.experiments.analyse import records
+from jaxsocial.experiments.launch import pinned, verify
+from jaxsocial.experiments.plan import paths
 from jaxsocial.run import autotune, checkout, logs, metrics
 
 REPO = Path(__file__).resolve().parents[1]
@@ -60,10 +62,10 @@ def test_verify_defaults_to_what_a_short_record_holds(monkeypatch):
     assert asked == [rows, 2]
 
 
-def test_power_names_the_recipes_it_takes(capsys):
+def test_power_names_the_designs_it_takes(capsys):
     with pytest.raises(SystemExit):
         cli.parse_args(["power", "--help"])
-    assert "recipes with a design: " in capsys.readouterr().out
+    assert "designs of every kind: " in capsys.readouterr().out.replace("\n", " ").replace("  ", " ")
     with pytest.raises(SystemExit):
         cli.parse_args(["power", "no_penalty"])
     assert "invalid choice: 'no_penalty'" in capsys.readouterr().err

@@ -11,19 +11,9 @@ pre-registered designs of every kind (NAME's kind comes from its design file, `c
     python -m jaxsocial.experiments sweep list                        # the exploratory sweep of settings
     python -m jaxsocial.experiments followup run h1_laptop            # follow-ups of a design's learned seeds
 
-The modules form three layers, in the order the work flows (`tests/test_experiment_layers.py` keeps the
-arrows so):
-
-* plan, which imports neither of the others: `conditions` (what each changes, its label), `recipes`
-  (conditions x scales), `catalogue` (the design files of every kind, `designs/*.json`, and each one's kind),
-  `prereg` (training designs), `paths` (where everything is read and written), `xla_flags` (the runs'
-  $XLA_FLAGS, checked), `commits` (which commit);
-* launch: `runner` (trains and evaluates a recipe), `pinned` (one single-core process per seed), `inflight`
-  (GPU blocks resumed across machines), `verify` (re-trains a record and compares);
-* analyse, which never imports launch: `records` (run directories packed into the repository's records),
-  `summaries` (summaries and figures; `takeoff`: time to learning, `stats`: the tests over seeds),
-  `plot_figures`, `kinds` (per kind of recipe: how it is evaluated, summarised and drawn), `rundirs`,
-  `predictions` (a learner's predicted next frames), `takeoff_power`.
+The modules form three layers, each a folder, in the order the work flows (`tests/test_experiment_layers.py`
+keeps the arrows so): `plan/` imports neither of the others; `launch/` uses plan and analyse's readers;
+`analyse/` never imports launch. Each folder's `__init__` names its modules.
 
 The commands on top use all three: `__main__`, `sweep` (screens settings), `followup` (branches, transfers
 and probes a design's learners that learned), `evaluation_design` (designs that only evaluate committed

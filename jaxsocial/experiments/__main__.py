@@ -11,18 +11,9 @@ import re
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import (
-    catalogue,
-    paths,
-    pinned,
-    prereg,
-    recipes,
-    records,
-    rundirs,
-    runner,
-    summaries,
-    verify,
-)
+from jaxsocial.experiments.analyse import records, rundirs, summaries
+from jaxsocial.experiments.launch import pinned, runner, verify
+from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -45,7 +36,12 @@ def make_parser() -> argparse.ArgumentParser:
         sub.add_parser(name, help=help_ + f" (python -m jaxsocial.experiments {name} --help)", add_help=False)
     power = "a pre-registered design and its power"
     p = sub.add_parser("power", help=power, description=power)
-    p.add_argument("recipe", choices=catalogue.names(), metavar="DESIGN")
+    p.add_argument(
+        "recipe",
+        choices=catalogue.names(),
+        metavar="DESIGN",
+        help=f"designs of every kind: {catalogue.names()}",
+    )
     _verify_parser(sub)
     return parser
 
@@ -342,11 +338,11 @@ def run_verify(args: argparse.Namespace) -> None:
 DELEGATED = {
     "sweep": ("jaxsocial.experiments.sweep", "the exploratory sweep and the map"),
     "followup": ("jaxsocial.experiments.followup", "a design's learned seeds followed up"),
-    "pooled": ("jaxsocial.experiments.takeoff_power", "the pooled laptop seeds' summary"),
-    "inflight": ("jaxsocial.experiments.inflight", "a GPU design's resume state slimmed for git"),
+    "pooled": ("jaxsocial.experiments.analyse.takeoff_power", "the pooled laptop seeds' summary"),
+    "inflight": ("jaxsocial.experiments.launch.inflight", "a GPU design's resume state slimmed for git"),
 }
-"""Commands with a module of their own, reached through this one too: `experiments sweep ARGS` is
-`python -m jaxsocial.experiments.sweep ARGS` (the module entry points keep working)."""
+"""Commands with a module of their own, reached only through this one: `experiments sweep ARGS` is
+`jaxsocial.experiments.sweep.main(ARGS)`."""
 
 
 DESIGN_MODULES = {

@@ -38,17 +38,9 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.env import registry
-from jaxsocial.experiments import (
-    catalogue,
-    kinds,
-    paths,
-    pinned,
-    plot_figures,
-    prereg,
-    records,
-    run_times,
-    rundirs,
-)
+from jaxsocial.experiments.analyse import kinds, plot_figures, records, run_times, rundirs
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import catalogue, paths, prereg
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags

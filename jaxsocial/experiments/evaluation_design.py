@@ -30,7 +30,8 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.env import registry
-from jaxsocial.experiments import catalogue, commits, paths, pinned, prereg
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import catalogue, commits, paths, prereg
 from jaxsocial.run import logs
 from jaxsocial.specs import EnvSpec
 
@@ -322,7 +323,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     """One panel per environment, four to a row: a bar per arm and reference (mean, t 95% interval over
     policies), a cross per policy, and the environment's experts as a dashed line; each panel titled with its
     test's family and Holm p-value."""
-    from jaxsocial.experiments import plot_figures
+    from jaxsocial.experiments.analyse import plot_figures
 
     plt = plot_figures.pyplot()
     block = summary["preregistered"]
@@ -411,7 +412,7 @@ def pilot_scores(design: EvaluationDesign) -> dict[str, tuple[list[float], list[
     the pilot's seeds of that kind: of its own arm, or, where `power_simulation['plateau_from_both_arms']`
     holds, for a seed that did not take off, of both arms (a pilot arm in which every seed took off has no
     plateau seeds of its own). Returned as one pool per arm whose uniform draws have those weights."""
-    from jaxsocial.experiments import takeoff_power
+    from jaxsocial.experiments.analyse import takeoff_power
 
     sim = design.power_simulation
     arms = (("treatment", sim["pilot_treatment"]), ("control", sim["pilot_control"]))

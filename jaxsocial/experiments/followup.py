@@ -17,9 +17,9 @@ The branches need the final checkpoint, which records keep only where asked (`ex
 ``<condition>-s<seed>/eval/`` (the evaluations of the design's policy) and the branch runs
 ``<condition>-s<seed>-social/``, ``<condition>-s<seed>-mixed/``.
 
-    python -m jaxsocial.experiments.followup run h1_laptop --from benchmarks/results/records --cores 0 1
-    python -m jaxsocial.experiments.followup record h1_laptop --device "AMD EPYC, 2 cores"
-    python -m jaxsocial.experiments.followup figure h1_laptop
+    python -m jaxsocial.experiments followup run h1_laptop --from benchmarks/results/records --cores 0 1
+    python -m jaxsocial.experiments followup record h1_laptop --device "AMD EPYC, 2 cores"
+    python -m jaxsocial.experiments followup figure h1_laptop
 """
 
 from __future__ import annotations
@@ -34,18 +34,9 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments import (
-    conditions,
-    kinds,
-    paths,
-    pinned,
-    plot_figures,
-    prereg,
-    recipes,
-    records,
-    rundirs,
-    runner,
-)
+from jaxsocial.experiments.analyse import kinds, plot_figures, records, rundirs
+from jaxsocial.experiments.launch import pinned, runner
+from jaxsocial.experiments.plan import conditions, paths, prereg, recipes
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -318,7 +309,7 @@ def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, A
 
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m jaxsocial.experiments.followup", description=__doc__.split("\n")[0]
+        prog="python -m jaxsocial.experiments followup", description=__doc__.split("\n")[0]
     )
     sub = parser.add_subparsers(dest="command", required=True)
     designed = sorted(r.name for r in recipes.RECIPES.values() if r.design)
@@ -356,7 +347,7 @@ def main(argv: list[str] | None = None) -> None:
     try:
         plan = Plan.of(args.recipe)
         if args.command == "run":
-            command = "python -m jaxsocial.experiments.followup " + " ".join(argv)
+            command = "python -m jaxsocial.experiments followup " + " ".join(argv)
             codes = run(plan, args.from_dir, args.runs_dir, args.cores, command, args.dry_run)
             sys.exit(max(codes, default=0))
         if args.command == "record":
@@ -375,7 +366,3 @@ def main(argv: list[str] | None = None) -> None:
         )
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
-
-
-if __name__ == "__main__":
-    main()

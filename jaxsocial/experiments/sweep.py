@@ -9,12 +9,12 @@ seed's takeoff (`takeoff.seed_takeoff`: the end of the first window of about 200
 learner return exceeds `metrics.LEARNED_RETURN`) in env-steps and in CPU-minutes on the machine that ran
 it, the fraction of seeds past the plateau against both, and the final returns.
 
-    python -m jaxsocial.experiments.sweep list
-    python -m jaxsocial.experiments.sweep run mb8k8_rec --seeds 0 1 --cores 0 1   # one process a core
-    python -m jaxsocial.experiments.sweep run map_g4_40m_rec_7x7 --seeds 0 --extend map_g4_rec_7x7
-    python -m jaxsocial.experiments.sweep record mb8k8_rec --seeds 0 1 --device "AMD EPYC, 2 cores"
-    python -m jaxsocial.experiments.sweep figure                         # every recorded setting
-    python -m jaxsocial.experiments.sweep map                            # social against solo, per setting
+    python -m jaxsocial.experiments sweep list
+    python -m jaxsocial.experiments sweep run mb8k8_rec --seeds 0 1 --cores 0 1   # one process a core
+    python -m jaxsocial.experiments sweep run map_g4_40m_rec_7x7 --seeds 0 --extend map_g4_rec_7x7
+    python -m jaxsocial.experiments sweep record mb8k8_rec --seeds 0 1 --device "AMD EPYC, 2 cores"
+    python -m jaxsocial.experiments sweep figure                         # every recorded setting
+    python -m jaxsocial.experiments sweep map                            # social against solo, per setting
 
 The settings are data, `sweeps/<name>.json` beside this module (`load_setting`). Those named `mb8k8_*` and
 `map_*` take one gradient sample per env-step, the targets of the rollout only (`--ppo.num-minibatches 8
@@ -37,7 +37,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import conditions, paths, pinned, plot_figures, recipes, records, rundirs, takeoff
+from jaxsocial.experiments.analyse import plot_figures, records, rundirs, takeoff
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import conditions, paths, recipes
 from jaxsocial.run import logs, metrics, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -299,7 +301,7 @@ def map_table(found: dict[str, Any]) -> list[str]:
 
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="python -m jaxsocial.experiments.sweep", description=__doc__.split("\n")[0]
+        prog="python -m jaxsocial.experiments sweep", description=__doc__.split("\n")[0]
     )
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="the settings and why each is tried")
@@ -376,7 +378,3 @@ def main(argv: list[str] | None = None) -> None:
             lifts = [x["takeoff_env_steps"] for x in s["seeds"]]
             print(f"{name}: {s['took_off']} of {s['n']} seeds past the plateau; takeoffs (env-steps) {lifts}")
         print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
-
-
-if __name__ == "__main__":
-    main()

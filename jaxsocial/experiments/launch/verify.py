@@ -39,7 +39,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import cpu_kinds, pinned, records, xla_flags
+from jaxsocial.experiments.analyse import cpu_kinds, records
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import xla_flags
 from jaxsocial.run import autotune, checkout, config, logs, metrics
 from jaxsocial.run.flags import config_flags
 

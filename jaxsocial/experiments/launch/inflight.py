@@ -9,7 +9,7 @@ per run (`pack`: sorted members, no times or owners). `benchmarks/prereg_gpu_blo
 state a device block brings back into `benchmarks/results/inflight/<design>-gpu/state/`, replacing the copy
 there, so the tree holds one state per run:
 
-    python -m jaxsocial.experiments.inflight STATE.tgz ... --out benchmarks/results/inflight/DESIGN-gpu/state
+    python -m jaxsocial.experiments inflight STATE.tgz ... --out benchmarks/results/inflight/DESIGN-gpu/state
 """
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ def slim_states(tgzs: list[Path], out_dir: Path) -> list[Path]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments.inflight", description=__doc__)
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments inflight", description=__doc__)
     parser.add_argument("tgz", nargs="+", type=Path, help="the device block's state archives")
     parser.add_argument("--out", type=Path, required=True, help="where the slim states go (replaced)")
     args = parser.parse_args(argv)
@@ -106,7 +106,3 @@ def main(argv: list[str] | None = None) -> None:
     if missing:
         parser.error(f"no such archive: {', '.join(missing)}")
     slim_states(args.tgz, args.out)
-
-
-if __name__ == "__main__":
-    main()

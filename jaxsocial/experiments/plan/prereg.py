@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import catalogue, commits, xla_flags
+from jaxsocial.experiments.plan import catalogue, commits, xla_flags
 from jaxsocial.run import config, logs
 
 ANALYSES = ("counts", "takeoff", "zero_shot")

@@ -1,6 +1,6 @@
 """Run a recipe: train each condition that is not finished (resuming interrupted ones), then evaluate the
 trained learners where the recipe asks (zero-shot transfer, the cultural-transmission protocol). Everything
-lands in run directories; figures are drawn from them (`jaxsocial.experiments.summaries`)."""
+lands in run directories; figures are drawn from them (`jaxsocial.experiments.analyse.summaries`)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import evaluate, train
-from jaxsocial.experiments import kinds, paths, pinned, prereg, recipes, run_times, xla_flags
-from jaxsocial.experiments.recipes import Recipe, Scale
-from jaxsocial.experiments.rundirs import (
+from jaxsocial.experiments.analyse import kinds, run_times
+from jaxsocial.experiments.analyse.rundirs import (
     FINISHED,
     MISSING,
     PARTIAL,
@@ -23,6 +22,9 @@ from jaxsocial.experiments.rundirs import (
     resume_flags,
     seed_dirs,
 )
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
+from jaxsocial.experiments.plan.recipes import Recipe, Scale
 from jaxsocial.run import checkout, logs, outputs
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags

@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import paths, plot_figures, predictions, recipes, records, takeoff
-from jaxsocial.experiments.recipes import Recipe, Scale
+from jaxsocial.experiments.analyse import plot_figures, predictions, records, takeoff
+from jaxsocial.experiments.plan import paths, recipes
+from jaxsocial.experiments.plan.recipes import Recipe, Scale
 from jaxsocial.run import logs, metrics, startup
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 from jaxsocial.stats import ct_score, kaplan_meier, learned_seed_tests, separations, summary

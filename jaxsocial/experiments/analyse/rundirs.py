@@ -6,8 +6,9 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from jaxsocial.experiments import recipes, records
-from jaxsocial.experiments.recipes import Scale
+from jaxsocial.experiments.analyse import records
+from jaxsocial.experiments.plan import recipes
+from jaxsocial.experiments.plan.recipes import Scale
 from jaxsocial.run import logs, outputs, rundir
 from jaxsocial.run.config import TrainConfig
 

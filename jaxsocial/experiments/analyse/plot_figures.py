@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments import takeoff
-from jaxsocial.experiments.conditions import CONDITIONS
+from jaxsocial.experiments.analyse import takeoff
+from jaxsocial.experiments.plan.conditions import CONDITIONS
 from jaxsocial.plot_parts import band, format_steps, steps_axis, zoom_to_means
 from jaxsocial.run import metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, curve, eval_curve, metric_curve

@@ -24,7 +24,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import paths
+from jaxsocial.experiments.plan import paths
 from jaxsocial.run import logs
 
 FOLDER = "op_fingerprints"

@@ -25,7 +25,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import records, xla_flags
+from jaxsocial.experiments.analyse import records
+from jaxsocial.experiments.plan import xla_flags
 from jaxsocial.run import checkout, compile_cache, logs, provenance
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"

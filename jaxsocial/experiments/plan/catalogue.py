@@ -15,10 +15,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from jaxsocial.experiments import commits
+from jaxsocial.experiments.plan import commits
 from jaxsocial.run import logs
 
-DESIGNS_DIR = Path(__file__).parent / "designs"
+DESIGNS_DIR = Path(__file__).parent.parent / "designs"
 KINDS = ("training", "evaluation", "branch")
 KIND_FIELDS = {"references": "evaluation", "arms": "branch"}
 """Where a design file has no `kind`: the field only that kind's designs have."""

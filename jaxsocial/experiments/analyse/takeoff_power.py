@@ -31,7 +31,8 @@ import numpy as np
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats
-from jaxsocial.experiments import paths, takeoff
+from jaxsocial.experiments.analyse import takeoff
+from jaxsocial.experiments.plan import paths
 from jaxsocial.run import logs, metrics
 
 EVIDENCE_DESIGNS = ("h1_laptop", "h1_early", "h1_sooner")
@@ -231,7 +232,7 @@ def pooled_summary(records_root: Path, designs: tuple[str, ...]) -> dict[str, An
     return {
         "designs": list(designs),
         "window_env_steps": takeoff.WINDOW_STEPS,
-        "command": "python -m jaxsocial.experiments.takeoff_power",
+        "command": "python -m jaxsocial.experiments pooled",
         "conditions": conditions,
         "logrank_social_sooner_post_hoc": stats.logrank(lift["social_rec"], lift["solo_rec"]),
     }
@@ -254,7 +255,3 @@ def main(argv: list[str] | None = None) -> None:
             )
             print(f"  {c}: {v['took_off_within_budget']} of {v['seeds']} took off within their budgets; {by}")
         print(f"wrote {path}")
-
-
-if __name__ == "__main__":
-    main()

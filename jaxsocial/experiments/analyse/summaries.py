@@ -21,10 +21,11 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments import catalogue, kinds, paths, prereg, recipes, records, rundirs, takeoff
-from jaxsocial.experiments.conditions import CONDITIONS
-from jaxsocial.experiments.kinds import takeoffs
-from jaxsocial.experiments.recipes import Recipe, Scale
+from jaxsocial.experiments.analyse import kinds, records, rundirs, takeoff
+from jaxsocial.experiments.analyse.kinds import takeoffs
+from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
+from jaxsocial.experiments.plan.conditions import CONDITIONS
+from jaxsocial.experiments.plan.recipes import Recipe, Scale
 from jaxsocial.run import config, logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return

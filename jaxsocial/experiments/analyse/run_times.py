@@ -12,7 +12,7 @@ import statistics
 from collections import defaultdict
 from pathlib import Path
 
-from jaxsocial.experiments import records
+from jaxsocial.experiments.analyse import records
 from jaxsocial.run import autotune, cost
 
 UNNAMED = "a CPU not recorded"

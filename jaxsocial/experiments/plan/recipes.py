@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from jaxsocial.experiments import paths, prereg
-from jaxsocial.experiments.conditions import CONDITIONS, PENALTY_CONDITIONS, Condition
+from jaxsocial.experiments.plan import paths, prereg
+from jaxsocial.experiments.plan.conditions import CONDITIONS, PENALTY_CONDITIONS, Condition
 from jaxsocial.run import config, schedule, startup
 from jaxsocial.run.config import PRESETS, TrainConfig
 from jaxsocial.run.flags import config_flags

@@ -1,0 +1,4 @@
+"""Plan: what an experiment is before anything runs. The recipes (`recipes`: conditions x scales;
+`conditions`: what each changes), the design files of every kind (`catalogue`) and the training designs
+(`prereg`), where results are read and written (`paths`), the runs' checked $XLA_FLAGS (`xla_flags`) and
+which commit (`commits`). Imports nothing of launch or analyse."""
