@@ -11,8 +11,8 @@ import pytest
 
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import branch_design
-from jaxsocial.experiments import evaluation_design as ed
 from jaxsocial.experiments.plan import catalogue, prereg
+from jaxsocial.experiments.plan import evaluation_design as ed
 
 LOADERS = {"training": prereg.load, "evaluation": ed.load, "branch": branch_design.load}
 

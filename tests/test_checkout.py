@@ -9,15 +9,16 @@ import pytest
 from conftest import RESULTS, needs_records
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design, evaluation_design, followup, sweep
+from jaxsocial.experiments import branch_design, followup, kind_commands, sweep
 from jaxsocial.experiments.analyse import takeoff_power
-from jaxsocial.experiments.plan import paths
+from jaxsocial.experiments.launch import evaluation_play
+from jaxsocial.experiments.plan import evaluation_design, paths
 
 COMMANDS = {
     "experiments": (cli.main, ["list"]),
     "sweep": (sweep.main, ["list"]),
     "pooled": (takeoff_power.main, []),
-    "evaluation_design": (evaluation_design.main, ["power", "transfer"]),
+    "evaluation_design": (kind_commands.evaluation_main, ["power", "transfer"]),
     "branch_design": (branch_design.main, ["power", "mixing"]),
     "followup": (followup.main, ["figure", "h1_laptop"]),
 }
@@ -93,4 +94,4 @@ def test_a_code_only_clone_says_how_to_fetch_the_records_a_command_reads(tmp_pat
         FileNotFoundError,
         match=re.escape("git sparse-checkout add '/benchmarks/results/records/laptop/prereg-experts/'"),
     ):
-        evaluation_design.run(evaluation_design.load("transfer"), paths.RECORDS, paths.SCIENCE)
+        evaluation_play.run(evaluation_design.load("transfer"), paths.RECORDS, paths.SCIENCE)

@@ -11,8 +11,10 @@ import pytest
 from conftest import needs_records
 from scipy import stats as scipy_stats
 
-from jaxsocial.experiments import evaluation_design as ed
+from jaxsocial.experiments.analyse import evaluation_results as er
+from jaxsocial.experiments.launch import evaluation_play
 from jaxsocial.experiments.plan import catalogue, paths, prereg
+from jaxsocial.experiments.plan import evaluation_design as ed
 
 
 def design_file(tmp_path, **changes) -> ed.EvaluationDesign:
@@ -80,7 +82,7 @@ def test_each_family_is_holm_corrected_on_its_own(designs_dir):
     for env, shift in (("fourrooms", 1.5), ("maze", 0.4), ("maze-solo", 0.0)):
         by_player[env, "social_rec"] = list(rng.normal(shift, 1.0, 12))
         by_player[env, "solo_rec"] = list(rng.normal(0.0, 1.0, 12))
-    primary = ed.tested(design, design.primary, by_player)
+    primary = er.tested(design, design.primary, by_player)
     p = {
         env: scipy_stats.mannwhitneyu(
             by_player[env, "social_rec"], by_player[env, "solo_rec"], alternative="greater"
@@ -94,9 +96,9 @@ def test_each_family_is_holm_corrected_on_its_own(designs_dir):
         prereg.round_p(max(min(1.0, 2 * low), high)),
     ]
     assert all(e["rejected"] == (e["p_holm"] <= 0.05) for e in primary.values())
-    secondary = ed.tested(design, design.secondary, by_player)  # alone in its family: not adjusted
+    secondary = er.tested(design, design.secondary, by_player)  # alone in its family: not adjusted
     assert secondary["c"]["p_holm"] == secondary["c"]["p"]
-    missing = ed.tested(design, design.primary, by_player | {("maze", "solo_rec"): None})
+    missing = er.tested(design, design.primary, by_player | {("maze", "solo_rec"): None})
     assert missing["b"]["p"] is None and not missing["b"]["rejected"]
     assert missing["a"]["p_holm"] == missing["a"]["p"]  # a family of one played test
 
@@ -118,7 +120,7 @@ def test_a_summary_is_valid_only_when_played_as_designed_after_a_committed_desig
         n = max(1, len(e.ckpts))
         result = fake_result(list(e.ckpts), [0.5] * n, design.episodes, None if "solo" in e.env else 0.9)
         e.path(out).write_text(json.dumps(result))
-    summary = ed.summarise(design, tmp_path / "records", tmp_path / "science")
+    summary = er.summarise(design, tmp_path / "records", tmp_path / "science")
     block = summary["preregistered"]
     assert block["checks"]["played_as_designed"]
     assert not block["checks"]["design_committed"] and not block["valid"]  # the tmp design is not committed
@@ -126,16 +128,16 @@ def test_a_summary_is_valid_only_when_played_as_designed_after_a_committed_desig
     assert summary["environments"][env]["experts"] == 0.9
     assert summary["environments"][env]["social_rec"]["final_returns"] == [0.5, 0.5]
     assert summary["environments"][env]["random"]["final_returns"] == [0.5]
-    assert "NOT VALID" in ed.verdict(summary)
+    assert "NOT VALID" in er.verdict(summary)
 
     first = ed.evaluations(design, tmp_path / "records")[0]
     fewer = fake_result(list(first.ckpts), [0.5, 0.5], design.episodes + 1, 0.9)  # other episodes
     first.path(out).write_text(json.dumps(fewer))
-    assert not ed.summarise(design, tmp_path / "records", tmp_path / "science")["preregistered"]["checks"][
+    assert not er.summarise(design, tmp_path / "records", tmp_path / "science")["preregistered"]["checks"][
         "played_as_designed"
     ]
     first.path(out).unlink()  # not played: no test, and not as designed
-    summary = ed.summarise(design, tmp_path / "records", tmp_path / "science")
+    summary = er.summarise(design, tmp_path / "records", tmp_path / "science")
     assert summary["preregistered"]["primary"]["fourrooms"]["p"] is None
     assert not summary["preregistered"]["checks"]["played_as_designed"]
 
@@ -143,7 +145,7 @@ def test_a_summary_is_valid_only_when_played_as_designed_after_a_committed_desig
 def test_power_grows_with_the_effect_and_vanishes_without_one():
     rng = np.random.default_rng(0)
     strong = (list(rng.normal(2.0, 1.0, 20)), list(rng.normal(0.0, 1.0, 20)))
-    table = ed.power_table({"a": strong, "b": strong}, seeds=20, alpha=0.05, discounts=(1.0, 0.0), reps=200)
+    table = er.power_table({"a": strong, "b": strong}, seeds=20, alpha=0.05, discounts=(1.0, 0.0), reps=200)
     assert table["discount 1"]["a"] > 0.95 and table["discount 1"]["all"] > 0.9
     assert table["discount 0"]["a"] < 0.1  # no effect left: about alpha / 2 under Holm, or less
     assert table["discount 1"]["all"] <= min(table["discount 1"]["a"], table["discount 1"]["b"])
@@ -154,28 +156,28 @@ def test_run_plays_what_is_missing_blind_and_logs_its_machine(designs_dir, tmp_p
     """Two records of each arm and a random walker in a small Four Rooms beside its experts."""
     design = design_file(designs_dir, secondary={})
     science = tmp_path / "science"
-    ed.run(design, paths.RECORDS, science)
+    evaluation_play.run(design, paths.RECORDS, science)
     said = capsys.readouterr().out
     out = ed.out_dir(design, science)
     assert sorted(p.name for p in out.glob("*.json")) == sorted(
         e.path(out).name for e in ed.evaluations(design, paths.RECORDS)
     )
     assert "3 of 3 evaluations to play" in said and "return" not in said  # blind: no score shown
-    lines = ed.read_provenance(out)
+    lines = er.read_provenance(out)
     assert len(lines) == 3 and all(line["cpu"] and "visible_cores" in line for line in lines)
-    summary = ed.summarise(design, paths.RECORDS, science)
+    summary = er.summarise(design, paths.RECORDS, science)
     assert summary["preregistered"]["checks"]["played_as_designed"]
     rows = summary["environments"][design.primary["fourrooms"].env]
     assert rows["experts"] > 0 and len(rows["social_rec"]["final_returns"]) == 2
     assert len(rows["random"]["final_returns"]) == 1
-    ed.run(design, paths.RECORDS, science)
+    evaluation_play.run(design, paths.RECORDS, science)
     assert "0 of 3 evaluations to play" in capsys.readouterr().out
 
 
 def test_run_refuses_a_design_whose_records_are_missing(designs_dir, tmp_path):
     design = design_file(designs_dir, seed=900)
     with pytest.raises(FileNotFoundError, match="material is incomplete.*social_rec-s900-900"):
-        ed.run(design, tmp_path / "records", tmp_path / "science")
+        evaluation_play.run(design, tmp_path / "records", tmp_path / "science")
     assert not (tmp_path / "science").exists()
 
 
@@ -184,8 +186,8 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
     design = ed.load(name)
     if not (paths.RECORDS / design.records).is_dir():
         pytest.skip(f"needs the committed records {paths.RECORDS / design.records}")
-    assert ed.missing_records(design, paths.RECORDS) == []
-    pilot = ed.pilot_scores(design)
+    assert er.missing_records(design, paths.RECORDS) == []
+    pilot = er.pilot_scores(design)
     assert set(pilot) == set(design.primary) and all(len(t) and len(c) for t, c in pilot.values())
 
 
@@ -197,13 +199,13 @@ def test_a_committed_design_has_the_power_it_states(name):
     design = ed.load(name)
     if not Path(design.power_simulation["pilot"]).is_dir():
         pytest.skip(f"needs the committed pilot {design.power_simulation['pilot']}")
-    table = ed.stated_power(design)
+    table = er.stated_power(design)
     assert table == design.power_simulation["power"]
     assert design.power == table[f"discount {design.power_simulation['planning_discount']:g}"]["any"]
 
 
 def test_a_weighted_pool_draws_each_group_with_its_weight():
-    pool = ed.weighted_pool(
+    pool = er.weighted_pool(
         [(np.array([1.0, 2.0]), 0.775), (np.array([5.0, 6.0, 7.0]), 0.225), (np.array([9.0]), 0.0)]
     )
     values = np.array(pool)

@@ -11,10 +11,10 @@ from conftest import needs_records
 
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design, evaluation_design, followup, sweep
+from jaxsocial.experiments import branch_design, followup, sweep
 from jaxsocial.experiments.analyse import records, summaries, takeoff_power
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.experiments.plan import catalogue, paths, recipes
+from jaxsocial.experiments.plan import catalogue, evaluation_design, paths, recipes
 from jaxsocial.run import logs, metrics, policy_io
 
 REPO = Path(__file__).resolve().parents[1]

@@ -16,8 +16,9 @@ keeps the arrows so): `plan/` imports neither of the others; `launch/` uses plan
 `analyse/` never imports launch. Each folder's `__init__` names its modules.
 
 The commands on top use all three: `__main__`, `sweep` (screens settings), `followup` (branches, transfers
-and probes a design's learners that learned), `evaluation_design` (designs that only evaluate committed
-records) and `branch_design` (designs that train on from committed records' policies), each with its plan,
-launch and analysis in that order. They work on a checkout of the repository, run from its root
+and probes a design's learners that learned), `branch_design` (designs that train on from committed
+records' policies), each with its plan, launch and analysis in that order, and `kind_commands` (the verbs of
+the evaluation designs, whose parts are `plan.evaluation_design`, `launch.evaluation_play` and
+`analyse.evaluation_results`). They work on a checkout of the repository, run from its root
 (`paths.require_checkout`).
 """

@@ -1,7 +1,7 @@
 """`python -m jaxsocial.experiments VERB NAME ...`: recipes, designs of every kind, records and the commands
 of the modules beside it (`DELEGATED`); see `jaxsocial.experiments`. NAME is a recipe or a design; a
 design's kind comes from its file (`catalogue`): a training design is its recipe's, an evaluation or branch
-design goes to its kind's module (`DESIGN_MODULES`)."""
+design goes to its kind's command (`KIND_COMMANDS`)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from jaxsocial.experiments import branch_design, kind_commands
 from jaxsocial.experiments.analyse import records, rundirs, summaries
 from jaxsocial.experiments.launch import pinned, runner, verify
 from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
@@ -345,39 +346,38 @@ DELEGATED = {
 `jaxsocial.experiments.sweep.main(ARGS)`."""
 
 
-DESIGN_MODULES = {
-    "evaluation": "jaxsocial.experiments.evaluation_design",
-    "branch": "jaxsocial.experiments.branch_design",
+KIND_COMMANDS = {
+    "evaluation": (kind_commands.EVALUATION_VERBS, kind_commands.evaluation_main),
+    "branch": (branch_design.VERBS, branch_design.main),
 }
-"""The kinds of design with a module of their own, each with its `VERBS` and `main`: `experiments VERB NAME
-ARGS`, NAME a design of that kind, is that module's `main([VERB, NAME, *ARGS])`."""
+"""The kinds of design that are not a recipe's, each with its verbs and its `main`: `experiments VERB NAME
+ARGS`, NAME a design of that kind, is that `main([VERB, NAME, *ARGS])`."""
 
 
 def _names_help() -> str:
     """The names a recipe command takes: the recipes, and the designs of the other kinds, with their verbs."""
     others = [
-        f"{kind} designs ({', '.join(importlib.import_module(module).VERBS)}): "
-        f"{', '.join(catalogue.names(kind))}"
-        for kind, module in DESIGN_MODULES.items()
+        f"{kind} designs ({', '.join(verbs)}): {', '.join(catalogue.names(kind))}"
+        for kind, (verbs, _) in KIND_COMMANDS.items()
     ]
     return f"a recipe ({', '.join(recipes.RECIPES)}); {'; '.join(others)}"
 
 
-def design_module(argv: list[str]):
-    """The module that acts on the design `VERB NAME ...` names, where its kind has one (None otherwise);
-    SystemExit where VERB is not one of that kind's."""
-    verbs = {verb for module in DESIGN_MODULES.values() for verb in importlib.import_module(module).VERBS}
+def kind_command(argv: list[str]):
+    """The `main` that acts on the design `VERB NAME ...` names, where it is of a kind in `KIND_COMMANDS`
+    (None otherwise); SystemExit where VERB is not one of that kind's."""
+    verbs = {verb for kind_verbs, _ in KIND_COMMANDS.values() for verb in kind_verbs}
     if len(argv) < 2 or argv[0] not in verbs or argv[1] not in catalogue.names():
         return None
     kind = catalogue.kind_of(argv[1])
-    if kind not in DESIGN_MODULES:
+    if kind not in KIND_COMMANDS:
         return None
-    module = importlib.import_module(DESIGN_MODULES[kind])
-    if argv[0] not in module.VERBS:
+    kind_verbs, kind_main = KIND_COMMANDS[kind]
+    if argv[0] not in kind_verbs:
         raise SystemExit(
-            f"error: {argv[0]} {argv[1]}: the {kind} design {argv[1]} takes {', '.join(module.VERBS)}"
+            f"error: {argv[0]} {argv[1]}: the {kind} design {argv[1]} takes {', '.join(kind_verbs)}"
         )
-    return module
+    return kind_main
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -385,9 +385,9 @@ def main(argv: list[str] | None = None) -> None:
     if argv and argv[0] in DELEGATED:
         importlib.import_module(DELEGATED[argv[0]][0]).main(argv[1:])
         return
-    module = design_module(argv)
-    if module is not None:
-        module.main(argv)
+    kind_main = kind_command(argv)
+    if kind_main is not None:
+        kind_main(argv)
         return
     args = parse_args(argv)
     if args.command == "list":

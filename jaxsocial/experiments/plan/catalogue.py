@@ -2,7 +2,7 @@
 each file's kind, which says what the design does and which module reads it:
 
     training     trains a recipe's conditions from fresh seeds                   (`prereg.Design`)
-    evaluation   plays a finished design's records zero-shot, training nothing    (`evaluation_design`)
+    evaluation   plays a finished design's records zero-shot, training nothing    (`plan.evaluation_design`)
     branch       trains on from a finished design's records                       (`branch_design`)
 
 A file names its kind in its field `kind`. The files committed before that field are known by the field only

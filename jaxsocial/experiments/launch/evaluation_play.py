@@ -1,0 +1,57 @@
+"""An evaluation design's evaluations played (`run`): what is missing, blind, each process logged
+(`plan.evaluation_design`)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from jaxsocial.env import registry
+from jaxsocial.experiments.analyse import evaluation_results
+from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import commits, paths
+from jaxsocial.experiments.plan.evaluation_design import PROVENANCE, EvaluationDesign, evaluations, out_dir
+from jaxsocial.run import logs
+from jaxsocial.specs import EnvSpec
+
+
+def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
+    """Play every evaluation of the design that has no result yet, blind (no score is printed), and log each
+    process's commit, date and machine in `<out>/provenance.jsonl`. Nothing runs if a record is missing."""
+    from jaxsocial import evaluate
+    from jaxsocial.agents import population
+
+    missing = evaluation_results.missing_records(design, records_root)
+    if missing:
+        hint = paths.missing_records(records_root / design.records)
+        raise FileNotFoundError(hint or f"the design's material is incomplete: {', '.join(missing)}")
+    out = out_dir(design, science)
+    todo = [e for e in evaluations(design, records_root) if not e.path(out).exists()]
+    print(f"[{design.name}] {len(todo)} of {len(evaluations(design, records_root))} evaluations to play")
+    for e in todo:
+        spec, slots = EnvSpec.parse(e.env), ()
+        if e.slot:  # in the learner's place, beside the environment's own slots
+            others = population.default_slots(registry.env_params(spec.name, spec.args)).split(",")[1:]
+            slots = population.parse_slot_list(",".join([e.slot, *others]))
+        config = evaluate.EvalConfig(
+            ckpt=e.ckpts,
+            env=spec.name,
+            env_args=spec.args,
+            episodes=design.episodes,
+            seed=design.eval_seed,
+            slots=slots,
+        )
+        started = pinned.now()
+        result = evaluate.evaluate(config)
+        out.mkdir(parents=True, exist_ok=True)
+        logs.write_json(e.path(out), result)
+        when = {
+            "file": e.path(out).name,
+            "commit": commits.head_commit(),
+            "started": started,
+            "ended": pinned.now(),
+        }
+        line = when | pinned.machine(None)
+        with (out / PROVENANCE).open("a") as f:
+            f.write(json.dumps(line) + "\n")
+        print(f"[{design.name}] {e.env} {e.player}: played ({len(e.ckpts) or 1} policies)", flush=True)
