@@ -14,32 +14,28 @@ import functools
 import shlex
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
 
 import jax
 
 from jaxsocial.env import registry
 from jaxsocial.run import (
     compile_cache,
-    cost,
     distributed,
     flags,
-    init_from,
+    interrupt,
     logs,
-    loop,
     nonfinite,
-    policy_io,
     provenance,
+    rundir,
     runlock,
     startup,
+    unstarted,
 )
 from jaxsocial.run.config import PRESETS, TrainConfig, config_from_dict
-from jaxsocial.run.driver import stage_program, train_chunks
-from jaxsocial.run.outputs import (
-    prepare_run_dir,
-    run_path,
-    seed_runs,
-    write_configs,
-)
+
+if TYPE_CHECKING:
+    from jaxsocial.run import loop
 
 
 def make_train(cfg: TrainConfig):
@@ -50,6 +46,8 @@ def make_train(cfg: TrainConfig):
     `cfg.program`; `train(key) -> (state, metrics)` is the whole run of `cfg.iterations` (it loads frozen
     policies when traced).
     """
+    from jaxsocial.run import loop, policy_io  # the program's modules, imported when it is built
+
     if cfg.stages:
         raise ValueError("make_train builds one stage's program; the driver (run) switches stages")
     static = startup.setup(cfg, load_frozen=False)
@@ -64,6 +62,9 @@ def make_train(cfg: TrainConfig):
 def compiled_program(cfg: TrainConfig, stage: int = -1) -> loop.Program:
     """The compiled `Program` of `cfg` in `stage` (-1: before the first) on its devices, validated first
     (`startup.setup`; frozen policies are not loaded), as a run's driver compiles it."""
+    from jaxsocial.run import loop
+    from jaxsocial.run.driver import stage_program
+
     static = startup.setup(cfg, load_frozen=False)
     return stage_program(cfg.program, static, loop.data_mesh(cfg.program, cfg.devices), stage)
 
@@ -71,38 +72,61 @@ def compiled_program(cfg: TrainConfig, stage: int = -1) -> loop.Program:
 def run(cfg: TrainConfig, command: str | None = None) -> Path:
     """Train with logging and checkpoints in `runs_dir/run_name`; returns the run directory.
 
-    The run goes through the stages of `cfg.stages` (one compiled program each, switched between chunks);
-    metrics rows record the stage, and checkpoints the stage to resume in. The run directory is locked
-    (`runlock`) from before it is written until the run ends; a live run's directory raises RunLockedError.
-    A non-finite iteration raises `nonfinite.NonFiniteError` (see `driver.train_chunks`). Several seeds train
-    in one program; each seed's config, metrics, checkpoints and policy go to its own directory (`seed_runs`).
-    In a multi-process run every process calls this with the same config (and its own process_id); only
-    process 0 writes logs, metrics and progress. Process 0 records itself in the run directory
-    (`provenance.recorded`: `command`, default the `python -m jaxsocial.train` line of the config it trains;
-    the commit and whether the package's files were its; the machine), unless a runner records it.
+    First the config is validated (`startup.setup`), then the run directory is checked (`check_run_dir`:
+    RunLockedError where a live run holds it; for a new run, FileExistsError where it holds another run, or
+    anything beyond what a run of this config leaves before its first iteration, which does not block it);
+    only then are the modules that train imported (`_train`), so that a refusal is quick. The run goes
+    through the stages of `cfg.stages` (one compiled program each, switched between chunks); metrics rows
+    record the stage, and checkpoints the stage to resume in. The run directory is locked (`runlock`) from
+    before the cost line until the run ends. A non-finite iteration raises `nonfinite.NonFiniteError` (see
+    `driver.train_chunks`). Several seeds train in one program; each seed's config, metrics, checkpoints and
+    policy go to its own directory (`seed_runs`). In a multi-process run every process calls this with the
+    same config (and its own process_id); only process 0 writes logs, metrics and progress. Process 0
+    records itself in the run directory (`provenance.recorded`: `command`, default the `python -m
+    jaxsocial.train` line of the config it trains; the commit and whether the package's files were its; the
+    machine), unless a runner records it. Ctrl-C while XLA compiles or runs a chunk raises
+    `interrupt.Interrupted` at once.
     """
     distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
     static = startup.setup(cfg)  # validate before touching the disk or compiling; once per run
+    run_dir = rundir.run_path(cfg)
+    distributed.on_main(functools.partial(check_run_dir, cfg, run_dir))
+    return _train(cfg, static, run_dir, command)
+
+
+def check_run_dir(cfg: TrainConfig, run_dir: Path) -> None:
+    """Before a run prints its cost or compiles (on process 0): RunLockedError where a live process holds
+    `run_dir` (`runlock.RunLock.check_free`), FileExistsError where a new run may not start in it
+    (`unstarted.check_new_run`)."""
+    runlock.RunLock(run_dir).check_free()
+    unstarted.check_new_run(cfg, run_dir)
+
+
+def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str | None) -> Path:
+    """`run` once its directory is checked and `cfg` is valid (`static`)."""
+    from jaxsocial.run import cost, init_from, loop  # orbax, optax and scipy: not imported by a refusal
+    from jaxsocial.run.driver import train_chunks
+    from jaxsocial.run.outputs import prepare_run_dir, seed_runs, write_configs
+
     branching = cfg.init_from is not None and not cfg.resume  # a resumed run loads its own state
     numbers = list(range(cfg.seed, cfg.seed + cfg.seeds))
     if branching:
         init_from.check(cfg.init_from, numbers, cfg.net, static.pop.learners)
     mesh = loop.data_mesh(cfg.program, cfg.devices)
-    run_dir = run_path(cfg)
     if branching:  # RUN_DIR@ITERATION in config.json
         cfg = dataclasses.replace(cfg, init_from=init_from.pin(cfg.init_from, numbers, run_dir))
         if distributed.is_main() and init_from.params_only(cfg.init_from, numbers):
             print(f"--init-from {cfg.init_from}: the params of its policy (no checkpoint), a fresh optimiser")
-    trained = cost.trained_iterations(cfg, run_dir)
-    if distributed.is_main() and trained < cfg.iterations:  # before "auto" measures the machine and compiling
-        print(cost.estimate(cfg, trained), flush=True)
-    cfg = startup.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
-    seeds = seed_runs(cfg, run_dir)
     lock = runlock.RunLock(run_dir)
-    distributed.on_main(lock.acquire)  # before anything in the run directory is deleted or written
+    distributed.on_main(lock.acquire)  # before the cost line, and anything in the run directory is written
     try:
+        trained = cost.trained_iterations(cfg, run_dir)
+        if distributed.is_main() and trained < cfg.iterations:  # before "auto" measures, and compiling
+            print(cost.estimate(cfg, trained), flush=True)
+        cfg = startup.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
+        seeds = seed_runs(cfg, run_dir)
         distributed.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
         command = command or shlex.join(["python", "-m", "jaxsocial.train", *flags.config_flags(cfg)])
         with provenance.recorded(run_dir, command, cfg.resume, distributed.is_main()):
@@ -179,11 +203,29 @@ def parse_args(argv: list[str]) -> TrainConfig:
     return cfg if saved is None else dataclasses.replace(cfg, resume=True, overwrite=False)
 
 
+def interrupted(err: KeyboardInterrupt, cfg: TrainConfig) -> NoReturn:
+    """Ctrl-C: one line on stderr, what was interrupted (`interrupt.Interrupted`) and what the run directory
+    holds, then exit status 130 (128 + SIGINT; at once where XLA still works in a worker the interrupt left,
+    `interrupt.in_worker`)."""
+    run_dir = rundir.run_path(cfg)
+    what = f" while {err.what}" if isinstance(err, interrupt.Interrupted) else ""
+    if not run_dir.is_dir():
+        kept = "nothing was written"
+    elif not unstarted.leftovers(run_dir, rundir.seed_dir_names(cfg.seed, cfg.seeds)):
+        kept = f"{run_dir} holds no completed iteration, so the same command starts it again"
+    else:
+        kept = f"{run_dir} keeps what it saved: --resume {run_dir} continues from its latest checkpoint"
+    print(f"interrupted{what}; {kept}", file=sys.stderr, flush=True)
+    raise SystemExit(interrupt.EXIT_STATUS)
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
     cfg = parse_args(argv)
     try:
         run(cfg, shlex.join(["python", "-m", "jaxsocial.train", *argv]))
+    except KeyboardInterrupt as err:
+        interrupted(err, cfg)
     except (ValueError, FileExistsError, FileNotFoundError, nonfinite.NonFiniteError) as err:
         raise SystemExit(f"error: {err}") from err
     except OSError as err:  # e.g. an unwritable runs_dir or a full disk while checkpointing

@@ -27,6 +27,8 @@ TREE_FIELDS = ("dirty", "tree_diff", "tree_diff_sha256", "no_commit_reason")
 DIFF_OPTIONS = ("--binary", "--no-color", "--no-ext-diff", "--no-textconv", "--no-renames")
 PREFIXES = ("--src-prefix=a/", "--dst-prefix=b/")
 """`git diff` output that `git apply` takes whatever the user's git config says."""
+DIFF_GLOB = "tree-*.diff"
+"""The name of a diff beside a process file (`Tree.diff_file`: '*' is the start of its sha256)."""
 
 
 def git(*args: str, cwd: str | Path = ".") -> subprocess.CompletedProcess:
@@ -59,7 +61,7 @@ class Tree:
     @property
     def diff_file(self) -> str | None:
         """The diff's file name beside a process file or in a record, named by its hash (None if clean)."""
-        return f"tree-{self.diff_sha256[:12]}.diff" if self.dirty else None
+        return DIFF_GLOB.replace("*", self.diff_sha256[:12]) if self.dirty else None
 
     def fields(self) -> dict[str, str | bool | None]:
         """`commit` and the `TREE_FIELDS`, as process files and provenance hold them."""

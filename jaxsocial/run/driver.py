@@ -23,6 +23,7 @@ from jaxsocial.run import (
     checkpoint,
     distributed,
     init_from,
+    interrupt,
     loop,
     metrics,
     nonfinite,
@@ -34,7 +35,7 @@ from jaxsocial.run import (
 from jaxsocial.run.chunks import Chunk, check_chunk, checkpoint_due, plan_chunk, pool_seeds, seed_part
 from jaxsocial.run.config import DriverConfig, ProgramConfig, TrainConfig
 from jaxsocial.run.loop import Program
-from jaxsocial.run.outputs import Outputs, nothing_to_train, reached, stop_message
+from jaxsocial.run.outputs import Outputs, chunk_description, nothing_to_train, reached, stop_message
 from jaxsocial.run.rundir import SeedRun
 from jaxsocial.specs import CheckpointRef
 
@@ -45,6 +46,11 @@ def stage_program(
     """The compiled program of `program_cfg` in `stage` (-1: before the first), cached by `loop.compiled`
     (stages with the same environment share one)."""
     return loop.compiled(program_cfg, mesh, static.stage(stage), static.pop)
+
+
+def ahead_of_time(jitted: Any, *args: Any) -> Any:
+    """`jitted` traced and compiled for `args`, ahead of time: the executable."""
+    return jitted.lower(*args).compile()
 
 
 def restore_state(
@@ -135,7 +141,8 @@ class Driver:
         stage = schedule.initial_index(static.stages)
         compiled = stage_program(program, static, mesh, stage)
         numbers = [s.seed for s in seeds]
-        state = compiled.init(np.asarray(numbers if program.seeds > 1 else numbers[0], np.int32))
+        seed_numbers = np.asarray(numbers if program.seeds > 1 else numbers[0], np.int32)
+        state = interrupt.in_worker("compiling the initial state", compiled.init, seed_numbers)
         frozen = static.frozen_params
         if frozen is not None:
             frozen = distributed.put(frozen, jax.tree.map(lambda _: distributed.replicated(mesh), frozen))
@@ -149,21 +156,33 @@ class Driver:
 
     def compile(self, n: int, announce: Callable[[int, int], None]) -> float | None:
         """Compile step: the chunk of `n` iterations in the current stage, ahead of time (so that its speed
-        excludes compiling), after `announce(n, stage)`; the seconds it took, or None if compiled before."""
+        excludes compiling), after `announce(n, stage)`; the seconds it took, or None if compiled before. It
+        is traced and compiled in a worker thread (`interrupt.in_worker`), so a Ctrl-C stops the run at once.
+        """
         if (self.stage, n) in self.executables:
             return None
         announce(n, self.stage)
         t0 = time.perf_counter()
         program = stage_program(self.program, self.static, self.mesh, self.stage)
-        self.executables[self.stage, n] = program.run_chunk.lower(self.state, self.frozen, n).compile()
+        what = f"compiling {chunk_description(n, self.static.stages, self.stage)}"
+        self.executables[self.stage, n] = interrupt.in_worker(
+            what, ahead_of_time, program.run_chunk, self.state, self.frozen, n
+        )
         return time.perf_counter() - t0
 
     def run_chunk(self, n: int) -> Chunk:
         """Run step: the compiled chunk of `n` iterations (`compile` first) from the current state, which
-        it replaces (`it` stays the chunk's first, until the loop moves it on)."""
+        it replaces (`it` stays the chunk's first, until the loop moves it on); in a worker thread until its
+        metrics are on the host (`interrupt.in_worker`), so a Ctrl-C stops the run at once."""
+        executable = self.executables[self.stage, n]
+
+        def chunk() -> tuple[RunnerState, dict[str, Any]]:
+            state, metrics = executable(self.state, self.frozen)
+            return state, jax.device_get(metrics)
+
+        what = f"training iterations {self.it + 1} to {self.it + n}"
         t0 = time.perf_counter()
-        self.state, metrics = self.executables[self.stage, n](self.state, self.frozen)
-        metrics = jax.device_get(metrics)
+        self.state, metrics = interrupt.in_worker(what, chunk)
         sps = n * self.program.num_envs * self.program.rollout_steps / (time.perf_counter() - t0)  # per seed
         finite = metrics.pop(nonfinite.KEY)
         return Chunk(self.it, n, self.stage, metrics, finite, sps)

@@ -21,23 +21,22 @@ from jaxsocial import specs, stats
 from jaxsocial.agents import population
 from jaxsocial.agents.episodes import play_episodes
 from jaxsocial.agents.network_config import NetworkConfig
-from jaxsocial.run import config, distributed, logs, metrics, nonfinite, rundir, schedule, startup
+from jaxsocial.run import (
+    config,
+    distributed,
+    interrupt,
+    logs,
+    metrics,
+    nonfinite,
+    rundir,
+    schedule,
+    startup,
+    unstarted,
+)
 from jaxsocial.run.chunks import Check, Chunk, evaluates, seed_part
 from jaxsocial.run.config import TrainConfig, config_dict
-from jaxsocial.run.rundir import SeedRun
-
-
-def run_path(cfg: TrainConfig) -> Path:
-    """The run directory of a config: `runs_dir/run_name`."""
-    return Path(cfg.runs_dir).expanduser() / run_name(cfg)
-
-
-def run_name(cfg: TrainConfig) -> str:
-    """`cfg.run_name`, or '<env>-s<seed>' ('<env>-s<first>-<last>' for several seeds)."""
-    if cfg.run_name:
-        return cfg.run_name
-    last = f"-{cfg.seed + cfg.seeds - 1}" if cfg.seeds > 1 else ""
-    return f"{cfg.env}-s{cfg.seed}{last}"
+from jaxsocial.run.rundir import SeedRun, run_name
+from jaxsocial.run.rundir import run_path as run_path  # where it was, for its importers
 
 
 def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[SeedRun]:
@@ -59,8 +58,14 @@ def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[SeedRun]:
 
 def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> None:
     """Start-up on process 0: `logs.prepare_run_dir` (a resumed run's config may differ only in
-    `DriverConfig`'s fields), each seed's checkpoint and policy directories, and a new run's configs."""
-    logs.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite)
+    `DriverConfig`'s fields; a new run starts again in a directory that a run of its very config left
+    before its first iteration, `unstarted.restarts`), each seed's checkpoint and policy directories, and a
+    new run's configs."""
+    restart = unstarted.restarts(cfg, run_dir)
+    if restart:
+        print(f"{run_dir} holds only what a run of this config wrote before its first iteration (it was "
+              "interrupted or killed): starting it again", flush=True)  # fmt: skip
+    logs.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite or restart)
     if cfg.resume and (run_dir / logs.CONFIG_FILE).exists():
         diff = config.resume_conflicts(logs.read_config(run_dir), config_dict(cfg))
         if diff:
@@ -173,7 +178,8 @@ class Outputs:
                 rows[0][metrics.COMPILE_S] = round(compile_s, 2)
             if evaluating:
                 t0 = time.perf_counter()
-                rows[-1].update(self.evaluation(k, end, params))
+                what = f"evaluating after iteration {end}"
+                rows[-1].update(interrupt.in_worker(what, self.evaluation, k, end, params))
                 if self.progress is not None and not self.evaluated:  # it compiled the evaluation
                     self.progress.exclude(time.perf_counter() - t0)
             metrics_log.append(rows)

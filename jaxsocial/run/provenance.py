@@ -21,9 +21,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.run import autotune, checkout, logs
+from jaxsocial.run import checkout, logs, rundir
 
-RUN_FILE = "process.json"
+RUN_FILE = rundir.RUN_FILE
 PARENT_WRITES = "JAXSOCIAL_PARENT_WRITES_RUN_FILE"
 """Set to '1' in the environment of a process whose `RUN_FILE` the process that started it writes
 (`pinned.run`): the training then writes none itself."""
@@ -49,6 +49,8 @@ def machine(xla_flags: str | None) -> dict[str, Any]:
     the flags, the cores this process sees (`visible_cores`: a process it starts sees the same unless pinned)
     and the `environment`. A GPU block logs it in its commands log (`records.read_commands_log`): its flags
     say whether `--xla_gpu_deterministic_ops` was on."""
+    from jaxsocial.run import autotune  # its network and kernels: imported by a run, not by its refusals
+
     seen = visible_cores()
     return {"cpu": autotune.cpu_model(), "xla_flags": xla_flags, "visible_cores": seen, **environment()}
 
@@ -57,6 +59,8 @@ def environment() -> dict[str, Any]:
     """What besides the program and its XLA flags decides the floats a CPU run computes: the instruction sets
     present (`autotune.NUMERICS_FLAGS`; XLA's code and YNNPACK's kernels follow them), the cache sizes (Eigen
     sizes its blocks from them) and the versions of the `VERSIONED` packages (None: not installed)."""
+    from jaxsocial.run import autotune
+
     return {
         "cpu_features": sorted(autotune.NUMERICS_FLAGS & autotune.cpu_flags()),
         "cache_sizes": autotune.cache_sizes(),

@@ -1,6 +1,7 @@
 """Where things go in a training run's directory, named in one place::
 
-    <runs_dir>/<run_name>/          config.json, metrics.jsonl (`logs`), the writer's lock (`runlock`)
+    <runs_dir>/<run_name>/          (`run_path`) config.json, metrics.jsonl (`logs`), process.json
+                                    (`RUN_FILE`), the writer's lock (`runlock`)
         s<seed>/                    one per seed of a several-seed run; a one-seed run is its own seed
             config.json             the config of a one-seed run of that seed (it reads like one)
             checkpoints/<it>/       params, optimiser state and stage, to resume or branch from
@@ -16,8 +17,23 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 CHECKPOINTS_DIR = "checkpoints"
+RUN_FILE = "process.json"
+"""What the processes that trained in a run directory were (`jaxsocial.run.provenance`)."""
 POLICY_DIR = "policy"
 """A seed's exported policy: the learners' params (stacked [S_l, ...]), which frozen slots load."""
+
+
+def run_path(cfg: Any) -> Path:
+    """The run directory of a config (a `TrainConfig`, not imported on this floor): `runs_dir/run_name`."""
+    return Path(cfg.runs_dir).expanduser() / run_name(cfg)
+
+
+def run_name(cfg: Any) -> str:
+    """`cfg.run_name`, or '<env>-s<seed>' ('<env>-s<first>-<last>' for several seeds)."""
+    if cfg.run_name:
+        return cfg.run_name
+    last = f"-{cfg.seed + cfg.seeds - 1}" if cfg.seeds > 1 else ""
+    return f"{cfg.env}-s{cfg.seed}{last}"
 
 
 def seed_name(seed: int) -> str:

@@ -66,10 +66,7 @@ class RunLock:
             except BlockingIOError:
                 holder = _holder(file)
                 file.close()
-                raise RunLockedError(
-                    f"run directory {self.run_dir} is in use by {_describe(holder)}; wait for that run to "
-                    f"end (or stop it), or choose another --run-name (lock file {self.path})"
-                ) from None
+                raise self._in_use(holder) from None
             except OSError as err:
                 file.close()
                 print(f"warning: cannot lock {self.run_dir} ({err.strerror}); nothing stops another process "
@@ -92,6 +89,28 @@ class RunLock:
         file.write(json.dumps(holder) + "\n")
         file.flush()
         self._file = file
+
+    def check_free(self) -> None:
+        """RunLockedError naming the holder if a live process holds the lock now; takes nothing, writes
+        nothing (a look before the run's checks: `acquire` decides)."""
+        try:
+            file = open(self.path)  # noqa: SIM115 - closed below
+        except OSError:
+            return  # no lock file: free
+        with file:
+            try:
+                fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                raise self._in_use(_holder(file)) from None
+            except OSError:
+                return  # a file system without locks: `acquire` warns
+            fcntl.flock(file, fcntl.LOCK_UN)
+
+    def _in_use(self, holder: dict[str, Any]) -> RunLockedError:
+        return RunLockedError(
+            f"run directory {self.run_dir} is in use by {_describe(holder)}; wait for that run to end (or "
+            f"stop it), or choose another --run-name (lock file {self.path})"
+        )
 
     def release(self) -> None:
         """Delete the lock file and unlock (nothing if not held)."""

@@ -16,7 +16,7 @@ from jaxsocial import specs
 from jaxsocial.agents import population, ppo_config
 from jaxsocial.env import registry
 from jaxsocial.env.types import NUM_ACTIONS, EnvParams
-from jaxsocial.run import autotune, policy_io, schedule
+from jaxsocial.run import schedule
 from jaxsocial.run.config import ALGOS, ON_NONFINITE, SEED_BATCHING, TrainConfig
 
 
@@ -76,7 +76,11 @@ def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:
     elif not pop.demonstrators:
         raise ValueError("--algo bc clones expert or frozen slots, and --slots has none")
     evals = tuple(EvalEnv(spec, population.default_population(e), e) for spec, e in eval_envs)
-    frozen = policy_io.load_frozen(pop, cfg.net) if load_frozen else None
+    frozen = None
+    if load_frozen and pop.frozen:
+        from jaxsocial.run import policy_io  # orbax: not imported where no policy is read
+
+        frozen = policy_io.load_frozen(pop, cfg.net)
     return Setup(env_params, pop, cfg.stages, frozen, stage_envs, evals)
 
 
@@ -156,4 +160,6 @@ def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig
         if cfg.algo == "ppo"
         else cfg.num_envs * cfg.rollout_steps * len(pop.demonstrators)
     )
+    from jaxsocial.run import autotune  # its network and kernels: only where something is "auto"
+
     return dataclasses.replace(cfg, net=autotune.resolve(cfg.net, frames))

@@ -1,0 +1,78 @@
+"""Ctrl-C stops a training run at once, also while XLA compiles (issue 84): the compile runs in a worker
+thread (`jaxsocial.run.interrupt`), the run ends with one line saying what it interrupted and exit status
+130, and its directory, which holds no completed iteration, does not block the same command."""
+
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from conftest import TINY_FLAGS
+
+from jaxsocial.run import interrupt
+
+EXIT_WITHIN_S = 10.0
+"""How soon after the Ctrl-C the process must have ended (it takes well under a second; the chunk's compile,
+which it used to wait for, takes 13 s on 2 busy cores)."""
+
+
+def test_in_worker_returns_the_result_or_raises_the_error():
+    assert interrupt.in_worker("adding", sum, [1, 2, 3]) == 6
+    with pytest.raises(ZeroDivisionError):
+        interrupt.in_worker("dividing", lambda: 1 / 0)
+    assert not interrupt.abandoned()
+
+
+def _lines(stream, out: queue.Queue) -> None:
+    """Each line of `stream` (progress lines end in '\\r'), then None at its end."""
+    line = ""
+    for char in iter(lambda: stream.read(1), ""):
+        if char in "\r\n":
+            out.put(line)
+            line = ""
+        else:
+            line += char
+    out.put(None)
+
+
+def test_ctrl_c_while_compiling_ends_the_run_at_once(tmp_path):
+    """Starts the 2-iteration run of TINY's sizes (the environment's scripted experts beside the learner),
+    waits for the line that says it compiles its chunk, sends SIGINT half a second later (while XLA
+    compiles: tracing and compiling take over ten seconds), and expects the run over within
+    `EXIT_WITHIN_S` with the message and status 130, its lock released."""
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env["JAX_ENABLE_COMPILATION_CACHE"] = "false"  # compile for real: a cached program loads in a blink
+    flags = [f for f in TINY_FLAGS if f != "--no-progress"]  # the compile line is the progress's
+    argv = ["-m", "jaxsocial.train", *flags, "--runs-dir", str(tmp_path), "--run-name", "x"]
+    proc = subprocess.Popen(
+        [sys.executable, "-u", *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+    )
+    lines: queue.Queue = queue.Queue()
+    threading.Thread(target=_lines, args=(proc.stdout, lines), daemon=True).start()
+    seen = []
+    try:
+        while not any("x: compiling the 1-iteration chunk" in line for line in seen):
+            line = lines.get(timeout=180)
+            assert line is not None, f"the run ended before compiling its chunk: {seen}"
+            seen.append(line)
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        sent = time.monotonic()
+        rc = proc.wait(timeout=120)
+        took = time.monotonic() - sent
+    finally:
+        proc.kill()
+    while (line := lines.get(timeout=10)) is not None:
+        seen.append(line)
+    text = "\n".join(seen)
+    assert "interrupted while compiling the 1-iteration chunk" in text, text
+    assert "holds no completed iteration, so the same command starts it again" in text, text
+    assert "Traceback" not in text
+    assert rc == 130, text
+    assert took < EXIT_WITHIN_S, f"ended {took:.1f} s after the Ctrl-C"
+    assert (tmp_path / "x" / "config.json").is_file()
+    assert not (tmp_path / ".x.lock").exists()
