@@ -15,26 +15,28 @@ from conftest import TINY, TINY_ENV_ARGS, needs_records
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats, train
-from jaxsocial.experiments import branch_design
+from jaxsocial.experiments import kind_commands
+from jaxsocial.experiments.analyse import branch_results as br
 from jaxsocial.experiments.analyse import kinds, records, rundirs
-from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.launch import branch_runs, pinned
+from jaxsocial.experiments.plan import branch_design as bd
 from jaxsocial.experiments.plan import catalogue, paths, prereg
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.provenance import PARENT_WRITES
 from jaxsocial.specs import CheckpointRef
 
-MIXING = branch_design.load("mixing")
+MIXING = bd.load("mixing")
 RUNS = Path("runs-nowhere")
 
 
 @needs_records("records/laptop/prereg-experts")
 def test_the_mixing_design_branches_every_experts_record_in_its_arm():
-    assert not branch_design.missing_sources(MIXING, paths.RECORDS)
+    assert not branch_runs.missing_sources(MIXING, paths.RECORDS)
     assert [MIXING.paired(t) for t in MIXING.primary.values()] == [True, False]
     for arm, k in (("mixed", 0), ("social", 7), ("alone", 39)):
         seed = MIXING.seed + k
-        cfg = branch_design.branch_config(MIXING, arm, seed, RUNS, paths.RECORDS)
+        cfg = branch_runs.branch_config(MIXING, arm, seed, RUNS, paths.RECORDS)
         source = paths.RECORDS / "laptop/prereg-experts" / f"{MIXING.arms[arm].source}-s{seed}-{seed}"
         assert cfg.init_from == CheckpointRef(source)
         assert (cfg.seed, cfg.seeds, cfg.iterations, cfg.eval_every) == (400 + k, 1, 610, 610)
@@ -43,18 +45,18 @@ def test_the_mixing_design_branches_every_experts_record_in_its_arm():
         assert f"{cfg.env}:{','.join(f'{k}={v}' for k, v in cfg.env_args)}" == MIXING.arms[arm].env
         assert [str(e) for e in cfg.eval_envs] == list(MIXING.eval_envs)
         assert train.parse_args(config_flags(cfg)) == cfg  # the command `run` starts trains exactly this
-    social = branch_design.branch_config(MIXING, "social", MIXING.seed, RUNS, paths.RECORDS)
-    mixed = branch_design.branch_config(MIXING, "mixed", MIXING.seed, RUNS, paths.RECORDS)
+    social = branch_runs.branch_config(MIXING, "social", MIXING.seed, RUNS, paths.RECORDS)
+    mixed = branch_runs.branch_config(MIXING, "mixed", MIXING.seed, RUNS, paths.RECORDS)
     assert dataclasses.replace(mixed, env_args=social.env_args, run_name=social.run_name) == social
 
 
 @pytest.mark.slow
 def test_the_mixing_design_and_its_amendment_have_the_power_they_state():
-    assert branch_design.stated_power(MIXING) == MIXING.power_simulation["power"]
+    assert br.stated_power(MIXING) == MIXING.power_simulation["power"]
     planning = MIXING.power_simulation["power"][f"discount {MIXING.power_simulation['planning_discount']:g}"]
     assert MIXING.power == planning[MIXING.power_simulation["planning_test"]]
     added = MIXING.amendment
-    assert branch_design.amendment_power(MIXING) == added.power_simulation["power"]
+    assert br.amendment_power(MIXING) == added.power_simulation["power"]
     planning = added.power_simulation["power"][f"discount {added.power_simulation['planning_discount']:g}"]
     assert added.power == planning[added.power_simulation["planning_test"]]
 
@@ -63,11 +65,11 @@ def test_the_mixing_design_and_its_amendment_have_the_power_they_state():
 def test_where_the_branches_started_is_the_experts_designs_own_evaluation():
     """The start of every branch, alone in 3-goal and beside new experts in 4-goal, is what the committed
     experts summary says of its source record; beside the experts in 3-goal it was not evaluated."""
-    started = branch_design.start_scores(MIXING, paths.RECORDS)
+    started = br.start_scores(MIXING, paths.RECORDS)
     experts = logs.read_json(paths.SCIENCE / "experts-laptop.json")["conditions"]
     solo3, gc4, gc3 = MIXING.eval_envs
     for source in MIXING.sources():
-        row = started[branch_design.start_row(source)]
+        row = started[bd.start_row(source)]
         assert row[solo3] == [round(v, 4) for v in experts[source]["solo3"]["per_seed"]]
         assert row[gc4] == [round(v, 4) for v in experts[source]["goalcycle4"]["per_seed"]]
         assert row[gc3] == [None] * MIXING.seeds
@@ -85,7 +87,7 @@ def test_the_amendment_tests_each_branch_against_where_it_started():
         "social_rec",
         "solo_rec",
     )
-    pilot = branch_design.pilot_scores(MIXING, MIXING.amendment.tests, MIXING.amendment.power_simulation)
+    pilot = br.pilot_scores(MIXING, MIXING.amendment.tests, MIXING.amendment.power_simulation)
     follow_up = logs.read_json(Path(MIXING.amendment.power_simulation["pilot_branches"]))
     solo3 = fades.env
     social = [s for s in follow_up["seeds"].values() if s["condition"].startswith("social")]
@@ -104,15 +106,15 @@ def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path, monk
     raw["secondary"]["social_skill"]["env"] = "goalcycle4"
     (tmp_path / "bad.json").write_text(json.dumps(raw))
     with pytest.raises(ValueError, match=r"arm 'solo' is not one of \['alone', 'mixed', 'social', 'start'\]"):
-        branch_design.load("bad")
+        bd.load("bad")
     with pytest.raises(FileNotFoundError, match=r"the designs are \['bad'\]"):
-        branch_design.load("mixing")
+        bd.load("mixing")
 
 
 def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, float]) -> None:
     """A record of `arm`'s branch of `seed` with its final evaluations `scores` (env -> return) and the
     config and provenance `summarise` reads."""
-    cfg = branch_design.branch_config(design, arm, seed, RUNS, paths.RECORDS)
+    cfg = branch_runs.branch_config(design, arm, seed, RUNS, paths.RECORDS)
     directory = root / design.run_name(arm, seed)
     directory.mkdir(parents=True)
     config = {"iterations": cfg.iterations, "seed": cfg.seed, "env": cfg.env}
@@ -170,7 +172,7 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
         catalogue, "file_commit", lambda path: "f" * 40 if path == amendment else committed(path)
     )
     monkeypatch.setattr(prereg, "commit_time", lambda commit: "2026-12-01T22:00:00+00:00")
-    summary = branch_design.summarise(design, tmp_path)
+    summary = br.summarise(design, tmp_path)
     block = summary["preregistered"]
     paired = scipy_stats.wilcoxon(
         values["mixed"][solo3] - values["social"][solo3], alternative="greater"
@@ -194,7 +196,7 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
     checks = block["checks"]
     assert not checks["every_branch_recorded"] and checks["branches_as_designed"] and not block["valid"]
     assert not checks["design_precedes_every_run"]  # commit 000... is no ancestor of the design
-    assert "NOT VALID" in branch_design.verdict(summary)
+    assert "NOT VALID" in br.verdict(summary)
     added = block["amendment"]
     assert added["tests"]["social_fades"]["arms"] == ["social", "social_rec at the branch"]
     fades = scipy_stats.wilcoxon(values["social"][solo3] - started, alternative="less").pvalue
@@ -213,11 +215,11 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
         "every_start_scored": True,
     }
     assert added["valid"] and added["committed"] == "2026-12-01T22:00:00+00:00"
-    assert "amendment social_fades (wilcoxon" in branch_design.verdict(summary)
+    assert "amendment social_fades (wilcoxon" in br.verdict(summary)
     shutil.rmtree(tmp_path / design.run_name("mixed", design.seed + 2))
     _fake_record(tmp_path, dataclasses.replace(design, iterations=5), "mixed", design.seed + 2, {solo3: 1.0})
-    assert branch_design.summarise(design, tmp_path)["preregistered"]["checks"]["differing"] == ["mixed-s302"]
-    branch_design.draw(summary, tmp_path / "mixing.png")
+    assert br.summarise(design, tmp_path)["preregistered"]["checks"]["differing"] == ["mixed-s302"]
+    br.draw(summary, tmp_path / "mixing.png")
     assert (tmp_path / "mixing.png").stat().st_size > 0
 
 
@@ -255,8 +257,8 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
         "rationale": "",
     }
     (tmp_path / "tiny.json").write_text(json.dumps(raw))
-    design = branch_design.load("tiny", tmp_path)
-    cfg = branch_design.branch_config(design, "mixed", 0, runs_root, records_root)
+    design = bd.load("tiny", tmp_path)
+    cfg = branch_runs.branch_config(design, "mixed", 0, runs_root, records_root)
     monkeypatch.setenv(PARENT_WRITES, "1")  # as `pinned.run` starts it: the runner writes its file
     run_dir = train.run(cfg)
     assert (
@@ -264,13 +266,13 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
         == f"{records_root}/tiny/material/social-s0-0@{TINY.iterations}"
     )
     capsys.readouterr()
-    assert branch_design.record(design, runs_root, records_root) == []  # no process file yet
+    assert branch_runs.record(design, runs_root, records_root) == []  # no process file yet
     assert f"  1 branches not started under {runs_root}\n" in capsys.readouterr().out  # the social arm
     pinned.write_run_file(run_dir, "python -m jaxsocial.train", checkout.tree(), 1, pinned.now(), rc=0)
-    assert branch_design.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
+    assert branch_runs.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
     provenance = logs.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
     assert provenance["run"]["device"].endswith(", one core per seed")
-    summary = branch_design.summarise(design, records_root)
+    summary = br.summarise(design, records_root)
     assert summary["recorded"] == 1 and summary["preregistered"]["checks"]["differing"] == []
     assert summary["environments"][solo]["mixed"]["per_seed"][0] is not None
     assert summary["environments"][solo]["social"]["per_seed"] == [None]
@@ -286,7 +288,7 @@ def test_figure_stays_blind_until_every_branch_is_recorded(tmp_path, capsys):
     committed = sorted((paths.RECORDS / MIXING.out).iterdir())
     for branch in committed[:-1]:
         (records_root / MIXING.out / branch.name).symlink_to(branch.resolve())
-    branch_design.main(["figure", "mixing", "--records", str(records_root), "--science", str(science)])
+    kind_commands.branch_main(["figure", "mixing", "--records", str(records_root), "--science", str(science)])
     out = capsys.readouterr().out
     assert f"[mixing] {len(committed) - 1} of 120 branches recorded; the results stay blind" in out
     assert "mean" not in out and not science.exists()
@@ -300,7 +302,7 @@ def test_run_starts_only_max_runs_branches_in_seed_order(tmp_path, monkeypatch, 
         pinned, "run", lambda jobs, cores, flags: started.extend(j.label for j in jobs) or [0] * len(jobs)
     )
     with pytest.raises(SystemExit) as exit_:
-        branch_design.main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "4"])
+        kind_commands.branch_main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "4"])
     assert exit_.value.code == 0
     names = [f"laptop/prereg-mixing/{arm}-s{MIXING.seed + k}" for k in (0, 1) for arm in MIXING.arms]
     assert started == names[:4]
@@ -324,7 +326,7 @@ def test_run_resumes_a_begun_branch_and_skips_a_finished_one(tmp_path, monkeypat
         logs.MetricsLog(run_dir).append({"iteration": i + 1} for i in range(rows))
     assert rundirs.branch_state(tmp_path / "nowhere", MIXING.iterations) == rundirs.MISSING
     with pytest.raises(SystemExit):
-        branch_design.main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "2"])
+        kind_commands.branch_main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "2"])
     assert "[mixing] branches: 1 finished, 1 partial, 118 missing" in capsys.readouterr().out
     resumed, fresh = MIXING.run_name("social", MIXING.seed), MIXING.run_name("alone", MIXING.seed)
     assert list(started) == [resumed, fresh]

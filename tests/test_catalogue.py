@@ -10,11 +10,11 @@ import subprocess
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design
+from jaxsocial.experiments.plan import branch_design as bd
 from jaxsocial.experiments.plan import catalogue, prereg
 from jaxsocial.experiments.plan import evaluation_design as ed
 
-LOADERS = {"training": prereg.load, "evaluation": ed.load, "branch": branch_design.load}
+LOADERS = {"training": prereg.load, "evaluation": ed.load, "branch": bd.load}
 
 
 @pytest.mark.parametrize("name", catalogue.names())

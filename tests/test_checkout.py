@@ -9,9 +9,11 @@ import pytest
 from conftest import RESULTS, needs_records
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design, followup, kind_commands, sweep
+from jaxsocial.experiments import followup, kind_commands, sweep
+from jaxsocial.experiments.analyse import branch_results as br
 from jaxsocial.experiments.analyse import takeoff_power
 from jaxsocial.experiments.launch import evaluation_play
+from jaxsocial.experiments.plan import branch_design as bd
 from jaxsocial.experiments.plan import evaluation_design, paths
 
 COMMANDS = {
@@ -19,7 +21,7 @@ COMMANDS = {
     "sweep": (sweep.main, ["list"]),
     "pooled": (takeoff_power.main, []),
     "evaluation_design": (kind_commands.evaluation_main, ["power", "transfer"]),
-    "branch_design": (branch_design.main, ["power", "mixing"]),
+    "branch_design": (kind_commands.branch_main, ["power", "mixing"]),
     "followup": (followup.main, ["figure", "h1_laptop"]),
 }
 
@@ -70,11 +72,11 @@ def test_results_dir_moves_every_results_path_and_the_parsers_defaults(results_m
 
 @needs_records("records/laptop/prereg-experts")
 def test_a_command_reads_the_results_it_is_pointed_at(tmp_path, monkeypatch, capsys, results_moved_back):
-    mixing = branch_design.load("mixing")
-    recorded = branch_design.as_designed(mixing, RESULTS / "records")["recorded"]
+    mixing = bd.load("mixing")
+    recorded = br.as_designed(mixing, RESULTS / "records")["recorded"]
     monkeypatch.chdir(tmp_path)  # no benchmarks/results here
     science = tmp_path / "science"
-    branch_design.main(["figure", "mixing", "--results", str(RESULTS), "--science", str(science)])
+    kind_commands.branch_main(["figure", "mixing", "--results", str(RESULTS), "--science", str(science)])
     if recorded < 120:
         assert f"[mixing] {recorded} of 120 branches recorded" in capsys.readouterr().out
     else:

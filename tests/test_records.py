@@ -11,9 +11,10 @@ from conftest import needs_records
 
 from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments import branch_design, followup, sweep
+from jaxsocial.experiments import followup, sweep
 from jaxsocial.experiments.analyse import records, summaries, takeoff_power
 from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.plan import branch_design as bd
 from jaxsocial.experiments.plan import catalogue, evaluation_design, paths, recipes
 from jaxsocial.run import logs, metrics, policy_io
 
@@ -297,7 +298,7 @@ def _records_read(name: str) -> tuple[str, ...]:
     if kind == "evaluation":
         return (f"records/{evaluation_design.load(summary['design']).records}",)
     if kind == "branch":
-        design = branch_design.load(summary["design"])
+        design = bd.load(summary["design"])
         return (f"records/{design.records}", f"records/{design.out}")
     if "--scale" in command:
         return (f"records/{command[command.index('--scale') + 1]}",)

@@ -15,10 +15,10 @@ The modules form three layers, each a folder, in the order the work flows (`test
 keeps the arrows so): `plan/` imports neither of the others; `launch/` uses plan and analyse's readers;
 `analyse/` never imports launch. Each folder's `__init__` names its modules.
 
-The commands on top use all three: `__main__`, `sweep` (screens settings), `followup` (branches, transfers
-and probes a design's learners that learned), `branch_design` (designs that train on from committed
-records' policies), each with its plan, launch and analysis in that order, and `kind_commands` (the verbs of
-the evaluation designs, whose parts are `plan.evaluation_design`, `launch.evaluation_play` and
-`analyse.evaluation_results`). They work on a checkout of the repository, run from its root
+The commands on top use all three: `__main__` (one command, every verb), `kind_commands` (the verbs of the
+evaluation and branch designs, whose parts are `plan.<kind>_design`, `launch.evaluation_play` or
+`launch.branch_runs`, and `analyse.<kind>_results`), `sweep` (screens settings) and `followup` (branches,
+transfers and probes a design's learners that learned), each of the last two with its plan, launch and
+analysis in that order. They work on a checkout of the repository, run from its root
 (`paths.require_checkout`).
 """

@@ -1,7 +1,7 @@
 """`python -m jaxsocial.experiments VERB NAME ...`: recipes, designs of every kind, records and the commands
 of the modules beside it (`DELEGATED`); see `jaxsocial.experiments`. NAME is a recipe or a design; a
 design's kind comes from its file (`catalogue`): a training design is its recipe's, an evaluation or branch
-design goes to its kind's command (`KIND_COMMANDS`)."""
+design goes to its kind's command (`kind_commands`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import re
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments import branch_design, kind_commands
 from jaxsocial.experiments.analyse import records, rundirs, summaries
 from jaxsocial.experiments.launch import pinned, runner, verify
 from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
@@ -346,38 +345,30 @@ DELEGATED = {
 `jaxsocial.experiments.sweep.main(ARGS)`."""
 
 
-KIND_COMMANDS = {
-    "evaluation": (kind_commands.EVALUATION_VERBS, kind_commands.evaluation_main),
-    "branch": (branch_design.VERBS, branch_design.main),
-}
-"""The kinds of design that are not a recipe's, each with its verbs and its `main`: `experiments VERB NAME
-ARGS`, NAME a design of that kind, is that `main([VERB, NAME, *ARGS])`."""
-
-
 def _names_help() -> str:
     """The names a recipe command takes: the recipes, and the designs of the other kinds, with their verbs."""
     others = [
         f"{kind} designs ({', '.join(verbs)}): {', '.join(catalogue.names(kind))}"
-        for kind, (verbs, _) in KIND_COMMANDS.items()
+        for kind, verbs in catalogue.VERBS.items()
     ]
     return f"a recipe ({', '.join(recipes.RECIPES)}); {'; '.join(others)}"
 
 
 def kind_command(argv: list[str]):
-    """The `main` that acts on the design `VERB NAME ...` names, where it is of a kind in `KIND_COMMANDS`
-    (None otherwise); SystemExit where VERB is not one of that kind's."""
-    verbs = {verb for kind_verbs, _ in KIND_COMMANDS.values() for verb in kind_verbs}
+    """The `main` that acts on the design `VERB NAME ...` names, where it is of a kind with verbs of its own
+    (`catalogue.VERBS`; None otherwise), imported only then; SystemExit where VERB is not one of them."""
+    verbs = {verb for kind_verbs in catalogue.VERBS.values() for verb in kind_verbs}
     if len(argv) < 2 or argv[0] not in verbs or argv[1] not in catalogue.names():
         return None
     kind = catalogue.kind_of(argv[1])
-    if kind not in KIND_COMMANDS:
+    if kind not in catalogue.VERBS:
         return None
-    kind_verbs, kind_main = KIND_COMMANDS[kind]
+    kind_verbs = catalogue.VERBS[kind]
     if argv[0] not in kind_verbs:
         raise SystemExit(
             f"error: {argv[0]} {argv[1]}: the {kind} design {argv[1]} takes {', '.join(kind_verbs)}"
         )
-    return kind_main
+    return getattr(importlib.import_module("jaxsocial.experiments.kind_commands"), f"{kind}_main")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,35 +1,44 @@
-"""The verbs of the design kinds that have no recipe (`catalogue.KINDS`), each kind's parser and `main`, which
-`python -m jaxsocial.experiments VERB NAME` hands a design of that kind to (`__main__.KIND_COMMANDS`)."""
+"""The verbs of the design kinds that have no recipe (`catalogue.VERBS`): each kind's parser and `main`
+(`<kind>_main`), which `python -m jaxsocial.experiments VERB NAME` hands a design of that kind to. Each
+kind's parts are in the three layers: `plan.<kind>_design`, `launch.evaluation_play` or `launch.branch_runs`,
+`analyse.<kind>_results`."""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-from jaxsocial.experiments.analyse import evaluation_results
-from jaxsocial.experiments.launch import evaluation_play
-from jaxsocial.experiments.plan import evaluation_design, paths
+from jaxsocial.experiments.analyse import branch_results, evaluation_results
+from jaxsocial.experiments.launch import branch_runs, evaluation_play, pinned
+from jaxsocial.experiments.plan import branch_design, catalogue, evaluation_design, paths
 from jaxsocial.run import logs
 
-EVALUATION_VERBS = ("power", "run", "figure")
-"""What `python -m jaxsocial.experiments VERB NAME` does to an evaluation design: its power, play what is
-missing (blind), and its summary, tests and figure."""
 
-
-def evaluation_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="python -m jaxsocial.experiments", description=evaluation_design.__doc__
-    )
-    parser.add_argument("action", choices=EVALUATION_VERBS)
-    parser.add_argument("design", help="an evaluation design (e.g. transfer)")
+def design_parser(verbs: tuple[str, ...], module) -> argparse.ArgumentParser:
+    """The options every design kind's verbs have: the verb, the design, where records and results are."""
+    parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=module.__doc__)
+    parser.add_argument("action", choices=verbs)
+    parser.add_argument("design", help="the design's name")
     parser.add_argument("--records", default=str(paths.RECORDS), help="root of the records")
     parser.add_argument("--science", default=str(paths.SCIENCE), help="where results and summaries go")
     return parser
 
 
+def write_figure(summary: dict[str, Any], science: Path, draw: Callable, verdict: Callable) -> None:
+    """`figure`: the summary `<science>/<design>.json`, its figure beside it, and the verdict printed."""
+    stem = science / summary["design"]
+    science.mkdir(parents=True, exist_ok=True)
+    logs.write_json(stem.with_suffix(".json"), summary)
+    draw(summary, stem.with_suffix(".png"))
+    print(verdict(summary))
+    print(f"wrote {stem}.json and .png")
+
+
 def evaluation_main(argv: list[str]) -> None:
     """`VERB NAME [options]` for the evaluation design NAME."""
-    args = paths.parse_command(evaluation_parser, argv)
+    args = paths.parse_command(lambda: design_parser(catalogue.VERBS["evaluation"], evaluation_design), argv)
     design = evaluation_design.load(args.design)
     records_root, science = Path(args.records), Path(args.science)
     if args.action == "power":
@@ -38,7 +47,49 @@ def evaluation_main(argv: list[str]) -> None:
         evaluation_play.run(design, records_root, science)
     else:
         summary = evaluation_results.summarise(design, records_root, science)
-        logs.write_json(science / f"{design.name}.json", summary)
-        evaluation_results.draw(summary, science / f"{design.name}.png")
-        print(evaluation_results.verdict(summary))
-        print(f"wrote {science / design.name}.json and .png")
+        write_figure(summary, science, evaluation_results.draw, evaluation_results.verdict)
+
+
+def branch_parser() -> argparse.ArgumentParser:
+    parser = design_parser(catalogue.VERBS["branch"], branch_design)
+    parser.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
+    parser.add_argument("--cores", type=int, nargs="+", default=[0], help="one training process a core")
+    parser.add_argument("--dry-run", action="store_true", help="print each branch's state and command")
+    parser.add_argument(
+        "--max-runs",
+        type=pinned.positive_int,
+        default=None,
+        metavar="N",
+        help="run: start only the first N pending branches (those that can end within a sitting)",
+    )
+    parser.add_argument(
+        "--interim", action="store_true", help="figure: summarise before every branch is recorded (unblinds)"
+    )
+    return parser
+
+
+def branch_main(argv: list[str]) -> None:
+    """`VERB NAME [options]` for the branch design NAME."""
+    args = paths.parse_command(branch_parser, argv)
+    try:
+        design = branch_design.load(args.design)
+        records_root, runs_root, science = Path(args.records), Path(args.runs_dir), Path(args.science)
+        if args.action == "power":
+            print(branch_design.describe(design))
+        elif args.action == "run":
+            codes = branch_runs.run(design, runs_root, args.cores, records_root, args.dry_run, args.max_runs)
+            raise SystemExit(max(codes, default=0))
+        elif args.action == "record":
+            branch_runs.record(design, runs_root, records_root)
+        else:
+            recorded = branch_results.as_designed(design, records_root)
+            if not recorded["every_branch_recorded"] and not args.interim:
+                print(
+                    f"[{design.name}] {recorded['recorded']} of {design.seeds * len(design.arms)} branches "
+                    "recorded; the results stay blind until every branch is in (--interim shows them now)"
+                )
+                return
+            summary = branch_results.summarise(design, records_root)
+            write_figure(summary, science, branch_results.draw, branch_results.verdict)
+    except (ValueError, FileNotFoundError) as err:
+        raise SystemExit(f"error: {err}") from err

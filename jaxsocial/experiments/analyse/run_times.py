@@ -1,6 +1,6 @@
 """What the runs left will take, at the pace a design's committed records kept: each record's provenance
 says when its process started and ended, on which CPU, pinned to how many cores. The cost line a design's
-`run` prints before training (`runner.print_cost`, `branch_design.run`) quotes the median run on this CPU
+`run` prints before training (`runner.print_cost`, `branch_runs.run`) quotes the median run on this CPU
 kind where records trained on it, else each kind's median; the benchmark rates (`recipes.cost`) measure a
 few iterations, these whole runs, evaluations and compiles included."""
 

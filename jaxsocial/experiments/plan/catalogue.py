@@ -3,7 +3,7 @@ each file's kind, which says what the design does and which module reads it:
 
     training     trains a recipe's conditions from fresh seeds                   (`prereg.Design`)
     evaluation   plays a finished design's records zero-shot, training nothing    (`plan.evaluation_design`)
-    branch       trains on from a finished design's records                       (`branch_design`)
+    branch       trains on from a finished design's records                       (`plan.branch_design`)
 
 A file names its kind in its field `kind`. The files committed before that field are known by the field only
 their kind has (`references`: evaluation; `arms`: branch; otherwise training), since a design file is never
@@ -20,6 +20,13 @@ from jaxsocial.run import logs
 
 DESIGNS_DIR = Path(__file__).parent.parent / "designs"
 KINDS = ("training", "evaluation", "branch")
+VERBS = {
+    "evaluation": ("power", "run", "figure"),
+    "branch": ("power", "run", "record", "figure"),
+}
+"""What `python -m jaxsocial.experiments VERB NAME` does to a design of a kind that is not a recipe's
+(`kind_commands`): its power; play or train what is missing, blind; record the finished branches; and its
+summary, tests and figure. A training design takes its recipe's verbs."""
 KIND_FIELDS = {"references": "evaluation", "arms": "branch"}
 """Where a design file has no `kind`: the field only that kind's designs have."""
 

@@ -1,0 +1,350 @@
+"""A branch design's results (`plan.branch_design`): each branch's final scores and where it started, the
+tests (paired or not) and the checks that make its summary valid, an amendment's tests, the verdict and the
+figure; and its power, simulated from a pilot."""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from jaxsocial import stats
+from jaxsocial.experiments.analyse import kinds, plot_figures, records
+from jaxsocial.experiments.plan import catalogue, prereg
+from jaxsocial.experiments.plan.branch_design import START, BranchDesign, Test, start_row
+from jaxsocial.run import logs, metrics
+from jaxsocial.specs import EnvSpec
+
+
+def final_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str, list]]:
+    """Per arm, per evaluation environment, every source seed's final evaluation (None: not recorded); and
+    where the branches started (`start_scores`)."""
+    out: dict[str, dict[str, list]] = {arm: {env: [] for env in design.eval_envs} for arm in design.arms}
+    keys = {env: metrics.eval_key(str(EnvSpec.parse(env))) for env in design.eval_envs}  # as `train` logs
+    for arm in design.arms:
+        for seed in design.source_seeds():
+            record_dir = records_root / design.run_name(arm, seed)
+            rows = logs.read_metrics(record_dir) if logs.has_metrics(record_dir) else None
+            for env in design.eval_envs:
+                value = None if rows is None else metrics.final_eval(rows, keys[env])
+                out[arm][env].append(None if value is None or np.isnan(value) else round(value, 4))
+    return out | start_scores(design, records_root)
+
+
+def start_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str, list]]:
+    """Per source condition (`start_row`), per evaluation environment, each source record's own evaluation
+    there (`<record>/eval/<env>.json`, the learner's mean return), where its branches started; None where
+    the design that made the records did not evaluate them there."""
+    out = {}
+    for source in design.sources():
+        started = [design.record_of(source, seed, records_root) for seed in design.source_seeds()]
+        out[start_row(source)] = {
+            env: [
+                round(kinds.RETURNS.score(logs.read_json(path)), 4) if path.is_file() else None
+                for path in (kinds.eval_path(record_dir, env) for record_dir in started)
+            ]
+            for env in design.eval_envs
+        }
+    return out
+
+
+def compare(test: Test, paired: bool, scores: dict[str, dict[str, list]], control: str) -> dict[str, Any]:
+    """One test on the seeds both rows have, `test`'s treatment arm against the row `control` (paired: by
+    source seed): its p-value (None without data)."""
+    a, b = scores[test.treatment][test.env], scores[control][test.env]
+    if paired:
+        pairs = [(x, y) for x, y in zip(a, b, strict=True) if x is not None and y is not None]
+        d = stats.paired_difference([y for _, y in pairs], [x for x, _ in pairs], test.alternative)
+        return {"test": "wilcoxon", "n": d["n"], "p": d["wilcoxon_p"], "mean_difference": d["mean"]}
+    kept = [[v for v in values if v is not None] for values in (a, b)]
+    return {"test": "mann-whitney"} | stats.mann_whitney(kept[0], kept[1], test.alternative)
+
+
+def tested(
+    design: BranchDesign, family: dict[str, Test], scores: dict[str, dict[str, list]], alpha: float
+) -> dict:
+    """Each test of `family`, Holm-corrected among themselves at `alpha`."""
+    out = {
+        name: {"env": t.env, "arms": [t.treatment, design.control_row(t)], "alternative": t.alternative}
+        | compare(t, design.paired(t), scores, design.control_row(t))
+        for name, t in family.items()
+    }
+    return prereg.holm_family(out, alpha)
+
+
+def as_designed(design: BranchDesign, records_root: Path) -> dict[str, Any]:
+    """Which recorded branches differ from the design (iterations, seed, environment, source) and whether
+    every branch is recorded."""
+    differing, recorded = [], 0
+    for seed in design.source_seeds():
+        for arm in design.arms:
+            record_dir = records_root / design.run_name(arm, seed)
+            if not (record_dir / logs.CONFIG_FILE).is_file():
+                continue
+            recorded += 1
+            got = logs.read_config(record_dir)
+            spec = EnvSpec.parse(design.arms[arm].env)
+            want = {
+                "iterations": design.iterations,
+                "seed": design.branch_seed + seed - design.seed,
+                "env": spec.name,
+                "env_args": spec.env_args,
+                "source": design.source_dir(arm, seed, Path()).name,
+            }
+            have = {k: got.get(k) for k in want if k != "source"}
+            have["source"] = Path(str(got.get("init_from", "")).rpartition("@")[0]).name
+            if have != want:
+                differing.append(record_dir.name)
+    every = design.seeds * len(design.arms)
+    return {"every_branch_recorded": recorded == every, "recorded": recorded, "differing": differing}
+
+
+def summarise(design: BranchDesign, records_root: Path) -> dict[str, Any]:
+    """The design's summary: per environment each arm's per-seed scores (`stats.summary`), the tests, and the
+    checks that make it valid (the design committed before every run, every branch recorded as designed)."""
+    scores = final_scores(design, records_root)
+    per_env = {
+        env: {
+            arm: stats.summary([v for v in scores[arm][env] if v is not None])
+            | {"per_seed": scores[arm][env]}
+            for arm in scores
+        }
+        for env in design.eval_envs
+    }
+    recorded = [records_root / design.run_name(a, s) for a in design.arms for s in design.source_seeds()]
+    provenance = {
+        str(d.relative_to(records_root)): logs.read_json(d / records.PROVENANCE_FILE)
+        for d in recorded
+        if (d / records.PROVENANCE_FILE).is_file()
+    }
+    commit = catalogue.design_commit(design.name)
+    checks = prereg.commit_checks(commit, {name: p["run"]["commit"] for name, p in provenance.items()})
+    designed = as_designed(design, records_root)
+    checks |= {"every_branch_recorded": designed["every_branch_recorded"], "differing": designed["differing"]}
+    checks["branches_as_designed"] = not designed["differing"]
+    block = {
+        "commit": commit,
+        "alpha": design.alpha,
+        "primary": tested(design, design.primary, scores, design.alpha),
+        "secondary": tested(design, design.secondary, scores, design.alpha),
+        "checks": checks,
+        "valid": all(v for v in checks.values() if isinstance(v, bool)),
+    }
+    if design.amendment:
+        ended = [p["run"].get("ended") for p in provenance.values()]
+        block["amendment"] = amended(design, scores, ended)
+    return {
+        "design": design.name,
+        "material": {"records": design.records, "seeds": [design.seed, design.seed + design.seeds - 1]},
+        "arms": {name: dataclasses.asdict(arm) for name, arm in design.arms.items()},
+        "iterations": design.iterations,
+        "episodes": design.episodes,
+        "recorded": designed["recorded"],
+        "environments": per_env,
+        "preregistered": block,
+        "machines": sorted({p["run"].get("device") or "unknown" for p in provenance.values()}),
+        "command": f"python -m jaxsocial.experiments figure {design.name}",
+    }
+
+
+def amended(
+    design: BranchDesign, scores: dict[str, dict[str, list]], ended: list[str | None]
+) -> dict[str, Any]:
+    """The amendment's tests, Holm-corrected among themselves, and its checks: committed, and before the
+    last of the design's runs ended (how many had: `ended`, the recorded runs' end times), every branch's
+    start scored."""
+    amendment = design.amendment
+    commit = catalogue.file_commit(catalogue.amendment_path(design.name))
+    when = prereg.commit_time(commit)
+    at = datetime.datetime.fromisoformat(when) if when else None
+    before = sum(at is not None and e is not None and datetime.datetime.fromisoformat(e) < at for e in ended)
+    checks = {
+        "amendment_committed": commit is not None,
+        "runs_ended_before_the_amendment": before,
+        "amendment_before_the_last_run_ended": at is not None and before < design.seeds * len(design.arms),
+        "every_start_scored": all(
+            v is not None
+            for t in amendment.tests.values()
+            if t.control == START
+            for v in scores[design.control_row(t)][t.env]
+        ),
+    }
+    return {
+        "commit": commit,
+        "committed": when,
+        "added": amendment.added,
+        "alpha": amendment.alpha,
+        "tests": tested(design, amendment.tests, scores, amendment.alpha),
+        "checks": checks,
+        "valid": all(v for v in checks.values() if isinstance(v, bool)),
+    }
+
+
+def families(block: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """The tested families of a summary's `preregistered` block: primary, secondary and any amendment's."""
+    out = [("primary", block["primary"]), ("secondary", block["secondary"])]
+    return out + ([("amendment", block["amendment"]["tests"])] if "amendment" in block else [])
+
+
+def family_lines(family: str, entries: dict[str, Any], environments: dict[str, Any]) -> list[str]:
+    """One line a test of a tested family: its rows' means, p-values and whether it is rejected."""
+    lines = []
+    for name, entry in entries.items():
+        rows = environments[entry["env"]]
+        means = ", ".join(f"{a} {rows[a]['mean']}" for a in entry["arms"])
+        p = "no data" if entry["p"] is None else f"p = {entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
+        rejected = ", rejected" if entry["rejected"] else ""
+        lines.append(f"  {family} {name} ({entry['test']}, {entry['env']}): mean {means}; {p}{rejected}")
+    return lines
+
+
+def check_lines(checks: dict[str, Any], indent: str = "  ") -> list[str]:
+    """One line a check: yes or NO, or its count."""
+    return [f"{indent}{k}: {('yes' if v else 'NO') if isinstance(v, bool) else v}" for k, v in checks.items()]
+
+
+def verdict(summary: dict[str, Any]) -> str:
+    """The summary's tests and checks, for people."""
+    block, environments = summary["preregistered"], summary["environments"]
+    lines = [f"{summary['design']}: {summary['recorded']} branches recorded; alpha {block['alpha']:g}, Holm"]
+    lines += family_lines("primary", block["primary"], environments)
+    lines += family_lines("secondary", block["secondary"], environments)
+    lines += check_lines({k: v for k, v in block["checks"].items() if isinstance(v, bool)})
+    if not block["valid"]:
+        lines.append("NOT VALID: the result above does not test the design (see the checks)")
+    if "amendment" in block:
+        added = block["amendment"]
+        lines.append(f"amendment, {added['added']} (Holm among its tests at {added['alpha']:g}):")
+        lines += family_lines("amendment", added["tests"], environments) + check_lines(added["checks"])
+        if not added["valid"]:
+            lines.append("NOT VALID: the amendment's tests do not test it (see its checks)")
+    return "\n".join(lines)
+
+
+def draw(summary: dict[str, Any], path: Path) -> None:
+    """One panel per evaluation environment: each arm's mean (and each source's where it started, if
+    scored there) with its 95% interval over seeds and a cross per seed; titled with the tests there."""
+    plt = plot_figures.pyplot()
+    per_env, block = summary["environments"], summary["preregistered"]
+    fig, axes = plt.subplots(1, len(per_env), figsize=(4.0 * len(per_env), 3.8), squeeze=False)
+    for ax, (env, rows) in zip(axes[0], per_env.items(), strict=True):
+        colours = {arm: f"C{j}" for j, arm in enumerate(rows)}  # one colour a row in every panel
+        arms = [arm for arm, s in rows.items() if s["mean"] is not None]
+        for j, arm in enumerate(arms):
+            s = rows[arm]
+            whisker = plot_figures.whisker(s["mean"], s["ci95"])
+            ax.bar(j, s["mean"], color=colours[arm], yerr=whisker, capsize=3)
+            values = [v for v in s["per_seed"] if v is not None]
+            ax.scatter([j] * len(values), values, color="k", marker="x", s=8, zorder=3)
+        tests = [
+            f"{name}: Holm p = {e['p_holm']:.3g}" if e["p"] is not None else f"{name}: no data"
+            for _, entries in families(block)
+            for name, e in entries.items()
+            if e["env"] == env
+        ]
+        ax.set_xticks(range(len(arms)), arms, rotation=20, ha="right", fontsize=8)
+        ax.set_title("\n".join([plot_figures.env_title(env), *tests]), fontsize=8)
+        ax.set_ylabel("learner return per episode")
+    fig.suptitle(
+        f"{summary['design']}: {summary['iterations']} iterations from each record's policy, "
+        f"{summary['episodes']} episodes an evaluation",
+        fontsize=10,
+    )
+    plot_figures.save_png(fig, path)
+
+
+def pilot_scores(
+    design: BranchDesign, tests: dict[str, Test], sim: dict[str, Any]
+) -> dict[str, dict[str, list[float]]]:
+    """Per test of `tests`, the pilot's evidence, each oriented so that the effect the test looks for is
+    positive: for a paired test the per-seed differences of the exploratory follow-up's branches of its
+    social seeds (`pilot_branches`), against the other branch or against where the branch started (the
+    follow-up's zero-shot score of its source); otherwise the treatment's per-seed scores there and the
+    control's from a committed summary (`pilot_control`: where the arm's source records ended, before any
+    further training)."""
+    branches = logs.read_json(Path(sim["pilot_branches"]))
+    sources = [s for s in branches["seeds"].values() if s["condition"].startswith(sim["pilot_sources"])]
+    out = {}
+    for name, test in tests.items():
+        if test.alternative == "two-sided":
+            raise ValueError(
+                f"design {design.name}, test {name}: power is simulated for one-sided tests only"
+            )
+        sign = -1.0 if test.alternative == "less" else 1.0  # scores negated: a fall is a rise
+        treatment = [sign * s["branches"][test.treatment][test.env] for s in sources]
+        if test.control == START:
+            control = [sign * s["zero_shot"][test.env]["learner"] for s in sources]
+        elif design.paired(test):
+            control = [sign * s["branches"][test.control][test.env] for s in sources]
+        else:
+            where = sim["pilot_control"]
+            summary = logs.read_json(Path(where["summary"]))
+            per_seed = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
+            out[name] = {"treatment": treatment, "control": [sign * c for c in per_seed]}
+            continue
+        out[name] = {"differences": [t - c for t, c in zip(treatment, control, strict=True)]}
+    return out
+
+
+def power_table(
+    pilot: dict[str, dict[str, list[float]]],
+    seeds: int,
+    alpha: float,
+    discounts: tuple[float, ...],
+    reps: int,
+    rng_seed: int = 0,
+) -> dict[str, dict[str, float]]:
+    """The power of a family of one-sided tests (`pilot_scores`: each effect oriented positive),
+    Holm-corrected at `alpha`, with `seeds` source seeds. A paired test (`differences`) is Wilcoxon's on
+    `seeds` differences, each with probability d (the discount) a pilot difference, else one of the pilot's
+    magnitudes with a random sign (no effect); an unpaired one is Mann-Whitney's on `seeds` scores an arm,
+    a treatment score with probability d a pilot treatment score, else a control one. Returns per discount
+    each test's probability of rejection, and that of rejecting all and any of them."""
+    from scipy import stats as scipy_stats
+
+    rng = np.random.default_rng(rng_seed)
+    names = list(pilot)
+    table = {}
+    for d in discounts:
+        rejected = np.zeros((reps, len(names)), bool)
+        for r in range(reps):
+            p = []
+            for name in names:
+                evidence = {k: np.asarray(v, np.float64) for k, v in pilot[name].items()}
+                keep = rng.random(seeds) < d
+                if "differences" in evidence:
+                    diff = rng.choice(evidence["differences"], seeds)
+                    diff = np.where(keep, diff, np.abs(diff) * rng.choice([-1.0, 1.0], seeds))
+                    stat = scipy_stats.wilcoxon(diff, alternative="greater") if np.any(diff) else None
+                    p.append(1.0 if stat is None else stat.pvalue)
+                else:
+                    t, c = evidence["treatment"], evidence["control"]
+                    drawn = np.where(keep, rng.choice(t, seeds), rng.choice(c, seeds))
+                    p.append(
+                        scipy_stats.mannwhitneyu(drawn, rng.choice(c, seeds), alternative="greater").pvalue
+                    )
+            rejected[r] = stats.holm_rejects(np.array(p), alpha)
+        row = {n: round(float(rejected[:, i].mean()), 3) for i, n in enumerate(names)}
+        table[f"discount {d:g}"] = row | {
+            "all": round(float(rejected.all(axis=1).mean()), 3),
+            "any": round(float(rejected.any(axis=1).mean()), 3),
+        }
+    return table
+
+
+def stated_power(design: BranchDesign) -> dict[str, dict[str, float]]:
+    """The design's power table, recomputed from its pilot as its `power_simulation` says."""
+    sim = design.power_simulation
+    pilot = pilot_scores(design, design.primary, sim)
+    return power_table(pilot, design.seeds, design.alpha, tuple(sim["discounts"]), sim["reps"])
+
+
+def amendment_power(design: BranchDesign) -> dict[str, dict[str, float]]:
+    """The amendment's power table, recomputed from its pilot as its `power_simulation` says."""
+    added = design.amendment
+    sim = added.power_simulation
+    pilot = pilot_scores(design, added.tests, sim)
+    return power_table(pilot, design.seeds, added.alpha, tuple(sim["discounts"]), sim["reps"])
