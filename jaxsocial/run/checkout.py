@@ -74,7 +74,7 @@ class Tree:
             (Path(directory) / self.diff_file).write_bytes(self.diff)
 
     def describe(self, most: int = 5) -> str:
-        """E.g. 'jaxsocial/ differs from commit 4c8a185a9e1f (M jaxsocial/experiments/recipes.py)'."""
+        """E.g. 'jaxsocial/ differs from commit 4c8a185a9e1f (M jaxsocial/experiments/plan/recipes.py)'."""
         if self.dirty is None:
             return f"whether {SCOPE}/ is a commit's is not known ({self.reason})"
         if not self.dirty:

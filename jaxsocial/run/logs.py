@@ -41,9 +41,9 @@ __all__ = [
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
 METRICS_GZ_FILE = METRICS_FILE + ".gz"
-"""A run record's compressed metrics (`jaxsocial.experiments.records`), read where no `METRICS_FILE` is."""
+"""A run record's compressed metrics (`experiments.analyse.records`), read where no `METRICS_FILE` is."""
 EVAL_DIR = "eval"
-"""A seed's evaluations after training, one JSON per environment (`jaxsocial.experiments.kinds.eval_path`)."""
+"""A seed's evaluations after training, one JSON per environment (`experiments.analyse.kinds.eval_path`)."""
 
 
 # ----------------------------------------------------------------------------------------------------------

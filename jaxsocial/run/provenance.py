@@ -3,7 +3,7 @@
 of the diff written beside it where they were not), where (`machine`: the CPU, $XLA_FLAGS, the cores it could
 see, instruction sets, caches and package versions), when (start, end) and its exit status.
 
-One format, two writers: `jaxsocial.experiments.pinned.run` writes it for each process it starts (setting
+One format, two writers: `experiments.launch.pinned.run` writes it for each process it starts (setting
 `PARENT_WRITES` in their environment), and `jaxsocial.train.run` for a process nobody else records (a plain
 `python -m jaxsocial.train`, or `experiments run` training in its own process), through `recorded`. A run
 resumed by a later process keeps the earlier processes' entries under `earlier`, a killed one's with a null
