@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsocial.run import logs
+from jaxsocial.run import loggers, logs
 
 
 def test_run_dir_policies(tmp_path):
@@ -84,7 +84,7 @@ def test_gzipped_metrics_read_like_plain_ones(tmp_path):
 
 
 def test_progress_non_tty(capsys):
-    progress = logs.Progress(200, "train", unit="env-steps", unit_scale=1000, interval=3600.0)
+    progress = loggers.Progress(200, "train", unit="env-steps", unit_scale=1000, interval=3600.0)
     progress.update(40, **{"return[0]": np.float32(1.23456), "frames": 1234567, "ok": True})
     progress.update(80, loss=0.5)  # within the interval: not printed
     progress.close()  # prints the last state
@@ -95,7 +95,7 @@ def test_progress_non_tty(capsys):
     assert "ok=True" in lines[0] and "eta " in lines[0]
     assert "80/200" in lines[1] and "loss=0.5" in lines[1]
 
-    with logs.Progress(3, interval=3600.0) as progress:
+    with loggers.Progress(3, interval=3600.0) as progress:
         for i in range(1, 4):
             progress.update(i, x=i)
     lines = capsys.readouterr().out.splitlines()
@@ -104,8 +104,8 @@ def test_progress_non_tty(capsys):
 
 def test_progress_rate_leaves_out_excluded_time(monkeypatch):
     clock = [100.0]
-    monkeypatch.setattr(logs.time, "monotonic", lambda: clock[0])
-    progress = logs.Progress(100, unit="it", stream=io.StringIO())
+    monkeypatch.setattr(loggers.time, "monotonic", lambda: clock[0])
+    progress = loggers.Progress(100, unit="it", stream=io.StringIO())
     clock[0] += 30.0  # 10 units in 10 s of training and 20 s of compiling
     progress.exclude(20.0)
     line = progress.format(10, {})
@@ -118,7 +118,7 @@ def test_progress_tty():
             return True
 
     stream = Tty()
-    progress = logs.Progress(10, "eval", stream=stream)
+    progress = loggers.Progress(10, "eval", stream=stream)
     progress.update(5, score=1 / 3)
     progress.update(10)
     progress.close()
@@ -127,15 +127,15 @@ def test_progress_tty():
 
 
 def test_make_logger(tmp_path, monkeypatch):
-    logger = logs.make_logger(None, tmp_path, {})
+    logger = loggers.make_logger(None, tmp_path, {})
     logger.log({"a": 1.0}, step=0)
     logger.close()
     monkeypatch.setitem(sys.modules, "tensorboardX", None)  # makes the import fail
     monkeypatch.setitem(sys.modules, "torch", None)
     with pytest.raises(ImportError, match="pip install tensorboardX"):
-        logs.make_logger("tensorboard", tmp_path, {})
+        loggers.make_logger("tensorboard", tmp_path, {})
     monkeypatch.setitem(sys.modules, "wandb", None)
     with pytest.raises(ImportError, match="pip install wandb"):
-        logs.make_logger("wandb", tmp_path, {})
+        loggers.make_logger("wandb", tmp_path, {})
     with pytest.raises(ValueError, match="unknown logger"):
-        logs.make_logger("mlflow", tmp_path, {})
+        loggers.make_logger("mlflow", tmp_path, {})

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial.run import logs, metrics, nonfinite, outputs, schedule, startup
+from jaxsocial.run import loggers, logs, metrics, nonfinite, outputs, schedule, startup
 from jaxsocial.run.chunks import Check, Chunk, check_chunk, checkpoint_due, evaluates, plan_chunk, pool_seeds
 from jaxsocial.run.driver import Driver
 
@@ -144,7 +144,7 @@ def test_write_rows_keeps_rows_and_warns_at_the_first_non_finite_iteration(tmp_p
         outputs.seed_runs(cfg, tmp_path),
         "x",
         [metrics_log],
-        [logs.make_logger(None, tmp_path, {})],
+        [loggers.make_logger(None, tmp_path, {})],
     )
     losses = {"policy_loss": np.zeros((3, 1))}
     for first, finite, compile_s in [

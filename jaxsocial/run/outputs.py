@@ -25,6 +25,7 @@ from jaxsocial.run import (
     config,
     distributed,
     interrupt,
+    loggers,
     logs,
     metrics,
     nonfinite,
@@ -115,8 +116,8 @@ class Outputs:
     seeds: list[SeedRun]
     desc: str  # the run, as progress lines name it
     metrics_logs: list[logs.MetricsLog]  # each seed's
-    extras: list[logs.Logger]  # each seed's `cfg.logger`
-    progress: logs.Progress | None = None  # from the first chunk on, with `cfg.progress`
+    extras: list[loggers.Logger]  # each seed's `cfg.logger`
+    progress: loggers.Progress | None = None  # from the first chunk on, with `cfg.progress`
     nonfinite_iterations: list[int] = dataclasses.field(default_factory=list)
     evaluated: bool = False  # an evaluation (and its compile) has run
 
@@ -139,7 +140,7 @@ class Outputs:
         metrics_logs = [logs.MetricsLog(s.dir) for s in seeds]
         for metrics_log in metrics_logs:
             metrics_log.truncate_after(start)
-        extras = [logs.make_logger(cfg.logger, s.dir, s.config) for s in seeds]
+        extras = [loggers.make_logger(cfg.logger, s.dir, s.config) for s in seeds]
         return cls(cfg, static, seeds, desc, metrics_logs, extras)
 
     @property
@@ -155,7 +156,7 @@ class Outputs:
         """Starts the progress line at iteration `it` unless started (after the first compile line); a later
         chunk's compile time `compile_s` is left out of its rate and ETA."""
         if self.progress is None and self.shows_progress:
-            self.progress = logs.Progress(self.cfg.iterations, desc=self.desc, initial=it)
+            self.progress = loggers.Progress(self.cfg.iterations, desc=self.desc, initial=it)
         elif self.progress is not None and compile_s is not None:
             self.progress.exclude(compile_s)
 
