@@ -91,6 +91,8 @@ def summary(values: list[float]) -> dict[str, Any]:
 # Learned-seed counts
 # ----------------------------------------------------------------------------------------------------------
 
+ALTERNATIVES = ("greater", "less", "two-sided")
+"""The alternatives a test of one arm against another takes: the first arm greater, less, or either."""
 TESTS = ("fisher-greater", "boschloo-greater")
 """The one-sided tests (a learned more often than b) a design can name."""
 

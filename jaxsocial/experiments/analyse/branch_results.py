@@ -14,7 +14,8 @@ import numpy as np
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import kinds, plot_figures, records
 from jaxsocial.experiments.plan import catalogue, prereg
-from jaxsocial.experiments.plan.branch_design import START, BranchDesign, Test, start_row
+from jaxsocial.experiments.plan.branch_design import START, BranchDesign, start_row
+from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.run import logs, metrics
 from jaxsocial.specs import EnvSpec
 

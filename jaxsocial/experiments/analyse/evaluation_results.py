@@ -12,11 +12,11 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.experiments.plan import catalogue, paths, prereg
+from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.experiments.plan.evaluation_design import (
     PROVENANCE,
     Evaluation,
     EvaluationDesign,
-    Test,
     envs,
     evaluations,
     out_dir,

@@ -32,12 +32,13 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from jaxsocial import stats
 from jaxsocial.env import registry
 from jaxsocial.experiments.plan import catalogue
+from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.run import logs
 from jaxsocial.specs import EnvSpec
 
-ALTERNATIVES = ("greater", "less", "two-sided")
 START = "start"
 """A test's control that is no arm: the treatment arm's source records, as they were when branched."""
 
@@ -49,17 +50,6 @@ class Arm:
 
     source: str
     env: str
-    statement: str = ""
-
-
-@dataclasses.dataclass(frozen=True)
-class Test:
-    """One comparison: `treatment`'s per-seed final evaluation in `env` against `control`'s."""
-
-    env: str
-    treatment: str
-    control: str
-    alternative: str
     statement: str = ""
 
 
@@ -164,8 +154,8 @@ def load(name: str) -> BranchDesign:
         ]
         if test.env not in design.eval_envs:
             problems.append(f"{test.env} is not among eval_envs")
-        if test.alternative not in ALTERNATIVES:
-            problems.append(f"the alternative must be one of {ALTERNATIVES}")
+        if test.alternative not in stats.ALTERNATIVES:
+            problems.append(f"the alternative must be one of {stats.ALTERNATIVES}")
         if problems:
             raise ValueError(f"design {name}, test {test_name}: {'; '.join(problems)}")
     if not design.primary or design.iterations < 1 or design.seeds < 1:

@@ -13,6 +13,7 @@ follows the file across moves). An amendment is `designs/amendments/<name>.json`
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from jaxsocial.experiments.plan import commits
@@ -29,6 +30,20 @@ VERBS = {
 summary, tests and figure. A training design takes its recipe's verbs."""
 KIND_FIELDS = {"references": "evaluation", "arms": "branch"}
 """Where a design file has no `kind`: the field only that kind's designs have."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Test:
+    """One comparison a design of any kind makes: two arms' per-seed scores in the environment `env`
+    (NAME[:field=value,...]), one-sided (`alternative` 'greater' or 'less': the treatment's) or two-sided
+    (`stats.ALTERNATIVES`). The arms are the design's treatment and control, or those it names (a branch
+    design's `treatment` and `control`)."""
+
+    env: str
+    alternative: str
+    statement: str = ""
+    treatment: str | None = None
+    control: str | None = None
 
 
 def path_of(name: str) -> Path:

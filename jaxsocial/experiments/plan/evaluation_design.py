@@ -24,22 +24,14 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+from jaxsocial import stats
 from jaxsocial.env import registry
 from jaxsocial.experiments.plan import catalogue, paths
+from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.specs import EnvSpec
 
 PROVENANCE = "provenance.jsonl"
 """The log of the processes that played a design's evaluations, one JSON line each, in its `out_dir`."""
-ALTERNATIVES = ("greater", "less", "two-sided")
-
-
-@dataclasses.dataclass(frozen=True)
-class Test:
-    """One comparison of the arms: their per-seed scores in `env` (NAME[:field=value,...])."""
-
-    env: str
-    alternative: str
-    statement: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,8 +88,10 @@ def load(name: str) -> EvaluationDesign:
     for name_, test in design.tests.items():
         spec = EnvSpec.parse(test.env)
         registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
-        if test.alternative not in ALTERNATIVES:
-            raise ValueError(f"design {name}: test {name_}'s alternative must be one of {ALTERNATIVES}")
+        if test.alternative not in stats.ALTERNATIVES:
+            raise ValueError(f"design {name}: test {name_}'s alternative must be one of {stats.ALTERNATIVES}")
+        if test.treatment or test.control:
+            raise ValueError(f"design {name}: test {name_} compares the design's treatment and control")
     for name_, ref in design.references.items():
         if (ref.ckpt is None) == (ref.slot is None):
             raise ValueError(f"design {name}: reference {name_} needs exactly one of ckpt and slot")

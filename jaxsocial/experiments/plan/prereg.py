@@ -170,11 +170,7 @@ def load(name: str) -> Design:
         other, _, other_arm = test["against"].partition(":")
         if test["arm"] not in ("treatment", "control") or other_arm not in ("treatment", "control"):
             raise ValueError(f"design {name}: secondary {test_name} names an unknown arm")
-        if test["measure"] not in SECONDARY_MEASURES or test["alternative"] not in (
-            "greater",
-            "less",
-            "two-sided",
-        ):
+        if test["measure"] not in SECONDARY_MEASURES or test["alternative"] not in stats.ALTERNATIVES:
             raise ValueError(
                 f"design {name}: secondary {test_name}: a measure of {SECONDARY_MEASURES} and an alternative"
             )
