@@ -116,7 +116,7 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
         init_from.check(cfg.init_from, numbers, cfg.net, static.pop.learners)
     mesh = loop.data_mesh(cfg.program, cfg.devices)
     if branching:  # RUN_DIR@ITERATION in config.json
-        cfg = dataclasses.replace(cfg, init_from=init_from.pin(cfg.init_from, numbers, run_dir))
+        cfg = dataclasses.replace(cfg, init_from=init_from.pin_iteration(cfg.init_from, numbers, run_dir))
         if distributed.is_main() and init_from.params_only(cfg.init_from, numbers):
             print(f"--init-from {cfg.init_from}: the params of its policy (no checkpoint), a fresh optimiser")
     lock = runlock.RunLock(run_dir)

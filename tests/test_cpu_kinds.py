@@ -41,7 +41,7 @@ def test_the_cross_cpu_kinds_are_exactly_those_the_files_show_agreeing(kinds):
     """`pinned.CROSS_CPU_KINDS` may claim only what the files show: each has a file that measured the designs'
     flags, every pair of them agrees on every fingerprint, and no other kind measured under the flags agrees
     with them (the claim is neither more nor less than the files')."""
-    claimed = [cpu_kinds.kind_of(kinds, cpu) for cpu in pinned.CROSS_CPU_KINDS]
+    claimed = [cpu_kinds.kind_for_cpu(kinds, cpu) for cpu in pinned.CROSS_CPU_KINDS]
     assert None not in claimed, "a kind of pinned.CROSS_CPU_KINDS has no fingerprint file"
     for kind in claimed:
         assert cpu_kinds.setting_of(kind, CROSS_CPU) is not None, (
@@ -114,8 +114,8 @@ def test_kinds_are_found_by_vendor_family_and_model():
         6,
         167,
     )
-    assert cpu_kinds.kind_of([A, B, C], "AMD EPYC (family 25, model 1, Zen 3), 2 cores") is C
-    assert cpu_kinds.kind_of([A, B, C], "CPU (AMD EPYC, 2 cores)") is None
+    assert cpu_kinds.kind_for_cpu([A, B, C], "AMD EPYC (family 25, model 1, Zen 3), 2 cores") is C
+    assert cpu_kinds.kind_for_cpu([A, B, C], "CPU (AMD EPYC, 2 cores)") is None
     assert cpu_kinds.file_name("Intel(R) Xeon(R) Processor (family 6, model 167)") == (
         "intel-r-xeon-r-processor-family-6-model-167.json"
     )

@@ -11,6 +11,7 @@ import pytest
 from conftest import needs_records
 from scipy import stats as scipy_stats
 
+from jaxsocial import stats
 from jaxsocial.experiments.analyse import evaluation_results as er
 from jaxsocial.experiments.launch import evaluation_play
 from jaxsocial.experiments.plan import catalogue, paths, prereg
@@ -90,10 +91,10 @@ def test_each_family_is_holm_corrected_on_its_own(designs_dir):
         for env in ("fourrooms", "maze")
     }
     low, high = sorted(p.values())
-    assert primary["a"]["p"] == prereg.round_p(p["fourrooms"])  # a summary's 6 decimals
+    assert primary["a"]["p"] == stats.round_p(p["fourrooms"], prereg.P_DECIMALS)  # a summary's 6 decimals
     assert sorted(e["p_holm"] for e in primary.values()) == [
-        prereg.round_p(min(1.0, 2 * low)),
-        prereg.round_p(max(min(1.0, 2 * low), high)),
+        stats.round_p(min(1.0, 2 * low), prereg.P_DECIMALS),
+        stats.round_p(max(min(1.0, 2 * low), high), prereg.P_DECIMALS),
     ]
     assert all(e["rejected"] == (e["p_holm"] <= 0.05) for e in primary.values())
     secondary = er.tested(design, design.secondary, by_player)  # alone in its family: not adjusted
@@ -163,7 +164,7 @@ def test_run_plays_what_is_missing_blind_and_logs_its_machine(designs_dir, tmp_p
         e.path(out).name for e in ed.evaluations(design, paths.RECORDS)
     )
     assert "3 of 3 evaluations to play" in said and "return" not in said  # blind: no score shown
-    lines = er.read_provenance(out)
+    lines = er.read_play_log(out)
     assert len(lines) == 3 and all(line["cpu"] and "visible_cores" in line for line in lines)
     summary = er.summarise(design, paths.RECORDS, science)
     assert summary["preregistered"]["checks"]["played_as_designed"]
@@ -186,7 +187,7 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
     design = ed.load(name)
     if not (paths.RECORDS / design.records).is_dir():
         pytest.skip(f"needs the committed records {paths.RECORDS / design.records}")
-    assert er.missing_records(design, paths.RECORDS) == []
+    assert er.absent_records(design, paths.RECORDS) == []
     pilot = er.pilot_scores(design)
     assert set(pilot) == set(design.primary) and all(len(t) and len(c) for t, c in pilot.values())
 

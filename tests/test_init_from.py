@@ -37,7 +37,7 @@ def _check(cfg):
 
 
 def _pin(cfg, run_dir):
-    return init_from.pin(cfg.init_from, _seeds(cfg), run_dir)
+    return init_from.pin_iteration(cfg.init_from, _seeds(cfg), run_dir)
 
 
 def test_bad_sources_are_refused_before_anything_compiles(source, tmp_path):
@@ -98,7 +98,7 @@ def _adam_count(opt_state) -> int:
 
 
 def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
-    """The driver's part (`init_from.pin`, `driver.load_source_learners`): a new run directory, the
+    """The driver's part (`init_from.pin_iteration`, `driver.load_source_learners`): a new run directory, the
     source and iteration in its config, and the optimiser's step count going on from the source's. The
     branch has the source's config and seed, so without the source's state it would repeat the source's
     first 2 iterations and end with their count (the KL stop makes the step count per iteration vary)."""

@@ -151,8 +151,9 @@ def test_the_takeoff_designs_block_tests_its_arms_with_holm():
 
 
 def test_a_tiny_p_value_keeps_its_digits_and_never_reads_zero():
-    assert prereg.round_p(0.000428123) == 0.000428 and prereg.round_p(0.0) == 0.0
-    assert prereg.round_p(1.23456e-14) == 1.23e-14 and prereg.round_p(-2.5e-9) == -2.5e-9
+    digits = prereg.P_DECIMALS
+    assert stats.round_p(0.000428123, digits) == 0.000428 and stats.round_p(0.0, digits) == 0.0
+    assert stats.round_p(1.23456e-14, digits) == 1.23e-14 and stats.round_p(-2.5e-9, digits) == -2.5e-9
     design = dataclasses.replace(prereg.load("experts"), seeds=20)
     ct = ([1.0 + i for i in range(20)], [-1.0 - i for i in range(20)])  # every social seed above every solo
     summary = takeoff_summary([1] * 20, [None] * 20, 3, [9.0] * 20, [1.0] * 20)

@@ -138,11 +138,11 @@ def test_the_run_ends_with_its_outcome():
     assert stopped.startswith("stopped early: the learners' return reached 5.58 after 12,861,440 env-steps")
     assert "the learner left the one-tile plateau" in stopped and "final return: learner" not in stopped
     # a run of several seeds gives the mean over them and each seed's value before the first seed's verdict
-    from jaxsocial.run.outputs import over_seeds
+    from jaxsocial.run.outputs import seeds_summary
     from jaxsocial.run.rundir import SeedRun
 
     seeds = [SeedRun(s, Path(f"s{s}"), {}) for s in (4, 5, 6)]
-    line = over_seeds([rows(0.9), rows(12.0), rows(0.3)], seeds, social)
+    line = seeds_summary([rows(0.9), rows(12.0), rows(0.3)], seeds, social)
     assert line.endswith("over the 3 seeds (last 10% of the iterations): mean 4.4 (s4 0.9, s5 12, s6 0.3)")
 
 

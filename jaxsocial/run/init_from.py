@@ -123,7 +123,7 @@ def check(source: CheckpointRef, seeds: list[int], net_cfg: NetworkConfig, learn
             )
 
 
-def pin(source: CheckpointRef, seeds: list[int], run_dir: str | Path) -> CheckpointRef:
+def pin_iteration(source: CheckpointRef, seeds: list[int], run_dir: str | Path) -> CheckpointRef:
     """`source` at the iteration the new run of `seeds` in `run_dir` will load (`RUN_DIR@ITERATION` in its
     config.json). ValueError if `run_dir` is the source or holds it (--overwrite would delete it)."""
     new = Path(run_dir).resolve()

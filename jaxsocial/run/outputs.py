@@ -230,7 +230,7 @@ class Outputs:
         rows = metrics.read_rows(self.seeds[0].dir)
         env_steps = len(rows) * self.cfg.num_envs * self.cfg.rollout_steps
         if len(self.seeds) > 1:
-            print(over_seeds([metrics.read_rows(s.dir) for s in self.seeds], self.seeds, self.static))
+            print(seeds_summary([metrics.read_rows(s.dir) for s in self.seeds], self.seeds, self.static))
             print(f"seed {self.seeds[0].seed} (s{self.seeds[0].seed}/), the first:")
         print(outcome(rows, self.static, env_steps, stopped_at))
         first = self.seeds[0].dir
@@ -257,7 +257,7 @@ def reproduce_line(run_dir: Path) -> str:
     )
 
 
-def over_seeds(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], static: startup.Setup) -> str:
+def seeds_summary(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], static: startup.Setup) -> str:
     """The first learner's final return over a run's seeds: their mean and each seed's value."""
     learner = static.pop.learners[0]
     finals = [metrics.final_return(rows, learner) for rows in seed_rows]

@@ -49,7 +49,8 @@ def differences(saved: dict[str, Any], cfg: TrainConfig) -> list[str]:
 
 def loose_keys(cfg: TrainConfig) -> set[str]:
     """The keys of `cfg`'s config.json that a run decides after it is validated: the network's "auto"
-    choices (`startup.resolve_network`) and a new run's `--init-from` iteration (`init_from.pin`)."""
+    choices (`startup.resolve_network`) and a new run's `--init-from` iteration
+    (`init_from.pin_iteration`)."""
     loose = {"net.dtype"} if cfg.net.dtype == "auto" else set()
     loose |= {"net.conv_impl"} if "auto" in cfg.net.layer_impls.values() else set()
     return loose | ({"init_from"} if cfg.init_from is not None and not cfg.resume else set())

@@ -52,7 +52,9 @@ def start_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str
     return out
 
 
-def compare(test: Test, paired: bool, scores: dict[str, dict[str, list]], control: str) -> dict[str, Any]:
+def compare_arms(
+    test: Test, paired: bool, scores: dict[str, dict[str, list]], control: str
+) -> dict[str, Any]:
     """One test on the seeds both rows have, `test`'s treatment arm against the row `control` (paired: by
     source seed): its p-value (None without data)."""
     a, b = scores[test.treatment][test.env], scores[control][test.env]
@@ -70,7 +72,7 @@ def tested(
     """Each test of `family`, Holm-corrected among themselves at `alpha`."""
     out = {
         name: {"env": t.env, "arms": [t.treatment, design.control_row(t)], "alternative": t.alternative}
-        | compare(t, design.paired(t), scores, design.control_row(t))
+        | compare_arms(t, design.paired(t), scores, design.control_row(t))
         for name, t in family.items()
     }
     return prereg.holm_family(out, alpha)

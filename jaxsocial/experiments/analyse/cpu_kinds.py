@@ -61,7 +61,7 @@ def read_kinds(where: Path | None = None) -> list[dict[str, Any]]:
     return [logs.read_json(path) for path in sorted((where or folder()).glob("*.json"))]
 
 
-def kind_of(kinds: list[dict[str, Any]], cpu: str | None) -> dict[str, Any] | None:
+def kind_for_cpu(kinds: list[dict[str, Any]], cpu: str | None) -> dict[str, Any] | None:
     """The file of `cpu`'s kind (`kind_key`) among `kinds`; None if none."""
     key = kind_key(cpu)
     return next((kind for kind in kinds if key is not None and kind_key(kind["cpu"]) == key), None)
@@ -111,7 +111,7 @@ def agree(a: dict[str, Any], b: dict[str, Any], xla_flags: str) -> bool | None:
 
 def alike(kinds: list[dict[str, Any]], cpu: str | None, xla_flags: str | None) -> list[str]:
     """The other kinds whose fingerprints all equal `cpu`'s kind's under `xla_flags`, by their CPUs."""
-    mine = kind_of(kinds, cpu)
+    mine = kind_for_cpu(kinds, cpu)
     if mine is None:
         return []
     return [k["cpu"] for k in kinds if k is not mine and agree(mine, k, xla_flags or "")]
@@ -128,7 +128,7 @@ def predict(
         return expectation(UNKNOWN, f"no CPU family and model in '{unnamed}': unknown")
     if kind_key(record_cpu) == kind_key(here_cpu):
         return expectation(EXACT, f"exact expected: the record trained on this CPU kind ({record_cpu})")
-    record_kind, here_kind = kind_of(kinds, record_cpu), kind_of(kinds, here_cpu)
+    record_kind, here_kind = kind_for_cpu(kinds, record_cpu), kind_for_cpu(kinds, here_cpu)
     for cpu, kind in ((record_cpu, record_kind), (here_cpu, here_kind)):
         if kind is None:
             return expectation(UNKNOWN, f"no fingerprint file for {cpu} in {folder()}: unknown")

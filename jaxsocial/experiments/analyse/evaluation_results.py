@@ -24,7 +24,7 @@ from jaxsocial.experiments.plan.evaluation_design import (
 from jaxsocial.run import logs
 
 
-def missing_records(design: EvaluationDesign, records_root: Path) -> list[str]:
+def absent_records(design: EvaluationDesign, records_root: Path) -> list[str]:
     """The design's records (and reference records) that hold no final policy."""
     wanted = [d for c in (design.treatment, design.control) for d in design.record_dirs(c, records_root)]
     wanted += [records_root / r.ckpt for r in design.references.values() if r.ckpt]
@@ -64,7 +64,7 @@ def read_results(
     }
 
 
-def read_provenance(out: Path) -> list[dict[str, Any]]:
+def read_play_log(out: Path) -> list[dict[str, Any]]:
     """The processes that played the design's evaluations (`run`), oldest first."""
     path = out / PROVENANCE
     return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
@@ -97,7 +97,7 @@ def summarise(design: EvaluationDesign, records_root: Path, science: Path) -> di
         }
         played = [r for e, r in results.items() if e.env == env and r is not None]
         per_env[env]["experts"] = experts_return(played[0]) if played else None
-    commit, evaluated = catalogue.design_commit(design.name), read_provenance(out)
+    commit, evaluated = catalogue.design_commit(design.name), read_play_log(out)
     checks = prereg.commit_checks(commit, {line["file"]: line["commit"] for line in evaluated})
     checks["played_as_designed"] = played_as_designed(design, results)
     block = {

@@ -21,7 +21,7 @@ def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
     from jaxsocial import evaluate
     from jaxsocial.agents import population
 
-    missing = evaluation_results.missing_records(design, records_root)
+    missing = evaluation_results.absent_records(design, records_root)
     if missing:
         hint = paths.missing_records(records_root / design.records)
         raise FileNotFoundError(hint or f"the design's material is incomplete: {', '.join(missing)}")

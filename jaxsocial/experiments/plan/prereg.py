@@ -32,6 +32,8 @@ ZERO_SHOT_TEST = "mannwhitney-greater"
 """A 'zero_shot' design's primary test: one-sided Mann-Whitney U of the arms' per-seed zero-shot returns."""
 LEARNED_BY = ("final_return", "takeoff")
 SECONDARY_MEASURES = ("learned", "above_experts")
+P_DECIMALS = 6
+"""A summary's p-values and other floats: 6 decimals, 3 significant digits below 1e-6 (`stats.round_p`)."""
 TAKEOFF_TEST = "holm(logrank-greater, mannwhitney-greater)"
 """A 'takeoff' design's primary family: the one-sided log-rank test of the takeoffs and the one-sided
 Mann-Whitney U test of the per-seed 4-goal returns, Holm-corrected at the design's alpha."""
@@ -234,26 +236,21 @@ def preregistered(
             "treatment_seeds": n["treatment"],
             "control_learned": k["control"],
             "control_seeds": n["control"],
-            "p": round_p(p),
+            "p": stats.round_p(p, P_DECIMALS),
         },
         "checks": commit_checks(commit, run_commits) | {"seeds_as_designed": n == design.arm_seeds},
     }
 
 
-def round_p(value: float) -> float:
-    """A summary's number to 6 decimals, or to 3 significant digits below 1e-6, so that no p-value reads 0."""
-    return round(value, 6) if abs(value) >= 1e-6 else float(f"{value:.3g}")
-
-
 def holm_family(entries: dict[str, dict[str, Any]], alpha: float) -> dict[str, dict[str, Any]]:
     """`entries` (a family's tests: name -> result with its 'p', None where it could not run), each given
     its Holm-adjusted p-value over the family's tests that ran ('p_holm', None if it did not) and whether it
-    is rejected at `alpha`, every float rounded (`round_p`); returned."""
+    is rejected at `alpha`, every float rounded (`stats.round_p` to `P_DECIMALS`); returned."""
     adjusted = stats.holm({name: e["p"] for name, e in entries.items() if e["p"] is not None})
     for name, entry in entries.items():
         entry["p_holm"] = adjusted.get(name)
         entry["rejected"] = name in adjusted and adjusted[name] <= alpha
-        entry.update({k: round_p(v) for k, v in entry.items() if isinstance(v, float)})
+        entry.update({k: stats.round_p(v, P_DECIMALS) for k, v in entry.items() if isinstance(v, float)})
     return entries
 
 
@@ -307,12 +304,7 @@ def preregistered_takeoff(
         "counts": {"learned": [k[0], n[0], k[1], n[1]], "p": stats.boschloo(k[0], n[0], k[1], n[1])},
     }
     for family in (primary, secondary):
-        known = {name: entry["p"] for name, entry in family.items() if entry["p"] is not None}
-        adjusted = stats.holm(known)
-        for name, entry in family.items():
-            entry["p_holm"] = None if name not in adjusted else round_p(adjusted[name])
-            entry["rejected"] = name in adjusted and adjusted[name] <= design.alpha
-            entry.update({key: round_p(v) for key, v in entry.items() if isinstance(v, float)})
+        holm_family(family, design.alpha)
     designed = {arm: design.seeds * len(getattr(design, arm)) for arm in ("treatment", "control")}
     scored = all(
         len(arm[name]) == designed[key] for key, arm in arms.items() for name in ("goalcycle4", "solo3", "ct")
