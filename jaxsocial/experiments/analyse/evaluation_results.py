@@ -15,8 +15,8 @@ from jaxsocial.experiments.plan import catalogue, paths, prereg
 from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.experiments.plan.evaluation_design import (
     PROVENANCE,
-    Evaluation,
     EvaluationDesign,
+    Play,
     envs,
     evaluations,
     out_dir,
@@ -56,7 +56,7 @@ def tested(
 
 def read_results(
     design: EvaluationDesign, out: Path, records_root: Path
-) -> dict[Evaluation, dict[str, Any] | None]:
+) -> dict[Play, dict[str, Any] | None]:
     """Every evaluation of the design and its result (None: not played yet)."""
     return {
         e: logs.read_json(e.path(out)) if e.path(out).exists() else None
@@ -70,7 +70,7 @@ def read_play_log(out: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
 
 
-def played_as_designed(design: EvaluationDesign, results: dict[Evaluation, dict[str, Any] | None]) -> bool:
+def played_as_designed(design: EvaluationDesign, results: dict[Play, dict[str, Any] | None]) -> bool:
     """Whether every evaluation was played, with the design's episodes and evaluation seed, by its records in
     order (compared by record name, wherever the records root was)."""
     return all(

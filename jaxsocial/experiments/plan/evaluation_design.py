@@ -110,8 +110,8 @@ def envs(design: EvaluationDesign) -> list[str]:
 
 
 @dataclasses.dataclass(frozen=True)
-class Evaluation:
-    """One `jaxsocial.evaluate` call of the design: who plays (`ckpts`, or a scripted `slot`) where."""
+class Play:
+    """A play: one `jaxsocial.evaluate` call: who (`ckpts`, or a scripted `slot`) plays where."""
 
     env: str
     player: str
@@ -123,16 +123,16 @@ class Evaluation:
         return out / f"{paths.env_tag(self.env)}-{self.player}.json"
 
 
-def evaluations(design: EvaluationDesign, records_root: Path) -> list[Evaluation]:
+def evaluations(design: EvaluationDesign, records_root: Path) -> list[Play]:
     """What the design plays: both arms and every reference in every environment its tests name."""
     out = []
     for env in envs(design):
         for condition in (design.treatment, design.control):
             ckpts = tuple(str(d) for d in design.record_dirs(condition, records_root))
-            out.append(Evaluation(env, condition, ckpts, None))
+            out.append(Play(env, condition, ckpts, None))
         for name, ref in design.references.items():
             ckpts = (str(records_root / ref.ckpt),) if ref.ckpt else ()
-            out.append(Evaluation(env, name, ckpts, ref.slot))
+            out.append(Play(env, name, ckpts, ref.slot))
     return out
 
 
