@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.experiments.analyse import records, rundirs, summaries
-from jaxsocial.experiments.launch import pinned, runner, verify
+from jaxsocial.experiments.launch import pinned, runner, slurm, verify
 from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
@@ -117,8 +117,8 @@ def _run_options(p: argparse.ArgumentParser) -> None:
         type=pinned.positive_int,
         default=None,
         metavar="N",
-        help="with --cores: start only the first N pending runs, seed by seed (those that can end within "
-        "a sitting); a later call resumes from the rest",
+        help="with --cores or --launcher slurm: start only the first N pending runs, seed by seed (those "
+        "that can end within a sitting); a later call resumes from the rest",
     )
     p.add_argument(
         "--allow-dirty",
@@ -126,6 +126,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
         help="train a pre-registered design's runs although jaxsocial/ differs from its commit (refused "
         "otherwise; every run records the commit and the diff that rebuilds its code either way)",
     )
+    slurm.add_options(p)
 
 
 def _figure_options(p: argparse.ArgumentParser) -> None:
@@ -406,7 +407,7 @@ def main(argv: list[str] | None = None) -> None:
                 dry_run=args.dry_run,
                 train_missing=not args.no_train,
                 pick=tuple(args.pick),
-                cores=tuple(args.cores),
+                launcher=slurm.chosen(args),
                 seeds_per_program=args.vmap_seeds,
                 max_runs=args.max_runs,
                 allow_dirty=args.allow_dirty,

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.experiments.analyse import branch_results, evaluation_results
-from jaxsocial.experiments.launch import branch_runs, evaluation_play, pinned
+from jaxsocial.experiments.launch import branch_runs, evaluation_play, pinned, slurm
 from jaxsocial.experiments.plan import branch_design, catalogue, evaluation_design, paths
 from jaxsocial.run import logs
 
@@ -53,7 +53,9 @@ def evaluation_main(argv: list[str]) -> None:
 def branch_parser() -> argparse.ArgumentParser:
     parser = design_parser(catalogue.VERBS["branch"], branch_design)
     parser.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
-    parser.add_argument("--cores", type=int, nargs="+", default=[0], help="one training process a core")
+    parser.add_argument(
+        "--cores", type=int, nargs="+", default=None, help="one training process a core (default: 0)"
+    )
     parser.add_argument("--dry-run", action="store_true", help="print each branch's state and command")
     parser.add_argument(
         "--max-runs",
@@ -62,6 +64,7 @@ def branch_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="run: start only the first N pending branches (those that can end within a sitting)",
     )
+    slurm.add_options(parser)
     parser.add_argument(
         "--interim", action="store_true", help="figure: summarise before every branch is recorded (unblinds)"
     )
@@ -77,8 +80,9 @@ def branch_main(argv: list[str]) -> None:
         if args.action == "power":
             print(branch_design.describe(design))
         elif args.action == "run":
-            codes = branch_runs.run(design, runs_root, args.cores, records_root, args.dry_run, args.max_runs)
-            raise SystemExit(max(codes, default=0))
+            launcher = slurm.chosen(args, default_cores=(0,))
+            codes = branch_runs.run(design, runs_root, launcher, records_root, args.dry_run, args.max_runs)
+            raise SystemExit(max((rc for rc in codes if rc is not None), default=0))
         elif args.action == "record":
             branch_runs.record(design, runs_root, records_root)
         else:

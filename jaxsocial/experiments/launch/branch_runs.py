@@ -1,5 +1,6 @@
-"""A branch design's runs (`plan.branch_design`): every branch not finished trained, one pinned process a
-core, and the finished ones recorded."""
+"""A branch design's runs (`plan.branch_design`): every branch not finished trained, one single-core process a
+branch (pinned to a core, or a one-CPU Slurm job: the launcher, `slurm.chosen`), and the finished ones
+recorded."""
 
 from __future__ import annotations
 
@@ -52,14 +53,16 @@ def missing_sources(design: BranchDesign, records_root: Path) -> list[str]:
 def run(
     design: BranchDesign,
     runs_root: Path,
-    cores: list[int],
+    launcher: pinned.Launcher,
     records_root: Path,
     dry_run: bool = False,
     max_runs: int | None = None,
-) -> list[int]:
+) -> list[int | None]:
     """Train every branch not finished yet, seed by seed (each source seed's arms before the next seed), one
-    process a core; a begun branch resumes; only the first `max_runs` start (`pinned.first_runs`). Nothing
-    starts if a source record is missing. Returns the exit codes of those started."""
+    single-core process a branch with the `launcher` (`pinned.Cores`: one a core at a time); a begun branch
+    resumes; only the first `max_runs` start (`pinned.first_runs`; a dry run shows what the launcher would
+    start). Nothing starts if a source record is missing. Returns the exit codes of those started (None: not
+    waited for)."""
     missing = missing_sources(design, records_root)
     if missing:
         raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
@@ -73,17 +76,20 @@ def run(
             flags = config_flags(cfg) + rundirs.resume_flags(state)
             if dry_run:
                 print(f"  {cfg.run_name}: {state}\n    python -m jaxsocial.train {' '.join(flags)}")
-            elif state != rundirs.FINISHED:
+            if state != rundirs.FINISHED:
                 jobs.append(pinned.Job(cfg.run_name, pinned.train_command(flags), run_dir))
     print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
     pending = counts[rundirs.PARTIAL] + counts[rundirs.MISSING]
     starting = min(pending, max_runs or pending)
-    pace = run_times.recorded_pace(records_root / design.out, starting, len(cores)) if pending else None
+    at_once = launcher.slots(starting)
+    pace = run_times.recorded_pace(records_root / design.out, starting, at_once) if pending else None
     if pace:
         print(f"[{design.name}] at the pace of its records: {pace}")
+    if dry_run and jobs:
+        launcher.show(jobs[:max_runs], design.xla_flags)
     if dry_run or not jobs:
         return []
-    return pinned.run(pinned.first_runs(jobs, max_runs), cores, design.xla_flags)
+    return launcher.run(pinned.first_runs(jobs, max_runs), design.xla_flags)
 
 
 def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Path]:

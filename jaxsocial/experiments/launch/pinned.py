@@ -1,7 +1,8 @@
 """Training runs as processes of their own, each pinned to one CPU core with a single-threaded XLA, as many at
 a time as cores are given: on 2 cores, two such processes train 1.6x the env-steps/s of one process on both
 (docs/performance.md, "The science recipe"). The sweep runs its seeds this way, and `experiments run
---cores` a recipe's seeds.
+--cores` a recipe's seeds: the local launcher (`Cores`), which `experiments run` takes in place of the Slurm
+one (`slurm.Slurm`, whose jobs start their process through `run_processes`); both are a `Launcher`.
 
 Each run directory gets `RUN_FILE` (`jaxsocial.run.provenance`): what the runner knows of its process
 (command, commit and whether the package's files were that commit's, with the diff beside it where not, cores,
@@ -23,7 +24,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import xla_flags
@@ -120,6 +121,41 @@ def first_runs(jobs: list[Job], max_runs: int | None) -> list[Job]:
     return jobs[:max_runs]
 
 
+class Launcher(Protocol):
+    """What starts a design's jobs (each one seed's `train_command`, or a few vmapped): `Cores` here, or
+    `slurm.Slurm` on a cluster. `slurm.chosen` picks one from the command line; its callers (`runner`,
+    `branch_runs`) only hand it their jobs."""
+
+    def slots(self, runs: int) -> int:
+        """How many of `runs` jobs train at once (what a cost estimate divides by)."""
+        ...
+
+    def show(self, jobs: list[Job], extra_xla_flags: str) -> None:
+        """`--dry-run`: print what starting `jobs` would do beyond the commands its caller prints."""
+        ...
+
+    def run(self, jobs: list[Job], extra_xla_flags: str) -> list[int | None]:
+        """Start `jobs` with the single-core flags then `extra_xla_flags` (`process_xla_flags`), each writing
+        its `RUN_FILE`; their exit codes in the order of `jobs` (None: not waited for)."""
+        ...
+
+
+@dataclasses.dataclass(frozen=True)
+class Cores:
+    """The local launcher: the jobs as processes on this machine, one a core of `cores` at a time (`run`)."""
+
+    cores: tuple[int, ...]
+
+    def slots(self, runs: int) -> int:
+        return len(self.cores)
+
+    def show(self, jobs: list[Job], extra_xla_flags: str) -> None:
+        """Nothing: the commands its callers print are what it starts."""
+
+    def run(self, jobs: list[Job], extra_xla_flags: str) -> list[int | None]:
+        return list(run(jobs, list(self.cores), extra_xla_flags))
+
+
 def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[int]:
     """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (`pin`) with a
     single-threaded XLA after the caller's $XLA_FLAGS and before `extra_xla_flags` (`process_xla_flags`);
@@ -128,7 +164,12 @@ def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[in
     order of `jobs`."""
     if not cores:
         raise ValueError("give at least one core")
-    process_flags = process_xla_flags(extra_xla_flags)
+    return run_processes(jobs, cores, process_xla_flags(extra_xla_flags))
+
+
+def run_processes(jobs: list[Job], cores: list[int], process_flags: str) -> list[int]:
+    """`run` with the processes' $XLA_FLAGS whole (`process_xla_flags`, worked out where the jobs were
+    launched: a Slurm job runs its seed through this, `slurm.run_in_job`)."""
     env = {**os.environ, "XLA_FLAGS": process_flags, provenance.PARENT_WRITES: "1"}
     pending, active, codes = list(enumerate(jobs)), {}, {}
     free = list(cores)

@@ -36,7 +36,7 @@ BLIND_SCORE = "written (blind until every seed is in)"
 
 
 class TrainingFailed(Exception):
-    """A training process (`run` with cores) exited with an error."""
+    """A training process (`run` with a launcher) exited with an error."""
 
 
 def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol: str) -> dict[str, Any]:
@@ -81,7 +81,7 @@ def run(
     dry_run: bool = False,
     train_missing: bool = True,
     pick: tuple[str, ...] = (),
-    cores: tuple[int, ...] = (),
+    launcher: pinned.Launcher | None = None,
     seeds_per_program: int | None = None,
     max_runs: int | None = None,
     allow_dirty: bool = False,
@@ -93,20 +93,22 @@ def run(
     trained (e.g. on another machine) are evaluated and the others are skipped with a note; only seeds that
     logged every iteration are evaluated, so a design run over several sittings evaluates each seed once it
     has finished (e.g. `--no-train` at the end of a sitting). `pick`: see `rundirs.condition_seed_dirs`.
-    With `cores`, every seed trains as a one-seed program (`<condition>-s<k>-<k>`) in a process of its own
-    pinned to one of them, as many at once as there are cores (`pinned.run`), seed by seed (every condition
-    of a seed before the next seed); `TrainingFailed` after they end if any failed.
+    With a `launcher` (`pinned.Cores`, `slurm.Slurm`: `slurm.chosen`), every seed trains as a one-seed
+    program (`<condition>-s<k>-<k>`) in a single-core process of its own, pinned to one of the cores or as a
+    one-CPU Slurm job, seed by seed (every condition of a seed before the next seed); `TrainingFailed` after
+    they end if any failed; a dry run shows what the launcher would start (`show`).
     `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
     (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
-    process of its own with `cores`, else in this one (default: one per seed with `cores`, else one for all).
-    `max_runs`: start only the first that many of the pinned processes (`pinned.first_runs`).
+    process of its own with a `launcher`, else in this one (default: one a seed with a launcher, else one for
+    all).
+    `max_runs`: start only the first that many of the launcher's processes (`pinned.first_runs`).
     A design's runs at its own scale train and are evaluated blind (no return or score shown), with its
-    `xla_flags` (ValueError if it has them and no `cores` are given, unless this process's $XLA_FLAGS end in
-    them: they must be set before XLA starts), and from a clean tree unless `allow_dirty` (`tree_checked`).
+    `xla_flags` (ValueError if it has them and no `launcher` is given, unless this process's $XLA_FLAGS end
+    in them: they must be set before XLA starts), and from a clean tree unless `allow_dirty` (`tree_checked`).
     """
-    per_program = seeds_per_program or (1 if cores else None)
+    per_program = seeds_per_program or (1 if launcher else None)
     programs, blind, design_flags = validated_programs(recipe, scale, seed, seeds, runs_dir, per_program)
-    if design_flags and train_missing and not cores and not dry_run:
+    if design_flags and train_missing and launcher is None and not dry_run:
         xla_flags_held(recipe, design_flags)
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     states = {  # each program's state, by its condition and first seed
@@ -117,11 +119,11 @@ def run(
     if train_missing:
         to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != FINISHED]
         tree_checked(recipe, blind, bool(to_train) and not dry_run, allow_dirty)
-        print_cost(recipe, scale, to_train, cores, max_runs)
+        print_cost(recipe, scale, to_train, launcher, max_runs)
     prefix = f"[{recipe.name}/{scale.name}]"
-    jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, cores)
+    jobs, skipped = train_programs(prefix, programs, states, dirs, seed, dry_run, train_missing, launcher)
     if jobs:
-        run_pinned(jobs, cores, design_flags, max_runs)
+        launch(jobs, launcher, design_flags, max_runs, dry_run)
         dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     for name in skipped:
         print(f"  {name}: not trained (--no-train); its unfinished seeds are not evaluated")
@@ -180,39 +182,59 @@ def xla_flags_held(recipe: Recipe, design_flags: str) -> None:
     if not xla_flags.hold(os.environ.get("XLA_FLAGS"), design_flags):
         raise ValueError(
             f"the design {recipe.design} trains with $XLA_FLAGS ending in {design_flags!r}: train with "
-            "--cores, or set them before starting this process"
+            "--cores (or --launcher slurm), or set them before starting this process"
         )
 
 
-def run_pinned(
-    jobs: list[tuple[int, pinned.Job]], cores: tuple[int, ...], design_flags: str, max_runs: int | None
+def seed_by_seed(jobs: list[tuple[int, pinned.Job]]) -> list[pinned.Job]:
+    """The `jobs` (each with its first seed) seed by seed (a stable sort: conditions keep their order, so a
+    sitting cut short leaves whole seeds done rather than one condition's)."""
+    return [job for _, job in sorted(jobs, key=lambda pair: pair[0])]
+
+
+def launch(
+    jobs: list[tuple[int, pinned.Job]],
+    launcher: pinned.Launcher,
+    design_flags: str,
+    max_runs: int | None,
+    dry_run: bool = False,
 ) -> None:
-    """Train the `jobs` (each with its first seed) in pinned processes on `cores`, seed by seed (a stable
-    sort: conditions keep their order, so a sitting cut short leaves whole seeds done rather than one
-    condition's), only the first `max_runs`; TrainingFailed after they end if any failed."""
-    ordered = pinned.first_runs([job for _, job in sorted(jobs, key=lambda pair: pair[0])], max_runs)
-    codes = pinned.run(ordered, list(cores), design_flags)
-    failed = [job.label for job, rc in zip(ordered, codes, strict=True) if rc != 0]
+    """Train the `jobs` (each with its first seed) with the `launcher`, seed by seed (`seed_by_seed`), only
+    the first `max_runs`; TrainingFailed after they end if any failed (a job not waited for is not). A
+    `dry_run` starts none and shows what the launcher would start (`show`)."""
+    if dry_run:
+        launcher.show(seed_by_seed(jobs)[:max_runs], design_flags)
+        return
+    ordered = pinned.first_runs(seed_by_seed(jobs), max_runs)
+    codes = launcher.run(ordered, design_flags)
+    failed = [job.label for job, rc in zip(ordered, codes, strict=True) if rc not in (0, None)]
     if failed:
         raise TrainingFailed(f"training failed for {', '.join(failed)}: see the logs beside their runs")
 
 
 def print_cost(
-    recipe: Recipe, scale: Scale, to_train: list[TrainConfig], cores: tuple[int, ...], max_runs: int | None
+    recipe: Recipe,
+    scale: Scale,
+    to_train: list[TrainConfig],
+    launcher: pinned.Launcher | None,
+    max_runs: int | None,
 ) -> None:
-    """The cost line of the programs `to_train` (nothing if none), on `cores` (or in this process), and with
-    `cores`, what the first `max_runs` (None: all) take at the pace of the runs recorded in their folder
-    (`run_times.recorded_pace`)."""
+    """The cost line of the programs `to_train` (nothing if none), with the `launcher` (as many at once as its
+    `slots`) or in this process, and with a launcher, what the first `max_runs` (None: all) take at the pace
+    of the runs recorded in their folder (`run_times.recorded_pace`)."""
     if not to_train:
         return
     runs = sum(cfg.seeds for cfg in to_train)
     steps = to_train[0].iterations * to_train[0].num_envs * to_train[0].rollout_steps
-    estimate = recipes.cost(scale, runs, steps, len(cores) or 1) or f"{runs} runs (no measured CPU rate)"
-    mode = "" if cores else " (the rate is one seed a process, as --cores trains; in one process it differs)"
+    at_once = launcher.slots(runs) if launcher else 1
+    estimate = recipes.cost(scale, runs, steps, at_once) or f"{runs} runs (no measured CPU rate)"
+    mode = (
+        "" if launcher else " (the rate is one seed a process, as --cores trains; in one process it differs)"
+    )
     print(f"[{recipe.name}/{scale.name}] to train: {estimate}{mode}")
     recorded = paths.RECORDS / Path(to_train[0].run_name).parent
     starting = min(runs, max_runs or runs)
-    pace = run_times.recorded_pace(recorded, starting, len(cores)) if cores else None
+    pace = run_times.recorded_pace(recorded, starting, launcher.slots(starting)) if launcher else None
     if pace:
         print(f"[{recipe.name}/{scale.name}] at the pace of its records: {pace}")
 
@@ -225,10 +247,10 @@ def train_programs(
     seed: int,
     dry_run: bool,
     train_missing: bool,
-    cores: tuple[int, ...],
+    launcher: pinned.Launcher | None,
 ) -> tuple[list[tuple[int, pinned.Job]], list[str]]:
-    """Say each program's state and, for those not finished: print its command (`dry_run`), make it a job for
-    a pinned process (with `cores`; returned with its first seed, not started), train it in this process
+    """Say each program's state (and its command, `dry_run`) and, for those not finished: make it a job for
+    the `launcher` (returned with its first seed, not started; in a dry run too), train it in this process
     (updating `dirs`), or, without `train_missing`, skip its condition (returned)."""
     skipped, jobs = [], []
     for name, cfgs in programs.items():
@@ -240,9 +262,11 @@ def train_programs(
             flags = config_flags(cfg)
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
-            elif state != FINISHED and train_missing and cores:
+            if state != FINISHED and train_missing and launcher:
                 train_argv = pinned.train_command([*flags, *resume_flags(state)])
                 jobs.append((cfg.seed, pinned.Job(label, train_argv, outputs.run_path(cfg))))
+            elif dry_run:
+                continue
             elif state != FINISHED and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == PARTIAL))
                 dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = seed_dirs(cfg)
