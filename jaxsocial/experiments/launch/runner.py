@@ -99,8 +99,7 @@ def run(
     they end if any failed; a dry run shows what the launcher would start (`show`).
     `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
     (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
-    process of its own with a `launcher`, else in this one (default: one a seed with a launcher, else one for
-    all).
+    process of its own with a `launcher`, else in this one (default: one a seed with a launcher, else all).
     `max_runs`: start only the first that many of the launcher's processes (`pinned.first_runs`).
     A design's runs at its own scale train and are evaluated blind (no return or score shown), with its
     `xla_flags` (ValueError if it has them and no `launcher` is given, unless this process's $XLA_FLAGS end
