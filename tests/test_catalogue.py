@@ -17,9 +17,9 @@ from jaxsocial.experiments.plan import evaluation_design as ed
 LOADERS = {"training": prereg.load, "evaluation": ed.load, "branch": bd.load}
 
 
-@pytest.mark.parametrize("name", catalogue.names())
+@pytest.mark.parametrize("name", catalogue.design_names())
 def test_every_committed_design_loads_as_its_kind_and_as_no_other(name):
-    kind = catalogue.kind_of(name)
+    kind = catalogue.design_kind(name)
     assert LOADERS[kind](name).name == name
     for other, load in LOADERS.items():
         if other != kind:
@@ -38,19 +38,19 @@ def test_a_file_names_its_kind_or_is_known_by_the_field_only_its_kind_has(tmp_pa
     }
     for name, raw in files.items():
         (tmp_path / f"{name}.json").write_text(json.dumps(raw))
-    assert [catalogue.kind_of(n) for n in ("named", "references", "arms", "neither")] == [
+    assert [catalogue.design_kind(n) for n in ("named", "references", "arms", "neither")] == [
         "branch",
         "evaluation",
         "branch",
         "training",
     ]
     with pytest.raises(ValueError, match="unknown kind 'sweep'"):
-        catalogue.kind_of("unknown")
+        catalogue.design_kind("unknown")
     assert catalogue.read("named", "branch") == {
         "scale": "laptop"
     }  # the kind is the catalogue's, not the design's
     with pytest.raises(FileNotFoundError, match=r"no design .*missing\.json; the designs are \['arms',"):
-        catalogue.kind_of("missing")
+        catalogue.design_kind("missing")
 
 
 def _git(repo, *args: str) -> str:
@@ -83,7 +83,7 @@ def test_a_design_keeps_its_commit_when_its_file_moves_and_takes_a_new_one_when_
 def test_one_command_reaches_every_kind_of_design(kind, capsys):
     """`experiments power NAME` describes a design of any kind; a verb the kind does not take is refused
     with the verbs it does take."""
-    name = catalogue.names(kind)[0]
+    name = catalogue.design_names(kind)[0]
     cli.main(["power", name])
     assert capsys.readouterr().out.startswith(f"{name}: {'from ' * (kind == 'branch')}the records ")
     if kind == "evaluation":

@@ -312,7 +312,7 @@ def test_designs_since_the_cross_cpu_flags_name_them():
     (`pinned.CROSS_CPU_KINDS`) agree bit for bit, though not with the Zen 3; the designs committed before the
     field keep XLA's defaults (their files may not change)."""
     before = {"experts", "h1_early", "h1_laptop", "h1_prereg", "h1_sooner"}
-    names = catalogue.names("training")
+    names = catalogue.design_names("training")
     assert before <= set(names)
     for name in names:
         flags = prereg.load(name).xla_flags

@@ -182,7 +182,7 @@ def test_run_refuses_a_design_whose_records_are_missing(designs_dir, tmp_path):
     assert not (tmp_path / "science").exists()
 
 
-@pytest.mark.parametrize("name", catalogue.names("evaluation"))
+@pytest.mark.parametrize("name", catalogue.design_names("evaluation"))
 def test_a_committed_design_names_its_material_and_its_pilot(name):
     design = ed.load(name)
     if not (paths.RECORDS / design.records).is_dir():
@@ -194,7 +194,7 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
 
 @pytest.mark.slow
 @needs_records("records/laptop/prereg-h1_early", "records/laptop/prereg-experts")  # the pilots
-@pytest.mark.parametrize("name", catalogue.names("evaluation"))
+@pytest.mark.parametrize("name", catalogue.design_names("evaluation"))
 def test_a_committed_design_has_the_power_it_states(name):
     """The whole power table, recomputed from the committed pilot with the design's seed of the simulation."""
     design = ed.load(name)

@@ -294,7 +294,8 @@ def _records_read(name: str) -> tuple[str, ...]:
         return ()
     if name == paths.SWEEP_SUMMARY.name + ".json":
         return (f"records/{sweep.RECORDS_SUBDIR}",)
-    kind = catalogue.kind_of(summary["design"]) if summary.get("design") in catalogue.names() else None
+    designed = summary.get("design") in catalogue.design_names()
+    kind = catalogue.design_kind(summary["design"]) if designed else None
     if kind == "evaluation":
         return (f"records/{evaluation_design.load(summary['design']).records}",)
     if kind == "branch":

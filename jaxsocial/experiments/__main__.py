@@ -38,9 +38,9 @@ def make_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("power", help=power, description=power)
     p.add_argument(
         "recipe",
-        choices=catalogue.names(),
+        choices=catalogue.design_names(),
         metavar="DESIGN",
-        help=f"designs of every kind: {catalogue.names()}",
+        help=f"designs of every kind: {catalogue.design_names()}",
     )
     _verify_parser(sub)
     return parser
@@ -349,7 +349,7 @@ DELEGATED = {
 def _names_help() -> str:
     """The names a recipe command takes: the recipes, and the designs of the other kinds, with their verbs."""
     others = [
-        f"{kind} designs ({', '.join(verbs)}): {', '.join(catalogue.names(kind))}"
+        f"{kind} designs ({', '.join(verbs)}): {', '.join(catalogue.design_names(kind))}"
         for kind, verbs in catalogue.VERBS.items()
     ]
     return f"a recipe ({', '.join(recipes.RECIPES)}); {'; '.join(others)}"
@@ -359,9 +359,9 @@ def kind_command(argv: list[str]):
     """The `main` that acts on the design `VERB NAME ...` names, where it is of a kind with verbs of its own
     (`catalogue.VERBS`; None otherwise), imported only then; SystemExit where VERB is not one of them."""
     verbs = {verb for kind_verbs in catalogue.VERBS.values() for verb in kind_verbs}
-    if len(argv) < 2 or argv[0] not in verbs or argv[1] not in catalogue.names():
+    if len(argv) < 2 or argv[0] not in verbs or argv[1] not in catalogue.design_names():
         return None
-    kind = catalogue.kind_of(argv[1])
+    kind = catalogue.design_kind(argv[1])
     if kind not in catalogue.VERBS:
         return None
     kind_verbs = catalogue.VERBS[kind]
@@ -425,8 +425,8 @@ def list_recipes() -> None:
     run."""
     for r in recipes.RECIPES.values():
         print(f"{r.name:12s} {r.title}\n{'':12s} conditions: {', '.join(r.conditions)}")
-    for kind in catalogue.KINDS:
-        print(f"{kind} designs: {', '.join(catalogue.names(kind))}")
+    for kind in catalogue.DESIGN_KINDS:
+        print(f"{kind} designs: {', '.join(catalogue.design_names(kind))}")
     for s in recipes.SCALES.values():
         per_run = s.iterations * s.config.num_envs * s.config.rollout_steps
         unmeasured = (

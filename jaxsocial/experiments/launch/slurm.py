@@ -270,7 +270,7 @@ def sbatch_options(values: dict[str, Any], where: str) -> dict[str, Any]:
     return checked
 
 
-def read_config(path: Path) -> dict[str, Any]:
+def read_slurm_config(path: Path) -> dict[str, Any]:
     """A `--slurm-config` file (`.json` or `.toml`): its options, every key one of `OPTIONS`; ValueError
     naming the file and what is wrong."""
     if path.suffix not in (".json", ".toml"):
@@ -291,7 +291,7 @@ def options(config: str | None, given: dict[str, Any], wait: bool = True) -> Slu
     """The Slurm launcher of the `--slurm-config` file `config` (None: none) and the options `given` by flags
     (`FLAGS`' keys; None: not given), which override the file's (`additional_parameters` key by key),
     each checked; ValueError naming the flag or the file's key at fault, before anything is submitted."""
-    from_file = read_config(Path(config)) if config else {}
+    from_file = read_slurm_config(Path(config)) if config else {}
     where = {k: f"--slurm-config {config}: {k!r} =" for k in from_file} | {
         k: FLAGS[k] for k, v in given.items() if v is not None
     }

@@ -20,7 +20,7 @@ from jaxsocial.experiments.plan import commits
 from jaxsocial.run import logs
 
 DESIGNS_DIR = Path(__file__).parent.parent / "designs"
-KINDS = ("training", "evaluation", "branch")
+DESIGN_KINDS = ("training", "evaluation", "branch")
 VERBS = {
     "evaluation": ("power", "run", "figure"),
     "branch": ("power", "run", "record", "figure"),
@@ -56,28 +56,28 @@ def amendment_path(name: str) -> Path:
     return DESIGNS_DIR / "amendments" / f"{name}.json"
 
 
-def names(kind: str | None = None) -> list[str]:
+def design_names(kind: str | None = None) -> list[str]:
     """Every design's name, sorted, or those of one kind."""
     found = sorted(p.stem for p in DESIGNS_DIR.glob("*.json"))
-    return [n for n in found if kind is None or kind_of(n) == kind]
+    return [n for n in found if kind is None or design_kind(n) == kind]
 
 
-def kind_of(name: str) -> str:
+def design_kind(name: str) -> str:
     """The kind of design `name` (FileNotFoundError, naming the designs, if there is none)."""
     path = path_of(name)
     if not path.is_file():
-        raise FileNotFoundError(f"no design {path}; the designs are {names()}")
+        raise FileNotFoundError(f"no design {path}; the designs are {design_names()}")
     raw = logs.read_json(path)
     kind = raw.get("kind") or next((k for field, k in KIND_FIELDS.items() if field in raw), "training")
-    if kind not in KINDS:
-        raise ValueError(f"design {name}: unknown kind {kind!r}; choose from {KINDS}")
+    if kind not in DESIGN_KINDS:
+        raise ValueError(f"design {name}: unknown kind {kind!r}; choose from {DESIGN_KINDS}")
     return kind
 
 
 def read(name: str, kind: str) -> dict:
     """Design `name`'s file as JSON, without its `kind` (FileNotFoundError if there is none; ValueError if it
     is of another kind)."""
-    found = kind_of(name)
+    found = design_kind(name)
     if found != kind:
         raise ValueError(f"design {name} is of kind {found}, not {kind}")
     raw = logs.read_json(path_of(name))
