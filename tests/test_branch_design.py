@@ -257,7 +257,8 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
         "rationale": "",
     }
     (tmp_path / "tiny.json").write_text(json.dumps(raw))
-    design = bd.load("tiny", tmp_path)
+    monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
+    design = bd.load("tiny")
     cfg = branch_runs.branch_config(design, "mixed", 0, runs_root, records_root)
     monkeypatch.setenv(PARENT_WRITES, "1")  # as `pinned.run` starts it: the runner writes its file
     run_dir = train.run(cfg)
