@@ -127,7 +127,7 @@ def load_groups(run_dirs: list[str | Path]) -> list[Group]:
     found: dict[str, list[tuple[str, Path, dict[str, Any]]]] = {}  # group key -> (label, seed dir, config)
     seen = set()
     for run_dir in map(Path, run_dirs):
-        for d in metrics.seed_dirs(run_dir):
+        for d in metrics.written_seed_dirs(run_dir):
             if d.resolve() in seen:
                 continue
             seen.add(d.resolve())

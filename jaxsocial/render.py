@@ -45,7 +45,7 @@ def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playba
     ValueError, before anything compiles, for a directory that is not one seed's run or an env the policy
     cannot act in."""
     run_dir = PolicyRef.parse(ckpt).run
-    dirs = metrics.seed_dirs(run_dir)
+    dirs = metrics.written_seed_dirs(run_dir)
     if len(dirs) > 1:
         raise ValueError(f"{run_dir} holds {len(dirs)} seeds: pass one of them, e.g. --ckpt {dirs[0]}")
     config = logs.read_config(run_dir)

@@ -268,7 +268,7 @@ def mixing_runs(tmp_path_factory):
 def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
     scale = recipes.TINY
     cfg = recipes.condition_config(scale, "social_pred_mixed", 0, 1, str(mixing_runs))
-    (run_dir,) = runner.seed_dirs(cfg)
+    (run_dir,) = runner.config_seed_dirs(cfg)
     rows = logs.read_metrics(run_dir)
     assert [r["iteration"] for r in rows] == list(range(1, scale.iterations + 1))
     switch = round(scale.iterations / 3)
@@ -312,7 +312,7 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
     }
     for name, entry in summary["conditions"].items():
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
-        rows = logs.read_metrics(runner.seed_dirs(cfg)[0])
+        rows = logs.read_metrics(runner.config_seed_dirs(cfg)[0])
         assert entry["final_returns"] == [round(metrics.final_return(rows), 4)]
         assert entry["seeds_above_one_tile"] == int(metrics.final_return(rows) > metrics.LEARNED_RETURN)
         key = "eval/goalcycle4:width=7,height=7,max_steps=20"
@@ -454,7 +454,7 @@ def test_no_train_evaluates_the_conditions_trained_elsewhere(mixing_runs, capsys
     out = capsys.readouterr().out
     assert "solo_pred: not trained" in out and "bc: not trained" in out
     cfg = recipes.condition_config(recipes.TINY, "social_pred", 0, 1, str(mixing_runs))
-    (seed_dir,) = runner.seed_dirs(cfg)
+    (seed_dir,) = runner.config_seed_dirs(cfg)
     for spec in kinds.transfer_specs(recipes.RECIPES["fig5_transfer"], recipes.TINY):
         result = json.loads(kinds.eval_path(seed_dir, spec).read_text())
         assert result["checkpoints"] == [str(seed_dir)]
@@ -473,14 +473,14 @@ def test_ct_recipe_trains_evaluates_and_summarises(mixing_runs, tmp_path):
     assert list(summary["conditions"]) == list(recipes.RECIPES["ct"].conditions)
     for name, entry in summary["conditions"].items():
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
-        (seed_dir,) = runner.seed_dirs(cfg)
+        (seed_dir,) = runner.config_seed_dirs(cfg)
         result = json.loads(kinds.ct_path(seed_dir, recipes.TINY).read_text())
         assert result["protocol"] == "ct" and result["checkpoints"] == [str(seed_dir)]
         assert entry["ct"]["final_returns"] == [round(result["ct"]["mean"], 4)]
         assert entry["recall"]["final_returns"] == [round(result["recall"]["mean"], 4)]
         assert entry["final_returns"] == [round(metrics.final_return(logs.read_metrics(seed_dir)), 4)]
     medal = recipes.condition_config(recipes.TINY, "social_medal", 0, 1, str(mixing_runs))
-    assert "attention_loss/0" in logs.read_metrics(runner.seed_dirs(medal)[0])[-1]
+    assert "attention_loss/0" in logs.read_metrics(runner.config_seed_dirs(medal)[0])[-1]
     assert set(summary["separated_ci95"]) == {"final", "ct", "recall"}
 
 

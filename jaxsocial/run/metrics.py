@@ -260,7 +260,7 @@ def run_config(run_dir: Path) -> dict[str, Any]:
     return config
 
 
-def seed_dirs(run_dir: str | Path) -> list[Path]:
+def written_seed_dirs(run_dir: str | Path) -> list[Path]:
     """The directory of every seed of a training run (the run itself for one seed). ValueError if
     `run_dir` is not a run written by `python -m jaxsocial.train`, or a seed's directory is missing."""
     run_dir = Path(run_dir)

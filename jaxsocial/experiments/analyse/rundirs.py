@@ -21,7 +21,7 @@ def resume_flags(state: str) -> list[str]:
     return ["--resume"] if state == PARTIAL else []
 
 
-def seed_dirs(cfg: TrainConfig) -> list[Path]:
+def config_seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
     return [s.dir for s in outputs.seed_runs(cfg, outputs.run_path(cfg))]
 
@@ -54,7 +54,7 @@ def condition_seed_dirs(
     own = [
         d
         for cfg in recipes.condition_programs(scale, condition, seed, seeds, runs_dir)
-        for d in seed_dirs(cfg)
+        for d in config_seed_dirs(cfg)
     ]
     held: dict[int, list[Path]] = {}
     for run_dir in sorted((Path(runs_dir) / scale.runs_root).glob(f"{condition}-s*")):

@@ -34,7 +34,7 @@ block: progress lines with the learners' returns. Resuming needs none of them.""
 def slim(run_dir: Path) -> int:
     """Keep only the latest checkpoint every seed of `run_dir` has, drop the exported policies and the
     `PROGRESS_LOGS`; returns that checkpoint's step (ValueError if the seeds share none)."""
-    seeds = metrics.seed_dirs(run_dir)
+    seeds = metrics.written_seed_dirs(run_dir)
     common = set.intersection(*(set(checkpoint.all_steps(d / CHECKPOINTS)) for d in seeds))
     if not common:
         raise ValueError(f"{run_dir}: its seeds share no checkpoint to resume from")

@@ -18,9 +18,9 @@ from jaxsocial.experiments.analyse.rundirs import (
     MISSING,
     PARTIAL,
     condition_seed_dirs,
+    config_seed_dirs,
     finished,
     resume_flags,
-    seed_dirs,
 )
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
@@ -268,7 +268,7 @@ def train_programs(
                 continue
             elif state != FINISHED and train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == PARTIAL))
-                dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = seed_dirs(cfg)
+                dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = config_seed_dirs(cfg)
             elif state != FINISHED and name not in skipped:
                 skipped.append(name)
     return jobs, skipped
