@@ -39,6 +39,14 @@ def _lines(stream, out: queue.Queue) -> None:
     out.put(None)
 
 
+def _terminal_sigint() -> None:
+    """In the child before it starts: SIGINT as a terminal's foreground job has it. A test suite run as a
+    background job (`pytest ... &` in a script, as CI may) starts with SIGINT ignored, which its children
+    inherit, and Python then installs no KeyboardInterrupt handler: there the run would not see the Ctrl-C
+    at all, whatever it does."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_while_compiling_ends_the_run_at_once(tmp_path):
     """Starts the 2-iteration run of TINY's sizes (the environment's scripted experts beside the learner),
     waits for the line that says it compiles its chunk, sends SIGINT 0.2 s later (while XLA compiles
@@ -51,7 +59,12 @@ def test_ctrl_c_while_compiling_ends_the_run_at_once(tmp_path):
     flags = [f for f in TINY_FLAGS if f != "--no-progress"]  # the compile line is the progress's
     argv = ["-m", "jaxsocial.train", *flags, "--runs-dir", str(tmp_path), "--run-name", "x"]
     proc = subprocess.Popen(
-        [sys.executable, "-u", *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+        [sys.executable, "-u", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+        preexec_fn=_terminal_sigint,
     )
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=_lines, args=(proc.stdout, lines), daemon=True).start()
