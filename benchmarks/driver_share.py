@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from jaxsocial.experiments import records  # noqa: E402
+from jaxsocial.experiments.analyse import records  # noqa: E402
 from jaxsocial.run import logs, metrics  # noqa: E402
 
 

@@ -44,7 +44,7 @@ prepare() {
   (cd .prereg/code && PYTHONPATH=$PWD python -m jaxsocial.experiments run "$design" --scale gpu --dry-run) |
     grep "python -m jaxsocial.train" | sed 's/^ *python -m jaxsocial.train //' >.prereg/commands.txt
   printf '%s\n%s\n' "$commit" "$design" >.prereg/design.txt
-  python -c "from jaxsocial.experiments import prereg; print(prereg.load('$design').xla_flags or '')" \
+  python -c "from jaxsocial.experiments.plan import catalogue; print(catalogue.load('$design').xla_flags or '')" \
     >.prereg/xla_flags.txt  # the design's own (designs since 2026-11-28), set on the device for every run
   cp "$0" .prereg/block.sh
   python -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
@@ -72,7 +72,7 @@ device() {
   XLA_FLAGS=$(cat ../xla_flags.txt 2>/dev/null)
   local machine  # where this block's runs train, $XLA_FLAGS included, for the records' provenance
   machine=$(PYTHONPATH=$root:/tmp/site python3 -c 'import json, os
-from jaxsocial.experiments import pinned
+from jaxsocial.experiments.launch import pinned
 print(json.dumps(pinned.machine(os.environ.get("XLA_FLAGS", ""))))') &&
     echo "$(date -u +%Y-%m-%dT%H:%M:%SZ) machine $machine" >>"$OUT/commands.log"
   nvidia-smi -L

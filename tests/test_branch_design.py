@@ -17,7 +17,7 @@ from scipy import stats as scipy_stats
 from jaxsocial import stats, train
 from jaxsocial.experiments import kind_commands
 from jaxsocial.experiments.analyse import branch_results as br
-from jaxsocial.experiments.analyse import kinds, records, rundirs
+from jaxsocial.experiments.analyse import kinds, power, records, rundirs, verdicts
 from jaxsocial.experiments.launch import branch_runs, pinned
 from jaxsocial.experiments.plan import branch_design as bd
 from jaxsocial.experiments.plan import catalogue, paths, prereg
@@ -26,7 +26,7 @@ from jaxsocial.run.flags import config_flags
 from jaxsocial.run.provenance import PARENT_WRITES
 from jaxsocial.specs import CheckpointRef
 
-MIXING = bd.load("mixing")
+MIXING = catalogue.load("mixing")
 RUNS = Path("runs-nowhere")
 
 
@@ -52,11 +52,11 @@ def test_the_mixing_design_branches_every_experts_record_in_its_arm():
 
 @pytest.mark.slow
 def test_the_mixing_design_and_its_amendment_have_the_power_they_state():
-    assert br.stated_power(MIXING) == MIXING.power_simulation["power"]
+    assert power.stated_power(MIXING) == MIXING.power_simulation["power"]
     planning = MIXING.power_simulation["power"][f"discount {MIXING.power_simulation['planning_discount']:g}"]
     assert MIXING.power == planning[MIXING.power_simulation["planning_test"]]
     added = MIXING.amendment
-    assert br.amendment_power(MIXING) == added.power_simulation["power"]
+    assert power.stated_power(MIXING, amendment=True) == added.power_simulation["power"]
     planning = added.power_simulation["power"][f"discount {added.power_simulation['planning_discount']:g}"]
     assert added.power == planning[added.power_simulation["planning_test"]]
 
@@ -104,11 +104,11 @@ def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path, monk
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     raw["primary"]["mixed_vs_alone"]["control"] = "solo"
     raw["secondary"]["social_skill"]["env"] = "goalcycle4"
-    (tmp_path / "bad.json").write_text(json.dumps(raw))
+    (tmp_path / "bad.json").write_text(json.dumps(raw | {"name": "bad"}))
     with pytest.raises(ValueError, match=r"arm 'solo' is not one of \['alone', 'mixed', 'social', 'start'\]"):
-        bd.load("bad")
+        catalogue.load("bad")
     with pytest.raises(FileNotFoundError, match=r"the designs are \['bad'\]"):
-        bd.load("mixing")
+        catalogue.load("mixing")
 
 
 def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, float]) -> None:
@@ -150,13 +150,13 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
         arm: {env: rng.normal(c, 3, 6).round(2) for env in design.eval_envs} for arm, c in centres.items()
     }
     for arm in design.arms:
-        for k, seed in enumerate(design.source_seeds()):
+        for k, seed in enumerate(design.seed_range):
             if (arm, k) != ("alone", 5):  # one branch not recorded yet
                 _fake_record(
                     tmp_path, design, arm, seed, {e: float(values[arm][e][k]) for e in design.eval_envs}
                 )
     started = rng.normal(7.0, 3, 6).round(2)  # where the social_rec records ended, alone in 3-goal
-    for k, seed in enumerate(design.source_seeds()):
+    for k, seed in enumerate(design.seed_range):
         evaluation = {"results": [{"slot": 0, "kind": "learner", "mean_return": float(started[k])}]}
         path = kinds.eval_path(design.record_of("social_rec", seed, tmp_path), solo3)
         path.parent.mkdir(parents=True)
@@ -196,7 +196,7 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
     checks = block["checks"]
     assert not checks["every_branch_recorded"] and checks["branches_as_designed"] and not block["valid"]
     assert not checks["design_precedes_every_run"]  # commit 000... is no ancestor of the design
-    assert "NOT VALID" in br.verdict(summary)
+    assert "NOT VALID" in verdicts.verdict(summary)
     added = block["amendment"]
     assert added["tests"]["social_fades"]["arms"] == ["social", "social_rec at the branch"]
     fades = scipy_stats.wilcoxon(values["social"][solo3] - started, alternative="less").pvalue
@@ -215,7 +215,7 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
         "every_start_scored": True,
     }
     assert added["valid"] and added["committed"] == "2026-12-01T22:00:00+00:00"
-    assert "amendment social_fades (wilcoxon" in br.verdict(summary)
+    assert "amendment social_fades (wilcoxon" in verdicts.verdict(summary)
     shutil.rmtree(tmp_path / design.run_name("mixed", design.seed + 2))
     _fake_record(tmp_path, dataclasses.replace(design, iterations=5), "mixed", design.seed + 2, {solo3: 1.0})
     assert br.summarise(design, tmp_path)["preregistered"]["checks"]["differing"] == ["mixed-s302"]
@@ -258,7 +258,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     }
     (tmp_path / "tiny.json").write_text(json.dumps(raw))
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
-    design = bd.load("tiny")
+    design = catalogue.load("tiny")
     cfg = branch_runs.branch_config(design, "mixed", 0, runs_root, records_root)
     monkeypatch.setenv(PARENT_WRITES, "1")  # as `pinned.run` starts it: the runner writes its file
     run_dir = train.run(cfg)

@@ -10,27 +10,26 @@ import subprocess
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments.plan import branch_design as bd
-from jaxsocial.experiments.plan import catalogue, prereg
-from jaxsocial.experiments.plan import evaluation_design as ed
-
-LOADERS = {"training": prereg.load, "evaluation": ed.load, "branch": bd.load}
+from jaxsocial.experiments.plan import catalogue
 
 
 @pytest.mark.parametrize("name", catalogue.design_names())
 def test_every_committed_design_loads_as_its_kind_and_as_no_other(name):
+    """One loader for every kind: the design is its kind's class, and asking for another kind is refused."""
     kind = catalogue.design_kind(name)
-    assert LOADERS[kind](name).name == name
-    for other, load in LOADERS.items():
-        if other != kind:
-            with pytest.raises(ValueError, match=f"design {name} is of kind {kind}, not {other}"):
-                load(name)
+    design = catalogue.load(name)
+    assert design.name == name and kind == design.KIND and isinstance(design, catalogue.Design)
+    assert catalogue.load(name, kind) == design
+    for other in set(catalogue.DESIGN_KINDS) - {kind}:
+        with pytest.raises(ValueError, match=f"design {name} is of kind {kind}, not {other}"):
+            catalogue.load(name, other)
 
 
 def test_a_file_names_its_kind_or_is_known_by_the_field_only_its_kind_has(tmp_path, monkeypatch):
+    mixing = json.loads(catalogue.path_of("mixing").read_text())  # a branch design, from before `kind`
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     files = {
-        "named": {"kind": "branch", "scale": "laptop"},
+        "named": {"kind": "branch", **mixing, "name": "named"},
         "references": {"references": {}},
         "arms": {"arms": {}},
         "neither": {"scale": "laptop"},
@@ -46,9 +45,11 @@ def test_a_file_names_its_kind_or_is_known_by_the_field_only_its_kind_has(tmp_pa
     ]
     with pytest.raises(ValueError, match="unknown kind 'sweep'"):
         catalogue.design_kind("unknown")
-    assert catalogue.read("named", "branch") == {
-        "scale": "laptop"
-    }  # the kind is the catalogue's, not the design's
+    named = catalogue.load("named")  # its `kind` is the catalogue's, not a field of the design
+    assert named.KIND == "branch" and named.arms.keys() == mixing["arms"].keys()
+    (tmp_path / "misnamed.json").write_text(json.dumps(mixing))
+    with pytest.raises(ValueError, match=r"design misnamed: its file .*misnamed\.json names it 'mixing'"):
+        catalogue.load("misnamed")
     with pytest.raises(FileNotFoundError, match=r"no design .*missing\.json; the designs are \['arms',"):
         catalogue.design_kind("missing")
 

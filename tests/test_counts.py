@@ -13,7 +13,7 @@ from conftest import needs_records
 
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments.analyse import kinds, summaries, takeoff, takeoff_power
+from jaxsocial.experiments.analyse import kinds, power, summaries, takeoff, takeoff_power, verdicts
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import catalogue, commits, paths, prereg, recipes
 from jaxsocial.run import config, logs
@@ -74,12 +74,14 @@ def test_takeoff_and_the_fraction_learned():
 
 
 DESIGNED = sorted(r.name for r in recipes.RECIPES.values() if r.design)
-COUNT_DESIGNS = [name for name in DESIGNED if prereg.load(recipes.RECIPES[name].design).analysis == "counts"]
+COUNT_DESIGNS = [
+    name for name in DESIGNED if catalogue.load(recipes.RECIPES[name].design).analysis == "counts"
+]
 TAKEOFF_DESIGNS = [
-    name for name in DESIGNED if prereg.load(recipes.RECIPES[name].design).analysis == "takeoff"
+    name for name in DESIGNED if catalogue.load(recipes.RECIPES[name].design).analysis == "takeoff"
 ]
 ZERO_SHOT_DESIGNS = [
-    name for name in DESIGNED if prereg.load(recipes.RECIPES[name].design).analysis == "zero_shot"
+    name for name in DESIGNED if catalogue.load(recipes.RECIPES[name].design).analysis == "zero_shot"
 ]
 LARGE_ARMS = 20
 """Count designs with more seeds an arm are tested in the slow suite only: Boschloo's p-value of each of the
@@ -90,7 +92,7 @@ LARGE_ARMS = 20
     "name",
     [
         pytest.param(name, marks=pytest.mark.slow)
-        if max(prereg.load(recipes.RECIPES[name].design).arm_seeds.values()) > LARGE_ARMS
+        if max(catalogue.load(recipes.RECIPES[name].design).arm_seeds.values()) > LARGE_ARMS
         else name
         for name in COUNT_DESIGNS
     ],
@@ -100,7 +102,7 @@ def test_the_committed_design_has_the_power_it_states(name, capsys, monkeypatch)
     command sums over the same tables again, twice)."""
     monkeypatch.setattr(stats, "p_value", functools.cache(stats.p_value))
     recipe = recipes.RECIPES[name]
-    design = prereg.load(recipe.design)
+    design = catalogue.load(recipe.design)
     scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
     assert scale.iterations == design.iterations and scale.runs_subdir == f"prereg-{design.name}"
 
@@ -117,7 +119,7 @@ def test_the_committed_design_has_the_power_it_states(name, capsys, monkeypatch)
 
 
 def test_the_takeoff_design_states_its_tests_budget_and_evaluations():
-    design = prereg.load("experts")
+    design = catalogue.load("experts")
     assert design.analysis == "takeoff" and design.test == prereg.TAKEOFF_TEST
     assert set(design.tests["primary"]) == {"takeoff", "goalcycle4"}
     assert set(design.tests["secondary"]) == {"solo3", "ct", "counts"}
@@ -135,7 +137,7 @@ def test_the_takeoff_design_states_its_tests_budget_and_evaluations():
 def test_the_takeoff_design_has_the_power_it_states(name, capsys):
     """The stored power re-simulated from the committed evidence with fewer simulated designs: within the
     two estimates' Monte Carlo error (4 standard errors)."""
-    design = prereg.load(recipes.RECIPES[name].design)
+    design = catalogue.load(recipes.RECIPES[name].design)
     planning = design.power_simulation["planning_discount"]
     reps = 300
     table = takeoff_power.power_table(
@@ -153,13 +155,13 @@ def test_the_takeoff_design_has_the_power_it_states(name, capsys):
 
 @pytest.mark.parametrize("name", ZERO_SHOT_DESIGNS)
 def test_the_zero_shot_design_has_the_power_it_states(name, capsys):
-    """Every stated power re-simulated exactly (`prereg.zero_shot_power`), and printed by `power`."""
-    design = prereg.load(recipes.RECIPES[name].design)
+    """Every stated power re-simulated exactly (`power.zero_shot_power`), and printed by `power`."""
+    design = catalogue.load(recipes.RECIPES[name].design)
     sim = design.power_simulation
     n = design.arm_seeds
     for case, stated in sim["power"].items():
         p_above = float(case.removeprefix("P "))
-        assert prereg.zero_shot_power(n["treatment"], n["control"], p_above, design.alpha) == stated
+        assert power.zero_shot_power(n["treatment"], n["control"], p_above, design.alpha) == stated
     assert design.power == sim["power"][f"P {sim['assumed_p_social_above_cloner']:g}"]
     cli.main(["power", name])
     assert f"power: {design.power:.3f}" in capsys.readouterr().out
@@ -168,7 +170,7 @@ def test_the_zero_shot_design_has_the_power_it_states(name, capsys):
 @pytest.mark.parametrize("name", DESIGNED)
 def test_a_design_fixes_its_seeds(name, tmp_path, capsys):
     recipe = recipes.RECIPES[name]
-    design = prereg.load(recipe.design)
+    design = catalogue.load(recipe.design)
     with pytest.raises(SystemExit):
         cli.main(["run", name, "--scale", design.scale, "--seeds", "3", "--dry-run"])
     assert f"fixes {design.seeds}" in capsys.readouterr().err
@@ -183,7 +185,7 @@ def test_a_design_fixes_its_seeds(name, tmp_path, capsys):
 
 
 def test_preregistered_block():
-    design = prereg.load("h1_prereg")
+    design = catalogue.load("h1_prereg")
     learned = {"social_pred": [True, True, False, True], "social_rec": [True, False, False, False]}
     learned |= {"solo_pred": [False] * 4, "social_none": [False, True, False, False]}
     head = commits.head_commit()
@@ -208,13 +210,13 @@ def test_preregistered_block():
     after = prereg.precedes(block["commit"], head)  # True once the design is committed
     assert checks["runs_not_after_design"] == ["a/s1"] if after else ["a/s0", "a/s1"]  # a/s1 has no commit
     assert not checks["design_precedes_every_run"] and checks["seeds_as_designed"]
-    said = prereg.verdict(block)
+    said = verdicts.verdict({"preregistered": block})
     assert f"treatment 4/8 learned, control 1/8, p = {round(p, 6):.4g}" in said
     assert "design_precedes_every_run: NO" in said and "a/s1" in said
 
 
 def test_design_seeds_that_do_not_count_are_named():
-    design = dataclasses.replace(prereg.load("h1_prereg"), seeds=2, training_commit="a" * 40)
+    design = dataclasses.replace(catalogue.load("h1_prereg"), seeds=2, training_commit="a" * 40)
     settings = {"env": "goalcycle3", "num_envs": 1024}
     good = {
         "config": {**settings, "iterations": design.iterations},
@@ -243,7 +245,7 @@ def test_design_seeds_that_do_not_count_are_named():
 def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monkeypatch):
     """A later value of one of the design's flags would override it, so the flags must end the process's."""
     wanted = f"{pinned.CROSS_CPU_XLA_FLAGS} --xla_cpu_max_isa=AVX2"  # two flags, as `run` appends them
-    design = dataclasses.replace(prereg.load("h1_prereg"), seeds=1, training_commit=None, xla_flags=wanted)
+    design = dataclasses.replace(catalogue.load("h1_prereg"), seeds=1, training_commit=None, xla_flags=wanted)
     good = {"config": {"iterations": design.iterations}, "rows": design.iterations, "commit": None}
     runs = {
         f"{pinned.SINGLE_CORE_XLA_FLAGS} {wanted}": [],
@@ -259,19 +261,20 @@ def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monk
         assert len(found) == len(problems) * len(conditions)
         assert all(want in got for want, got in zip(problems * len(conditions), found, strict=True))
     bad = tmp_path / "h1_bad.json"
-    bad.write_text(json.dumps({**logs.read_json(catalogue.path_of("h1_prereg")), "xla_flags": "--a=1 b=2"}))
+    raw = logs.read_json(catalogue.path_of("h1_prereg"))
+    bad.write_text(json.dumps(raw | {"name": "h1_bad", "xla_flags": "--a=1 b=2"}))
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     with pytest.raises(ValueError, match="design h1_bad's xla_flags: 'b=2' is not an XLA flag"):
-        prereg.load("h1_bad")
+        catalogue.load("h1_bad")
 
 
 def test_a_design_may_borrow_an_arm_of_a_finished_design(tmp_path, monkeypatch):
     """nopenalty8 trains only its treatment; its control is pred8's solo arm. A borrowed arm must be the
     same arm of another design, one arm at most, and an early stop needs the takeoff count."""
-    design = prereg.load("nopenalty8")
+    design = catalogue.load("nopenalty8")
     assert design.borrowed == {"control": "pred8"} and design.trained_conditions == ("solo_pred_nopenalty",)
     assert design.learned_by == "takeoff" and design.stop_at_return == 5.0
-    assert prereg.load("imperfect8").trained_conditions == ("social_pred_imperfect_half",)
+    assert catalogue.load("imperfect8").trained_conditions == ("social_pred_imperfect_half",)
     for name in ("pred8", "nopenalty8"):
         (tmp_path / f"{name}.json").write_text(catalogue.path_of(name).read_text())
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
@@ -286,12 +289,12 @@ def test_a_design_may_borrow_an_arm_of_a_finished_design(tmp_path, monkeypatch):
     for message, change in bad.items():
         (tmp_path / "bad.json").write_text(json.dumps({**base, "name": "bad", **change}))
         with pytest.raises(ValueError, match=message):
-            prereg.load("bad")
+            catalogue.load("bad")
 
 
 def test_a_seed_its_early_stop_ended_counts_as_finished():
     """A design with `stop_at_return` accepts a seed that stopped before its iterations, and no other."""
-    design = dataclasses.replace(prereg.load("nopenalty8"), seeds=1)
+    design = dataclasses.replace(catalogue.load("nopenalty8"), seeds=1)
     config_ = {"iterations": design.iterations, "stop_at_return": design.stop_at_return}
     stopped = {"config": config_, "rows": 20, "finished": True, "commit": None}
     settings = {"solo_pred_nopenalty": {}}
@@ -315,7 +318,7 @@ def test_designs_since_the_cross_cpu_flags_name_them():
     names = catalogue.design_names("training")
     assert before <= set(names)
     for name in names:
-        flags = prereg.load(name).xla_flags
+        flags = catalogue.load(name).xla_flags
         assert flags is None if name in before else flags == pinned.CROSS_CPU_XLA_FLAGS, name
 
 
@@ -323,7 +326,7 @@ def test_a_config_with_the_old_field_names_counts_as_the_design_expects():
     """A seed whose config.json was written before `ppo.chunk_length`, `ppo.minibatch_chunks` and
     `net.chunk` were renamed (committed records hold such files) compares equal to the design's expected
     config of today's names, and differs where the old-named values differ."""
-    design = dataclasses.replace(prereg.load("h1_prereg"), seeds=1, training_commit=None)
+    design = dataclasses.replace(catalogue.load("h1_prereg"), seeds=1, training_commit=None)
     scale = recipes.recipe_scale(recipes.RECIPES["h1_prereg"], recipes.SCALES[design.scale])
     expected, conditions = {}, {}
     for c in (*design.treatment, *design.control):
@@ -369,11 +372,11 @@ def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
     assert not block["checks"]["scale_as_designed"] and not block["checks"]["seeds_as_designed"]
     assert (
         not block["valid"]
-        and f"social_pred seed {prereg.load('h1_prereg').seed}: missing" in block["problems"]
+        and f"social_pred seed {catalogue.load('h1_prereg').seed}: missing" in block["problems"]
     )
     said = capsys.readouterr().out
-    assert said.endswith(prereg.verdict(block) + "\n") and said.rstrip().endswith(
-        "NOT VALID: the result above does not test the design (see the problems listed)"
+    assert said.endswith(verdicts.verdict({"preregistered": block}) + "\n") and said.rstrip().endswith(
+        "NOT VALID: the result above does not test the design (see its checks and problems)"
     )
 
 
@@ -383,7 +386,7 @@ def test_secondary_tests_count_each_arm_as_the_design_says():
     """imperfect8's secondary tests on pred8's social arm standing in for its own: the counts are pred8's
     (30 of 40 learned; no learner ended above its experts), so each arm equals the other."""
     runs = summaries.design_runs("pred8", str(paths.RECORDS))
-    design = dataclasses.replace(prereg.load("imperfect8"), treatment=("social_pred",), borrowed={})
+    design = dataclasses.replace(catalogue.load("imperfect8"), treatment=("social_pred",), borrowed={})
     tests = summaries.secondary_tests(design, runs)
     assert tests["fewer_than_good_experts"]["counts"] == [30, 40, 30, 40]
     assert tests["fewer_than_good_experts"]["p"] == 1.0 and not tests["fewer_than_good_experts"]["rejected"]
@@ -394,7 +397,7 @@ def test_secondary_tests_count_each_arm_as_the_design_says():
 def test_a_zero_shot_design_compares_the_borrowed_scores_with_its_own_seeds(tmp_path, monkeypatch):
     """imitation8's block from hand-written evaluations: the borrowed arm's from the evaluation design's
     file, the trained arm's from each seed's own; a protocol other than the design's fails its check."""
-    design = prereg.load("imitation8")
+    design = catalogue.load("imitation8")
     env = design.tests["primary"]["goalcycle4_8x8"]["env"]
 
     def result(scores, episodes=128):

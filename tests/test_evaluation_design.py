@@ -13,6 +13,7 @@ from scipy import stats as scipy_stats
 
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import evaluation_results as er
+from jaxsocial.experiments.analyse import power, verdicts
 from jaxsocial.experiments.launch import evaluation_play
 from jaxsocial.experiments.plan import catalogue, paths, prereg
 from jaxsocial.experiments.plan import evaluation_design as ed
@@ -45,7 +46,7 @@ def design_file(tmp_path, **changes) -> ed.EvaluationDesign:
         "rationale": "",
     } | changes
     (tmp_path / "tiny_transfer.json").write_text(json.dumps(raw))
-    return ed.load("tiny_transfer")
+    return catalogue.load("tiny_transfer")
 
 
 @pytest.fixture
@@ -64,7 +65,7 @@ def test_a_bad_design_fails_on_load_before_anything_plays(designs_dir):
     with pytest.raises(ValueError, match="two different arms"):
         design_file(designs_dir, control="social_rec")
     with pytest.raises(FileNotFoundError, match="no design .*the designs are"):
-        ed.load("no_such_design")
+        catalogue.load("no_such_design")
 
 
 def test_each_family_is_holm_corrected_on_its_own(designs_dir):
@@ -129,7 +130,7 @@ def test_a_summary_is_valid_only_when_played_as_designed_after_a_committed_desig
     assert summary["environments"][env]["experts"] == 0.9
     assert summary["environments"][env]["social_rec"]["final_returns"] == [0.5, 0.5]
     assert summary["environments"][env]["random"]["final_returns"] == [0.5]
-    assert "NOT VALID" in er.verdict(summary)
+    assert "NOT VALID" in verdicts.verdict(summary)
 
     first = ed.evaluations(design, tmp_path / "records")[0]
     fewer = fake_result(list(first.ckpts), [0.5, 0.5], design.episodes + 1, 0.9)  # other episodes
@@ -145,8 +146,10 @@ def test_a_summary_is_valid_only_when_played_as_designed_after_a_committed_desig
 
 def test_power_grows_with_the_effect_and_vanishes_without_one():
     rng = np.random.default_rng(0)
-    strong = (list(rng.normal(2.0, 1.0, 20)), list(rng.normal(0.0, 1.0, 20)))
-    table = er.power_table({"a": strong, "b": strong}, seeds=20, alpha=0.05, discounts=(1.0, 0.0), reps=200)
+    strong = {"treatment": list(rng.normal(2.0, 1.0, 20)), "control": list(rng.normal(0.0, 1.0, 20))}
+    table = power.power_table(
+        {"a": strong, "b": strong}, seeds=20, alpha=0.05, discounts=(1.0, 0.0), reps=200
+    )
     assert table["discount 1"]["a"] > 0.95 and table["discount 1"]["all"] > 0.9
     assert table["discount 0"]["a"] < 0.1  # no effect left: about alpha / 2 under Holm, or less
     assert table["discount 1"]["all"] <= min(table["discount 1"]["a"], table["discount 1"]["b"])
@@ -184,12 +187,14 @@ def test_run_refuses_a_design_whose_records_are_missing(designs_dir, tmp_path):
 
 @pytest.mark.parametrize("name", catalogue.design_names("evaluation"))
 def test_a_committed_design_names_its_material_and_its_pilot(name):
-    design = ed.load(name)
+    design = catalogue.load(name)
     if not (paths.RECORDS / design.records).is_dir():
         pytest.skip(f"needs the committed records {paths.RECORDS / design.records}")
     assert er.absent_records(design, paths.RECORDS) == []
     pilot = er.pilot_scores(design)
-    assert set(pilot) == set(design.primary) and all(len(t) and len(c) for t, c in pilot.values())
+    assert set(pilot) == set(design.primary) and all(
+        len(p["treatment"]) and len(p["control"]) for p in pilot.values()
+    )
 
 
 @pytest.mark.slow
@@ -197,10 +202,10 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
 @pytest.mark.parametrize("name", catalogue.design_names("evaluation"))
 def test_a_committed_design_has_the_power_it_states(name):
     """The whole power table, recomputed from the committed pilot with the design's seed of the simulation."""
-    design = ed.load(name)
+    design = catalogue.load(name)
     if not Path(design.power_simulation["pilot"]).is_dir():
         pytest.skip(f"needs the committed pilot {design.power_simulation['pilot']}")
-    table = er.stated_power(design)
+    table = power.stated_power(design)
     assert table == design.power_simulation["power"]
     assert design.power == table[f"discount {design.power_simulation['planning_discount']:g}"]["any"]
 

@@ -11,7 +11,7 @@ import matplotlib
 import numpy as np
 import pytest
 
-from jaxsocial.experiments.analyse import branch_results
+from jaxsocial.experiments.analyse import verdicts
 
 REPO = Path(__file__).parent.parent
 NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
@@ -85,7 +85,7 @@ def test_social_learning_notebook_shows_committed_results_without_training(
             printed
         )
     mixing = json.loads((REPO / "benchmarks/results/science/mixing.json").read_text())
-    assert ns["committed"]["mixing"] == mixing and branch_results.verdict(mixing) in printed
+    assert ns["committed"]["mixing"] == mixing and verdicts.verdict(mixing) in printed
     assert f"No committed learner at {tmp_path / 'no-record'}" in printed and ns["record_episode"] is None
     hint = "run predictions --scale laptop --seeds 2 --cores 0 1"  # the scale where learners learn
     assert "No laptop-scale runs under" in printed and hint in printed

@@ -11,9 +11,9 @@ import re
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments.analyse import records, rundirs, summaries
+from jaxsocial.experiments.analyse import records, rundirs, summaries, verdicts
 from jaxsocial.experiments.launch import pinned, runner, slurm, verify
-from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
+from jaxsocial.experiments.plan import catalogue, paths, recipes
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -34,10 +34,10 @@ def make_parser() -> argparse.ArgumentParser:
         options[name](_recipe_parser(sub, name, help_))
     for name, (_, help_) in DELEGATED.items():
         sub.add_parser(name, help=help_ + f" (python -m jaxsocial.experiments {name} --help)", add_help=False)
-    power = "a pre-registered design and its power"
+    power = "a pre-registered design of any kind: its tests and its power"
     p = sub.add_parser("power", help=power, description=power)
     p.add_argument(
-        "recipe",
+        "design",
         choices=catalogue.design_names(),
         metavar="DESIGN",
         help=f"designs of every kind: {catalogue.design_names()}",
@@ -195,7 +195,7 @@ def _verify_parser(sub) -> None:
 def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Fill --seed and --seeds: the defaults, or a design's own (which may not be changed at its scale)."""
     recipe = recipes.RECIPES[args.recipe]
-    design = prereg.load(recipe.design) if recipe.design else None
+    design = catalogue.load(recipe.design) if recipe.design else None
     if design is not None and design.scale == args.scale:
         given = {"--seed": (args.seed, design.seed), "--seeds": (args.seeds, design.seeds)}
         for flag, (value, designed) in given.items():
@@ -260,7 +260,7 @@ def record_plan(
     run's provenance and why its final checkpoint goes in (None: it does not); each other seed is skipped
     with a note. ValueError for a run that failed or whose diff is missing or altered."""
     commands = records.read_commands_log(args.commands_log) if args.commands_log else None
-    threshold = prereg.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
+    threshold = catalogue.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
     plan = []
     for condition in recipe.conditions:
         for seed_dir in rundirs.condition_seed_dirs(
@@ -359,8 +359,8 @@ def kind_command(argv: list[str]):
     """The `main` that acts on the design `VERB NAME ...` names, where it is of a kind with verbs of its own
     (`catalogue.VERBS`; None otherwise), imported only then; SystemExit where VERB is not one of them."""
     verbs = {verb for kind_verbs in catalogue.VERBS.values() for verb in kind_verbs}
-    if len(argv) < 2 or argv[0] not in verbs or argv[1] not in catalogue.design_names():
-        return None
+    if len(argv) < 2 or argv[0] not in verbs - {"power"} or argv[1] not in catalogue.design_names():
+        return None  # `power` is every kind's, in one place
     kind = catalogue.design_kind(argv[1])
     if kind not in catalogue.VERBS:
         return None
@@ -388,13 +388,10 @@ def main(argv: list[str] | None = None) -> None:
     if args.command == "verify":
         run_verify(args)
         return
-    recipe = recipes.RECIPES[args.recipe]
     if args.command == "power":
-        design = prereg.load(recipe.design)
-        scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
-        cfg = recipes.condition_config(scale, recipe.conditions[0], design.seed, design.seeds, "runs")
-        print(prereg.describe(design, scale.iterations * cfg.num_envs * cfg.rollout_steps))
+        print(catalogue.load(args.design).describe())
         return
+    recipe = recipes.RECIPES[args.recipe]
     scale = recipes.recipe_scale(recipe, recipes.SCALES[args.scale])
     try:
         if args.command == "run":
@@ -459,7 +456,7 @@ def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
             "\n".join(f"  {line}" for line in summaries.against_committed(summary, logs.read_json(committed)))
         )
     if recipe.design is not None:
-        print(prereg.verdict(summary["preregistered"]))
+        print(verdicts.verdict(summary))
 
 
 if __name__ == "__main__":

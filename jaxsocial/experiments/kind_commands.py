@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments.analyse import branch_results, evaluation_results
+from jaxsocial.experiments.analyse import branch_results, evaluation_results, verdicts
 from jaxsocial.experiments.launch import branch_runs, evaluation_play, pinned, slurm
 from jaxsocial.experiments.plan import branch_design, catalogue, evaluation_design, paths
 from jaxsocial.run import logs
@@ -26,32 +26,35 @@ def design_parser(verbs: tuple[str, ...], module) -> argparse.ArgumentParser:
     return parser
 
 
-def write_figure(summary: dict[str, Any], science: Path, draw: Callable, verdict: Callable) -> None:
+def _own_verbs(kind: str) -> tuple[str, ...]:
+    """The verbs of `kind` this module acts on: all but `power`, which `__main__` answers for every kind."""
+    return tuple(v for v in catalogue.VERBS[kind] if v != "power")
+
+
+def write_figure(summary: dict[str, Any], science: Path, draw: Callable) -> None:
     """`figure`: the summary `<science>/<design>.json`, its figure beside it, and the verdict printed."""
     stem = science / summary["design"]
     science.mkdir(parents=True, exist_ok=True)
     logs.write_json(stem.with_suffix(".json"), summary)
     draw(summary, stem.with_suffix(".png"))
-    print(verdict(summary))
+    print(verdicts.verdict(summary))
     print(f"wrote {stem}.json and .png")
 
 
 def evaluation_main(argv: list[str]) -> None:
     """`VERB NAME [options]` for the evaluation design NAME."""
-    args = paths.parse_command(lambda: design_parser(catalogue.VERBS["evaluation"], evaluation_design), argv)
-    design = evaluation_design.load(args.design)
+    args = paths.parse_command(lambda: design_parser(_own_verbs("evaluation"), evaluation_design), argv)
+    design = catalogue.load(args.design)
     records_root, science = Path(args.records), Path(args.science)
-    if args.action == "power":
-        print(evaluation_design.describe(design))
-    elif args.action == "run":
+    if args.action == "run":
         evaluation_play.run(design, records_root, science)
     else:
         summary = evaluation_results.summarise(design, records_root, science)
-        write_figure(summary, science, evaluation_results.draw, evaluation_results.verdict)
+        write_figure(summary, science, evaluation_results.draw)
 
 
 def branch_parser() -> argparse.ArgumentParser:
-    parser = design_parser(catalogue.VERBS["branch"], branch_design)
+    parser = design_parser(_own_verbs("branch"), branch_design)
     parser.add_argument("--runs-dir", default=str(paths.EXPERIMENT_RUNS), help="root of the run directories")
     parser.add_argument(
         "--cores", type=int, nargs="+", default=None, help="one training process a core (default: 0)"
@@ -75,11 +78,9 @@ def branch_main(argv: list[str]) -> None:
     """`VERB NAME [options]` for the branch design NAME."""
     args = paths.parse_command(branch_parser, argv)
     try:
-        design = branch_design.load(args.design)
+        design = catalogue.load(args.design)
         records_root, runs_root, science = Path(args.records), Path(args.runs_dir), Path(args.science)
-        if args.action == "power":
-            print(branch_design.describe(design))
-        elif args.action == "run":
+        if args.action == "run":
             launcher = slurm.chosen(args, default_cores=(0,))
             codes = branch_runs.run(design, runs_root, launcher, records_root, args.dry_run, args.max_runs)
             raise SystemExit(max((rc for rc in codes if rc is not None), default=0))
@@ -94,6 +95,6 @@ def branch_main(argv: list[str]) -> None:
                 )
                 return
             summary = branch_results.summarise(design, records_root)
-            write_figure(summary, science, branch_results.draw, branch_results.verdict)
+            write_figure(summary, science, branch_results.draw)
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments.analyse import kinds, plot_figures, records
+from jaxsocial.experiments.analyse import kinds, plot_figures, records, verdicts
 from jaxsocial.experiments.plan import catalogue, prereg
 from jaxsocial.experiments.plan.branch_design import START, BranchDesign, start_row
 from jaxsocial.experiments.plan.catalogue import Test
@@ -26,7 +26,7 @@ def final_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str
     out: dict[str, dict[str, list]] = {arm: {env: [] for env in design.eval_envs} for arm in design.arms}
     keys = {env: metrics.eval_key(str(EnvSpec.parse(env))) for env in design.eval_envs}  # as `train` logs
     for arm in design.arms:
-        for seed in design.source_seeds():
+        for seed in design.seed_range:
             record_dir = records_root / design.run_name(arm, seed)
             rows = logs.read_metrics(record_dir) if logs.has_metrics(record_dir) else None
             for env in design.eval_envs:
@@ -41,7 +41,7 @@ def start_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str
     the design that made the records did not evaluate them there."""
     out = {}
     for source in design.sources():
-        started = [design.record_of(source, seed, records_root) for seed in design.source_seeds()]
+        started = [design.record_of(source, seed, records_root) for seed in design.seed_range]
         out[start_row(source)] = {
             env: [
                 round(kinds.RETURNS.score(logs.read_json(path)), 4) if path.is_file() else None
@@ -82,7 +82,7 @@ def as_designed(design: BranchDesign, records_root: Path) -> dict[str, Any]:
     """Which recorded branches differ from the design (iterations, seed, environment, source) and whether
     every branch is recorded."""
     differing, recorded = [], 0
-    for seed in design.source_seeds():
+    for seed in design.seed_range:
         for arm in design.arms:
             record_dir = records_root / design.run_name(arm, seed)
             if not (record_dir / logs.CONFIG_FILE).is_file():
@@ -117,7 +117,7 @@ def summarise(design: BranchDesign, records_root: Path) -> dict[str, Any]:
         }
         for env in design.eval_envs
     }
-    recorded = [records_root / design.run_name(a, s) for a in design.arms for s in design.source_seeds()]
+    recorded = [records_root / design.run_name(a, s) for a in design.arms for s in design.seed_range]
     provenance = {
         str(d.relative_to(records_root)): logs.read_json(d / records.PROVENANCE_FILE)
         for d in recorded
@@ -186,52 +186,13 @@ def amended(
     }
 
 
-def families(block: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
-    """The tested families of a summary's `preregistered` block: primary, secondary and any amendment's."""
-    out = [("primary", block["primary"]), ("secondary", block["secondary"])]
-    return out + ([("amendment", block["amendment"]["tests"])] if "amendment" in block else [])
-
-
-def family_lines(family: str, entries: dict[str, Any], environments: dict[str, Any]) -> list[str]:
-    """One line a test of a tested family: its rows' means, p-values and whether it is rejected."""
-    lines = []
-    for name, entry in entries.items():
-        rows = environments[entry["env"]]
-        means = ", ".join(f"{a} {rows[a]['mean']}" for a in entry["arms"])
-        p = "no data" if entry["p"] is None else f"p = {entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
-        rejected = ", rejected" if entry["rejected"] else ""
-        lines.append(f"  {family} {name} ({entry['test']}, {entry['env']}): mean {means}; {p}{rejected}")
-    return lines
-
-
-def check_lines(checks: dict[str, Any], indent: str = "  ") -> list[str]:
-    """One line a check: yes or NO, or its count."""
-    return [f"{indent}{k}: {('yes' if v else 'NO') if isinstance(v, bool) else v}" for k, v in checks.items()]
-
-
-def verdict(summary: dict[str, Any]) -> str:
-    """The summary's tests and checks, for people."""
-    block, environments = summary["preregistered"], summary["environments"]
-    lines = [f"{summary['design']}: {summary['recorded']} branches recorded; alpha {block['alpha']:g}, Holm"]
-    lines += family_lines("primary", block["primary"], environments)
-    lines += family_lines("secondary", block["secondary"], environments)
-    lines += check_lines({k: v for k, v in block["checks"].items() if isinstance(v, bool)})
-    if not block["valid"]:
-        lines.append("NOT VALID: the result above does not test the design (see the checks)")
-    if "amendment" in block:
-        added = block["amendment"]
-        lines.append(f"amendment, {added['added']} (Holm among its tests at {added['alpha']:g}):")
-        lines += family_lines("amendment", added["tests"], environments) + check_lines(added["checks"])
-        if not added["valid"]:
-            lines.append("NOT VALID: the amendment's tests do not test it (see its checks)")
-    return "\n".join(lines)
-
-
 def draw(summary: dict[str, Any], path: Path) -> None:
     """One panel per evaluation environment: each arm's mean (and each source's where it started, if
     scored there) with its 95% interval over seeds and a cross per seed; titled with the tests there."""
     plt = plot_figures.pyplot()
     per_env, block = summary["environments"], summary["preregistered"]
+    families = verdicts.tested_families(block)
+    families += [("amendment", block["amendment"]["tests"])] if "amendment" in block else []
     fig, axes = plt.subplots(1, len(per_env), figsize=(4.0 * len(per_env), 3.8), squeeze=False)
     for ax, (env, rows) in zip(axes[0], per_env.items(), strict=True):
         colours = {arm: f"C{j}" for j, arm in enumerate(rows)}  # one colour a row in every panel
@@ -244,7 +205,7 @@ def draw(summary: dict[str, Any], path: Path) -> None:
             ax.scatter([j] * len(values), values, color="k", marker="x", s=8, zorder=3)
         tests = [
             f"{name}: Holm p = {e['p_holm']:.3g}" if e["p"] is not None else f"{name}: no data"
-            for _, entries in families(block)
+            for _, entries in families
             for name, e in entries.items()
             if e["env"] == env
         ]
@@ -290,64 +251,3 @@ def pilot_scores(
             continue
         out[name] = {"differences": [t - c for t, c in zip(treatment, control, strict=True)]}
     return out
-
-
-def power_table(
-    pilot: dict[str, dict[str, list[float]]],
-    seeds: int,
-    alpha: float,
-    discounts: tuple[float, ...],
-    reps: int,
-    rng_seed: int = 0,
-) -> dict[str, dict[str, float]]:
-    """The power of a family of one-sided tests (`pilot_scores`: each effect oriented positive),
-    Holm-corrected at `alpha`, with `seeds` source seeds. A paired test (`differences`) is Wilcoxon's on
-    `seeds` differences, each with probability d (the discount) a pilot difference, else one of the pilot's
-    magnitudes with a random sign (no effect); an unpaired one is Mann-Whitney's on `seeds` scores an arm,
-    a treatment score with probability d a pilot treatment score, else a control one. Returns per discount
-    each test's probability of rejection, and that of rejecting all and any of them."""
-    from scipy import stats as scipy_stats
-
-    rng = np.random.default_rng(rng_seed)
-    names = list(pilot)
-    table = {}
-    for d in discounts:
-        rejected = np.zeros((reps, len(names)), bool)
-        for r in range(reps):
-            p = []
-            for name in names:
-                evidence = {k: np.asarray(v, np.float64) for k, v in pilot[name].items()}
-                keep = rng.random(seeds) < d
-                if "differences" in evidence:
-                    diff = rng.choice(evidence["differences"], seeds)
-                    diff = np.where(keep, diff, np.abs(diff) * rng.choice([-1.0, 1.0], seeds))
-                    stat = scipy_stats.wilcoxon(diff, alternative="greater") if np.any(diff) else None
-                    p.append(1.0 if stat is None else stat.pvalue)
-                else:
-                    t, c = evidence["treatment"], evidence["control"]
-                    drawn = np.where(keep, rng.choice(t, seeds), rng.choice(c, seeds))
-                    p.append(
-                        scipy_stats.mannwhitneyu(drawn, rng.choice(c, seeds), alternative="greater").pvalue
-                    )
-            rejected[r] = stats.holm_rejects(np.array(p), alpha)
-        row = {n: round(float(rejected[:, i].mean()), 3) for i, n in enumerate(names)}
-        table[f"discount {d:g}"] = row | {
-            "all": round(float(rejected.all(axis=1).mean()), 3),
-            "any": round(float(rejected.any(axis=1).mean()), 3),
-        }
-    return table
-
-
-def stated_power(design: BranchDesign) -> dict[str, dict[str, float]]:
-    """The design's power table, recomputed from its pilot as its `power_simulation` says."""
-    sim = design.power_simulation
-    pilot = pilot_scores(design, design.primary, sim)
-    return power_table(pilot, design.seeds, design.alpha, tuple(sim["discounts"]), sim["reps"])
-
-
-def amendment_power(design: BranchDesign) -> dict[str, dict[str, float]]:
-    """The amendment's power table, recomputed from its pilot as its `power_simulation` says."""
-    added = design.amendment
-    sim = added.power_simulation
-    pilot = pilot_scores(design, added.tests, sim)
-    return power_table(pilot, design.seeds, added.alpha, tuple(sim["discounts"]), sim["reps"])

@@ -120,27 +120,6 @@ def summarise(design: EvaluationDesign, records_root: Path, science: Path) -> di
     }
 
 
-def verdict(summary: dict[str, Any]) -> str:
-    """The summary's tests and checks, for people."""
-    block, arms = summary["preregistered"], (summary["material"]["treatment"], summary["material"]["control"])
-    lines = [
-        f"{summary['design']}: {arms[0]} against {arms[1]}, alpha {block['alpha']:g}, Holm in each family"
-    ]
-    for family in ("primary", "secondary"):
-        for name, entry in block[family].items():
-            rows = summary["environments"][entry["env"]]
-            means = ", ".join(f"{a} {'-' if rows[a] is None else rows[a]['mean']}" for a in arms)
-            p = "not played" if entry["p"] is None else f"p = {entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
-            rejected = ", rejected" if entry["rejected"] else ""
-            lines.append(f"  {family} {name} ({entry['env']}): mean {means}; {p}{rejected}")
-    lines += [
-        f"  {name}: {'yes' if ok else 'NO'}" for name, ok in block["checks"].items() if isinstance(ok, bool)
-    ]
-    if not block["valid"]:
-        lines.append("NOT VALID: the result above does not test the design (see the checks)")
-    return "\n".join(lines)
-
-
 def draw(summary: dict[str, Any], path: Path) -> None:
     """One panel per environment, four to a row: a bar per arm and reference (mean, t 95% interval over
     policies), a cross per policy, and the environment's experts as a dashed line; each panel titled with its
@@ -181,45 +160,8 @@ def draw(summary: dict[str, Any], path: Path) -> None:
     plot_figures.save_png(fig, path)
 
 
-def power_table(
-    pilot: dict[str, tuple[list[float], list[float]]],
-    seeds: int,
-    alpha: float,
-    discounts: tuple[float, ...] = (1.0, 0.75, 0.5),
-    reps: int = 2000,
-    rng_seed: int = 0,
-) -> dict[str, dict[str, float]]:
-    """The power of one-sided Mann-Whitney U tests (treatment greater), Holm-corrected at `alpha` as one
-    family, with `seeds` policies an arm. pilot: per primary test, (treatment, control) per-seed scores.
-
-    A simulated control seed is a pilot control seed drawn with replacement; a simulated treatment seed is,
-    with probability d (the discount), a pilot treatment seed, else a pilot control seed: the effect diluted
-    to a fraction d of the pilot's (P(treatment > control) - 1/2 scales with d) while every score stays one
-    a pilot seed had. Returns per discount each test's probability of rejection, and that of rejecting all
-    of them and any of them."""
-    from scipy import stats as scipy_stats
-
-    rng = np.random.default_rng(rng_seed)
-    names = list(pilot)
-    arrays = [(np.asarray(pilot[n][0], np.float64), np.asarray(pilot[n][1], np.float64)) for n in names]
-    table = {}
-    for d in discounts:
-        rejected = np.zeros((reps, len(names)), bool)
-        for r in range(reps):
-            p = []
-            for t_scores, c_scores in arrays:
-                t = np.where(rng.random(seeds) < d, rng.choice(t_scores, seeds), rng.choice(c_scores, seeds))
-                c = rng.choice(c_scores, seeds)
-                p.append(scipy_stats.mannwhitneyu(t, c, alternative="greater").pvalue)
-            rejected[r] = stats.holm_rejects(np.array(p), alpha)
-        table[f"discount {d:g}"] = {n: round(float(rejected[:, i].mean()), 3) for i, n in enumerate(names)}
-        table[f"discount {d:g}"]["all"] = round(float(rejected.all(axis=1).mean()), 3)
-        table[f"discount {d:g}"]["any"] = round(float(rejected.any(axis=1).mean()), 3)
-    return table
-
-
-def pilot_scores(design: EvaluationDesign) -> dict[str, tuple[list[float], list[float]]]:
-    """Per primary test, the pilot's (treatment, control) per-seed scores in its environment, each arm
+def pilot_scores(design: EvaluationDesign) -> dict[str, dict[str, list[float]]]:
+    """Per primary test, the pilot's `treatment` and `control` per-seed scores in its environment, each arm
     weighted to the material's known fraction of seeds past the one-tile plateau.
 
     The pilot (`power_simulation['pilot']`, a folder of `<env tag>-<condition>.json` evaluations of other
@@ -251,7 +193,7 @@ def pilot_scores(design: EvaluationDesign) -> dict[str, tuple[list[float], list[
                 plateau = plateau_of_both
             rate = sim["material_took_off"][arm]
             pools.append(weighted_pool([(lifted, rate), (plateau, 1.0 - rate)]))
-        out[name] = (pools[0], pools[1])
+        out[name] = {"treatment": pools[0], "control": pools[1]}
     return out
 
 
@@ -262,9 +204,3 @@ def weighted_pool(groups: list[tuple[np.ndarray, float]]) -> list[float]:
     kept = [(np.asarray(v), round(w * 1000)) for v, w in groups if len(v) and round(w * 1000)]
     size = int(np.prod([len(v) for v, _ in kept]))  # each group's share, as whole repeats
     return [float(x) for v, w in kept for x in np.repeat(v, w * size // len(v))]
-
-
-def stated_power(design: EvaluationDesign) -> dict[str, dict[str, float]]:
-    """The design's power table, recomputed from its pilot as its `power_simulation` says."""
-    sim = design.power_simulation
-    return power_table(pilot_scores(design), design.seeds, design.alpha, tuple(sim["discounts"]), sim["reps"])

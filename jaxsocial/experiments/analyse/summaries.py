@@ -159,15 +159,15 @@ def design_recipe(name: str) -> Recipe:
     return next(r for r in recipes.RECIPES.values() if r.design == name)
 
 
-def lenders(recipe: Recipe, scale: Scale) -> dict[str, prereg.Design]:
+def lenders(recipe: Recipe, scale: Scale) -> dict[str, prereg.TrainingDesign]:
     """The conditions the recipe's design borrows at its own scale, each with the design it borrows from
     ({} for a recipe without a design or at another scale)."""
     if recipe.design is None:
         return {}
-    design = prereg.load(recipe.design)
+    design = catalogue.load(recipe.design)
     if design.scale != scale.name:
         return {}
-    return {c: prereg.load(name) for arm, name in design.borrowed.items() for c in getattr(design, arm)}
+    return {c: catalogue.load(name) for arm, name in design.borrowed.items() for c in getattr(design, arm)}
 
 
 def outcome_lines(summary: dict[str, Any]) -> list[str]:
@@ -188,7 +188,7 @@ def outcome_lines(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
-def design_problems(runs: RecipeRuns, design: prereg.Design) -> list[str]:
+def design_problems(runs: RecipeRuns, design: prereg.TrainingDesign) -> list[str]:
     """`prereg.seed_problems` of the design's seeds as `runs` found them (seeds read where they are)."""
     fields = {f.name for kind in (config.RunConfig, config.ProgramConfig) for f in dataclasses.fields(kind)}
     fields -= {"seed", "seeds", "seed_batching"}
@@ -233,7 +233,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         "cpu_minutes": None if None in minutes else round(sum(minutes), 1),
     }
     if runs.recipe.design is not None:
-        design = prereg.load(runs.recipe.design)
+        design = catalogue.load(runs.recipe.design)
         learned = learned_flags(design, runs)
         if design.analysis == "takeoff":
             out["preregistered"] = prereg.preregistered_takeoff(design, out, runs.commits())
@@ -258,7 +258,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     return out
 
 
-def learned_flags(design: prereg.Design, runs: RecipeRuns) -> dict[str, list[bool]]:
+def learned_flags(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, list[bool]]:
     """Per condition of `runs`, each seed's learned flag as the design counts it (`Design.learned_by`): its
     final return above the threshold, or its takeoff (`takeoff.seed_takeoff` at the threshold) within the
     design's iterations."""
@@ -275,7 +275,7 @@ def learned_flags(design: prereg.Design, runs: RecipeRuns) -> dict[str, list[boo
 
 def design_runs(name: str, runs_dir: str) -> RecipeRuns:
     """The runs of design `name` at its own scale and seeds, under `runs_dir`."""
-    design, recipe = prereg.load(name), design_recipe(name)
+    design, recipe = catalogue.load(name), design_recipe(name)
     scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
     return RecipeRuns(recipe, scale, design.seed, design.seeds, runs_dir)
 
@@ -286,7 +286,7 @@ def lent_problems(runs: RecipeRuns) -> list[str]:
     out = []
     for name in sorted({lender.name for lender in runs.lenders.values()}):
         lent = design_runs(name, runs.runs_dir)
-        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, prereg.load(name))]
+        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, catalogue.load(name))]
     return out
 
 
@@ -302,7 +302,7 @@ def above_experts(runs: RecipeRuns, condition: str) -> list[bool]:
 
 
 def seed_measure(
-    design: prereg.Design, runs: RecipeRuns, conditions: tuple[str, ...], name: str
+    design: prereg.TrainingDesign, runs: RecipeRuns, conditions: tuple[str, ...], name: str
 ) -> list[bool]:
     """The pooled per-seed flags of `conditions` for a secondary test's measure: 'learned' (as `design`
     counts it) or 'above_experts'."""
@@ -312,7 +312,7 @@ def seed_measure(
     return [flag for c in conditions for flag in flags[c]]
 
 
-def secondary_tests(design: prereg.Design, runs: RecipeRuns) -> dict[str, dict[str, Any]]:
+def secondary_tests(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, dict[str, Any]]:
     """A counts design's secondary tests (`Design.secondary`): per test, the counts of this design's arm and
     of the other design's arm (read from its records under the same runs folder), Boschloo's p-value with
     the stated alternative, Holm-corrected among themselves at the design's alpha."""
@@ -321,7 +321,10 @@ def secondary_tests(design: prereg.Design, runs: RecipeRuns) -> dict[str, dict[s
         own = seed_measure(design, runs, getattr(design, test["arm"]), test["measure"])
         other, _, other_arm = test["against"].partition(":")
         theirs = seed_measure(
-            design, design_runs(other, runs.runs_dir), getattr(prereg.load(other), other_arm), test["measure"]
+            design,
+            design_runs(other, runs.runs_dir),
+            getattr(catalogue.load(other), other_arm),
+            test["measure"],
         )
         counts = [sum(own), len(own), sum(theirs), len(theirs)]
         p = stats.boschloo(*counts, test["alternative"]) if own and theirs else None
@@ -334,7 +337,7 @@ def secondary_tests(design: prereg.Design, runs: RecipeRuns) -> dict[str, dict[s
     return prereg.holm_family(entries, design.alpha)
 
 
-def preregistered_zero_shot(design: prereg.Design, runs: RecipeRuns) -> dict[str, Any]:
+def preregistered_zero_shot(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, Any]:
     """A 'zero_shot' design's `preregistered` block: its primary environment's per-seed scores (mean learner
     return per episode), the borrowed arm's from the evaluation design `tests['borrowed_scores']`
     (`<science>/<design>/<env tag>-<condition>.json`), the trained arm's from each seed's own evaluation;
@@ -381,7 +384,7 @@ def incomplete_design(runs: RecipeRuns) -> str | None:
     otherwise (no design, another scale, or every seed finished)."""
     if runs.recipe.design is None:
         return None
-    design = prereg.load(runs.recipe.design)
+    design = catalogue.load(runs.recipe.design)
     if runs.scale.name != design.scale:
         return None
     arms = design.trained_conditions

@@ -1,4 +1,4 @@
-"""The power of a time-to-takeoff design (`prereg.Design` with analysis 'takeoff'), by simulation from the
+"""The power of a time-to-takeoff design (a `TrainingDesign` with analysis 'takeoff'), by simulation from the
 committed laptop seeds of the same learner.
 
 Evidence: every seed of the earlier pre-registered laptop designs (`EVIDENCE_DESIGNS`) in the design's two

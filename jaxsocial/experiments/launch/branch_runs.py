@@ -46,7 +46,7 @@ def branch_config(
 
 def missing_sources(design: BranchDesign, records_root: Path) -> list[str]:
     """The design's source records that hold no final policy."""
-    wanted = {design.source_dir(a, s, records_root) for a in design.arms for s in design.source_seeds()}
+    wanted = {design.source_dir(a, s, records_root) for a in design.arms for s in design.seed_range}
     return sorted(str(d) for d in wanted if not (d / "policy").is_dir())
 
 
@@ -67,7 +67,7 @@ def run(
     if missing:
         raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
     jobs, counts = [], dict.fromkeys((rundirs.FINISHED, rundirs.PARTIAL, rundirs.MISSING), 0)
-    for seed in design.source_seeds():
+    for seed in design.seed_range:
         for arm in design.arms:
             cfg = branch_config(design, arm, seed, runs_root, records_root)
             run_dir = runs_root / cfg.run_name
@@ -96,7 +96,7 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
     """Pack every finished branch under `runs_root` that has no record yet into the records root, with its
     process's provenance (the machine it measured); every one is checked before the first is written."""
     packing, not_started = [], 0
-    for seed in design.source_seeds():
+    for seed in design.seed_range:
         for arm in design.arms:
             name = design.run_name(arm, seed)
             run_dir, target = runs_root / name, records_root / name

@@ -38,7 +38,7 @@ bit for bit without it (measured on an Intel Xeon family 6 model 167)."""
 CROSS_CPU_XLA_FLAGS = "--xla_cpu_enable_platform_dependent_math=false"
 """XLA's CPU numerics without its "platform dependent math", whose approximate reciprocal square root (in
 the orthogonal initialiser) AMD and Intel CPUs round differently. Pre-registered designs since 2026-11-28
-train with it (`prereg.Design.xla_flags`), at no speed cost. It does not make every CPU kind agree: after the
+train with it (`TrainingDesign.xla_flags`), at no speed cost. It does not make every CPU kind agree: after the
 single-core flags, the committed operation fingerprints show `CROSS_CPU_KINDS` agreeing and no other kind
 measured under it agreeing with them (an AVX2 kind differs in Eigen's transposed products and the orthogonal
 initialiser); `cpu_kinds` reads the files, `verify` predicts from them (docs/experiments.md, "Does the

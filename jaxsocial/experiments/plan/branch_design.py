@@ -66,30 +66,23 @@ class Amendment:
     rationale: str
 
 
-@dataclasses.dataclass(frozen=True)
-class BranchDesign:
-    """See the module docstring."""
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class BranchDesign(catalogue.Design):
+    """See the module docstring; `seed` and `seeds` are the source records', every arm's source's."""
 
-    name: str
+    KIND = "branch"
     records: str
     """The material: a folder of the records root holding `<condition>-s<k>-<k>` records."""
     out: str
     """The design's folder under the runs root and the records root."""
-    seed: int
-    seeds: int
-    """Every source seed seed..seed+seeds-1 of every arm's source, none left out."""
     branch_seed: int
     iterations: int
     arms: dict[str, Arm]
     eval_envs: tuple[str, ...]
     episodes: int
-    alpha: float
     primary: dict[str, Test]
     secondary: dict[str, Test]
     xla_flags: str
-    power: float
-    power_simulation: dict[str, Any]
-    rationale: str
     amendment: Amendment | None = None
 
     @property
@@ -104,9 +97,6 @@ class BranchDesign:
     def control_row(self, test: Test) -> str:
         """The name of `test`'s control among the scores: an arm, or the treatment's `start_row`."""
         return start_row(self.arms[test.treatment].source) if test.control == START else test.control
-
-    def source_seeds(self) -> range:
-        return range(self.seed, self.seed + self.seeds)
 
     def source_dir(self, arm: str, seed: int, records_root: Path) -> Path:
         """The record run `seed` of `arm` starts from."""
@@ -124,81 +114,70 @@ class BranchDesign:
         """The run name of `arm`'s branch of source seed `seed` (under a runs root or a records root)."""
         return f"{self.out}/{arm}-s{seed}"
 
+    def describe_test(self, name: str, test: Test) -> str:
+        """One test of the design, for people."""
+        control = f"where each {test.treatment} branch started" if test.control == START else test.control
+        kind = "Wilcoxon, paired" if self.paired(test) else "Mann-Whitney"
+        return f"    {name}: {test.treatment} against {control} in {test.env}, {kind}, {test.alternative}"
+
+    def describe(self) -> str:
+        sim = self.power_simulation
+        lines = [
+            f"{self.name}: from the records {self.records}, seeds {self.seed}..{self.last_seed}, "
+            f"{self.iterations} iterations an arm, branch seeds from {self.branch_seed}, "
+            f"$XLA_FLAGS {self.xla_flags!r}",
+            *(f"  arm {n}: from {a.source} in {a.env}" for n, a in self.arms.items()),
+            f"  evaluated at the end in {', '.join(self.eval_envs)}, {self.episodes} episodes each",
+        ]
+        for family, tests in (("primary", self.primary), ("secondary", self.secondary)):
+            lines.append(f"  {family} (Holm at {self.alpha:g}):")
+            lines += [self.describe_test(n, t) for n, t in tests.items()]
+        lines.append(f"  power by simulation ({sim['reps']} simulated designs a discount):")
+        lines += catalogue.power_lines(sim["power"], "    ")
+        lines.append(
+            f"  power: {self.power:.3f} ({sim['planning_test']}, discount {sim['planning_discount']:g})"
+        )
+        if self.amendment:
+            added = self.amendment
+            lines.append(f"  amendment, {added.added} (Holm among its tests at {added.alpha:g}):")
+            lines += [self.describe_test(n, t) for n, t in added.tests.items()]
+            lines += catalogue.power_lines(added.power_simulation["power"], "    power, ")
+        return "\n".join(lines)
+
+    @classmethod
+    def checked(cls, raw: dict[str, Any]) -> BranchDesign:
+        """A branch design from its file's fields, with its amendment if it has one (`catalogue.load`;
+        ValueError if it is invalid)."""
+        raw["arms"] = {k: Arm(**v) for k, v in raw["arms"].items()}
+        for family in ("primary", "secondary"):
+            raw[family] = {k: Test(**v) for k, v in raw[family].items()}
+        raw["eval_envs"] = tuple(raw["eval_envs"])
+        design = cls(**raw)
+        name = design.name
+        if catalogue.amendment_path(name).is_file():
+            added = logs.read_json(catalogue.amendment_path(name))
+            added["tests"] = {k: Test(**v) for k, v in added["tests"].items()}
+            design = dataclasses.replace(design, amendment=Amendment(**added))
+        for env in (*(arm.env for arm in design.arms.values()), *design.eval_envs):
+            spec = EnvSpec.parse(env)
+            registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
+        for test_name, test in design.tests.items():
+            problems = [
+                f"arm {a!r} is not one of {sorted(allowed)}"
+                for a, allowed in ((test.treatment, design.arms), (test.control, {*design.arms, START}))
+                if a not in allowed
+            ]
+            if test.env not in design.eval_envs:
+                problems.append(f"{test.env} is not among eval_envs")
+            if test.alternative not in stats.ALTERNATIVES:
+                problems.append(f"the alternative must be one of {stats.ALTERNATIVES}")
+            if problems:
+                raise ValueError(f"design {name}, test {test_name}: {'; '.join(problems)}")
+        if not design.primary or design.iterations < 1 or design.seeds < 1:
+            raise ValueError(f"design {name}: it needs primary tests, iterations and seeds")
+        return design
+
 
 def start_row(source: str) -> str:
     """The scores' name of the `source` condition's records as they were when branched."""
     return f"{source} at the branch"
-
-
-def load(name: str) -> BranchDesign:
-    """The branch design `designs/<name>.json` with its amendment, if any (FileNotFoundError if none;
-    ValueError if invalid or of another kind)."""
-    raw = catalogue.read(name, "branch")
-    raw["arms"] = {k: Arm(**v) for k, v in raw["arms"].items()}
-    for family in ("primary", "secondary"):
-        raw[family] = {k: Test(**v) for k, v in raw[family].items()}
-    raw["eval_envs"] = tuple(raw["eval_envs"])
-    design = BranchDesign(**raw)
-    if catalogue.amendment_path(name).is_file():
-        added = logs.read_json(catalogue.amendment_path(name))
-        added["tests"] = {k: Test(**v) for k, v in added["tests"].items()}
-        design = dataclasses.replace(design, amendment=Amendment(**added))
-    for env in (*(arm.env for arm in design.arms.values()), *design.eval_envs):
-        spec = EnvSpec.parse(env)
-        registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
-    for test_name, test in design.tests.items():
-        problems = [
-            f"arm {a!r} is not one of {sorted(allowed)}"
-            for a, allowed in ((test.treatment, design.arms), (test.control, {*design.arms, START}))
-            if a not in allowed
-        ]
-        if test.env not in design.eval_envs:
-            problems.append(f"{test.env} is not among eval_envs")
-        if test.alternative not in stats.ALTERNATIVES:
-            problems.append(f"the alternative must be one of {stats.ALTERNATIVES}")
-        if problems:
-            raise ValueError(f"design {name}, test {test_name}: {'; '.join(problems)}")
-    if not design.primary or design.iterations < 1 or design.seeds < 1:
-        raise ValueError(f"design {name}: it needs primary tests, iterations and seeds")
-    return design
-
-
-def describe_test(design: BranchDesign, name: str, test: Test) -> str:
-    """One test of the design, for people."""
-    control = f"where each {test.treatment} branch started" if test.control == START else test.control
-    kind = "Wilcoxon, paired" if design.paired(test) else "Mann-Whitney"
-    return f"    {name}: {test.treatment} against {control} in {test.env}, {kind}, {test.alternative}"
-
-
-def power_lines(power: dict[str, dict[str, float]], prefix: str) -> list[str]:
-    """One line a discount of a power table, each test's power and that of all and any of them."""
-    return [
-        f"{prefix}{case}: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()) for case, row in power.items()
-    ]
-
-
-def describe(design: BranchDesign) -> str:
-    """The design, its tests and its power, for people."""
-    sim = design.power_simulation
-    last = design.seed + design.seeds - 1
-    lines = [
-        f"{design.name}: from the records {design.records}, seeds {design.seed}..{last}, "
-        f"{design.iterations} iterations an arm, branch seeds from {design.branch_seed}, "
-        f"$XLA_FLAGS {design.xla_flags!r}",
-        *(f"  arm {n}: from {a.source} in {a.env}" for n, a in design.arms.items()),
-        f"  evaluated at the end in {', '.join(design.eval_envs)}, {design.episodes} episodes each",
-    ]
-    for family, tests in (("primary", design.primary), ("secondary", design.secondary)):
-        lines.append(f"  {family} (Holm at {design.alpha:g}):")
-        lines += [describe_test(design, n, t) for n, t in tests.items()]
-    lines.append(f"  power by simulation ({sim['reps']} simulated designs a discount):")
-    lines += power_lines(sim["power"], "    ")
-    lines.append(
-        f"  power: {design.power:.3f} ({sim['planning_test']}, discount {sim['planning_discount']:g})"
-    )
-    if design.amendment:
-        added = design.amendment
-        lines.append(f"  amendment, {added.added} (Holm among its tests at {added.alpha:g}):")
-        lines += [describe_test(design, n, t) for n, t in added.tests.items()]
-        lines += power_lines(added.power_simulation["power"], "    power, ")
-    return "\n".join(lines)

@@ -1,9 +1,13 @@
 """The design files: one folder, `designs/` beside this module, for every kind of pre-registered design, and
 each file's kind, which says what the design does and which module reads it:
 
-    training     trains a recipe's conditions from fresh seeds                   (`prereg.Design`)
-    evaluation   plays a finished design's records zero-shot, training nothing    (`plan.evaluation_design`)
-    branch       trains on from a finished design's records                       (`plan.branch_design`)
+    training     trains a recipe's conditions from fresh seeds                   (`prereg.TrainingDesign`)
+    evaluation   plays a finished design's records zero-shot, training nothing    (`evaluation_design`)
+    branch       trains on from a finished design's records                       (`branch_design`)
+
+Every kind is a `Design`: what each states (its name, seeds, alpha, power and how that was computed, why),
+and `describe()`, itself and its power for people; each kind adds only what differs. One loader, `load`,
+reads any design and checks it as its kind says (`Design.checked`).
 
 A file names its kind in its field `kind`. The files committed before that field are known by the field only
 their kind has (`references`: evaluation; `arms`: branch; otherwise training), since a design file is never
@@ -13,8 +17,11 @@ follows the file across moves). An amendment is `designs/amendments/<name>.json`
 
 from __future__ import annotations
 
+import abc
 import dataclasses
+import importlib
 from pathlib import Path
+from typing import Any, ClassVar
 
 from jaxsocial.experiments.plan import commits
 from jaxsocial.run import logs
@@ -30,6 +37,47 @@ VERBS = {
 summary, tests and figure. A training design takes its recipe's verbs."""
 KIND_FIELDS = {"references": "evaluation", "arms": "branch"}
 """Where a design file has no `kind`: the field only that kind's designs have."""
+KIND_CLASSES = {
+    "training": ("prereg", "TrainingDesign"),
+    "evaluation": ("evaluation_design", "EvaluationDesign"),
+    "branch": ("branch_design", "BranchDesign"),
+}
+"""Each kind's module of `plan` and its `Design`, whose `checked(raw)` makes one from a file's fields."""
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Design(abc.ABC):
+    """What a design of every kind states, fixed in its committed file before any of its runs."""
+
+    KIND: ClassVar[str]
+    name: str
+    seed: int
+    """The first seed: of every condition it trains, or of the records it plays or branches."""
+    seeds: int
+    """Seeds seed..seed+seeds-1, none left out."""
+    alpha: float
+    power: float
+    """The power the file states, as its kind computes it (3 decimals)."""
+    power_simulation: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """How the power was computed, where by simulation: its pilot, discounts and table."""
+    rationale: str = ""
+
+    @classmethod
+    @abc.abstractmethod
+    def checked(cls, raw: dict[str, Any]) -> Design:
+        """A design of this kind from its file's fields, `kind` aside (ValueError if it is invalid)."""
+
+    @property
+    def seed_range(self) -> range:
+        return range(self.seed, self.seed + self.seeds)
+
+    @property
+    def last_seed(self) -> int:
+        return self.seed + self.seeds - 1
+
+    @abc.abstractmethod
+    def describe(self) -> str:
+        """The design, its tests and its power, for people."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,6 +92,14 @@ class Test:
     statement: str = ""
     treatment: str | None = None
     control: str | None = None
+
+
+def power_lines(power: dict[str, dict[str, float]], prefix: str) -> list[str]:
+    """One line a discount of a simulated power table: each test's power, and where the table has them, that
+    of all and of any of them."""
+    return [
+        f"{prefix}{case}: " + ", ".join(f"{k} {v:.3f}" for k, v in row.items()) for case, row in power.items()
+    ]
 
 
 def path_of(name: str) -> Path:
@@ -64,25 +120,37 @@ def design_names(kind: str | None = None) -> list[str]:
 
 def design_kind(name: str) -> str:
     """The kind of design `name` (FileNotFoundError, naming the designs, if there is none)."""
+    return _kind_of(name, _raw(name))
+
+
+def load(name: str, kind: str | None = None) -> Design:
+    """Design `name`, of the kind its file says, checked by its kind's module (FileNotFoundError, naming the
+    designs, if there is none; ValueError if it is invalid, or not of `kind` where one is asked for)."""
+    raw = _raw(name)
+    found = _kind_of(name, raw)
+    if kind is not None and found != kind:
+        raise ValueError(f"design {name} is of kind {found}, not {kind}")
+    if raw.get("name") != name:
+        raise ValueError(f"design {name}: its file {path_of(name)} names it {raw.get('name')!r}")
+    raw.pop("kind", None)
+    module, cls = KIND_CLASSES[found]
+    return getattr(importlib.import_module(f"jaxsocial.experiments.plan.{module}"), cls).checked(raw)
+
+
+def _raw(name: str) -> dict[str, Any]:
+    """Design `name`'s file as JSON (FileNotFoundError, naming the designs, if there is none)."""
     path = path_of(name)
     if not path.is_file():
         raise FileNotFoundError(f"no design {path}; the designs are {design_names()}")
-    raw = logs.read_json(path)
+    return logs.read_json(path)
+
+
+def _kind_of(name: str, raw: dict[str, Any]) -> str:
+    """The kind a design file states, or that its kind's own field shows (ValueError if unknown)."""
     kind = raw.get("kind") or next((k for field, k in KIND_FIELDS.items() if field in raw), "training")
     if kind not in DESIGN_KINDS:
         raise ValueError(f"design {name}: unknown kind {kind!r}; choose from {DESIGN_KINDS}")
     return kind
-
-
-def read(name: str, kind: str) -> dict:
-    """Design `name`'s file as JSON, without its `kind` (FileNotFoundError if there is none; ValueError if it
-    is of another kind)."""
-    found = design_kind(name)
-    if found != kind:
-        raise ValueError(f"design {name} is of kind {found}, not {kind}")
-    raw = logs.read_json(path_of(name))
-    raw.pop("kind", None)
-    return raw
 
 
 def file_commit(path: Path) -> str | None:

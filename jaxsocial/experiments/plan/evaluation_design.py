@@ -45,59 +45,69 @@ class Reference:
     label: str = ""
 
 
-@dataclasses.dataclass(frozen=True)
-class EvaluationDesign:
-    """See the module docstring."""
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class EvaluationDesign(catalogue.Design):
+    """See the module docstring; `seed` and `seeds` are the records' of both conditions."""
 
-    name: str
+    KIND = "evaluation"
     records: str
     """The material: a folder of the records root holding `<condition>-s<k>-<k>` records."""
     treatment: str
     control: str
-    seed: int
-    seeds: int
-    """Every seed seed..seed+seeds-1 of both conditions, none left out."""
     episodes: int
     eval_seed: int
-    alpha: float
     primary: dict[str, Test]
     secondary: dict[str, Test]
     references: dict[str, Reference]
-    power: float
-    power_simulation: dict[str, Any]
-    rationale: str
 
     def record_dirs(self, condition: str, records_root: Path) -> list[Path]:
         """The records of `condition`, seed by seed."""
         folder = records_root / self.records
-        return [folder / f"{condition}-s{s}-{s}" for s in range(self.seed, self.seed + self.seeds)]
+        return [folder / f"{condition}-s{s}-{s}" for s in self.seed_range]
 
     @property
     def tests(self) -> dict[str, Test]:
         return {**self.primary, **self.secondary}
 
+    def describe(self) -> str:
+        sim = self.power_simulation
+        lines = [
+            f"{self.name}: the records {self.records}, {self.treatment} against {self.control}, seeds "
+            f"{self.seed}..{self.last_seed}; {self.episodes} episodes an evaluation",
+            f"  primary (Holm at {self.alpha:g}):",
+            *(f"    {n}: {t.env}, Mann-Whitney {t.alternative}" for n, t in self.primary.items()),
+            "  secondary (Holm among themselves):",
+            *(f"    {n}: {t.env}, Mann-Whitney {t.alternative}" for n, t in self.secondary.items()),
+            f"  references: {', '.join(self.references)}",
+            f"  power by simulation from {sim['pilot']} ({sim['reps']} simulated designs a discount):",
+            *catalogue.power_lines(sim["power"], "    "),
+            f"  power: {self.power:.3f} (any primary test rejected, discount {sim['planning_discount']:g})",
+        ]
+        return "\n".join(lines)
 
-def load(name: str) -> EvaluationDesign:
-    """The evaluation design `designs/<name>.json` (FileNotFoundError if none; ValueError if invalid or of
-    another kind)."""
-    raw = catalogue.read(name, "evaluation")
-    for family in ("primary", "secondary"):
-        raw[family] = {k: Test(**v) for k, v in raw[family].items()}
-    raw["references"] = {k: Reference(**v) for k, v in raw["references"].items()}
-    design = EvaluationDesign(**raw)
-    for name_, test in design.tests.items():
-        spec = EnvSpec.parse(test.env)
-        registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
-        if test.alternative not in stats.ALTERNATIVES:
-            raise ValueError(f"design {name}: test {name_}'s alternative must be one of {stats.ALTERNATIVES}")
-        if test.treatment or test.control:
-            raise ValueError(f"design {name}: test {name_} compares the design's treatment and control")
-    for name_, ref in design.references.items():
-        if (ref.ckpt is None) == (ref.slot is None):
-            raise ValueError(f"design {name}: reference {name_} needs exactly one of ckpt and slot")
-    if not design.primary or design.treatment == design.control:
-        raise ValueError(f"design {name}: it needs primary tests and two different arms")
-    return design
+    @classmethod
+    def checked(cls, raw: dict[str, Any]) -> EvaluationDesign:
+        """An evaluation design from its file's fields (`catalogue.load`; ValueError if it is invalid)."""
+        for family in ("primary", "secondary"):
+            raw[family] = {k: Test(**v) for k, v in raw[family].items()}
+        raw["references"] = {k: Reference(**v) for k, v in raw["references"].items()}
+        design = cls(**raw)
+        name = design.name
+        for name_, test in design.tests.items():
+            spec = EnvSpec.parse(test.env)
+            registry.env_params(spec.name, spec.args)  # ValueError for an unknown environment or field
+            if test.alternative not in stats.ALTERNATIVES:
+                raise ValueError(
+                    f"design {name}: test {name_}'s alternative must be one of {stats.ALTERNATIVES}"
+                )
+            if test.treatment or test.control:
+                raise ValueError(f"design {name}: test {name_} compares the design's treatment and control")
+        for name_, ref in design.references.items():
+            if (ref.ckpt is None) == (ref.slot is None):
+                raise ValueError(f"design {name}: reference {name_} needs exactly one of ckpt and slot")
+        if not design.primary or design.treatment == design.control:
+            raise ValueError(f"design {name}: it needs primary tests and two different arms")
+        return design
 
 
 def out_dir(design: EvaluationDesign, science: Path) -> Path:
@@ -134,24 +144,3 @@ def evaluations(design: EvaluationDesign, records_root: Path) -> list[Play]:
             ckpts = (str(records_root / ref.ckpt),) if ref.ckpt else ()
             out.append(Play(env, name, ckpts, ref.slot))
     return out
-
-
-def describe(design: EvaluationDesign) -> str:
-    """The design, its tests and its power, for people."""
-    sim = design.power_simulation
-    lines = [
-        f"{design.name}: the records {design.records}, {design.treatment} against {design.control}, seeds "
-        f"{design.seed}..{design.seed + design.seeds - 1}; {design.episodes} episodes an evaluation",
-        f"  primary (Holm at {design.alpha:g}):",
-        *(f"    {n}: {t.env}, Mann-Whitney {t.alternative}" for n, t in design.primary.items()),
-        "  secondary (Holm among themselves):",
-        *(f"    {n}: {t.env}, Mann-Whitney {t.alternative}" for n, t in design.secondary.items()),
-        f"  references: {', '.join(design.references)}",
-        f"  power by simulation from {sim['pilot']} ({sim['reps']} simulated designs a discount):",
-        *(
-            f"    {case}: " + ", ".join(f"{k} {v:.3f}" for k, v in p.items())
-            for case, p in sim["power"].items()
-        ),
-        f"  power: {design.power:.3f} (any primary test rejected, discount {sim['planning_discount']:g})",
-    ]
-    return "\n".join(lines)

@@ -39,19 +39,17 @@ TAKEOFF_TEST = "holm(logrank-greater, mannwhitney-greater)"
 Mann-Whitney U test of the per-seed 4-goal returns, Holm-corrected at the design's alpha."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Design:
-    """A pre-registered comparison of learned-seed counts (see the module docstring)."""
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class TrainingDesign(catalogue.Design):
+    """A pre-registered comparison of conditions a recipe trains (see the module docstring); `seed` and
+    `seeds` are each trained condition's; `power` is the test's under `hazard_per_million` (`power_of`), or
+    for a 'takeoff' design the takeoff test's at the planning discount (`power_simulation`)."""
 
-    name: str
+    KIND = "training"
     scale: str
     """The scale the design runs at (`recipes.SCALES`)."""
     iterations: int
     """Training iterations of every run (replaces the scale's)."""
-    seed: int
-    """First seed of every condition."""
-    seeds: int
-    """Seeds per condition."""
     treatment: tuple[str, ...]
     """Conditions pooled into the treatment arm."""
     control: tuple[str, ...]
@@ -59,14 +57,9 @@ class Design:
     learned_threshold: float
     """A seed has learned if its final return exceeds this."""
     test: str
-    alpha: float
     hazard_per_million: dict[str, float]
     """Assumed constant hazard of learning per million env-steps, per arm ('treatment', 'control'); empty
     for a 'takeoff' design."""
-    power: float
-    """The power under `hazard_per_million`, as `power_of` computes it (stored to 3 decimals); for a
-    'takeoff' design, that of the takeoff test at the planning discount (`power_simulation`)."""
-    rationale: str = ""
     analysis: str = "counts"
     """'counts': one exact test of learned-seed counts (`test`); 'takeoff': the tests of `tests`; 'zero_shot':
     one Mann-Whitney test of the arms' per-seed returns in `tests['primary']`'s environment."""
@@ -77,8 +70,6 @@ class Design:
     and evaluation seed as this design's own evaluations}."""
     eval_episodes: int | None = None
     """Episodes of every evaluation after training (None: the scale's)."""
-    power_simulation: dict[str, Any] = dataclasses.field(default_factory=dict)
-    """A 'takeoff' design's power by simulation (`takeoff_power.power_table`) and its planning discount."""
     seeds_per_program: int | None = None
     """How its seeds run: 1, each seed a one-seed program in a single-core process of its own (`run
     --cores`); K > 1, each K consecutive seeds of a condition one vmapped program (`run --vmap-seeds K`,
@@ -116,9 +107,20 @@ class Design:
         """Each arm's seeds: its conditions times the seeds of the design that trains them."""
         return {
             arm: len(getattr(self, arm))
-            * (load(self.borrowed[arm]).seeds if arm in self.borrowed else self.seeds)
+            * (catalogue.load(self.borrowed[arm]).seeds if arm in self.borrowed else self.seeds)
             for arm in ("treatment", "control")
         }
+
+    @property
+    def env_steps_per_run(self) -> int:
+        """Env-steps of each run: its iterations at its scale, in its recipe's first condition."""
+        from jaxsocial.experiments.plan import recipes  # which reads the designs
+
+        return recipes.design_env_steps(self)
+
+    def describe(self) -> str:
+        describe = {"takeoff": _describe_takeoff, "zero_shot": _describe_zero_shot}
+        return describe.get(self.analysis, _describe_counts)(self, self.env_steps_per_run)
 
     @property
     def trained_conditions(self) -> tuple[str, ...]:
@@ -126,6 +128,54 @@ class Design:
         return tuple(
             c for arm in ("treatment", "control") if arm not in self.borrowed for c in getattr(self, arm)
         )
+
+    @classmethod
+    def checked(cls, raw: dict[str, Any]) -> TrainingDesign:
+        """A training design from its file's fields (`catalogue.load`; ValueError if it is invalid)."""
+        for arm in ("treatment", "control"):
+            raw[arm] = tuple(raw[arm])
+        design = cls(**raw)
+        name = design.name
+        if design.analysis not in ANALYSES:
+            raise ValueError(f"design {name}: unknown analysis {design.analysis!r}; choose from {ANALYSES}")
+        tests = {"counts": stats.TESTS, "takeoff": (TAKEOFF_TEST,), "zero_shot": (ZERO_SHOT_TEST,)}[
+            design.analysis
+        ]
+        if design.test not in tests:
+            raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {tests}")
+        if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
+            raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
+        if design.xla_flags is not None:
+            xla_flags.check(design.xla_flags, f"design {name}'s xla_flags")
+        if design.learned_by not in LEARNED_BY:
+            raise ValueError(
+                f"design {name}: unknown learned_by {design.learned_by!r}; choose from {LEARNED_BY}"
+            )
+        if design.stop_at_return is not None and design.learned_by != "takeoff":
+            raise ValueError(f"design {name}: an early stop (stop_at_return) needs learned_by 'takeoff'")
+        if len(design.borrowed) > 1:
+            raise ValueError(f"design {name}: at most one arm may be borrowed (it trains the other)")
+        for arm, source in design.borrowed.items():
+            if arm not in ("treatment", "control") or source == name:
+                raise ValueError(
+                    f"design {name}: borrowed arm {arm!r} from {source!r}: name the other arm's design"
+                )
+            lender = catalogue.load(source, "training")
+            if not set(getattr(design, arm)) <= set(getattr(lender, arm)):
+                raise ValueError(
+                    f"design {name}: its {arm} {getattr(design, arm)} is not among {source}'s {arm}"
+                )
+        for test_name, test in design.secondary.items():
+            other, _, other_arm = test["against"].partition(":")
+            if test["arm"] not in ("treatment", "control") or other_arm not in ("treatment", "control"):
+                raise ValueError(f"design {name}: secondary {test_name} names an unknown arm")
+            if test["measure"] not in SECONDARY_MEASURES or test["alternative"] not in stats.ALTERNATIVES:
+                raise ValueError(
+                    f"design {name}: secondary {test_name}: a measure of {SECONDARY_MEASURES} and an "
+                    "alternative"
+                )
+            catalogue.load(other, "training")
+        return design
 
 
 def deviations(name: str, directory: Path) -> list[dict[str, str]]:
@@ -136,56 +186,12 @@ def deviations(name: str, directory: Path) -> list[dict[str, str]]:
     return logs.read_json(path)["deviations"] if path.is_file() else []
 
 
-def load(name: str) -> Design:
-    """The training design `designs/<name>.json` (FileNotFoundError if there is none; ValueError if it is
-    invalid or of another kind)."""
-    raw = catalogue.read(name, "training")
-    for arm in ("treatment", "control"):
-        raw[arm] = tuple(raw[arm])
-    design = Design(**raw)
-    if design.analysis not in ANALYSES:
-        raise ValueError(f"design {name}: unknown analysis {design.analysis!r}; choose from {ANALYSES}")
-    tests = {"counts": stats.TESTS, "takeoff": (TAKEOFF_TEST,), "zero_shot": (ZERO_SHOT_TEST,)}[
-        design.analysis
-    ]
-    if design.test not in tests:
-        raise ValueError(f"design {name}: unknown test {design.test!r}; choose from {tests}")
-    if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
-        raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
-    if design.xla_flags is not None:
-        xla_flags.check(design.xla_flags, f"design {name}'s xla_flags")
-    if design.learned_by not in LEARNED_BY:
-        raise ValueError(f"design {name}: unknown learned_by {design.learned_by!r}; choose from {LEARNED_BY}")
-    if design.stop_at_return is not None and design.learned_by != "takeoff":
-        raise ValueError(f"design {name}: an early stop (stop_at_return) needs learned_by 'takeoff'")
-    if len(design.borrowed) > 1:
-        raise ValueError(f"design {name}: at most one arm may be borrowed (it trains the other)")
-    for arm, source in design.borrowed.items():
-        if arm not in ("treatment", "control") or source == name:
-            raise ValueError(
-                f"design {name}: borrowed arm {arm!r} from {source!r}: name the other arm's design"
-            )
-        lender = load(source)
-        if not set(getattr(design, arm)) <= set(getattr(lender, arm)):
-            raise ValueError(f"design {name}: its {arm} {getattr(design, arm)} is not among {source}'s {arm}")
-    for test_name, test in design.secondary.items():
-        other, _, other_arm = test["against"].partition(":")
-        if test["arm"] not in ("treatment", "control") or other_arm not in ("treatment", "control"):
-            raise ValueError(f"design {name}: secondary {test_name} names an unknown arm")
-        if test["measure"] not in SECONDARY_MEASURES or test["alternative"] not in stats.ALTERNATIVES:
-            raise ValueError(
-                f"design {name}: secondary {test_name}: a measure of {SECONDARY_MEASURES} and an alternative"
-            )
-        load(other)
-    return design
-
-
-def success_rates(design: Design, env_steps_per_run: int) -> dict[str, float]:
+def success_rates(design: TrainingDesign, env_steps_per_run: int) -> dict[str, float]:
     """Each arm's assumed probability that a seed has learned by the end of its run."""
     return {arm: stats.learned_by(h, env_steps_per_run) for arm, h in design.hazard_per_million.items()}
 
 
-def power_of(design: Design, env_steps_per_run: int) -> float:
+def power_of(design: TrainingDesign, env_steps_per_run: int) -> float:
     """The design's power: the probability that its test rejects at its alpha under its assumed rates."""
     rates = success_rates(design, env_steps_per_run)
     n = design.arm_seeds
@@ -208,7 +214,7 @@ def precedes(design: str | None, commit: str | None) -> bool | None:
 
 
 def preregistered(
-    design: Design, learned: dict[str, list[bool]], run_commits: dict[str, str | None]
+    design: TrainingDesign, learned: dict[str, list[bool]], run_commits: dict[str, str | None]
 ) -> dict[str, Any]:
     """The summary's `preregistered` block.
 
@@ -266,7 +272,7 @@ def commit_checks(commit: str | None, run_commits: dict[str, str | None]) -> dic
 
 
 def preregistered_takeoff(
-    design: Design, summary: dict[str, Any], run_commits: dict[str, str | None]
+    design: TrainingDesign, summary: dict[str, Any], run_commits: dict[str, str | None]
 ) -> dict[str, Any]:
     """The `preregistered` block of a 'takeoff' design from a recipe summary (`kinds.summarise_takeoff` and
     its `time_to_learning`): each arm's takeoffs (censored at its seeds' run ends) and scores, the primary
@@ -321,7 +327,9 @@ def preregistered_takeoff(
 
 
 def seed_problems(
-    design: Design, conditions: dict[str, list[dict[str, Any] | None]], expected: dict[str, dict[str, Any]]
+    design: TrainingDesign,
+    conditions: dict[str, list[dict[str, Any] | None]],
+    expected: dict[str, dict[str, Any]],
 ) -> list[str]:
     """What keeps each design seed it trains from counting: missing, unfinished (short of its iterations and
     not ended by the design's early stop), trained for other iterations, another early stop or with other run
@@ -361,25 +369,8 @@ def seed_problems(
     return problems
 
 
-def verdict(block: dict[str, Any]) -> str:
-    """A `preregistered` block's result and checks, for people."""
-    r = block["result"]
-    if "primary" in r:
-        return _takeoff_verdict(block)
-    lines = [
-        f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}): treatment "
-        f"{r['treatment_learned']}/{r['treatment_seeds']} learned, control {r['control_learned']}/"
-        f"{r['control_seeds']}, p = {r['p']:.4g}",
-    ]
-    return "\n".join(lines + _verdict_checks(block))
-
-
-def describe(design: Design, env_steps_per_run: int) -> str:
-    """The design and its power, for people."""
-    if design.analysis == "takeoff":
-        return describe_takeoff(design, env_steps_per_run)
-    if design.analysis == "zero_shot":
-        return describe_zero_shot(design, env_steps_per_run)
+def _describe_counts(design: TrainingDesign, env_steps_per_run: int) -> str:
+    """A 'counts' design and its power, for people."""
     rates = success_rates(design, env_steps_per_run)
     n = design.arm_seeds
     last = design.seed + design.seeds - 1
@@ -420,7 +411,7 @@ def describe(design: Design, env_steps_per_run: int) -> str:
     return "\n".join(lines)
 
 
-def _budget(design: Design, env_steps_per_run: int, digits: int = 1) -> str:
+def _budget(design: TrainingDesign, env_steps_per_run: int, digits: int = 1) -> str:
     """The first words of a design's description: its name, scale and budget, up to the parenthesis."""
     return (
         f"{design.name}: {design.scale} scale, {design.iterations} iterations "
@@ -428,7 +419,7 @@ def _budget(design: Design, env_steps_per_run: int, digits: int = 1) -> str:
     )
 
 
-def describe_takeoff(design: Design, env_steps_per_run: int) -> str:
+def _describe_takeoff(design: TrainingDesign, env_steps_per_run: int) -> str:
     """A 'takeoff' design, its tests and its simulated power, for people."""
     last = design.seed + design.seeds - 1
     sim = design.power_simulation
@@ -451,29 +442,7 @@ def describe_takeoff(design: Design, env_steps_per_run: int) -> str:
     return "\n".join(lines)
 
 
-def zero_shot_power(
-    n_treatment: int, n_control: int, p_above: float, alpha: float, reps: int = 4000, rng_seed: int = 0
-) -> float:
-    """The power of the one-sided Mann-Whitney U test (treatment greater) at `alpha` with these seeds an arm,
-    when a treatment seed's score beats a control seed's with probability `p_above`: scores drawn from two
-    unit normal distributions `sqrt(2) * Phi^-1(p_above)` apart, `reps` simulated designs (numpy `rng_seed`);
-    rounded to 3 decimals."""
-    import numpy as np
-    from scipy import stats as scipy_stats
-
-    rng = np.random.default_rng(rng_seed)
-    shift = np.sqrt(2) * scipy_stats.norm.ppf(p_above)
-    rejected = [
-        scipy_stats.mannwhitneyu(
-            rng.normal(shift, 1, n_treatment), rng.normal(0, 1, n_control), alternative="greater"
-        ).pvalue
-        <= alpha
-        for _ in range(reps)
-    ]
-    return round(float(np.mean(rejected)), 3)
-
-
-def describe_zero_shot(design: Design, env_steps_per_run: int) -> str:
+def _describe_zero_shot(design: TrainingDesign, env_steps_per_run: int) -> str:
     """A 'zero_shot' design, its test and its power, for people."""
     last = design.seed + design.seeds - 1
     sim = design.power_simulation
@@ -494,32 +463,3 @@ def describe_zero_shot(design: Design, env_steps_per_run: int) -> str:
         f"  power: {design.power:.3f}",
     ]
     return "\n".join(lines)
-
-
-def _takeoff_verdict(block: dict[str, Any]) -> str:
-    """A 'takeoff' design's `preregistered` block, for people."""
-    r = block["result"]
-    lines = [
-        f"pre-registered ({block['primary']['test']}, alpha {block['primary']['alpha']:g}), "
-        f"seeds {r['seeds']}:"
-    ]
-    for family in ("primary", "secondary"):
-        for name, entry in r[family].items():
-            p = "none" if entry["p"] is None else f"{entry['p']:.4g} (Holm {entry['p_holm']:.4g})"
-            lines.append(f"  {family} {name}: p = {p}{', rejected' if entry['rejected'] else ''}")
-    return "\n".join(lines + _verdict_checks(block))
-
-
-def _verdict_checks(block: dict[str, Any]) -> list[str]:
-    """The lines every verdict ends with: the design's commit, its checks, the runs not shown to follow it,
-    the problems and deviations, and NOT VALID where the block is not."""
-    checks = block["checks"]
-    lines = [f"  design commit {block['commit'] or 'none (the design is not committed)'}"]
-    lines += [f"  {name}: {'yes' if ok else 'NO'}" for name, ok in checks.items() if isinstance(ok, bool)]
-    if checks["runs_not_after_design"]:
-        lines.append(f"  runs not shown to follow the design: {', '.join(checks['runs_not_after_design'])}")
-    lines += [f"  {problem}" for problem in block.get("problems", [])]
-    lines += [f"  deviation ({d['date']}): {d['what']}" for d in block.get("deviations", [])]
-    if not block.get("valid", True):
-        lines.append("NOT VALID: the result above does not test the design (see the problems listed)")
-    return lines
