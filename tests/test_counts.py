@@ -140,7 +140,7 @@ def test_the_takeoff_design_has_the_power_it_states(name, capsys):
     design = catalogue.load(recipes.RECIPES[name].design)
     planning = design.power_simulation["planning_discount"]
     reps = 300
-    table = takeoff_power.power_table(
+    table = takeoff_power.takeoff_power_table(
         dataclasses.replace(design, power_simulation={}), paths.RECORDS, 8192, reps
     )
     again = table["power"][f"{design.seeds} seeds, discount {planning:g}"]

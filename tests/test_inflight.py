@@ -29,9 +29,9 @@ def test_a_packed_state_resumes_exactly(tmp_path, two_seed_run):
     assert state.name == "run.tgz"
     assert not progress_logs(state)  # blind: no progress line with returns in git
     again = tmp_path / "again.tgz"
-    inflight.pack(*inflight.unpack(state, tmp_path / "check"), again)
+    inflight.pack_state(*inflight.unpack_state(state, tmp_path / "check"), again)
     assert again.read_bytes() == state.read_bytes()  # deterministic: the same files, the same bytes
-    (resumed,) = inflight.unpack(state, tmp_path / "next")
+    (resumed,) = inflight.unpack_state(state, tmp_path / "next")
     assert not list(resumed.rglob("policy"))  # policies are left out: a resumed run exports its own
     train.run(dataclasses.replace(two_seeds, runs_dir=str(resumed.parent), resume=True))
     for seed in ("s0", "s1"):

@@ -97,12 +97,12 @@ def test_commands_log(tmp_path):
         "machine": {},  # no machine line before its start
     }
     assert runs["cpu/y-s0-0"]["rc"] == 1
-    run = records.run_provenance("cpu/x-s0-2", runs, "a CPU", "0.1")
+    run = records.logged_provenance("cpu/x-s0-2", runs, "a CPU", "0.1")
     assert (run["device"], run["jax"], run["commit"]) == ("a CPU", "0.1", commit) and "xla_flags" not in run
-    run = records.run_provenance("cpu/y-s0-0", runs, "a GPU", "0.1")
+    run = records.logged_provenance("cpu/y-s0-0", runs, "a GPU", "0.1")
     assert (run["cpu"], run["xla_flags"], run["rc"]) == ("a GPU host", "", 1)  # no deterministic GPU ops
     with pytest.raises(ValueError, match="no command with --run-name cpu/z"):
-        records.run_provenance("cpu/z", runs, None, None)
+        records.logged_provenance("cpu/z", runs, None, None)
 
 
 @TINY_RECORDS

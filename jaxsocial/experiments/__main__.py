@@ -307,7 +307,7 @@ def _record_seed(
             return None
         run = pinned.with_measured(run, args.device, args.jax, seed_dir)
     else:
-        run = records.run_provenance(str(run_name), commands, args.device, args.jax)
+        run = records.logged_provenance(str(run_name), commands, args.device, args.jax)
     if run["rc"] not in (None, 0):
         raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
     records.tree_diffs(seed_dir, run)

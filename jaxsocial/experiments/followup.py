@@ -136,7 +136,7 @@ def branch_specs(scale: recipes.Scale) -> list[str]:
     return zero_shot_specs(scale)[:2]
 
 
-def branch_config(plan: Plan, source: Source, arm: str, runs_dir: str) -> TrainConfig:
+def arm_config(plan: Plan, source: Source, arm: str, runs_dir: str) -> TrainConfig:
     """The training config of one branch: the source's condition, beside the experts (`BRANCH_ENV`) with the
     arm's share of solo episodes, from the source's final checkpoint, evaluated at its end."""
     scale, iterations = plan.scale, plan.branch_iterations
@@ -189,7 +189,7 @@ def run(
     jobs = []
     for source in found:
         for arm in ARMS:
-            flags = config_flags(branch_config(plan, source, arm, runs_dir))
+            flags = config_flags(arm_config(plan, source, arm, runs_dir))
             run_dir = branch_dir(plan, source, arm, runs_dir)
             state = rundirs.branch_state(run_dir, plan.branch_iterations)
             print(f"  {source.name}-{arm}: {state}")

@@ -141,7 +141,7 @@ def read_commands_log(path: str | Path) -> dict[str, dict[str, Any]]:
     return runs
 
 
-def run_provenance(
+def logged_provenance(
     run_name: str, commands: dict[str, dict[str, Any]], device: str | None, jax_version: str | None
 ) -> dict[str, Any]:
     """The `run` part of a record's provenance: the commands log's entry for `run_name` (its `--run-name`)

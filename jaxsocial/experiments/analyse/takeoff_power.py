@@ -165,7 +165,7 @@ def simulate(
     }
 
 
-def power_table(
+def takeoff_power_table(
     design, records_root: Path, steps_per_iteration: int, reps: int, seeds: tuple[int, ...] | None = None
 ) -> dict[str, Any]:
     """The design's power under each of `DISCOUNTS`, at its seeds an arm and at each of `seeds`."""

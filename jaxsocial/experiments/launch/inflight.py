@@ -5,7 +5,7 @@ A run's state is its directory with only the latest checkpoint every seed has, n
 resumed run exports the policy of the checkpoint it restores) and no progress log (`PROGRESS_LOGS`: a
 device block's raw log of a run prints its returns, which a design's committed files keep unread until it
 is complete; the block's script commits them blinded beside the state), packed as one deterministic .tgz
-per run (`pack`: sorted members, no times or owners). `benchmarks/prereg_gpu_block.sh collect` slims the
+per run (`pack_state`: sorted members, no times or owners). `benchmarks/prereg_gpu_block.sh collect` slims the
 state a device block brings back into `benchmarks/results/inflight/<design>-gpu/state/`, replacing the copy
 there, so the tree holds one state per run:
 
@@ -49,7 +49,7 @@ def slim(run_dir: Path) -> int:
     return keep
 
 
-def pack(run_dir: Path, out: Path) -> None:
+def pack_state(run_dir: Path, out: Path) -> None:
     """`run_dir` as a .tgz at `out` whose bytes depend only on the files (members `<run name>/...`, sorted,
     with no times, owners or modes beyond the file/directory distinction)."""
     buffer = io.BytesIO()
@@ -67,7 +67,7 @@ def pack(run_dir: Path, out: Path) -> None:
     out.write_bytes(gzip.compress(buffer.getvalue(), compresslevel=9, mtime=0))
 
 
-def unpack(tgz: Path, dest: Path) -> list[Path]:
+def unpack_state(tgz: Path, dest: Path) -> list[Path]:
     """Extract a packed state into `dest`; returns the run directories it held."""
     with tarfile.open(tgz) as tar:
         tar.extractall(dest, filter="data")
@@ -91,7 +91,7 @@ def slim_states(tgzs: list[Path], out_dir: Path) -> list[Path]:
             shutil.rmtree(out_dir)
         for run in runs:
             step = slim(run)
-            pack(run, out_dir / f"{run.name}.tgz")
+            pack_state(run, out_dir / f"{run.name}.tgz")
             written.append(out_dir / f"{run.name}.tgz")
             print(f"{run.name}: state at iteration {step}, {written[-1].stat().st_size / 2**20:.1f} MiB")
     return written

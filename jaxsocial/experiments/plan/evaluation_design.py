@@ -14,7 +14,7 @@ two-sided) Mann-Whitney U test of the treatment's per-seed scores against the co
 the primary tests are Holm-corrected at `alpha` as a family, the secondary ones among themselves. References
 (e.g. a random walker, behaviour cloning) are played in every tested environment and only reported.
 
-The power is simulated from a pilot on other records (`power_table`): each arm's per-seed scores in the
+The power is simulated from a pilot on other records (`analyse.power`): each arm's per-seed scores in the
 primary environments, resampled per seed, the treatment's effect diluted by a discount.
 """
 

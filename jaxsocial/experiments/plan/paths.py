@@ -31,10 +31,6 @@ SWEEP_SUMMARY = SCIENCE / "sweep"
 """The exploratory sweep's summary and figure, without their suffix (.json, .png)."""
 MAP_SUMMARY = SCIENCE / "map"
 """The map of where solo learners fail, without its suffix (.json, .png)."""
-RECIPE_SPS = RESULTS / "recipe_sps.json"
-"""The measured single-core training rates of the cpu scale's conditions (`recipes.Rate`)."""
-RECIPE_SPS_LAPTOP = RESULTS / "recipe_sps_laptop.json"
-"""The same at the laptop scale."""
 
 RUNS = Path("runs")
 """The default root of everything trained or written here that is not committed."""

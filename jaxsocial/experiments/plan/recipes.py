@@ -22,25 +22,13 @@ from __future__ import annotations
 
 import dataclasses
 
-from jaxsocial.experiments.plan import catalogue, paths, prereg
+from jaxsocial.experiments.plan import catalogue, prereg
 from jaxsocial.experiments.plan.conditions import CONDITIONS, PENALTY_CONDITIONS, Condition
 from jaxsocial.run import config, schedule, startup
 from jaxsocial.run.config import PRESETS, TrainConfig
+from jaxsocial.run.cost import MEASURED, Measured, read_rate
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import EnvArgsFlag, EnvSpec
-
-
-@dataclasses.dataclass(frozen=True)
-class Rate:
-    """Env-steps per second of one seed trained alone in a single-core process (`run --cores`), as a committed
-    benchmark measured it: the basis of a cost estimate before training."""
-
-    env_steps_per_s: float
-    cpu: str
-    source: str
-    """The benchmark JSON (its `sections.recipe.rows`) and row ('recipe' of the HEAD tree) it comes from."""
-    compile_s: float
-    """Seconds to compile a run's program, about (paid once per process)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,9 +49,9 @@ class Scale:
     runs_subdir: str = ""
     """A folder of the scale's runs the recipe's runs go in ('prereg-<design>' for a pre-registered design's,
     so that no ordinary recipe run can share their directories)."""
-    rate: Rate | None = None
-    """A measured speed of its runs, for the cost `experiments run` states before training (None: not
-    measured on a CPU)."""
+    rate: Measured | None = None
+    """Where a committed benchmark measured the speed of one of its runs alone in a single-core process
+    (`run --cores`), for the cost `experiments run` states before training (None: not measured on a CPU)."""
     for_gpus: bool = False
     """Sized for GPUs (the gpu and paper scales): too slow on CPU cores to plan on them."""
 
@@ -95,7 +83,7 @@ CPU = Scale(
     ),
     eval_every=50,
     eval_episodes=64,
-    rate=Rate(6608.0, "AMD EPYC", f"{paths.RECIPE_SPS}: cpu_rec", 15.0),
+    rate=Measured("benchmarks/results/recipe_sps.json", "recipe", "recipe", "cpu_rec"),
     note=(
         "9x9 Goal Cycle (7x7 interior, 4 clutter walls) instead of 13x13, so the experts are in view more "
         "often; the learner chooses among the 3 movement actions (the paper's other 4 do nothing in Goal "
@@ -133,7 +121,7 @@ LAPTOP = Scale(
     config=PRESETS["laptop"],
     eval_every=250,
     eval_episodes=64,
-    rate=Rate(21351.0, "AMD EPYC", f"{paths.RECIPE_SPS_LAPTOP}: laptop_rec", 12.0),
+    rate=MEASURED["laptop"],
     note=(
         "The cpu scale's network and learning rates in a 7x7 Goal Cycle (5x5 interior) instead of 9x9, with "
         "one pass of 8 minibatches (1 gradient sample per env-step, the rollout's own value targets: no "
@@ -396,14 +384,15 @@ def condition_programs(
 
 def cost(scale: Scale, runs: int, env_steps_per_run: int, processes: int) -> str | None:
     """What `runs` runs of `env_steps_per_run` each cost at the scale's measured rate, `processes` at a time
-    (None where the scale has no rate): CPU-minutes and wall-clock minutes, with the rate's CPU."""
-    if scale.rate is None:
+    (None where the scale has no rate, or the checkout lacks its benchmark): CPU-minutes and wall-clock
+    minutes, with the rate's CPU."""
+    r = None if scale.rate is None else read_rate(scale.rate)
+    if r is None:
         return None
-    r = scale.rate
     minutes = runs * (env_steps_per_run / r.env_steps_per_s + r.compile_s) / 60
     return (
         f"{runs} runs x {env_steps_per_run / 1e6:.2f}M env-steps: about {minutes:.0f} CPU-minutes, "
         f"{minutes / max(1, min(processes, runs)):.0f} minutes on {processes} core(s) at "
-        f"{r.env_steps_per_s:,.0f} env-steps/s a single-core run ({r.cpu}; {r.source}); machines differ "
+        f"{r.env_steps_per_s:,.0f} env-steps/s a single-core run ({r.machine}; {r.source}); machines differ "
         "up to about 4x"
     )
