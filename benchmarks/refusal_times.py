@@ -1,7 +1,7 @@
 """How long `python -m jaxsocial.train` takes to refuse bad input (issue 84, item 5): each refusal as a
 newcomer meets it, in a fresh process, wall-clock seconds from start to exit, `--repeats` times (the minimum
-and the median are reported), beside the floor every command pays: the Python start and `import jax` (which
-`import jaxsocial` does: the package's `__init__` imports the environment, whose types are JAX's).
+and the median are reported), beside three floors: the Python start, `import jax` (which no refusal pays: they
+come before it, `tests/test_refusals.py`) and `import jaxsocial` (whose names are imported at first use).
 
     python benchmarks/refusal_times.py --out benchmarks/results/refusal_times.json
     python benchmarks/refusal_times.py --before HEAD~1   # also the package of another commit, for comparison
@@ -48,7 +48,8 @@ FLOORS = {
     "import_jax": ["-c", "import jax"],
     "import_jaxsocial": ["-c", "import jaxsocial"],
 }
-"""name -> Python arguments: what every command pays before the training's own code runs."""
+"""name -> Python arguments: what a command pays before the training's own code runs (JAX: a command that
+trains)."""
 
 
 def make_runs(runs: Path) -> runlock.RunLock:

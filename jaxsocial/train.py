@@ -16,16 +16,14 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-import jax
-
 from jaxsocial.env import registry
 from jaxsocial.run import (
     compile_cache,
-    distributed,
     flags,
     interrupt,
     logs,
     nonfinite,
+    processes,
     provenance,
     rundir,
     runlock,
@@ -35,6 +33,8 @@ from jaxsocial.run import (
 from jaxsocial.run.config import PRESETS, TrainConfig, config_from_dict
 
 if TYPE_CHECKING:
+    import jax
+
     from jaxsocial.run import loop
 
 
@@ -75,7 +75,8 @@ def run(cfg: TrainConfig, command: str | None = None) -> Path:
     First the config is validated (`startup.setup`), then the run directory is checked (`check_run_dir`:
     RunLockedError where a live run holds it; for a new run, FileExistsError where it holds another run, or
     anything beyond what a run of this config leaves before its first iteration, which does not block it);
-    only then are the modules that train imported (`_train`), so that a refusal is quick. The run goes
+    only then are JAX and the modules that train imported (`_train`), so that a refusal is quick (JAX comes
+    first only for several processes, frozen slots to load or a compile cache). The run goes
     through the stages of `cfg.stages` (one compiled program each, switched between chunks); metrics rows
     record the stage, and checkpoints the stage to resume in. The run directory is locked (`runlock`) from
     before the cost line until the run ends. A non-finite iteration raises `nonfinite.NonFiniteError` (see
@@ -87,12 +88,12 @@ def run(cfg: TrainConfig, command: str | None = None) -> Path:
     machine), unless a runner records it. Ctrl-C while XLA compiles or runs a chunk raises
     `interrupt.Interrupted` at once.
     """
-    distributed.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
+    processes.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
     if cfg.compile_cache:
         compile_cache.enable(cfg.compile_cache)
     static = startup.setup(cfg)  # validate before touching the disk or compiling; once per run
     run_dir = rundir.run_path(cfg)
-    distributed.on_main(functools.partial(check_run_dir, cfg, run_dir))
+    processes.on_main(functools.partial(check_run_dir, cfg, run_dir))
     return _train(cfg, static, run_dir, command)
 
 
@@ -117,24 +118,24 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
     mesh = loop.data_mesh(cfg.program, cfg.devices)
     if branching:  # RUN_DIR@ITERATION in config.json
         cfg = dataclasses.replace(cfg, init_from=init_from.pin_iteration(cfg.init_from, numbers, run_dir))
-        if distributed.is_main() and init_from.params_only(cfg.init_from, numbers):
+        if processes.is_main() and init_from.params_only(cfg.init_from, numbers):
             print(f"--init-from {cfg.init_from}: the params of its policy (no checkpoint), a fresh optimiser")
     lock = runlock.RunLock(run_dir)
-    distributed.on_main(lock.acquire)  # before the cost line, and anything in the run directory is written
+    processes.on_main(lock.acquire)  # before the cost line, and anything in the run directory is written
     try:
         trained = cost.trained_iterations(cfg, run_dir)
-        if distributed.is_main() and trained < cfg.iterations:  # before "auto" measures, and compiling
+        if processes.is_main() and trained < cfg.iterations:  # before "auto" measures, and compiling
             print(cost.estimate(cfg, trained), flush=True)
         cfg = startup.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
         seeds = seed_runs(cfg, run_dir)
-        distributed.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
+        processes.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
         command = command or shlex.join(["python", "-m", "jaxsocial.train", *flags.config_flags(cfg)])
-        with provenance.recorded(run_dir, command, cfg.resume, distributed.is_main()):
+        with provenance.recorded(run_dir, command, cfg.resume, processes.is_main()):
             train_chunks(cfg, static, mesh, run_dir, seeds)
             if cfg.resume:  # a resumed run's config is rewritten once it has succeeded
-                distributed.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
+                processes.on_main(functools.partial(write_configs, cfg, run_dir, seeds))
     finally:
-        if distributed.is_main():
+        if processes.is_main():
             lock.release()
     return run_dir
 

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 import jaxsocial
-from jaxsocial.agents import experts
-from jaxsocial.agents.experts import ExpertSpec, act, act_batch, init_memory, parse_expert, validate
+from jaxsocial.agents import expert_spec
+from jaxsocial.agents.expert_spec import ExpertSpec, parse_expert, validate
+from jaxsocial.agents.experts import act, act_batch, init_memory
 from jaxsocial.env import core, state_from_layout
 from jaxsocial.env.dynamics import world_step
 from jaxsocial.env.layouts import generate
@@ -430,4 +431,4 @@ def test_memory_shapes():
     assert memory.cost.shape == (4, 13, 13) and memory.cost.dtype == jnp.int16
     assert memory.succ.shape == (4,) and memory.mistake.shape == (4, 4)
     assert init_memory(jaxsocial.make("maze")[1]).cost.shape == (1, 19, 19)
-    assert experts.KINDS == ("explorer", "oracle", "navigator")
+    assert expert_spec.KINDS == ("explorer", "oracle", "navigator")

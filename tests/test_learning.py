@@ -9,7 +9,7 @@ import pytest
 from conftest import RUN_FAST, SOLO_LEARNING, mean_return
 
 from jaxsocial.agents.bc_config import BCConfig
-from jaxsocial.agents.fast import precision
+from jaxsocial.agents.fast import options
 from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.train import make_train
@@ -41,7 +41,7 @@ def test_bfloat16_learns_like_float32():
     rounding makes the two runs' trajectories diverge, so their returns agree in distribution, not step by
     step). The float32 run is `test_return_rises_on_small_goal_cycle`'s."""
     finals = {}
-    for dtype in precision.DTYPES:
+    for dtype in options.DTYPES:
         first, finals[dtype] = solo_learning(dtype)
         assert first < 1.0 and finals[dtype] > 2.0, (dtype, first, finals[dtype])
     assert abs(finals["bfloat16"] - finals["float32"]) < 1.0, finals

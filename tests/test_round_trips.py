@@ -14,14 +14,14 @@ from hypothesis import strategies as st
 
 import jaxsocial
 from jaxsocial import evaluate, syntax, train
-from jaxsocial.agents import experts, network_config, population
+from jaxsocial.agents import expert_spec, network_config, population
 from jaxsocial.env import registry
 from jaxsocial.run import config, flags, logs, schedule
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import ENV_ARGS, CheckpointRef, EnvSpec, PolicyRef
 
 probabilities = st.floats(0.0, 1.0, allow_nan=False)
-experts_ = st.builds(experts.ExpertSpec, st.sampled_from(experts.KINDS), probabilities, probabilities)
+experts_ = st.builds(expert_spec.ExpertSpec, st.sampled_from(expert_spec.KINDS), probabilities, probabilities)
 paths = st.text(string.ascii_letters + string.digits + "/_-.=", min_size=1, max_size=12).map(Path)
 policies = st.builds(PolicyRef, paths, st.integers(0, 99))
 checkpoints = st.builds(CheckpointRef, paths, st.one_of(st.none(), st.integers(0, 10**6)))
@@ -86,7 +86,7 @@ def test_references_say_what_they_mean():
 
 @given(experts_)
 def test_experts_round_trip(expert):
-    assert experts.parse_expert(str(expert)) == expert
+    assert expert_spec.parse_expert(str(expert)) == expert
 
 
 @given(stage_lists())

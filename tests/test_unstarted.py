@@ -1,12 +1,10 @@
 """A run directory that holds no completed iteration (issue 84): the directory an interrupted or killed run
 left before its first iteration does not block the command that made it, while one that holds another run's
 config, metrics rows, a checkpoint or a policy is refused as before, before the cost line, with nothing
-changed; and refusals import none of the training's heavy modules."""
+changed (and before JAX is imported: `test_refusals`)."""
 
 import dataclasses
 import json
-import subprocess
-import sys
 
 import pytest
 from conftest import TINY, TINY_FLAGS
@@ -120,44 +118,3 @@ def test_auto_choices_and_the_init_from_iteration_are_compared_after_they_are_ma
     cfg = dataclasses.replace(TINY, net=dataclasses.replace(TINY.net, dtype="auto", conv_impl="auto"))
     assert unstarted.loose_keys(cfg) == {"net.dtype", "net.conv_impl"}
     assert unstarted.loose_keys(TINY) == set()
-
-
-REFUSALS = """
-import json, sys
-from jaxsocial import train
-for argv in json.loads(sys.argv[1]):
-    try:
-        train.main(argv)
-    except SystemExit as exit:
-        print("refused:", exit.code)
-heavy = ("orbax", "optax", "scipy", "jaxsocial.run.driver", "jaxsocial.run.outputs", "jaxsocial.run.loop")
-print(json.dumps(sorted(m for m in sys.modules if m.startswith(heavy))))
-"""
-
-
-def test_refusals_come_before_the_training_modules_are_imported(tmp_path):
-    """An unknown --env, a bad flag value, a setting out of range and a taken run directory are refused
-    without importing orbax, optax, scipy or the driver (`train.run` imports them once the config is valid:
-    `benchmarks/refusal_times.py` times the refusals). JAX itself is imported before any argument is read:
-    `python -m jaxsocial.train` imports the package `jaxsocial`, whose `__init__` imports the environment,
-    and the config's types (`EnvParams`, the network and slot configs) are JAX's."""
-    (tmp_path / "x").mkdir()
-    (tmp_path / "x" / "metrics.jsonl").write_text('{"iteration": 1}\n')
-    new, taken = (["--runs-dir", str(tmp_path), "--run-name", name] for name in ("y", "x"))
-    argvs = [
-        ["--env", "goalcycle9", *new],
-        ["--num-envs", "many", *new],
-        ["--iterations", "0", *new],
-        [*TINY_FLAGS, *taken],
-    ]
-    out = subprocess.run(
-        [sys.executable, "-c", REFUSALS, json.dumps(argvs)], capture_output=True, text=True, timeout=300
-    )
-    lines = out.stdout.splitlines()
-    assert len([line for line in lines if line.startswith("refused:")]) == len(argvs), out.stdout + out.stderr
-    assert "unknown environment 'goalcycle9'" in out.stdout
-    assert "iterations=0 must be >= 1" in out.stdout
-    assert "already exists and is not empty" in out.stdout
-    assert "cost:" not in out.stdout
-    assert json.loads(lines[-1]) == []
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["x"]

@@ -1,7 +1,7 @@
 """`NetworkConfig`, the network's widths and options, and the shapes that follow from them.
 
 `conv_impl`, `frame_batch` and `dtype` change how, not what, the network computes: the conv kernels
-(`conv.IMPLS`), the frames at a time the conv encoder and the decoder run on
+(`options.IMPLS`), the frames at a time the conv encoder and the decoder run on
 (`frame_batches.map_frame_batches`), and the input dtype of every matrix product and convolution
 (`precision.matmul`; params, LSTM state and outputs stay float32). Why and how fast: docs/performance.md.
 
@@ -17,11 +17,9 @@ import dataclasses
 import math
 from typing import Any, Literal, get_args
 
-import jax.numpy as jnp
-
 from jaxsocial import syntax
-from jaxsocial.agents.fast import conv, precision
-from jaxsocial.agents.fast.conv import KERNEL
+from jaxsocial.agents.fast import options
+from jaxsocial.agents.fast.options import KERNEL
 from jaxsocial.agents.symbolic import PREDICTED_VOCAB, SYMBOLIC_SHAPE
 
 OBS_SHAPE = (21, 21, 3)  # 7x7 grid cells of 3x3 pixels (marlgrid tile size 3)
@@ -33,9 +31,9 @@ Aux = Literal["none", "rec", "pred", "attention", "rec+attention", "pred+attenti
 """`NetworkConfig.aux`: a frame loss ("rec", "pred"), the attention head, both, or neither."""
 AUX_KINDS = get_args(Aux)
 ATTENTION_CLASSES = (OBS_SHAPE[0] // KERNEL) ** 2 + 1  # the 7x7 view cells, then "not in view"
-CONV_IMPLS = conv.IMPLS
+CONV_IMPLS = options.IMPLS
 """The concrete convolution implementations (`NetworkConfig.conv_impl`, for all layers or per layer)."""
-DTYPES = precision.DTYPES
+DTYPES = options.DTYPES
 """The concrete compute dtypes (`NetworkConfig.dtype`)."""
 AUTO = "auto"
 """The `conv_impl` and `dtype` value (also of one layer's `conv_impl`) that `autotune.resolve` replaces with
@@ -194,6 +192,8 @@ class NetworkConfig:
 
     @property
     def obs_dtype(self):
+        import jax.numpy as jnp  # a config reads without JAX
+
         return jnp.int8 if self.symbolic else jnp.uint8
 
     @property

@@ -4,7 +4,7 @@ leading slot axis and applied with `jax.vmap`, so nothing is shared between agen
 
 This module is the slot mini-language (`parse_slot_list`, `format_slots`, `check_slots`) and the slots'
 bookkeeping (`Population`); how they act is `jaxsocial.agents.acting`, and saved policies are read and
-written by `jaxsocial.run.policy_io`.
+written by `jaxsocial.run.policy_io`. Only `stack` imports JAX: a run's slots are read and checked before.
 """
 
 from __future__ import annotations
@@ -12,12 +12,9 @@ from __future__ import annotations
 import dataclasses
 from typing import Annotated
 
-import jax
-import jax.numpy as jnp
-
 from jaxsocial import syntax
-from jaxsocial.agents import experts
-from jaxsocial.env.types import EnvParams
+from jaxsocial.agents import expert_spec
+from jaxsocial.env.params import EnvParams
 from jaxsocial.specs import PolicyRef, TextField
 
 SLOT_KINDS = ("learner", "frozen", "expert", "random")
@@ -30,7 +27,7 @@ class Slot:
 
     kind: str
     policy: PolicyRef | None = None
-    expert: experts.ExpertSpec | None = None
+    expert: expert_spec.ExpertSpec | None = None
 
     @property
     def neural(self) -> bool:
@@ -62,7 +59,7 @@ def _split_entries(text: str) -> list[str]:
 def parse_slot(entry: str) -> Slot:
     """'learner' | 'random' | 'frozen:POLICY' | 'expert:ckpt=POLICY' (a trained expert, same as frozen; POLICY
     is `RUN_DIR` or `RUN_DIR#k`, `specs.PolicyRef`) | 'expert:KIND[:k=v,...]' (a scripted expert, see
-    `experts.parse_expert`). Raises ValueError."""
+    `expert_spec.parse_expert`). Raises ValueError."""
     kind, arg = syntax.split_name(entry)
     if kind not in SLOT_KINDS:
         raise ValueError(f"unknown slot kind {kind!r} in {entry!r}; choose from {SLOT_KINDS}")
@@ -71,7 +68,7 @@ def parse_slot(entry: str) -> Slot:
             raise ValueError(f"slot {entry!r}: say which expert, e.g. expert:explorer or expert:ckpt=RUN_DIR")
         if arg.startswith("ckpt="):
             return parse_slot(f"frozen:{arg.removeprefix('ckpt=')}")
-        return Slot("expert", expert=experts.parse_expert(arg))
+        return Slot("expert", expert=expert_spec.parse_expert(arg))
     if (kind == "frozen") != bool(arg):
         raise ValueError(f"slot {entry!r}: 'frozen:POLICY' needs a run directory; {kind} takes none")
     return Slot(kind, PolicyRef.parse(arg) if arg else None)
@@ -188,7 +185,7 @@ class Population:
         """Raise ValueError if a scripted expert cannot play this environment."""
         for i in self.experts:
             try:
-                experts.validate(self.slots[i].expert, env_params)
+                expert_spec.validate(self.slots[i].expert, env_params)
             except ValueError as err:
                 raise ValueError(f"slot {i}: {err}") from err
 
@@ -202,4 +199,7 @@ def default_population(env_params: EnvParams) -> Population:
 
 def stack(trees: list) -> object:
     """Stack a list of equally shaped pytrees on a new leading axis."""
+    import jax
+    import jax.numpy as jnp
+
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)

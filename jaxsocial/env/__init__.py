@@ -1,19 +1,20 @@
 """Pure-functional multi-agent gridworlds (Goal Cycle, Four Rooms, Maze) in JAX."""
 
-from jaxsocial.env.core import Env, reset, state_from_layout, step, step_batch, step_env
-from jaxsocial.env.registry import PRESETS, make, registered_envs
-from jaxsocial.env.types import EnvParams, EnvState
+from jaxsocial.lazy import exports
 
-__all__ = [
-    "PRESETS",
-    "Env",
-    "EnvParams",
-    "EnvState",
-    "make",
-    "registered_envs",
-    "reset",
-    "state_from_layout",
-    "step",
-    "step_batch",
-    "step_env",
-]
+SOURCES = {
+    "Env": "jaxsocial.env.core",
+    "reset": "jaxsocial.env.core",
+    "state_from_layout": "jaxsocial.env.core",
+    "step": "jaxsocial.env.core",
+    "step_batch": "jaxsocial.env.core",
+    "step_env": "jaxsocial.env.core",
+    "PRESETS": "jaxsocial.env.registry",
+    "make": "jaxsocial.env.registry",
+    "registered_envs": "jaxsocial.env.registry",
+    "EnvParams": "jaxsocial.env.types",
+    "EnvState": "jaxsocial.env.types",
+}
+"""Each name -> the module it comes from, imported at the name's first use (`jaxsocial.lazy`)."""
+__all__ = sorted(SOURCES)
+__getattr__ = exports(__name__, SOURCES)

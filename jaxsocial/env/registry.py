@@ -1,4 +1,5 @@
-"""Named presets and `make(name, **overrides)`.
+"""Named presets, `env_params(name, args)` and `make(name, **overrides)`. Only `make` imports JAX (for the
+`Env`): a command checks an environment's name and parameters before JAX is imported.
 
 Goal Cycle follows the paper and the choices of docs/environment.md (sections 6 and 9): 13x13, clutter
 density 0.1 (12 walls), +1 / -1.5, first tile always rewarded, 250 steps, view offset 1, prestige colours
@@ -11,10 +12,12 @@ reward decay `1 - 0.9 t / T`, and 250 steps (docs/environment.md 9.9). `-solo` v
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from jaxsocial.env.core import Env
-from jaxsocial.env.types import EnvParams
+from jaxsocial.env.params import EnvParams
+
+if TYPE_CHECKING:
+    from jaxsocial.env.core import Env
 
 DISTRACTOR_SLOTS = 2
 
@@ -53,20 +56,23 @@ def make(name: str, **overrides) -> tuple[Env, EnvParams]:
 
     Raises ValueError for an unknown name or field, or an impossible combination, before compiling anything.
     """
+    from jaxsocial.env.core import Env  # JAX's: imported once the parameters are valid
+
+    params = env_params(name, tuple(overrides.items()))
+    return Env(name, params), params
+
+
+def env_params(name: str, args: tuple[tuple[str, Any], ...] = ()) -> EnvParams:
+    """The parameters of preset `name` with the overrides `args`, (field, value) pairs as a `specs.EnvSpec`
+    holds them: ``env_params(spec.name, spec.args)``. ValueError as `make`."""
     if name not in PRESETS:
         raise ValueError(
             f"unknown environment {name!r}; choose one of: {', '.join(registered_envs())}. Overrides go "
             "after a ':' (goalcycle3:penalty=1.0,width=7), or in --env-args (--env goalcycle3 --env-args "
             "penalty=1.0,width=7): the two are one"
         )
+    overrides = dict(args)
     unknown = sorted(set(overrides) - set(PARAM_FIELDS))
     if unknown:
         raise ValueError(f"unknown EnvParams field(s) {unknown}; valid fields: {', '.join(PARAM_FIELDS)}")
-    env_params = PRESETS[name].replace(**overrides)
-    return Env(name, env_params), env_params
-
-
-def env_params(name: str, args: tuple[tuple[str, Any], ...] = ()) -> EnvParams:
-    """The parameters of preset `name` with the overrides `args`, (field, value) pairs as a `specs.EnvSpec`
-    holds them: ``env_params(spec.name, spec.args)``. ValueError as `make`."""
-    return make(name, **dict(args))[1]
+    return PRESETS[name].replace(**overrides)

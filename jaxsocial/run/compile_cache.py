@@ -15,8 +15,6 @@ import argparse
 import os
 from pathlib import Path
 
-import jax
-
 from jaxsocial import user_cache
 
 __all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "default_dir", "enable", "entries", "main"]
@@ -39,6 +37,8 @@ def enable(directory: str | Path, min_compile_seconds: float = MIN_COMPILE_SECON
     if path.exists() and not path.is_dir():
         raise ValueError(f"compile cache {path} exists and is not a directory")
     path.mkdir(parents=True, exist_ok=True)
+    import jax  # here, not above: `python -m jaxsocial.train` checks its input before JAX is imported
+
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", float(min_compile_seconds))
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

@@ -28,6 +28,7 @@ from jaxsocial.run import (
     metrics,
     nonfinite,
     policy_io,
+    processes,
     rundir,
     schedule,
     startup,
@@ -198,7 +199,7 @@ class Driver:
         if healthy:
             self.save_seeds()
             self.last_saved = self.it
-        elif distributed.is_main():
+        elif processes.is_main():
             print(f"warning: iteration {self.it} is not finite: not saved as a checkpoint or policy",
                   file=sys.stderr)  # fmt: skip
 
@@ -273,7 +274,7 @@ def train_chunks(
     nothing non-finite is ever saved."""
     driver = Driver.start(cfg.program, cfg.driver, static, mesh, seeds, population.format_slots(cfg.slots))
     if driver.it >= cfg.iterations:
-        if distributed.is_main():
+        if processes.is_main():
             print(nothing_to_train(driver.it, cfg.iterations))
         return
     out = Outputs.open(cfg, static, mesh, seeds, driver.it)
@@ -296,7 +297,7 @@ def train_chunks(
                 driver.save(check.healthy_end)
             out.show_progress(driver.it, driver.stage, pooled, chunk.sps)
             if stop:
-                if distributed.is_main():
+                if processes.is_main():
                     shown = "" if cfg.blind else f" {learner_return:.3g}"  # a blind run shows no return
                     print(f"stopped after iteration {driver.it}: the learners' return{shown} "
                           f"reached --stop-at-return {cfg.stop_at_return:g}")  # fmt: skip

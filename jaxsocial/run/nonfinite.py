@@ -4,16 +4,18 @@
 Every iteration, for every learner, each loss metric of its update, its parameters and its optimiser state
 are checked with one `isfinite` reduction each. The optimiser state stands for the gradient: Adam's moments
 take in every applied gradient (after clipping), so a non-finite gradient norm makes them non-finite. The
-result travels with the metrics as `metrics[KEY]`, {quantity: bool[S_l]} per iteration.
+result travels with the metrics as `metrics[KEY]`, {quantity: bool[S_l]} per iteration. Only `check` imports
+JAX, inside the program: the training command names `NonFiniteError` before JAX is imported.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+if TYPE_CHECKING:
+    import jax
 
 KEY = "finite"
 """The metrics entry holding the checks (the driver takes it out before writing rows)."""
@@ -29,6 +31,9 @@ class NonFiniteError(RuntimeError):
 
 def _all_finite(tree: Any, n_learners: int) -> jax.Array:
     """bool[S_l]: whether every floating-point value of learner l's part of `tree` (leaves [S_l, ...])."""
+    import jax
+    import jax.numpy as jnp
+
     leaves = [x for x in jax.tree.leaves(tree) if jnp.issubdtype(x.dtype, jnp.inexact)]
     flags = [jnp.all(jnp.isfinite(x.reshape(n_learners, -1)), axis=1) for x in leaves]
     return jnp.all(jnp.stack(flags), axis=0) if flags else jnp.ones(n_learners, bool)
@@ -37,6 +42,9 @@ def _all_finite(tree: Any, n_learners: int) -> jax.Array:
 def check(losses: dict[str, jax.Array], params: Any, opt_state: Any) -> dict[str, jax.Array]:
     """Inside the program: {loss name: bool[S_l], PARAMS: bool[S_l], OPTIMIZER: bool[S_l]}, whether each
     learner's quantity is finite. losses: float32[S_l] each; params, opt_state: pytrees of [S_l, ...]."""
+    import jax
+    import jax.numpy as jnp
+
     n_learners = jax.tree.leaves(params)[0].shape[0]
     flags = {name: jnp.isfinite(value) for name, value in losses.items()}
     return {**flags, PARAMS: _all_finite(params, n_learners), OPTIMIZER: _all_finite(opt_state, n_learners)}

@@ -29,6 +29,7 @@ from jaxsocial.run import (
     logs,
     metrics,
     nonfinite,
+    processes,
     rundir,
     schedule,
     startup,
@@ -135,7 +136,7 @@ class Outputs:
         parts += [distributed.describe(list(mesh.devices.flat))] if mesh.size > 1 else []
         name = run_name(cfg)
         desc = f"{name} ({', '.join(parts)})" if parts else name
-        if not distributed.is_main():
+        if not processes.is_main():
             return cls(cfg, static, seeds, desc, [], [])
         metrics_logs = [logs.MetricsLog(s.dir) for s in seeds]
         for metrics_log in metrics_logs:
@@ -145,7 +146,7 @@ class Outputs:
 
     @property
     def shows_progress(self) -> bool:
-        return self.cfg.progress and distributed.is_main()
+        return self.cfg.progress and processes.is_main()
 
     def compiling(self, n: int, stage: int) -> None:
         """The line before compiling the chunk of `n` iterations in `stage`."""
@@ -187,7 +188,7 @@ class Outputs:
             for row in rows:
                 extra.log(row, row[metrics.ITERATION])
         self.evaluated = self.evaluated or evaluating
-        if check.failure is not None and not check.stop and first_nonfinite and distributed.is_main():
+        if check.failure is not None and not check.stop and first_nonfinite and processes.is_main():
             print(f"warning: {failure_text(self.cfg, chunk.first, check.failure)}; training on "
                   "(--on-nonfinite warn)", file=sys.stderr)  # fmt: skip
 
@@ -219,7 +220,7 @@ class Outputs:
     def report(self, run_dir: Path, it: int, stopped_at: float | None = None) -> None:
         """The lines a run that trained up to iteration `it` ends with (`stopped_at`: the learners' return
         that stopped it early, `--stop-at-return`)."""
-        if not distributed.is_main():
+        if not processes.is_main():
             return
         where = f" ({len(self.seeds)} seeds: s{self.cfg.seed}/ ...)" if len(self.seeds) > 1 else ""
         print(f"wrote {run_dir}{where} ({it} iterations)")

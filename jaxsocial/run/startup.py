@@ -2,7 +2,8 @@
 Setup` (the environment of every stage and evaluation, the slots, the frozen policies); `resolve_network`,
 which makes the network's "auto" choices for this machine; and `with_env_observation`, a config whose
 network takes the observations its environment gives. What a run is, its `TrainConfig`, is
-`jaxsocial.run.config`'s.
+`jaxsocial.run.config`'s. Validating imports no JAX (a bad command is refused at once); loading frozen
+policies and the "auto" choices do.
 """
 
 from __future__ import annotations
@@ -10,12 +11,10 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, NamedTuple
 
-import jax
-
 from jaxsocial import specs
 from jaxsocial.agents import population, ppo_config
 from jaxsocial.env import registry
-from jaxsocial.env.types import NUM_ACTIONS, EnvParams
+from jaxsocial.env.params import NUM_ACTIONS, EnvParams
 from jaxsocial.run import schedule
 from jaxsocial.run.config import ALGOS, ON_NONFINITE, SEED_BATCHING, TrainConfig
 
@@ -48,7 +47,7 @@ def with_env_observation(cfg: TrainConfig) -> TrainConfig:
     """`cfg` with `net.obs` the observations its environment gives (`--env` with `--env-args`: "rgb" or
     "symbolic"); `cfg` itself if that environment cannot be built (`setup` then says why)."""
     try:
-        _, env_params = registry.make(cfg.env, **cfg.env_overrides)
+        env_params = registry.env_params(cfg.env, cfg.env_args)
     except ValueError:
         return cfg
     return dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, obs=env_params.observation))
@@ -93,7 +92,8 @@ def environments(cfg: TrainConfig) -> tuple[tuple[EnvParams, ...], list[tuple[sp
         cfg.env_overrides,
         *({**cfg.env_overrides, **schedule.overrides_at(cfg.stages, i)} for i in stages),
     ]
-    stage_envs = tuple(registry.make(cfg.env, **o)[1] for o in overrides)  # before the stages, then each
+    # before the stages, then each
+    stage_envs = tuple(registry.env_params(cfg.env, tuple(o.items())) for o in overrides)
     first = stage_envs[0]
     for i, stage_params in zip(stages, stage_envs[1:], strict=True):
         if changed := [
@@ -153,6 +153,8 @@ def resolve_network(cfg: TrainConfig, pop: population.Population) -> TrainConfig
     measure differently."""
     if not cfg.net.unresolved:
         return cfg
+    import jax
+
     if jax.process_count() > 1:
         raise ValueError("--net.dtype/--net.conv-impl 'auto' are chosen per machine: give them concretely")
     frames = (

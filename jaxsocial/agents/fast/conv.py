@@ -21,7 +21,7 @@ Implementations (`IMPLS`; the same function of the same arguments):
   product followed by the sum of its 9 shifted outputs. Stride 3 as "matmul".
 * "xla": ``lax.conv_general_dilated`` / ``lax.conv_transpose`` in NHWC (exact reference).
 
-`dtype` (`precision.DTYPES`): the products' input dtype; they accumulate in float32 (`precision.matmul`).
+`dtype` (`options.DTYPES`): the products' input dtype; they accumulate in float32 (`precision.matmul`).
 Measurements behind these choices: docs/performance.md.
 """
 
@@ -35,10 +35,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxsocial.agents.fast.options import IMPLS, KERNEL
 from jaxsocial.agents.fast.precision import matmul
-
-KERNEL = 3
-IMPLS = ("matmul", "im2col", "xla")
 
 
 def formulation(impl: str, stride: int, dtype: str = "float32") -> str:

@@ -1,6 +1,6 @@
 """Mixed-precision matrix products: inputs rounded to a compute dtype, products accumulated in float32.
 
-`NetworkConfig.dtype` names the compute dtype (`DTYPES`). With "bfloat16" every matrix product and
+`NetworkConfig.dtype` names the compute dtype (`options.DTYPES`). With "bfloat16" every matrix product and
 convolution of the network takes bfloat16 inputs (an 8-bit significand: each input is rounded with a
 relative error of at most 2^-8, its unit roundoff) and accumulates in float32 (``preferred_element_type``);
 everything else, params, optimiser state, LSTM cell state, nonlinearities, losses and advantages, stays
@@ -13,9 +13,6 @@ import functools
 
 import jax
 import jax.numpy as jnp
-
-DTYPES = ("float32", "bfloat16")
-"""`NetworkConfig.dtype` values: the input dtype of the network's matrix products and convolutions."""
 
 
 def matmul(x: jax.Array, kernel: jax.Array, dtype: str) -> jax.Array:

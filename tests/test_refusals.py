@@ -1,0 +1,76 @@
+"""Refusals answer at once (issue 84, item 5): an argument error, an unknown name or a taken run directory is
+refused before JAX is imported, and before any of the training's heavy modules, the cost line or a write.
+How long they take is `benchmarks/refusal_times.py`'s to measure; this checks what makes them quick."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+
+from jaxsocial.run import config, logs
+from jaxsocial.run.config import TrainConfig
+from jaxsocial.run.runlock import RunLock
+
+HEAVY = ("jax", "jaxlib", "flax", "orbax", "optax", "scipy", "jaxsocial.run.driver", "jaxsocial.run.loop")
+"""Modules (with their submodules) a refusal imports none of."""
+REFUSE = """
+import json, sys
+from jaxsocial import train
+heavy = sys.argv[2].split(",")
+for argv in json.loads(sys.argv[1]):
+    try:
+        train.main(argv)
+    except SystemExit as exit:
+        imported = [m for m in sorted(sys.modules) if any(m == h or m.startswith(h + ".") for h in heavy)]
+        print(json.dumps({"refused": str(exit.code), "imported": imported}))
+"""
+"""`train.main` on each argv of its first argument, in one process: as each is refused, its message (or exit
+status) and the modules of its second argument imported by then."""
+
+
+def make_runs(runs) -> None:
+    """'trained' and 'live' hold a metrics row, 'unstarted' only the config.json of a run of 5 iterations."""
+    for name in ("trained", "live", "unstarted"):
+        cfg = dataclasses.replace(TrainConfig(), runs_dir=str(runs), run_name=name, iterations=5)
+        (runs / name).mkdir(parents=True)
+        logs.write_config(runs / name, config.config_dict(cfg))
+        if name != "unstarted":
+            (runs / name / logs.METRICS_FILE).write_text('{"iteration": 1}\n')
+
+
+def snapshot(runs) -> dict:
+    """Every path under `runs` but the lock files, with a file's bytes."""
+    return {p: p.is_file() and p.read_bytes() for p in runs.rglob("*") if p.suffix != ".lock"}
+
+
+def test_refusals_come_before_jax_is_imported(tmp_path):
+    """The refusals `benchmarks/refusal_times.py` times (an unknown --env, a bad flag value, a setting out of
+    range, a run directory with metrics, one of another config, one a live process holds), each refused with
+    its message while `jax` is not in `sys.modules`, with nothing written and no cost line."""
+    runs = tmp_path / "runs"
+    make_runs(runs)
+    refusals = {
+        "unknown environment 'goalcycle9'": ["--env", "goalcycle9"],
+        "--num-envs": ["--num-envs", "many"],
+        "iterations=0 must be >= 1": ["--iterations", "0"],
+        "trained already exists and is not empty": ["--run-name", "trained"],
+        "differs in ['iterations']": ["--run-name", "unstarted", "--iterations", "7"],
+        "live is in use by process": ["--resume", str(runs / "live")],
+    }
+    argvs = [["--runs-dir", str(runs), *argv] for argv in refusals.values()]
+    before = snapshot(runs)
+    with RunLock(runs / "live"):
+        out = subprocess.run(
+            [sys.executable, "-c", REFUSE, json.dumps(argvs), ",".join(HEAVY)],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+    outcomes = [json.loads(line) for line in out.stdout.splitlines() if line.startswith('{"refused"')]
+    assert len(outcomes) == len(refusals), out.stdout + out.stderr
+    for message, outcome in zip(refusals, outcomes, strict=True):
+        tyro = outcome["refused"] == "2"  # a bad flag value: tyro printed why and exited with status 2
+        said = out.stdout + out.stderr if tyro else outcome["refused"]
+        assert message in said and outcome["imported"] == [], (message, outcome)
+    assert "cost:" not in out.stdout + out.stderr
+    assert snapshot(runs) == before
