@@ -44,7 +44,7 @@ prepare() {
   (cd .prereg/code && PYTHONPATH=$PWD python -m jaxsocial.experiments run "$design" --scale gpu --dry-run) |
     grep "python -m jaxsocial.train" | sed 's/^ *python -m jaxsocial.train //' >.prereg/commands.txt
   printf '%s\n%s\n' "$commit" "$design" >.prereg/design.txt
-  python -c "from jaxsocial.experiments.plan import catalogue; print(catalogue.load('$design').xla_flags or '')" \
+  python -c "from jaxsocial.experiments.plan import designs; print(designs.load('$design').xla_flags or '')" \
     >.prereg/xla_flags.txt  # the design's own (designs since 2026-11-28), set on the device for every run
   cp "$0" .prereg/block.sh
   python -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \

@@ -20,13 +20,13 @@ from jaxsocial.experiments.analyse import branch_results as br
 from jaxsocial.experiments.analyse import kinds, power, records, rundirs, verdicts
 from jaxsocial.experiments.launch import branch_runs, pinned
 from jaxsocial.experiments.plan import branch_design as bd
-from jaxsocial.experiments.plan import catalogue, paths, prereg
+from jaxsocial.experiments.plan import catalogue, designs, paths
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.provenance import PARENT_WRITES
 from jaxsocial.specs import CheckpointRef
 
-MIXING = catalogue.load("mixing")
+MIXING = designs.load("mixing")
 RUNS = Path("runs-nowhere")
 
 
@@ -94,9 +94,9 @@ def test_the_amendment_tests_each_branch_against_where_it_started():
     assert pilot["social_fades"]["differences"] == [
         s["zero_shot"][solo3]["learner"] - s["branches"]["social"][solo3] for s in social
     ]  # a fall is positive
-    committed = prereg.commit_time(catalogue.file_commit(catalogue.amendment_path("mixing")))
+    committed = catalogue.commit_time(catalogue.file_commit(catalogue.amendment_path("mixing")))
     assert datetime.datetime.fromisoformat(committed) >= datetime.datetime.fromisoformat("2026-12-01T22:44Z")
-    assert prereg.commit_time(None) is None
+    assert catalogue.commit_time(None) is None
 
 
 def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path, monkeypatch):
@@ -106,9 +106,9 @@ def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path, monk
     raw["secondary"]["social_skill"]["env"] = "goalcycle4"
     (tmp_path / "bad.json").write_text(json.dumps(raw | {"name": "bad"}))
     with pytest.raises(ValueError, match=r"arm 'solo' is not one of \['alone', 'mixed', 'social', 'start'\]"):
-        catalogue.load("bad")
+        designs.load("bad")
     with pytest.raises(FileNotFoundError, match=r"the designs are \['bad'\]"):
-        catalogue.load("mixing")
+        designs.load("mixing")
 
 
 def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, float]) -> None:
@@ -171,7 +171,7 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
     monkeypatch.setattr(
         catalogue, "file_commit", lambda path: "f" * 40 if path == amendment else committed(path)
     )
-    monkeypatch.setattr(prereg, "commit_time", lambda commit: "2026-12-01T22:00:00+00:00")
+    monkeypatch.setattr(catalogue, "commit_time", lambda commit: "2026-12-01T22:00:00+00:00")
     summary = br.summarise(design, tmp_path)
     block = summary["preregistered"]
     paired = scipy_stats.wilcoxon(
@@ -258,7 +258,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     }
     (tmp_path / "tiny.json").write_text(json.dumps(raw))
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
-    design = catalogue.load("tiny")
+    design = designs.load("tiny")
     cfg = branch_runs.branch_config(design, "mixed", 0, runs_root, records_root)
     monkeypatch.setenv(PARENT_WRITES, "1")  # as `pinned.run` starts it: the runner writes its file
     run_dir = train.run(cfg)

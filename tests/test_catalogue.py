@@ -10,19 +10,19 @@ import subprocess
 import pytest
 
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments.plan import catalogue
+from jaxsocial.experiments.plan import catalogue, designs
 
 
 @pytest.mark.parametrize("name", catalogue.design_names())
 def test_every_committed_design_loads_as_its_kind_and_as_no_other(name):
     """One loader for every kind: the design is its kind's class, and asking for another kind is refused."""
     kind = catalogue.design_kind(name)
-    design = catalogue.load(name)
+    design = designs.load(name)
     assert design.name == name and kind == design.KIND and isinstance(design, catalogue.Design)
-    assert catalogue.load(name, kind) == design
+    assert designs.load(name, kind) == design
     for other in set(catalogue.DESIGN_KINDS) - {kind}:
         with pytest.raises(ValueError, match=f"design {name} is of kind {kind}, not {other}"):
-            catalogue.load(name, other)
+            designs.load(name, other)
 
 
 def test_a_file_names_its_kind_or_is_known_by_the_field_only_its_kind_has(tmp_path, monkeypatch):
@@ -45,11 +45,11 @@ def test_a_file_names_its_kind_or_is_known_by_the_field_only_its_kind_has(tmp_pa
     ]
     with pytest.raises(ValueError, match="unknown kind 'sweep'"):
         catalogue.design_kind("unknown")
-    named = catalogue.load("named")  # its `kind` is the catalogue's, not a field of the design
+    named = designs.load("named")  # its `kind` is the catalogue's, not a field of the design
     assert named.KIND == "branch" and named.arms.keys() == mixing["arms"].keys()
     (tmp_path / "misnamed.json").write_text(json.dumps(mixing))
     with pytest.raises(ValueError, match=r"design misnamed: its file .*misnamed\.json names it 'mixing'"):
-        catalogue.load("misnamed")
+        designs.load("misnamed")
     with pytest.raises(FileNotFoundError, match=r"no design .*missing\.json; the designs are \['arms',"):
         catalogue.design_kind("missing")
 

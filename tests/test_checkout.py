@@ -13,7 +13,7 @@ from jaxsocial.experiments import followup, kind_commands, sweep
 from jaxsocial.experiments.analyse import branch_results as br
 from jaxsocial.experiments.analyse import takeoff_power
 from jaxsocial.experiments.launch import evaluation_play
-from jaxsocial.experiments.plan import catalogue, paths
+from jaxsocial.experiments.plan import designs, paths
 
 COMMANDS = {
     "experiments": (cli.main, ["list"]),
@@ -71,7 +71,7 @@ def test_results_dir_moves_every_results_path_and_the_parsers_defaults(results_m
 
 @needs_records("records/laptop/prereg-experts")
 def test_a_command_reads_the_results_it_is_pointed_at(tmp_path, monkeypatch, capsys, results_moved_back):
-    mixing = catalogue.load("mixing")
+    mixing = designs.load("mixing")
     recorded = br.as_designed(mixing, RESULTS / "records")["recorded"]
     monkeypatch.chdir(tmp_path)  # no benchmarks/results here
     science = tmp_path / "science"
@@ -95,4 +95,4 @@ def test_a_code_only_clone_says_how_to_fetch_the_records_a_command_reads(tmp_pat
         FileNotFoundError,
         match=re.escape("git sparse-checkout add '/benchmarks/results/records/laptop/prereg-experts/'"),
     ):
-        evaluation_play.run(catalogue.load("transfer"), paths.RECORDS, paths.SCIENCE)
+        evaluation_play.run(designs.load("transfer"), paths.RECORDS, paths.SCIENCE)

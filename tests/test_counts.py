@@ -15,7 +15,7 @@ from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import kinds, power, summaries, takeoff, takeoff_power, verdicts
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.experiments.plan import catalogue, commits, paths, prereg, recipes
+from jaxsocial.experiments.plan import catalogue, commits, designs, paths, prereg, recipes
 from jaxsocial.run import config, logs
 
 
@@ -74,14 +74,12 @@ def test_takeoff_and_the_fraction_learned():
 
 
 DESIGNED = sorted(r.name for r in recipes.RECIPES.values() if r.design)
-COUNT_DESIGNS = [
-    name for name in DESIGNED if catalogue.load(recipes.RECIPES[name].design).analysis == "counts"
-]
+COUNT_DESIGNS = [name for name in DESIGNED if designs.load(recipes.RECIPES[name].design).analysis == "counts"]
 TAKEOFF_DESIGNS = [
-    name for name in DESIGNED if catalogue.load(recipes.RECIPES[name].design).analysis == "takeoff"
+    name for name in DESIGNED if designs.load(recipes.RECIPES[name].design).analysis == "takeoff"
 ]
 ZERO_SHOT_DESIGNS = [
-    name for name in DESIGNED if catalogue.load(recipes.RECIPES[name].design).analysis == "zero_shot"
+    name for name in DESIGNED if designs.load(recipes.RECIPES[name].design).analysis == "zero_shot"
 ]
 LARGE_ARMS = 20
 """Count designs with more seeds an arm are tested in the slow suite only: Boschloo's p-value of each of the
@@ -92,7 +90,7 @@ LARGE_ARMS = 20
     "name",
     [
         pytest.param(name, marks=pytest.mark.slow)
-        if max(catalogue.load(recipes.RECIPES[name].design).arm_seeds.values()) > LARGE_ARMS
+        if max(designs.load(recipes.RECIPES[name].design).arm_seeds.values()) > LARGE_ARMS
         else name
         for name in COUNT_DESIGNS
     ],
@@ -102,11 +100,11 @@ def test_the_committed_design_has_the_power_it_states(name, capsys, monkeypatch)
     command sums over the same tables again, twice)."""
     monkeypatch.setattr(stats, "p_value", functools.cache(stats.p_value))
     recipe = recipes.RECIPES[name]
-    design = catalogue.load(recipe.design)
-    scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
+    design = designs.load(recipe.design)
+    scale = prereg.recipe_scale(recipe, recipes.SCALES[design.scale])
     assert scale.iterations == design.iterations and scale.runs_subdir == f"prereg-{design.name}"
 
-    assert recipes.recipe_scale(recipe, recipes.TINY) == recipes.TINY  # the budget is the design scale's
+    assert prereg.recipe_scale(recipe, recipes.TINY) == recipes.TINY  # the budget is the design scale's
     assert set(design.trained_conditions) == set(recipe.conditions)  # a borrowed arm is not trained again
     assert design.seed >= 100 and design.training_commit is None  # fresh seeds; runs follow the design
     cfg = recipes.condition_config(scale, recipe.conditions[0], design.seed, design.seeds, "r")
@@ -119,12 +117,12 @@ def test_the_committed_design_has_the_power_it_states(name, capsys, monkeypatch)
 
 
 def test_the_takeoff_design_states_its_tests_budget_and_evaluations():
-    design = catalogue.load("experts")
+    design = designs.load("experts")
     assert design.analysis == "takeoff" and design.test == prereg.TAKEOFF_TEST
     assert set(design.tests["primary"]) == {"takeoff", "goalcycle4"}
     assert set(design.tests["secondary"]) == {"solo3", "ct", "counts"}
     assert design.seed >= 300 and design.seeds == 40 and design.eval_episodes >= 128
-    scale = recipes.recipe_scale(recipes.RECIPES["experts"], recipes.LAPTOP)
+    scale = prereg.recipe_scale(recipes.RECIPES["experts"], recipes.LAPTOP)
     assert scale.eval_episodes == design.eval_episodes and scale.iterations == design.iterations
     assert design.iterations % takeoff.window_iterations(8192) == 0  # whole takeoff windows to the budget
     planning = f"{design.seeds} seeds, discount {design.power_simulation['planning_discount']:g}"
@@ -137,7 +135,7 @@ def test_the_takeoff_design_states_its_tests_budget_and_evaluations():
 def test_the_takeoff_design_has_the_power_it_states(name, capsys):
     """The stored power re-simulated from the committed evidence with fewer simulated designs: within the
     two estimates' Monte Carlo error (4 standard errors)."""
-    design = catalogue.load(recipes.RECIPES[name].design)
+    design = designs.load(recipes.RECIPES[name].design)
     planning = design.power_simulation["planning_discount"]
     reps = 300
     table = takeoff_power.takeoff_power_table(
@@ -156,7 +154,7 @@ def test_the_takeoff_design_has_the_power_it_states(name, capsys):
 @pytest.mark.parametrize("name", ZERO_SHOT_DESIGNS)
 def test_the_zero_shot_design_has_the_power_it_states(name, capsys):
     """Every stated power re-simulated exactly (`power.zero_shot_power`), and printed by `power`."""
-    design = catalogue.load(recipes.RECIPES[name].design)
+    design = designs.load(recipes.RECIPES[name].design)
     sim = design.power_simulation
     n = design.arm_seeds
     for case, stated in sim["power"].items():
@@ -170,7 +168,7 @@ def test_the_zero_shot_design_has_the_power_it_states(name, capsys):
 @pytest.mark.parametrize("name", DESIGNED)
 def test_a_design_fixes_its_seeds(name, tmp_path, capsys):
     recipe = recipes.RECIPES[name]
-    design = catalogue.load(recipe.design)
+    design = designs.load(recipe.design)
     with pytest.raises(SystemExit):
         cli.main(["run", name, "--scale", design.scale, "--seeds", "3", "--dry-run"])
     assert f"fixes {design.seeds}" in capsys.readouterr().err
@@ -185,7 +183,7 @@ def test_a_design_fixes_its_seeds(name, tmp_path, capsys):
 
 
 def test_preregistered_block():
-    design = catalogue.load("h1_prereg")
+    design = designs.load("h1_prereg")
     learned = {"social_pred": [True, True, False, True], "social_rec": [True, False, False, False]}
     learned |= {"solo_pred": [False] * 4, "social_none": [False, True, False, False]}
     head = commits.head_commit()
@@ -207,7 +205,7 @@ def test_preregistered_block():
     }
     assert block["commit"] == catalogue.design_commit("h1_prereg")
     checks = block["checks"]
-    after = prereg.precedes(block["commit"], head)  # True once the design is committed
+    after = catalogue.precedes(block["commit"], head)  # True once the design is committed
     assert checks["runs_not_after_design"] == ["a/s1"] if after else ["a/s0", "a/s1"]  # a/s1 has no commit
     assert not checks["design_precedes_every_run"] and checks["seeds_as_designed"]
     said = verdicts.verdict({"preregistered": block})
@@ -216,7 +214,7 @@ def test_preregistered_block():
 
 
 def test_design_seeds_that_do_not_count_are_named():
-    design = dataclasses.replace(catalogue.load("h1_prereg"), seeds=2, training_commit="a" * 40)
+    design = dataclasses.replace(designs.load("h1_prereg"), seeds=2, training_commit="a" * 40)
     settings = {"env": "goalcycle3", "num_envs": 1024}
     good = {
         "config": {**settings, "iterations": design.iterations},
@@ -245,7 +243,7 @@ def test_design_seeds_that_do_not_count_are_named():
 def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monkeypatch):
     """A later value of one of the design's flags would override it, so the flags must end the process's."""
     wanted = f"{pinned.CROSS_CPU_XLA_FLAGS} --xla_cpu_max_isa=AVX2"  # two flags, as `run` appends them
-    design = dataclasses.replace(catalogue.load("h1_prereg"), seeds=1, training_commit=None, xla_flags=wanted)
+    design = dataclasses.replace(designs.load("h1_prereg"), seeds=1, training_commit=None, xla_flags=wanted)
     good = {"config": {"iterations": design.iterations}, "rows": design.iterations, "commit": None}
     runs = {
         f"{pinned.SINGLE_CORE_XLA_FLAGS} {wanted}": [],
@@ -265,16 +263,16 @@ def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monk
     bad.write_text(json.dumps(raw | {"name": "h1_bad", "xla_flags": "--a=1 b=2"}))
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     with pytest.raises(ValueError, match="design h1_bad's xla_flags: 'b=2' is not an XLA flag"):
-        catalogue.load("h1_bad")
+        designs.load("h1_bad")
 
 
 def test_a_design_may_borrow_an_arm_of_a_finished_design(tmp_path, monkeypatch):
     """nopenalty8 trains only its treatment; its control is pred8's solo arm. A borrowed arm must be the
     same arm of another design, one arm at most, and an early stop needs the takeoff count."""
-    design = catalogue.load("nopenalty8")
+    design = designs.load("nopenalty8")
     assert design.borrowed == {"control": "pred8"} and design.trained_conditions == ("solo_pred_nopenalty",)
     assert design.learned_by == "takeoff" and design.stop_at_return == 5.0
-    assert catalogue.load("imperfect8").trained_conditions == ("social_pred_imperfect_half",)
+    assert designs.load("imperfect8").trained_conditions == ("social_pred_imperfect_half",)
     for name in ("pred8", "nopenalty8"):
         (tmp_path / f"{name}.json").write_text(catalogue.path_of(name).read_text())
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
@@ -289,12 +287,12 @@ def test_a_design_may_borrow_an_arm_of_a_finished_design(tmp_path, monkeypatch):
     for message, change in bad.items():
         (tmp_path / "bad.json").write_text(json.dumps({**base, "name": "bad", **change}))
         with pytest.raises(ValueError, match=message):
-            catalogue.load("bad")
+            designs.load("bad")
 
 
 def test_a_seed_its_early_stop_ended_counts_as_finished():
     """A design with `stop_at_return` accepts a seed that stopped before its iterations, and no other."""
-    design = dataclasses.replace(catalogue.load("nopenalty8"), seeds=1)
+    design = dataclasses.replace(designs.load("nopenalty8"), seeds=1)
     config_ = {"iterations": design.iterations, "stop_at_return": design.stop_at_return}
     stopped = {"config": config_, "rows": 20, "finished": True, "commit": None}
     settings = {"solo_pred_nopenalty": {}}
@@ -318,7 +316,7 @@ def test_designs_since_the_cross_cpu_flags_name_them():
     names = catalogue.design_names("training")
     assert before <= set(names)
     for name in names:
-        flags = catalogue.load(name).xla_flags
+        flags = designs.load(name).xla_flags
         assert flags is None if name in before else flags == pinned.CROSS_CPU_XLA_FLAGS, name
 
 
@@ -326,8 +324,8 @@ def test_a_config_with_the_old_field_names_counts_as_the_design_expects():
     """A seed whose config.json was written before `ppo.chunk_length`, `ppo.minibatch_chunks` and
     `net.chunk` were renamed (committed records hold such files) compares equal to the design's expected
     config of today's names, and differs where the old-named values differ."""
-    design = dataclasses.replace(catalogue.load("h1_prereg"), seeds=1, training_commit=None)
-    scale = recipes.recipe_scale(recipes.RECIPES["h1_prereg"], recipes.SCALES[design.scale])
+    design = dataclasses.replace(designs.load("h1_prereg"), seeds=1, training_commit=None)
+    scale = prereg.recipe_scale(recipes.RECIPES["h1_prereg"], recipes.SCALES[design.scale])
     expected, conditions = {}, {}
     for c in (*design.treatment, *design.control):
         values = config.config_dict(recipes.condition_config(scale, c, design.seed, 1, "runs"))
@@ -349,9 +347,9 @@ def test_commit_order():
     head, parent = commits.head_commit(), commits.git("rev-parse", "HEAD~1").stdout.strip()
     if head is None or not parent:
         pytest.skip("needs a git checkout with history")
-    assert prereg.precedes(parent, head) and prereg.precedes(head, head)
-    assert prereg.precedes(head, parent) is False
-    assert prereg.precedes(None, head) is None and prereg.precedes("0" * 40, head) is None
+    assert catalogue.precedes(parent, head) and catalogue.precedes(head, head)
+    assert catalogue.precedes(head, parent) is False
+    assert catalogue.precedes(None, head) is None and catalogue.precedes("0" * 40, head) is None
 
 
 def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
@@ -372,7 +370,7 @@ def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
     assert not block["checks"]["scale_as_designed"] and not block["checks"]["seeds_as_designed"]
     assert (
         not block["valid"]
-        and f"social_pred seed {catalogue.load('h1_prereg').seed}: missing" in block["problems"]
+        and f"social_pred seed {designs.load('h1_prereg').seed}: missing" in block["problems"]
     )
     said = capsys.readouterr().out
     assert said.endswith(verdicts.verdict({"preregistered": block}) + "\n") and said.rstrip().endswith(
@@ -386,7 +384,7 @@ def test_secondary_tests_count_each_arm_as_the_design_says():
     """imperfect8's secondary tests on pred8's social arm standing in for its own: the counts are pred8's
     (30 of 40 learned; no learner ended above its experts), so each arm equals the other."""
     runs = summaries.design_runs("pred8", str(paths.RECORDS))
-    design = dataclasses.replace(catalogue.load("imperfect8"), treatment=("social_pred",), borrowed={})
+    design = dataclasses.replace(designs.load("imperfect8"), treatment=("social_pred",), borrowed={})
     tests = summaries.secondary_tests(design, runs)
     assert tests["fewer_than_good_experts"]["counts"] == [30, 40, 30, 40]
     assert tests["fewer_than_good_experts"]["p"] == 1.0 and not tests["fewer_than_good_experts"]["rejected"]
@@ -397,7 +395,7 @@ def test_secondary_tests_count_each_arm_as_the_design_says():
 def test_a_zero_shot_design_compares_the_borrowed_scores_with_its_own_seeds(tmp_path, monkeypatch):
     """imitation8's block from hand-written evaluations: the borrowed arm's from the evaluation design's
     file, the trained arm's from each seed's own; a protocol other than the design's fails its check."""
-    design = catalogue.load("imitation8")
+    design = designs.load("imitation8")
     env = design.tests["primary"]["goalcycle4_8x8"]["env"]
 
     def result(scores, episodes=128):

@@ -15,7 +15,7 @@ from jaxsocial import stats
 from jaxsocial.experiments.analyse import evaluation_results as er
 from jaxsocial.experiments.analyse import power, verdicts
 from jaxsocial.experiments.launch import evaluation_play
-from jaxsocial.experiments.plan import catalogue, paths, prereg
+from jaxsocial.experiments.plan import catalogue, designs, paths
 from jaxsocial.experiments.plan import evaluation_design as ed
 
 
@@ -46,7 +46,7 @@ def design_file(tmp_path, **changes) -> ed.EvaluationDesign:
         "rationale": "",
     } | changes
     (tmp_path / "tiny_transfer.json").write_text(json.dumps(raw))
-    return catalogue.load("tiny_transfer")
+    return designs.load("tiny_transfer")
 
 
 @pytest.fixture
@@ -65,7 +65,7 @@ def test_a_bad_design_fails_on_load_before_anything_plays(designs_dir):
     with pytest.raises(ValueError, match="two different arms"):
         design_file(designs_dir, control="social_rec")
     with pytest.raises(FileNotFoundError, match="no design .*the designs are"):
-        catalogue.load("no_such_design")
+        designs.load("no_such_design")
 
 
 def test_each_family_is_holm_corrected_on_its_own(designs_dir):
@@ -92,10 +92,10 @@ def test_each_family_is_holm_corrected_on_its_own(designs_dir):
         for env in ("fourrooms", "maze")
     }
     low, high = sorted(p.values())
-    assert primary["a"]["p"] == stats.round_p(p["fourrooms"], prereg.P_DECIMALS)  # a summary's 6 decimals
+    assert primary["a"]["p"] == stats.round_p(p["fourrooms"], catalogue.P_DECIMALS)  # a summary's 6 decimals
     assert sorted(e["p_holm"] for e in primary.values()) == [
-        stats.round_p(min(1.0, 2 * low), prereg.P_DECIMALS),
-        stats.round_p(max(min(1.0, 2 * low), high), prereg.P_DECIMALS),
+        stats.round_p(min(1.0, 2 * low), catalogue.P_DECIMALS),
+        stats.round_p(max(min(1.0, 2 * low), high), catalogue.P_DECIMALS),
     ]
     assert all(e["rejected"] == (e["p_holm"] <= 0.05) for e in primary.values())
     secondary = er.tested(design, design.secondary, by_player)  # alone in its family: not adjusted
@@ -187,7 +187,7 @@ def test_run_refuses_a_design_whose_records_are_missing(designs_dir, tmp_path):
 
 @pytest.mark.parametrize("name", catalogue.design_names("evaluation"))
 def test_a_committed_design_names_its_material_and_its_pilot(name):
-    design = catalogue.load(name)
+    design = designs.load(name)
     if not (paths.RECORDS / design.records).is_dir():
         pytest.skip(f"needs the committed records {paths.RECORDS / design.records}")
     assert er.absent_records(design, paths.RECORDS) == []
@@ -202,7 +202,7 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
 @pytest.mark.parametrize("name", catalogue.design_names("evaluation"))
 def test_a_committed_design_has_the_power_it_states(name):
     """The whole power table, recomputed from the committed pilot with the design's seed of the simulation."""
-    design = catalogue.load(name)
+    design = designs.load(name)
     if not Path(design.power_simulation["pilot"]).is_dir():
         pytest.skip(f"needs the committed pilot {design.power_simulation['pilot']}")
     table = power.stated_power(design)

@@ -11,7 +11,7 @@ from jaxsocial import train
 from jaxsocial.experiments import followup
 from jaxsocial.experiments.analyse import kinds, plot_figures, records
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.experiments.plan import catalogue, recipes
+from jaxsocial.experiments.plan import designs, recipes
 from jaxsocial.run import checkpoint, logs, metrics
 
 pytestmark = pytest.mark.slow
@@ -25,7 +25,7 @@ def tiny(tmp_path_factory):
     seed of it: (plan, runs root, source seed directory)."""
     runs = tmp_path_factory.mktemp("design")
     design = dataclasses.replace(
-        catalogue.load("h1_laptop"), scale="tiny", iterations=recipes.TINY.iterations, seed=0, seeds=1,
+        designs.load("h1_laptop"), scale="tiny", iterations=recipes.TINY.iterations, seed=0, seeds=1,
         learned_threshold=-1e9,
     )  # fmt: skip
     plan = followup.Plan(recipes.RECIPES["h1_laptop"], recipes.TINY, design, episodes=4)

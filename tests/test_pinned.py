@@ -164,8 +164,9 @@ def test_max_runs_starts_only_the_first_runs_seed_by_seed(tmp_path, monkeypatch,
 def test_a_designs_seeds_train_with_its_xla_flags(tmp_path, monkeypatch):
     """With --cores every process gets them after the single-core flags; in this process they must already
     be in $XLA_FLAGS (XLA reads them once), else nothing trains."""
-    flags, load, given = "--xla_cpu_max_isa=AVX2", prereg.load, []
-    monkeypatch.setattr(prereg, "load", lambda name: dataclasses.replace(load(name), xla_flags=flags))
+    flags, read, given = "--xla_cpu_max_isa=AVX2", prereg.TrainingDesign.read, []
+    with_flags = classmethod(lambda cls, name: dataclasses.replace(read(name), xla_flags=flags))
+    monkeypatch.setattr(prereg.TrainingDesign, "read", with_flags)
     monkeypatch.setattr(
         pinned, "run", lambda jobs, cores, xla_flags: given.append(xla_flags) or [0] * len(jobs)
     )

@@ -14,7 +14,7 @@ from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import followup, sweep
 from jaxsocial.experiments.analyse import records, summaries, takeoff_power
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.experiments.plan import catalogue, paths, recipes
+from jaxsocial.experiments.plan import catalogue, designs, paths, recipes
 from jaxsocial.run import logs, metrics, policy_io
 
 REPO = Path(__file__).resolve().parents[1]
@@ -296,9 +296,9 @@ def _records_read(name: str) -> tuple[str, ...]:
     designed = summary.get("design") in catalogue.design_names()
     kind = catalogue.design_kind(summary["design"]) if designed else None
     if kind == "evaluation":
-        return (f"records/{catalogue.load(summary['design']).records}",)
+        return (f"records/{designs.load(summary['design']).records}",)
     if kind == "branch":
-        design = catalogue.load(summary["design"])
+        design = designs.load(summary["design"])
         return (f"records/{design.records}", f"records/{design.out}")
     if "--scale" in command:
         return (f"records/{command[command.index('--scale') + 1]}",)

@@ -11,7 +11,7 @@ from scipy import stats as scipy_stats
 
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import takeoff, takeoff_power, verdicts
-from jaxsocial.experiments.plan import catalogue, prereg
+from jaxsocial.experiments.plan import catalogue, designs, prereg
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
@@ -132,7 +132,7 @@ def takeoff_summary(social_lifts, solo_lifts, end, social_scores, solo_scores):
 
 
 def test_the_takeoff_designs_block_tests_its_arms_with_holm():
-    design = dataclasses.replace(catalogue.load("experts"), seeds=3)
+    design = dataclasses.replace(designs.load("experts"), seeds=3)
     summary = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, 8.0, 7.0], [1.0, 2.0, 0.0])
     block = prereg.preregistered_takeoff(design, summary, {})
     primary, secondary = block["result"]["primary"], block["result"]["secondary"]
@@ -151,10 +151,10 @@ def test_the_takeoff_designs_block_tests_its_arms_with_holm():
 
 
 def test_a_tiny_p_value_keeps_its_digits_and_never_reads_zero():
-    digits = prereg.P_DECIMALS
+    digits = catalogue.P_DECIMALS
     assert stats.round_p(0.000428123, digits) == 0.000428 and stats.round_p(0.0, digits) == 0.0
     assert stats.round_p(1.23456e-14, digits) == 1.23e-14 and stats.round_p(-2.5e-9, digits) == -2.5e-9
-    design = dataclasses.replace(catalogue.load("experts"), seeds=20)
+    design = dataclasses.replace(designs.load("experts"), seeds=20)
     ct = ([1.0 + i for i in range(20)], [-1.0 - i for i in range(20)])  # every social seed above every solo
     summary = takeoff_summary([1] * 20, [None] * 20, 3, [9.0] * 20, [1.0] * 20)
     for arm, scores in zip(("social_rec", "solo_rec"), ct, strict=True):
@@ -168,7 +168,7 @@ def test_a_designs_deviations_reach_its_verdict(tmp_path):
     (tmp_path / "x.json").write_text('{"deviations": [{"date": "2026-11-27", "what": "state lost"}]}')
     assert prereg.deviations("x", tmp_path) == [{"date": "2026-11-27", "what": "state lost"}]
     assert prereg.deviations("y", tmp_path) == []
-    design = dataclasses.replace(catalogue.load("experts"), seeds=3)
+    design = dataclasses.replace(designs.load("experts"), seeds=3)
     block = prereg.preregistered_takeoff(design, takeoff_summary([1], [None], 3, [1.0], [0.0]), {})
     said = verdicts.verdict({"preregistered": block | {"deviations": prereg.deviations("x", tmp_path)}})
     assert "deviation (2026-11-27): state lost" in said
@@ -180,7 +180,7 @@ def test_an_incomplete_design_stays_blind():
     from jaxsocial.experiments.analyse import summaries
     from jaxsocial.experiments.plan import recipes
 
-    design = catalogue.load("experts")
+    design = designs.load("experts")
     done = [{"iteration": i + 1, "return/0": 0.0, "episodes/0": 1} for i in range(design.iterations)]
     unfinished = done[: design.iterations // 2]
     rows = {"social_rec": [done, unfinished], "solo_rec": []}  # what RecipeRuns read of the design's seeds

@@ -13,7 +13,7 @@ from typing import Any
 
 from jaxsocial.experiments.analyse import records, rundirs, summaries, verdicts
 from jaxsocial.experiments.launch import pinned, runner, slurm, verify
-from jaxsocial.experiments.plan import catalogue, paths, recipes
+from jaxsocial.experiments.plan import catalogue, designs, paths, prereg, recipes
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -195,7 +195,7 @@ def _verify_parser(sub) -> None:
 def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     """Fill --seed and --seeds: the defaults, or a design's own (which may not be changed at its scale)."""
     recipe = recipes.RECIPES[args.recipe]
-    design = catalogue.load(recipe.design) if recipe.design else None
+    design = prereg.TrainingDesign.read(recipe.design) if recipe.design else None
     if design is not None and design.scale == args.scale:
         given = {"--seed": (args.seed, design.seed), "--seeds": (args.seeds, design.seeds)}
         for flag, (value, designed) in given.items():
@@ -260,7 +260,9 @@ def record_plan(
     run's provenance and why its final checkpoint goes in (None: it does not); each other seed is skipped
     with a note. ValueError for a run that failed or whose diff is missing or altered."""
     commands = records.read_commands_log(args.commands_log) if args.commands_log else None
-    threshold = catalogue.load(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
+    threshold = (
+        prereg.TrainingDesign.read(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
+    )
     plan = []
     for condition in recipe.conditions:
         for seed_dir in rundirs.condition_seed_dirs(
@@ -389,10 +391,10 @@ def main(argv: list[str] | None = None) -> None:
         run_verify(args)
         return
     if args.command == "power":
-        print(catalogue.load(args.design).describe())
+        print(designs.load(args.design).describe())
         return
     recipe = recipes.RECIPES[args.recipe]
-    scale = recipes.recipe_scale(recipe, recipes.SCALES[args.scale])
+    scale = prereg.recipe_scale(recipe, recipes.SCALES[args.scale])
     try:
         if args.command == "run":
             runner.run(

@@ -36,7 +36,7 @@ import numpy as np
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import kinds, plot_figures, records, rundirs
 from jaxsocial.experiments.launch import pinned, runner
-from jaxsocial.experiments.plan import catalogue, conditions, paths, prereg, recipes
+from jaxsocial.experiments.plan import conditions, paths, prereg, recipes
 from jaxsocial.run import checkout, logs, metrics
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
@@ -90,8 +90,8 @@ class Plan:
         recipe = recipes.RECIPES[recipe_name]
         if recipe.design is None:
             raise ValueError(f"recipe {recipe_name} carries no pre-registered design")
-        design = catalogue.load(recipe.design)
-        return cls(recipe, recipes.recipe_scale(recipe, recipes.SCALES[design.scale]), design)
+        design = prereg.TrainingDesign.read(recipe.design)
+        return cls(recipe, prereg.recipe_scale(recipe, recipes.SCALES[design.scale]), design)
 
     def root(self, runs_dir: str | Path) -> Path:
         """Where the follow-ups go under a runs (or records) root."""

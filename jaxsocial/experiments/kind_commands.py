@@ -44,7 +44,7 @@ def write_figure(summary: dict[str, Any], science: Path, draw: Callable) -> None
 def evaluation_main(argv: list[str]) -> None:
     """`VERB NAME [options]` for the evaluation design NAME."""
     args = paths.parse_command(lambda: design_parser(_own_verbs("evaluation"), evaluation_design), argv)
-    design = catalogue.load(args.design)
+    design = evaluation_design.EvaluationDesign.read(args.design)
     records_root, science = Path(args.records), Path(args.science)
     if args.action == "run":
         evaluation_play.run(design, records_root, science)
@@ -78,7 +78,7 @@ def branch_main(argv: list[str]) -> None:
     """`VERB NAME [options]` for the branch design NAME."""
     args = paths.parse_command(branch_parser, argv)
     try:
-        design = catalogue.load(args.design)
+        design = branch_design.BranchDesign.read(args.design)
         records_root, runs_root, science = Path(args.records), Path(args.runs_dir), Path(args.science)
         if args.action == "run":
             launcher = slurm.chosen(args, default_cores=(0,))

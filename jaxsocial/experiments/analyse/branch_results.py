@@ -13,7 +13,7 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import kinds, plot_figures, records, verdicts
-from jaxsocial.experiments.plan import catalogue, prereg
+from jaxsocial.experiments.plan import catalogue
 from jaxsocial.experiments.plan.branch_design import START, BranchDesign, start_row
 from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.run import logs, metrics
@@ -75,7 +75,7 @@ def tested(
         | compare_arms(t, design.paired(t), scores, design.control_row(t))
         for name, t in family.items()
     }
-    return prereg.holm_family(out, alpha)
+    return catalogue.holm_family(out, alpha)
 
 
 def as_designed(design: BranchDesign, records_root: Path) -> dict[str, Any]:
@@ -124,7 +124,7 @@ def summarise(design: BranchDesign, records_root: Path) -> dict[str, Any]:
         if (d / records.PROVENANCE_FILE).is_file()
     }
     commit = catalogue.design_commit(design.name)
-    checks = prereg.commit_checks(commit, {name: p["run"]["commit"] for name, p in provenance.items()})
+    checks = catalogue.commit_checks(commit, {name: p["run"]["commit"] for name, p in provenance.items()})
     designed = as_designed(design, records_root)
     checks |= {"every_branch_recorded": designed["every_branch_recorded"], "differing": designed["differing"]}
     checks["branches_as_designed"] = not designed["differing"]
@@ -161,7 +161,7 @@ def amended(
     start scored."""
     amendment = design.amendment
     commit = catalogue.file_commit(catalogue.amendment_path(design.name))
-    when = prereg.commit_time(commit)
+    when = catalogue.commit_time(commit)
     at = datetime.datetime.fromisoformat(when) if when else None
     before = sum(at is not None and e is not None and datetime.datetime.fromisoformat(e) < at for e in ended)
     checks = {

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments.plan import catalogue, paths, prereg
+from jaxsocial.experiments.plan import catalogue, paths
 from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.experiments.plan.evaluation_design import (
     PROVENANCE,
@@ -51,7 +51,7 @@ def tested(
     for name, test in family.items():
         t, c = by_player[test.env, design.treatment], by_player[test.env, design.control]
         out[name] = stats.mann_whitney(t or [], c or [], test.alternative) | {"env": test.env}
-    return prereg.holm_family(out, design.alpha)
+    return catalogue.holm_family(out, design.alpha)
 
 
 def read_results(
@@ -98,7 +98,7 @@ def summarise(design: EvaluationDesign, records_root: Path, science: Path) -> di
         played = [r for e, r in results.items() if e.env == env and r is not None]
         per_env[env]["experts"] = experts_return(played[0]) if played else None
     commit, evaluated = catalogue.design_commit(design.name), read_play_log(out)
-    checks = prereg.commit_checks(commit, {line["file"]: line["commit"] for line in evaluated})
+    checks = catalogue.commit_checks(commit, {line["file"]: line["commit"] for line in evaluated})
     checks["played_as_designed"] = played_as_designed(design, results)
     block = {
         "commit": commit,

@@ -47,7 +47,7 @@ class RecipeRuns:
             self._read(c, scale, seed, seeds, runs_dir, pick)
         self.lenders = lenders(recipe, scale)
         for c, lender in self.lenders.items():
-            lent_scale = recipes.recipe_scale(design_recipe(lender.name), recipes.SCALES[lender.scale])
+            lent_scale = prereg.recipe_scale(design_recipe(lender.name), recipes.SCALES[lender.scale])
             self._read(c, lent_scale, lender.seed, lender.seeds, runs_dir, pick)
         self.missing = [c for c, seed_rows in self.rows.items() if not seed_rows]
         if len(self.missing) == len(self.configs):
@@ -164,10 +164,14 @@ def lenders(recipe: Recipe, scale: Scale) -> dict[str, prereg.TrainingDesign]:
     ({} for a recipe without a design or at another scale)."""
     if recipe.design is None:
         return {}
-    design = catalogue.load(recipe.design)
+    design = prereg.TrainingDesign.read(recipe.design)
     if design.scale != scale.name:
         return {}
-    return {c: catalogue.load(name) for arm, name in design.borrowed.items() for c in getattr(design, arm)}
+    return {
+        c: prereg.TrainingDesign.read(name)
+        for arm, name in design.borrowed.items()
+        for c in getattr(design, arm)
+    }
 
 
 def outcome_lines(summary: dict[str, Any]) -> list[str]:
@@ -233,7 +237,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         "cpu_minutes": None if None in minutes else round(sum(minutes), 1),
     }
     if runs.recipe.design is not None:
-        design = catalogue.load(runs.recipe.design)
+        design = prereg.TrainingDesign.read(runs.recipe.design)
         learned = learned_flags(design, runs)
         if design.analysis == "takeoff":
             out["preregistered"] = prereg.preregistered_takeoff(design, out, runs.commits())
@@ -275,8 +279,8 @@ def learned_flags(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, 
 
 def design_runs(name: str, runs_dir: str) -> RecipeRuns:
     """The runs of design `name` at its own scale and seeds, under `runs_dir`."""
-    design, recipe = catalogue.load(name), design_recipe(name)
-    scale = recipes.recipe_scale(recipe, recipes.SCALES[design.scale])
+    design, recipe = prereg.TrainingDesign.read(name), design_recipe(name)
+    scale = prereg.recipe_scale(recipe, recipes.SCALES[design.scale])
     return RecipeRuns(recipe, scale, design.seed, design.seeds, runs_dir)
 
 
@@ -286,7 +290,7 @@ def lent_problems(runs: RecipeRuns) -> list[str]:
     out = []
     for name in sorted({lender.name for lender in runs.lenders.values()}):
         lent = design_runs(name, runs.runs_dir)
-        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, catalogue.load(name))]
+        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, prereg.TrainingDesign.read(name))]
     return out
 
 
@@ -323,7 +327,7 @@ def secondary_tests(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str
         theirs = seed_measure(
             design,
             design_runs(other, runs.runs_dir),
-            getattr(catalogue.load(other), other_arm),
+            getattr(prereg.TrainingDesign.read(other), other_arm),
             test["measure"],
         )
         counts = [sum(own), len(own), sum(theirs), len(theirs)]
@@ -334,7 +338,7 @@ def secondary_tests(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str
             "alternative": test["alternative"],
             "p": p,
         }
-    return prereg.holm_family(entries, design.alpha)
+    return catalogue.holm_family(entries, design.alpha)
 
 
 def preregistered_zero_shot(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, Any]:
@@ -362,7 +366,7 @@ def preregistered_zero_shot(design: prereg.TrainingDesign, runs: RecipeRuns) -> 
             protocols += [None if r is None else (r["episodes_per_checkpoint"], r["seed"]) for r in results]
     result = stats.mann_whitney(scores["treatment"], scores["control"], test["alternative"])
     commit = catalogue.design_commit(design.name)
-    checks = prereg.commit_checks(commit, runs.commits())
+    checks = catalogue.commit_checks(commit, runs.commits())
     checks["seeds_as_designed"] = [len(scores["treatment"]), len(scores["control"])] == [
         design.arm_seeds["treatment"],
         design.arm_seeds["control"],
@@ -384,7 +388,7 @@ def incomplete_design(runs: RecipeRuns) -> str | None:
     otherwise (no design, another scale, or every seed finished)."""
     if runs.recipe.design is None:
         return None
-    design = catalogue.load(runs.recipe.design)
+    design = prereg.TrainingDesign.read(runs.recipe.design)
     if runs.scale.name != design.scale:
         return None
     arms = design.trained_conditions

@@ -23,7 +23,7 @@ from jaxsocial.experiments.analyse.rundirs import (
     resume_flags,
 )
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.experiments.plan import catalogue, paths, recipes, xla_flags
+from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
 from jaxsocial.run import checkout, logs, outputs
 from jaxsocial.run.config import TrainConfig
@@ -149,7 +149,7 @@ def validated_programs(
     for cfgs in programs.values():
         for cfg in cfgs:
             setup(cfg, load_frozen=False)
-    design_flags = (catalogue.load(recipe.design).xla_flags if blind else None) or ""
+    design_flags = (prereg.TrainingDesign.read(recipe.design).xla_flags if blind else None) or ""
     return programs, blind, design_flags
 
 

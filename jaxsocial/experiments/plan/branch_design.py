@@ -146,7 +146,7 @@ class BranchDesign(catalogue.Design):
 
     @classmethod
     def checked(cls, raw: dict[str, Any]) -> BranchDesign:
-        """A branch design from its file's fields, with its amendment if it has one (`catalogue.load`;
+        """A branch design from its file's fields, with its amendment if it has one (`designs.load`;
         ValueError if it is invalid)."""
         raw["arms"] = {k: Arm(**v) for k, v in raw["arms"].items()}
         for family in ("primary", "secondary"):

@@ -6,8 +6,8 @@ each file's kind, which says what the design does and which module reads it:
     branch       trains on from a finished design's records                       (`branch_design`)
 
 Every kind is a `Design`: what each states (its name, seeds, alpha, power and how that was computed, why),
-and `describe()`, itself and its power for people; each kind adds only what differs. One loader, `load`,
-reads any design and checks it as its kind says (`Design.checked`).
+`checked(fields)`, which makes one from its file's fields, and `describe()`, itself and its power for people;
+each kind adds only what differs. `fields` reads a design file once; `designs.load` makes any design of it.
 
 A file names its kind in its field `kind`. The files committed before that field are known by the field only
 their kind has (`references`: evaluation; `arms`: branch; otherwise training), since a design file is never
@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import importlib
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
+from jaxsocial import stats
 from jaxsocial.experiments.plan import commits
 from jaxsocial.run import logs
 
@@ -35,14 +35,10 @@ VERBS = {
 """What `python -m jaxsocial.experiments VERB NAME` does to a design of a kind that is not a recipe's
 (`kind_commands`): its power; play or train what is missing, blind; record the finished branches; and its
 summary, tests and figure. A training design takes its recipe's verbs."""
+P_DECIMALS = 6
+"""A summary's p-values and other floats: 6 decimals, 3 significant digits below 1e-6 (`stats.round_p`)."""
 KIND_FIELDS = {"references": "evaluation", "arms": "branch"}
 """Where a design file has no `kind`: the field only that kind's designs have."""
-KIND_CLASSES = {
-    "training": ("prereg", "TrainingDesign"),
-    "evaluation": ("evaluation_design", "EvaluationDesign"),
-    "branch": ("branch_design", "BranchDesign"),
-}
-"""Each kind's module of `plan` and its `Design`, whose `checked(raw)` makes one from a file's fields."""
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -64,8 +60,13 @@ class Design(abc.ABC):
 
     @classmethod
     @abc.abstractmethod
-    def checked(cls, raw: dict[str, Any]) -> Design:
+    def checked(cls, raw: dict[str, Any]) -> Self:
         """A design of this kind from its file's fields, `kind` aside (ValueError if it is invalid)."""
+
+    @classmethod
+    def read(cls, name: str) -> Self:
+        """Design `name`, which must be of this kind (`fields`' errors otherwise)."""
+        return cls.checked(fields(name, cls.KIND)[1])
 
     @property
     def seed_range(self) -> range:
@@ -123,9 +124,10 @@ def design_kind(name: str) -> str:
     return _kind_of(name, _raw(name))
 
 
-def load(name: str, kind: str | None = None) -> Design:
-    """Design `name`, of the kind its file says, checked by its kind's module (FileNotFoundError, naming the
-    designs, if there is none; ValueError if it is invalid, or not of `kind` where one is asked for)."""
+def fields(name: str, kind: str | None = None) -> tuple[str, dict[str, Any]]:
+    """Design `name`'s kind and its file's other fields, read once (FileNotFoundError, naming the designs, if
+    there is none; ValueError if the file names another design, or it is not of `kind` where one is asked
+    for)."""
     raw = _raw(name)
     found = _kind_of(name, raw)
     if kind is not None and found != kind:
@@ -133,8 +135,7 @@ def load(name: str, kind: str | None = None) -> Design:
     if raw.get("name") != name:
         raise ValueError(f"design {name}: its file {path_of(name)} names it {raw.get('name')!r}")
     raw.pop("kind", None)
-    module, cls = KIND_CLASSES[found]
-    return getattr(importlib.import_module(f"jaxsocial.experiments.plan.{module}"), cls).checked(raw)
+    return found, raw
 
 
 def _raw(name: str) -> dict[str, Any]:
@@ -165,3 +166,40 @@ def file_commit(path: Path) -> str | None:
 def design_commit(name: str) -> str | None:
     """The commit of design `name`: the last that changed its file (None if it is not committed)."""
     return file_commit(path_of(name))
+
+
+def commit_time(commit: str | None) -> str | None:
+    """When `commit` was committed, ISO 8601 with its offset (None if unknown to git)."""
+    out = commits.git("show", "-s", "--format=%cI", commit, cwd=DESIGNS_DIR) if commit else None
+    return out.stdout.strip() or None if out is not None and out.returncode == 0 else None
+
+
+def precedes(design: str | None, commit: str | None) -> bool | None:
+    """Whether commit `design` is an ancestor of (or is) `commit`; None if either is unknown to git."""
+    if not design or not commit:
+        return None
+    out = commits.git("merge-base", "--is-ancestor", design, commit, cwd=DESIGNS_DIR)
+    return {0: True, 1: False}.get(out.returncode)
+
+
+def holm_family(entries: dict[str, dict[str, Any]], alpha: float) -> dict[str, dict[str, Any]]:
+    """`entries` (a family's tests: name -> result with its 'p', None where it could not run), each given
+    its Holm-adjusted p-value over the family's tests that ran ('p_holm', None if it did not) and whether it
+    is rejected at `alpha`, every float rounded (`stats.round_p` to `P_DECIMALS`); returned."""
+    adjusted = stats.holm({name: e["p"] for name, e in entries.items() if e["p"] is not None})
+    for name, entry in entries.items():
+        entry["p_holm"] = adjusted.get(name)
+        entry["rejected"] = name in adjusted and adjusted[name] <= alpha
+        entry.update({k: stats.round_p(v, P_DECIMALS) for k, v in entry.items() if isinstance(v, float)})
+    return entries
+
+
+def commit_checks(commit: str | None, run_commits: dict[str, str | None]) -> dict[str, Any]:
+    """Whether the design is committed and precedes every run's recorded commit (and which runs it does
+    not)."""
+    order = {d: precedes(commit, c) for d, c in run_commits.items()}
+    return {
+        "design_committed": commit is not None,
+        "design_precedes_every_run": bool(order) and all(order.values()),
+        "runs_not_after_design": sorted(d for d, ok in order.items() if not ok),
+    }

@@ -87,7 +87,7 @@ class EvaluationDesign(catalogue.Design):
 
     @classmethod
     def checked(cls, raw: dict[str, Any]) -> EvaluationDesign:
-        """An evaluation design from its file's fields (`catalogue.load`; ValueError if it is invalid)."""
+        """An evaluation design from its file's fields (`designs.load`; ValueError if it is invalid)."""
         for family in ("primary", "secondary"):
             raw[family] = {k: Test(**v) for k, v in raw[family].items()}
         raw["references"] = {k: Reference(**v) for k, v in raw["references"].items()}

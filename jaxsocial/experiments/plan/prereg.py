@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial import stats
-from jaxsocial.experiments.plan import catalogue, commits, xla_flags
+from jaxsocial.experiments.plan import catalogue, recipes, xla_flags
 from jaxsocial.run import config, logs
 
 ANALYSES = ("counts", "takeoff", "zero_shot")
@@ -32,8 +32,6 @@ ZERO_SHOT_TEST = "mannwhitney-greater"
 """A 'zero_shot' design's primary test: one-sided Mann-Whitney U of the arms' per-seed zero-shot returns."""
 LEARNED_BY = ("final_return", "takeoff")
 SECONDARY_MEASURES = ("learned", "above_experts")
-P_DECIMALS = 6
-"""A summary's p-values and other floats: 6 decimals, 3 significant digits below 1e-6 (`stats.round_p`)."""
 TAKEOFF_TEST = "holm(logrank-greater, mannwhitney-greater)"
 """A 'takeoff' design's primary family: the one-sided log-rank test of the takeoffs and the one-sided
 Mann-Whitney U test of the per-seed 4-goal returns, Holm-corrected at the design's alpha."""
@@ -107,16 +105,21 @@ class TrainingDesign(catalogue.Design):
         """Each arm's seeds: its conditions times the seeds of the design that trains them."""
         return {
             arm: len(getattr(self, arm))
-            * (catalogue.load(self.borrowed[arm]).seeds if arm in self.borrowed else self.seeds)
+            * (TrainingDesign.read(self.borrowed[arm]).seeds if arm in self.borrowed else self.seeds)
             for arm in ("treatment", "control")
         }
 
     @property
+    def recipe(self) -> recipes.Recipe:
+        """The recipe that carries the design (of its name)."""
+        return recipes.RECIPES[self.name]
+
+    @property
     def env_steps_per_run(self) -> int:
         """Env-steps of each run: its iterations at its scale, in its recipe's first condition."""
-        from jaxsocial.experiments.plan import recipes  # which reads the designs
-
-        return recipes.design_env_steps(self)
+        scale = recipe_scale(self.recipe, recipes.SCALES[self.scale])
+        cfg = recipes.condition_config(scale, self.recipe.conditions[0], self.seed, self.seeds, "runs")
+        return scale.iterations * cfg.num_envs * cfg.rollout_steps
 
     def describe(self) -> str:
         describe = {"takeoff": _describe_takeoff, "zero_shot": _describe_zero_shot}
@@ -131,7 +134,7 @@ class TrainingDesign(catalogue.Design):
 
     @classmethod
     def checked(cls, raw: dict[str, Any]) -> TrainingDesign:
-        """A training design from its file's fields (`catalogue.load`; ValueError if it is invalid)."""
+        """A training design from its file's fields (`designs.load`; ValueError if it is invalid)."""
         for arm in ("treatment", "control"):
             raw[arm] = tuple(raw[arm])
         design = cls(**raw)
@@ -160,7 +163,7 @@ class TrainingDesign(catalogue.Design):
                 raise ValueError(
                     f"design {name}: borrowed arm {arm!r} from {source!r}: name the other arm's design"
                 )
-            lender = catalogue.load(source, "training")
+            lender = TrainingDesign.read(source)
             if not set(getattr(design, arm)) <= set(getattr(lender, arm)):
                 raise ValueError(
                     f"design {name}: its {arm} {getattr(design, arm)} is not among {source}'s {arm}"
@@ -174,7 +177,7 @@ class TrainingDesign(catalogue.Design):
                     f"design {name}: secondary {test_name}: a measure of {SECONDARY_MEASURES} and an "
                     "alternative"
                 )
-            catalogue.load(other, "training")
+            TrainingDesign.read(other)
         return design
 
 
@@ -184,6 +187,23 @@ def deviations(name: str, directory: Path) -> list[dict[str, str]]:
     into its summary's `preregistered` block and verdict."""
     path = directory / f"{name}.json"
     return logs.read_json(path)["deviations"] if path.is_file() else []
+
+
+def recipe_scale(recipe: recipes.Recipe, scale: recipes.Scale) -> recipes.Scale:
+    """The scale `recipe` runs at: `scale`, with the design's iterations, early stop and its own runs folder
+    (`Scale.runs_subdir`) where the recipe carries a design for this scale."""
+    if recipe.design is None:
+        return scale
+    design = TrainingDesign.read(recipe.design)
+    if design.scale != scale.name:
+        return scale
+    budget = {"iterations": design.iterations, "stop_at_return": design.stop_at_return}
+    return dataclasses.replace(
+        scale,
+        config=dataclasses.replace(scale.config, **budget),
+        eval_episodes=design.eval_episodes or scale.eval_episodes,
+        runs_subdir=f"prereg-{design.name}",
+    )
 
 
 def success_rates(design: TrainingDesign, env_steps_per_run: int) -> dict[str, float]:
@@ -197,20 +217,6 @@ def power_of(design: TrainingDesign, env_steps_per_run: int) -> float:
     n = design.arm_seeds
     return stats.power(design.test, n["treatment"], rates["treatment"], n["control"], rates["control"],
                         design.alpha)  # fmt: skip
-
-
-def commit_time(commit: str | None) -> str | None:
-    """When `commit` was committed, ISO 8601 with its offset (None if unknown to git)."""
-    out = commits.git("show", "-s", "--format=%cI", commit, cwd=catalogue.DESIGNS_DIR) if commit else None
-    return out.stdout.strip() or None if out is not None and out.returncode == 0 else None
-
-
-def precedes(design: str | None, commit: str | None) -> bool | None:
-    """Whether commit `design` is an ancestor of (or is) `commit`; None if either is unknown to git."""
-    if not design or not commit:
-        return None
-    out = commits.git("merge-base", "--is-ancestor", design, commit, cwd=catalogue.DESIGNS_DIR)
-    return {0: True, 1: False}.get(out.returncode)
 
 
 def preregistered(
@@ -242,32 +248,9 @@ def preregistered(
             "treatment_seeds": n["treatment"],
             "control_learned": k["control"],
             "control_seeds": n["control"],
-            "p": stats.round_p(p, P_DECIMALS),
+            "p": stats.round_p(p, catalogue.P_DECIMALS),
         },
-        "checks": commit_checks(commit, run_commits) | {"seeds_as_designed": n == design.arm_seeds},
-    }
-
-
-def holm_family(entries: dict[str, dict[str, Any]], alpha: float) -> dict[str, dict[str, Any]]:
-    """`entries` (a family's tests: name -> result with its 'p', None where it could not run), each given
-    its Holm-adjusted p-value over the family's tests that ran ('p_holm', None if it did not) and whether it
-    is rejected at `alpha`, every float rounded (`stats.round_p` to `P_DECIMALS`); returned."""
-    adjusted = stats.holm({name: e["p"] for name, e in entries.items() if e["p"] is not None})
-    for name, entry in entries.items():
-        entry["p_holm"] = adjusted.get(name)
-        entry["rejected"] = name in adjusted and adjusted[name] <= alpha
-        entry.update({k: stats.round_p(v, P_DECIMALS) for k, v in entry.items() if isinstance(v, float)})
-    return entries
-
-
-def commit_checks(commit: str | None, run_commits: dict[str, str | None]) -> dict[str, Any]:
-    """Whether the design is committed and precedes every run's recorded commit (and which runs it does
-    not)."""
-    order = {d: precedes(commit, c) for d, c in run_commits.items()}
-    return {
-        "design_committed": commit is not None,
-        "design_precedes_every_run": bool(order) and all(order.values()),
-        "runs_not_after_design": sorted(d for d, ok in order.items() if not ok),
+        "checks": catalogue.commit_checks(commit, run_commits) | {"seeds_as_designed": n == design.arm_seeds},
     }
 
 
@@ -310,7 +293,7 @@ def preregistered_takeoff(
         "counts": {"learned": [k[0], n[0], k[1], n[1]], "p": stats.boschloo(k[0], n[0], k[1], n[1])},
     }
     for family in (primary, secondary):
-        holm_family(family, design.alpha)
+        catalogue.holm_family(family, design.alpha)
     designed = {arm: design.seeds * len(getattr(design, arm)) for arm in ("treatment", "control")}
     scored = all(
         len(arm[name]) == designed[key] for key, arm in arms.items() for name in ("goalcycle4", "solo3", "ct")
@@ -321,7 +304,7 @@ def preregistered_takeoff(
         "primary": {"treatment": list(design.treatment), "control": list(design.control), "test": design.test,
                     "alpha": design.alpha, "tests": design.tests},
         "result": {"primary": primary, "secondary": secondary, "seeds": {"treatment": n[0], "control": n[1]}},
-        "checks": commit_checks(commit, run_commits)
+        "checks": catalogue.commit_checks(commit, run_commits)
         | {"seeds_as_designed": n == [designed["treatment"], designed["control"]] and scored},
     }  # fmt: skip
 

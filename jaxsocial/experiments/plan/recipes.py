@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 
-from jaxsocial.experiments.plan import catalogue, prereg
 from jaxsocial.experiments.plan.conditions import CONDITIONS, PENALTY_CONDITIONS, Condition
 from jaxsocial.run import config, schedule, startup
 from jaxsocial.run.config import PRESETS, TrainConfig
@@ -200,8 +199,8 @@ class Recipe:
     """The comparisons the recipe states in advance: (a, b) says a's seeds learn more often than b's. Its
     summary tests these one-sided and every other pair as exploratory (`kinds.learned_seed_tests`)."""
     design: str | None = None
-    """The pre-registered design it carries (`catalogue.load(design)`): its seeds and, at its scale, its
-    budget (`recipe_scale`)."""
+    """The pre-registered design it carries: its seeds and, at its scale, its budget
+    (`prereg.recipe_scale`)."""
 
 
 AUX_OVER_BASELINES = tuple(
@@ -267,32 +266,6 @@ RECIPES = {
                ("social_pred", "social_pred_dropout", "social_pred_attention", "social_medal"), "ct"),
     )
 }  # fmt: skip
-
-
-def recipe_scale(recipe: Recipe, scale: Scale) -> Scale:
-    """The scale `recipe` runs at: `scale`, with the design's iterations, early stop and its own runs folder
-    (`Scale.runs_subdir`) where the recipe carries a design for this scale."""
-    if recipe.design is None:
-        return scale
-    design = catalogue.load(recipe.design, "training")
-    if design.scale != scale.name:
-        return scale
-    budget = {"iterations": design.iterations, "stop_at_return": design.stop_at_return}
-    return dataclasses.replace(
-        scale,
-        config=dataclasses.replace(scale.config, **budget),
-        eval_episodes=design.eval_episodes or scale.eval_episodes,
-        runs_subdir=f"prereg-{design.name}",
-    )
-
-
-def design_env_steps(design: prereg.TrainingDesign) -> int:
-    """Env-steps of each run of the training design `design`: its iterations at its scale, in its recipe's
-    first condition."""
-    recipe = RECIPES[design.name]
-    scale = recipe_scale(recipe, SCALES[design.scale])
-    cfg = condition_config(scale, recipe.conditions[0], design.seed, design.seeds, "runs")
-    return scale.iterations * cfg.num_envs * cfg.rollout_steps
 
 
 def goalcycle_spec(name: str, scale: Scale) -> EnvSpec:
