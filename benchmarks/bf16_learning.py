@@ -25,7 +25,7 @@ from pathlib import Path
 from run_info import REPO, metadata, write_results
 
 from jaxsocial import plot, stats
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import metrics, rundir
 
 CONDITIONS = ("social_pred_nopenalty", "social_pred")
 """The cpu-scale conditions compared (issue 28: the h1 social PPO + pred, and the no-penalty social one)."""
@@ -47,7 +47,7 @@ def compare(
             (group,) = plot.load_groups([run_dir])
             group.label = f"{condition} {dtype}"
             groups.append(group)
-            config = logs.read_config(run_dir)
+            config = rundir.read_config(run_dir)
             entry[dtype] = stats.summary([metrics.final_return(rows) for rows in group.rows]) | {
                 "run_dir": str(run_dir.relative_to(runs_dir)),
                 "net_dtype": config["net"].get("dtype", "float32"),

@@ -21,7 +21,7 @@ from pathlib import Path
 import run_info
 
 from jaxsocial.experiments.plan import conditions, recipes
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import metrics, rundir
 
 
 def seed_flags(scale: recipes.Scale, condition: str, seed: int, runs_dir: str, iterations: int) -> list[str]:
@@ -48,7 +48,7 @@ def main() -> None:
             subprocess.run(
                 [sys.executable, "-m", "jaxsocial.train", *flags, "--compile-cache", str(cache)], check=True
             )
-            first = logs.read_metrics(runs / f"s{seed}")[0]
+            first = rundir.read_metrics(runs / f"s{seed}")[0]
             rows.append(
                 {
                     "seed": seed,

@@ -20,7 +20,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from jaxsocial.experiments.analyse import records  # noqa: E402
-from jaxsocial.run import logs, metrics  # noqa: E402
+from jaxsocial.run import metrics, rundir  # noqa: E402
 
 
 def seconds_between(start: str, end: str) -> float:
@@ -34,7 +34,7 @@ def share(run_dir: Path) -> dict:
     run = (records.read_provenance(run_dir) or {}).get("run") or {}
     if not run.get("started") or not run.get("ended"):
         raise SystemExit(f"error: {run_dir} has no provenance with start and end dates")
-    config, rows = logs.read_config(run_dir), logs.read_metrics(run_dir)
+    config, rows = rundir.read_config(run_dir), rundir.read_metrics(run_dir)
     per_iteration = config["num_envs"] * config["rollout_steps"]
     wall = seconds_between(run["started"], run["ended"])
     inside = metrics.cpu_minutes(rows, per_iteration, cores=1) * 60  # each row's time, from its speed

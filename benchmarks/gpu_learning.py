@@ -21,7 +21,7 @@ from run_info import metadata, write_results
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import takeoff, takeoff_power
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import logs
+from jaxsocial.run import rundir
 
 
 def fractions(seeds: list[dict]) -> dict:
@@ -36,7 +36,7 @@ def fractions(seeds: list[dict]) -> dict:
 
 def compare(run_dir: Path, records_root: Path) -> dict:
     """The seeds of `run_dir` (its s<seed>/ folders) against the pooled CPU social PPO + rec seeds."""
-    config = logs.read_config(run_dir)
+    config = rundir.read_config(run_dir)
     if (config["env"], config["net"]["aux"], config.get("preset")) != ("goalcycle3", "rec", "laptop"):
         raise SystemExit(f"{run_dir} is not a laptop social PPO + rec run (`train --preset laptop`)")
     device = [takeoff_power.seed_lift(d) for d in sorted(run_dir.glob("s[0-9]*")) if d.is_dir()]

@@ -69,7 +69,7 @@ from run_info import REPO, portable, write_json
 
 from jaxsocial.experiments.analyse import cpu_kinds
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.run import autotune, logs, startup
+from jaxsocial.run import autotune, rundir, startup
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
 DOT_KS = (27, 256, 288, 432, 1024, 8192)
@@ -194,7 +194,7 @@ def recipe_hashes() -> tuple[dict[str, str], int]:
     from jaxsocial import train
     from jaxsocial.run import config, policy_io
 
-    cfg = config.config_from_dict(logs.read_config(REFERENCE))
+    cfg = config.config_from_dict(rundir.read_config(REFERENCE))
     cfg = dataclasses.replace(cfg, iterations=1, chunk_iterations=1, compile_cache=None)
     init, run_chunk, _ = train.make_train(cfg)
     frozen = policy_io.load_frozen(startup.setup(cfg, load_frozen=False).pop, cfg.net)

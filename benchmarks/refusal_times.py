@@ -28,7 +28,7 @@ from pathlib import Path
 
 import run_info
 
-from jaxsocial.run import config, logs, runlock
+from jaxsocial.run import config, rundir, runlock
 from jaxsocial.run.config import TrainConfig
 
 REFUSALS = {
@@ -59,9 +59,9 @@ def make_runs(runs: Path) -> runlock.RunLock:
     for name in ("trained", "live", "unstarted"):
         cfg = dataclasses.replace(TrainConfig(), runs_dir=str(runs), run_name=name, iterations=5)
         (runs / name).mkdir(parents=True)
-        logs.write_config(runs / name, config.config_dict(cfg))
+        rundir.write_config(runs / name, config.config_dict(cfg))
         if name != "unstarted":
-            (runs / name / logs.METRICS_FILE).write_text('{"iteration": 1}\n')
+            (runs / name / rundir.METRICS_FILE).write_text('{"iteration": 1}\n')
     lock = runlock.RunLock(runs / "live")
     lock.acquire()
     return lock

@@ -30,7 +30,7 @@ from pathlib import Path
 from run_info import REPO, metadata, portable, write_json
 
 from jaxsocial.experiments.launch import pinned, verify
-from jaxsocial.run import autotune, config, logs, metrics
+from jaxsocial.run import autotune, config, jsonio, metrics, rundir
 
 NO_YNN = "-individual_dot,-individual_convolution,-dot,-eltwise,-reduce"
 """Every YNNPACK fusion type removed from XLA's default list: jaxlib 0.10.2 sends dots and reductions to
@@ -82,7 +82,7 @@ def this_kind(out_dir: str) -> tuple[Path, dict]:
     seeing other than one core (before 2026-11-28 they ran seeing every core)."""
     cpu = autotune.cpu_model()
     path = kind_file(cpu, Path(out_dir))
-    found = logs.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
+    found = jsonio.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
     found["settings"] = {
         name: entry
         for name, entry in found["settings"].items()
@@ -104,7 +104,7 @@ def describe_kind(found: dict, args: argparse.Namespace) -> None:
 
 def other_kinds(path: Path, committed: Path) -> list[dict]:
     """Every committed kind's JSON in `committed` but the one named as `path`."""
-    return [logs.read_json(other) for other in sorted(committed.glob("*.json")) if other.name != path.name]
+    return [jsonio.read_json(other) for other in sorted(committed.glob("*.json")) if other.name != path.name]
 
 
 def setting_flags(setting: str) -> str:
@@ -115,11 +115,11 @@ def setting_flags(setting: str) -> str:
 def rows_of(setting: str, iterations: int) -> tuple[list[dict], float]:
     """The reference record's first `iterations` rows re-trained under `setting`, timings removed, and the
     median env-steps/s of its rows."""
-    cfg = config.config_from_dict(logs.read_config(REFERENCE))
+    cfg = config.config_from_dict(rundir.read_config(REFERENCE))
     chunk = min(cfg.chunk_iterations, iterations)
     cfg = dataclasses.replace(cfg, iterations=iterations, chunk_iterations=chunk)
     with tempfile.TemporaryDirectory(prefix="jaxsocial-repro-") as tmp:
-        rows = metrics.read_rows(verify.train_in_process(cfg, Path(tmp), setting_flags(setting), ONE_CORE))
+        rows = rundir.read_metrics(verify.train_in_process(cfg, Path(tmp), setting_flags(setting), ONE_CORE))
     speed = statistics.median(r[metrics.SPEED] for r in rows)
     return [without_timings(r) for r in rows], speed
 
@@ -155,7 +155,7 @@ def main() -> None:
     found["reference"] = portable(str(REFERENCE))
     for name in args.settings:
         rows, speed = rows_of(name, args.iterations)
-        recorded = [without_timings(r) for r in metrics.read_rows(REFERENCE)[: len(rows)]]
+        recorded = [without_timings(r) for r in rundir.read_metrics(REFERENCE)[: len(rows)]]
         found["settings"][name] = {
             "xla_flags": setting_flags(name),
             "visible_cores": pinned.cores_seen(ONE_CORE),

@@ -35,7 +35,7 @@ from jaxsocial.agents import network, population
 from jaxsocial.agents.episodes import Episodes, play_episodes
 from jaxsocial.env import registry
 from jaxsocial.env.types import EnvParams
-from jaxsocial.run import logs, policy_io
+from jaxsocial.run import jsonio, policy_io
 from jaxsocial.run.metrics import LEARNED_RETURN
 from jaxsocial.specs import (
     ENV_ARGS,
@@ -365,7 +365,7 @@ def main(argv: list[str] | None = None) -> None:
         print(line)
     if eval_cfg.out:
         Path(eval_cfg.out).parent.mkdir(parents=True, exist_ok=True)
-        logs.write_json(eval_cfg.out, result)
+        jsonio.write_json(eval_cfg.out, result)
         print(f"wrote {eval_cfg.out}")
 
 

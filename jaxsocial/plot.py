@@ -28,7 +28,7 @@ from jaxsocial import specs, stats
 from jaxsocial.agents import population
 from jaxsocial.env import registry
 from jaxsocial.plot_parts import band, steps_axis
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import metrics, rundir
 
 PANELS = {
     "return": "episode return",
@@ -112,7 +112,7 @@ SEED_SUFFIX = re.compile(r"(/s\d+|-s\d+(-\d+)?)$")
 def _label(run_dir: Path) -> str:
     """A run's name in legends, without what names its seeds: 'social_rec' for 'social_rec-s0-0' and for
     one seed of it, 'social_rec-s0-5/s3'."""
-    one_seed = metrics.one_seed_of_many(logs.read_config(run_dir))
+    one_seed = rundir.one_seed_of_many(rundir.read_config(run_dir))
     run_dir = run_dir.resolve()
     name = f"{run_dir.parent.name}/{run_dir.name}" if one_seed else run_dir.name
     while SEED_SUFFIX.search(name):
@@ -127,11 +127,11 @@ def load_groups(run_dirs: list[str | Path]) -> list[Group]:
     found: dict[str, list[tuple[str, Path, dict[str, Any]]]] = {}  # group key -> (label, seed dir, config)
     seen = set()
     for run_dir in map(Path, run_dirs):
-        for d in metrics.written_seed_dirs(run_dir):
+        for d in rundir.written_seed_dirs(run_dir):
             if d.resolve() in seen:
                 continue
             seen.add(d.resolve())
-            config = logs.read_config(d)
+            config = rundir.read_config(d)
             members = found.setdefault(_group_key(config), [])
             for _, other, c in members:
                 if c["seed"] == config["seed"]:
@@ -144,9 +144,9 @@ def load_groups(run_dirs: list[str | Path]) -> list[Group]:
         labels = list(dict.fromkeys(label for label, _, _ in members))
         rows = []
         for _, d, _ in members:
-            rows.append(metrics.read_rows(d))
+            rows.append(rundir.read_metrics(d))
             if not rows[-1]:
-                raise ValueError(f"no metrics yet in {d} ({logs.METRICS_FILE} is missing or empty)")
+                raise ValueError(f"no metrics yet in {d} ({rundir.METRICS_FILE} is missing or empty)")
         config = members[0][2]
         groups.append(
             Group(

@@ -36,7 +36,7 @@ from jaxsocial.env.pictures import (
     rollout_episode,
     save_episode,
 )
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import rundir
 from jaxsocial.specs import EnvSpec, PolicyRef
 
 
@@ -45,10 +45,10 @@ def learner_setup(ckpt: str, env: str | None, slots: str | None) -> tuple[playba
     ValueError, before anything compiles, for a directory that is not one seed's run or an env the policy
     cannot act in."""
     run_dir = PolicyRef.parse(ckpt).run
-    dirs = metrics.written_seed_dirs(run_dir)
+    dirs = rundir.written_seed_dirs(run_dir)
     if len(dirs) > 1:
         raise ValueError(f"{run_dir} holds {len(dirs)} seeds: pass one of them, e.g. --ckpt {dirs[0]}")
-    config = logs.read_config(run_dir)
+    config = rundir.read_config(run_dir)
     spec = env or f"{config['env']}:{config.get('env_args', '')}"
     if slots is None and config.get("slots"):  # else the environment's default companions, as in training
         try:

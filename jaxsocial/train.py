@@ -21,7 +21,6 @@ from jaxsocial.run import (
     compile_cache,
     flags,
     interrupt,
-    logs,
     nonfinite,
     processes,
     provenance,
@@ -109,7 +108,7 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
     """`run` once its directory is checked and `cfg` is valid (`static`)."""
     from jaxsocial.run import cost, init_from, loop  # orbax, optax and scipy: not imported by a refusal
     from jaxsocial.run.driver import train_chunks
-    from jaxsocial.run.outputs import prepare_run_dir, seed_runs, write_configs
+    from jaxsocial.run.outputs import seed_runs, start_run_dir, write_configs
 
     branching = cfg.init_from is not None and not cfg.resume  # a resumed run loads its own state
     numbers = list(range(cfg.seed, cfg.seed + cfg.seeds))
@@ -128,7 +127,7 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
             print(cost.estimate(cfg, trained), flush=True)
         cfg = startup.resolve_network(cfg, static.pop)  # after every check: "auto" measures this machine
         seeds = seed_runs(cfg, run_dir)
-        processes.on_main(functools.partial(prepare_run_dir, cfg, run_dir, seeds))
+        processes.on_main(functools.partial(start_run_dir, cfg, run_dir, seeds))
         command = command or shlex.join(["python", "-m", "jaxsocial.train", *flags.config_flags(cfg)])
         with provenance.recorded(run_dir, command, cfg.resume, processes.is_main()):
             train_chunks(cfg, static, mesh, run_dir, seeds)
@@ -157,11 +156,11 @@ def _resume_from(argv: list[str]) -> tuple[TrainConfig | None, list[str]]:
             run_dir = Path(argv[i + 1])
             if not run_dir.exists():
                 raise SystemExit(f"error: --resume {run_dir}: no such directory")
-            if not (run_dir / logs.CONFIG_FILE).is_file():
+            if not (run_dir / rundir.CONFIG_FILE).is_file():
                 raise SystemExit(
-                    f"error: --resume {run_dir}: no {logs.CONFIG_FILE} there (not a run directory)"
+                    f"error: --resume {run_dir}: no {rundir.CONFIG_FILE} there (not a run directory)"
                 )
-            saved = config_from_dict(logs.read_config(run_dir))
+            saved = config_from_dict(rundir.read_config(run_dir))
             saved = dataclasses.replace(saved, runs_dir=str(run_dir.parent), run_name=run_dir.name)
             return saved, argv[:i] + argv[i + 2 :]
     return None, argv

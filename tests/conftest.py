@@ -14,7 +14,7 @@ from jaxsocial.agents.network import NetworkConfig
 from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env import core
 from jaxsocial.env.observe import observe
-from jaxsocial.run import compile_cache, logs
+from jaxsocial.run import compile_cache, rundir
 from jaxsocial.run.config import TrainConfig
 
 RESULTS = Path(__file__).resolve().parents[1] / "benchmarks" / "results"
@@ -101,7 +101,7 @@ def reordered_tolerance(terms: int, depth: int, scale: float = 1.0) -> float:
 def metrics_without_speed(run_dir):
     """A run's metrics rows without the timings (which differ between equal runs)."""
     timing = ("env_steps_per_s", "compile_s")
-    return [{k: v for k, v in row.items() if k not in timing} for row in logs.read_metrics(run_dir)]
+    return [{k: v for k, v in row.items() if k not in timing} for row in rundir.read_metrics(run_dir)]
 
 
 TEST_XLA_FLAGS = {"xla_backend_optimization_level": "0", "xla_cpu_use_fusion_emitters": "false"}

@@ -280,12 +280,12 @@ def test_a_training_run_records_what_auto_chose(tmp_path, monkeypatch, counted):
     from conftest import TINY as TINY_RUN
 
     from jaxsocial import train
-    from jaxsocial.run import logs
+    from jaxsocial.run import rundir
 
     monkeypatch.setenv("JAXSOCIAL_CACHE", str(tmp_path / "cache"))
     auto = dataclasses.replace(TINY_RUN.net, conv_impl="auto", dtype="auto")
     run_dir = train.run(dataclasses.replace(TINY_RUN, net=auto, iterations=2, runs_dir=str(tmp_path)))
-    saved = logs.read_config(run_dir)["net"]
+    saved = rundir.read_config(run_dir)["net"]
     assert saved["dtype"] == autotune.auto_dtype()
     assert all(f"{layer}=" in saved["conv_impl"] for layer in CONV_LAYERS)  # RGB with a decoder: all six
     assert set(CONV_LAYERS) <= set(counted)  # every layer measured (made-up times), then the steps

@@ -21,7 +21,7 @@ from jaxsocial.experiments.analyse import kinds, power, records, rundirs, verdic
 from jaxsocial.experiments.launch import branch_runs, pinned
 from jaxsocial.experiments.plan import branch_design as bd
 from jaxsocial.experiments.plan import catalogue, designs, paths
-from jaxsocial.run import checkout, logs, metrics
+from jaxsocial.run import checkout, jsonio, metrics, rundir
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.provenance import PARENT_WRITES
 from jaxsocial.specs import CheckpointRef
@@ -66,7 +66,7 @@ def test_where_the_branches_started_is_the_experts_designs_own_evaluation():
     """The start of every branch, alone in 3-goal and beside new experts in 4-goal, is what the committed
     experts summary says of its source record; beside the experts in 3-goal it was not evaluated."""
     started = br.start_scores(MIXING, paths.RECORDS)
-    experts = logs.read_json(paths.SCIENCE / "experts-laptop.json")["conditions"]
+    experts = jsonio.read_json(paths.SCIENCE / "experts-laptop.json")["conditions"]
     solo3, gc4, gc3 = MIXING.eval_envs
     for source in MIXING.sources():
         row = started[bd.start_row(source)]
@@ -88,7 +88,7 @@ def test_the_amendment_tests_each_branch_against_where_it_started():
         "solo_rec",
     )
     pilot = br.pilot_scores(MIXING, MIXING.amendment.tests, MIXING.amendment.power_simulation)
-    follow_up = logs.read_json(Path(MIXING.amendment.power_simulation["pilot_branches"]))
+    follow_up = jsonio.read_json(Path(MIXING.amendment.power_simulation["pilot_branches"]))
     solo3 = fades.env
     social = [s for s in follow_up["seeds"].values() if s["condition"].startswith("social")]
     assert pilot["social_fades"]["differences"] == [
@@ -100,7 +100,7 @@ def test_the_amendment_tests_each_branch_against_where_it_started():
 
 
 def test_a_design_naming_an_unknown_arm_or_environment_is_refused(tmp_path, monkeypatch):
-    raw = logs.read_json(catalogue.path_of("mixing"))
+    raw = jsonio.read_json(catalogue.path_of("mixing"))
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     raw["primary"]["mixed_vs_alone"]["control"] = "solo"
     raw["secondary"]["social_skill"]["env"] = "goalcycle4"
@@ -122,11 +122,11 @@ def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, floa
         "env_args": ",".join(f"{k}={v}" for k, v in cfg.env_args),
         "init_from": f"{cfg.init_from.run}@1464",
     }
-    logs.write_json(directory / logs.CONFIG_FILE, config)
+    jsonio.write_json(directory / rundir.CONFIG_FILE, config)
     row = {metrics.ITERATION: design.iterations} | {metrics.eval_key(e): v for e, v in scores.items()}
-    (directory / logs.METRICS_FILE).write_text(json.dumps(row) + "\n")
+    (directory / rundir.METRICS_FILE).write_text(json.dumps(row) + "\n")
     provenance = {"run": dict.fromkeys(records.RUN_FIELDS) | {"commit": "0" * 40, "device": "a CPU"}}
-    logs.write_json(directory / records.PROVENANCE_FILE, provenance)
+    jsonio.write_json(directory / records.PROVENANCE_FILE, provenance)
 
 
 @needs_records("records/laptop/prereg-experts")
@@ -160,12 +160,12 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
         evaluation = {"results": [{"slot": 0, "kind": "learner", "mean_return": float(started[k])}]}
         path = kinds.eval_path(design.record_of("social_rec", seed, tmp_path), solo3)
         path.parent.mkdir(parents=True)
-        logs.write_json(path, evaluation)
+        jsonio.write_json(path, evaluation)
     ended = {"mixed-s300": "2026-11-28T16:17:21+00:00", "social-s300": "2026-12-01T20:00:00-03:00"}
     for name, when in ended.items():  # one run ended before the amendment and one after (23:00 UTC)
-        provenance = logs.read_json(tmp_path / design.out / name / records.PROVENANCE_FILE)
+        provenance = jsonio.read_json(tmp_path / design.out / name / records.PROVENANCE_FILE)
         provenance["run"]["ended"] = when
-        logs.write_json(tmp_path / design.out / name / records.PROVENANCE_FILE, provenance)
+        jsonio.write_json(tmp_path / design.out / name / records.PROVENANCE_FILE, provenance)
     committed = catalogue.file_commit  # the design's commit as it is; the amendment's at 22:00 UTC
     amendment = catalogue.amendment_path(design.name)
     monkeypatch.setattr(
@@ -263,7 +263,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     monkeypatch.setenv(PARENT_WRITES, "1")  # as `pinned.run` starts it: the runner writes its file
     run_dir = train.run(cfg)
     assert (
-        logs.read_config(run_dir)["init_from"]
+        rundir.read_config(run_dir)["init_from"]
         == f"{records_root}/tiny/material/social-s0-0@{TINY.iterations}"
     )
     capsys.readouterr()
@@ -271,7 +271,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     assert f"  1 branches not started under {runs_root}\n" in capsys.readouterr().out  # the social arm
     pinned.write_run_file(run_dir, "python -m jaxsocial.train", checkout.tree(), 1, pinned.now(), rc=0)
     assert branch_runs.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
-    provenance = logs.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
+    provenance = jsonio.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
     assert provenance["run"]["device"].endswith(", one core per seed")
     summary = br.summarise(design, records_root)
     assert summary["recorded"] == 1 and summary["preregistered"]["checks"]["differing"] == []
@@ -324,7 +324,7 @@ def test_run_resumes_a_begun_branch_and_skips_a_finished_one(tmp_path, monkeypat
     finished, begun = (tmp_path / MIXING.run_name(arm, MIXING.seed) for arm in ("mixed", "social"))
     for run_dir, rows in ((finished, MIXING.iterations), (begun, MIXING.iterations - 1)):
         run_dir.mkdir(parents=True)
-        logs.MetricsLog(run_dir).append({"iteration": i + 1} for i in range(rows))
+        rundir.MetricsLog(run_dir).append({"iteration": i + 1} for i in range(rows))
     assert rundirs.branch_state(tmp_path / "nowhere", MIXING.iterations) == rundirs.MISSING
     with pytest.raises(SystemExit):
         kind_commands.branch_main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "2"])

@@ -10,7 +10,7 @@ import optax
 import pytest
 
 from jaxsocial.run import checkpoint as ckpt
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio
 
 
 class Rollout(NamedTuple):
@@ -137,7 +137,7 @@ def test_metadata_round_trip_and_edge_trees(tmp_path):
     with pytest.raises(TypeError, match="plain JSON values"):
         ckpt.save(tmp_path, 5, {"a": jnp.ones(1)}, metadata=meta)  # NaN and numpy integers: not JSON
     assert ckpt.all_steps(tmp_path) == []  # refused before anything was written
-    ckpt.save(tmp_path, 5, {"a": jnp.ones(1)}, metadata=logs.to_json(meta))
+    ckpt.save(tmp_path, 5, {"a": jnp.ones(1)}, metadata=jsonio.to_json(meta))
     ckpt.save(tmp_path, 6, {})  # no leaves at all
     assert ckpt.read_metadata(tmp_path, step=5) == {
         "config": {"lr": 3e-4, "layers": [64, 64], "env": "goal_cycle"},

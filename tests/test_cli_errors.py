@@ -13,7 +13,7 @@ from conftest import TINY, TINY_FLAGS
 
 import jaxsocial
 from jaxsocial import train
-from jaxsocial.run import checkpoint, logs, loop, outputs, policy_io, rundir, schedule
+from jaxsocial.run import checkpoint, loop, outputs, policy_io, rundir, schedule
 
 
 @pytest.fixture
@@ -173,8 +173,10 @@ def test_corrupt_latest_checkpoint_falls_back_to_the_one_before(finished_run, tm
     def without_timing(rows):
         return [{k: v for k, v in r.items() if k not in ("env_steps_per_s", "compile_s")} for r in rows]
 
-    assert without_timing(logs.read_metrics(copy)) == without_timing(logs.read_metrics(run_dir))
-    assert json.loads((copy / logs.CONFIG_FILE).read_text())["run_name"] == "corrupt"  # rewritten at the end
+    assert without_timing(rundir.read_metrics(copy)) == without_timing(rundir.read_metrics(run_dir))
+    assert (
+        json.loads((copy / rundir.CONFIG_FILE).read_text())["run_name"] == "corrupt"
+    )  # rewritten at the end
 
 
 def test_resume_with_every_checkpoint_unreadable_fails_and_keeps_the_config(finished_run, tmp_path):
@@ -182,22 +184,22 @@ def test_resume_with_every_checkpoint_unreadable_fails_and_keeps_the_config(fini
     copy = copy_run(run_dir, tmp_path, "broken")
     for path in (copy / "checkpoints").glob("*/manifest/metadata"):
         path.write_bytes(b"")
-    config_before = (copy / logs.CONFIG_FILE).read_text()
+    config_before = (copy / rundir.CONFIG_FILE).read_text()
     fail(["--resume", str(copy), "--no-progress"], "no readable checkpoint")
-    assert (copy / logs.CONFIG_FILE).read_text() == config_before
+    assert (copy / rundir.CONFIG_FILE).read_text() == config_before
 
 
 def test_resume_of_a_finished_run_trains_nothing_and_says_so(finished_run, tmp_path, capsys):
     _, run_dir = finished_run
     copy = copy_run(run_dir, tmp_path, "finished")
-    rows = logs.read_metrics(copy)
+    rows = rundir.read_metrics(copy)
     train.main(["--resume", str(copy)])  # returns: exit status 0
     out = capsys.readouterr().out
     assert out.splitlines() == [
         "Run already at 6 of 6 iterations; nothing to train. "
         "Pass a larger --iterations (the total) to continue."
     ]
-    assert logs.read_metrics(copy) == rows and checkpoint.all_steps(copy / "checkpoints") == [4, 6]
+    assert rundir.read_metrics(copy) == rows and checkpoint.all_steps(copy / "checkpoints") == [4, 6]
 
 
 def test_compile_lines_name_stages_as_users_count_them():

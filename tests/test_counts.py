@@ -16,7 +16,7 @@ from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import kinds, power, summaries, takeoff, takeoff_power, verdicts
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import catalogue, commits, designs, paths, prereg, recipes
-from jaxsocial.run import config, logs
+from jaxsocial.run import config, jsonio, rundir
 
 
 def test_boschloo_most_extreme_table_has_a_closed_form():
@@ -259,7 +259,7 @@ def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monk
         assert len(found) == len(problems) * len(conditions)
         assert all(want in got for want, got in zip(problems * len(conditions), found, strict=True))
     bad = tmp_path / "h1_bad.json"
-    raw = logs.read_json(catalogue.path_of("h1_prereg"))
+    raw = jsonio.read_json(catalogue.path_of("h1_prereg"))
     bad.write_text(json.dumps(raw | {"name": "h1_bad", "xla_flags": "--a=1 b=2"}))
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
     with pytest.raises(ValueError, match="design h1_bad's xla_flags: 'b=2' is not an XLA flag"):
@@ -276,7 +276,7 @@ def test_a_design_may_borrow_an_arm_of_a_finished_design(tmp_path, monkeypatch):
     for name in ("pred8", "nopenalty8"):
         (tmp_path / f"{name}.json").write_text(catalogue.path_of(name).read_text())
     monkeypatch.setattr(catalogue, "DESIGNS_DIR", tmp_path)
-    base = logs.read_json(tmp_path / "nopenalty8.json")
+    base = jsonio.read_json(tmp_path / "nopenalty8.json")
     bad = {
         "not among pred8's treatment": {"borrowed": {"treatment": "pred8"}},
         "name the other arm's design": {"borrowed": {"control": "bad"}},
@@ -361,10 +361,10 @@ def test_figure_writes_and_says_the_preregistered_result(tmp_path, capsys):
         learned = 5.0 if condition == "social_pred" else 0.5
         row = {"return/0": learned, "episodes/0": 1, "return/1": 30.0, "episodes/1": 1}  # slot 1: an expert
         rows = [{"iteration": i + 1, **row} for i in range(recipes.TINY.iterations)]
-        logs.MetricsLog(seed_dir).append(rows)
+        rundir.MetricsLog(seed_dir).append(rows)
     cli.main(["figure", "h1_prereg", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path / "runs"),
               "--out-dir", str(tmp_path / "out")])  # fmt: skip
-    block = logs.read_json(tmp_path / "out" / "h1_prereg-tiny.json")["preregistered"]
+    block = jsonio.read_json(tmp_path / "out" / "h1_prereg-tiny.json")["preregistered"]
     assert block["result"]["treatment_learned"] == 1 and block["result"]["control_learned"] == 0
     assert block["result"]["treatment_seeds"] == block["result"]["control_seeds"] == 2
     assert not block["checks"]["scale_as_designed"] and not block["checks"]["seeds_as_designed"]
@@ -404,12 +404,12 @@ def test_a_zero_shot_design_compares_the_borrowed_scores_with_its_own_seeds(tmp_
 
     science = tmp_path / "science"
     (science / "transfer8").mkdir(parents=True)
-    logs.write_json(science / "transfer8" / f"{paths.env_tag(env)}-social_pred.json", result([5.0] * 40))
+    jsonio.write_json(science / "transfer8" / f"{paths.env_tag(env)}-social_pred.json", result([5.0] * 40))
     monkeypatch.setattr(paths, "SCIENCE", science)
     seed_dirs = [tmp_path / f"bc-s{s}" for s in range(580, 590)]
     for k, d in enumerate(seed_dirs):
         kinds.eval_path(d, env).parent.mkdir(parents=True)
-        logs.write_json(kinds.eval_path(d, env), result([-1.0 - k], episodes=128 if k else 64))
+        jsonio.write_json(kinds.eval_path(d, env), result([-1.0 - k], episodes=128 if k else 64))
     runs = types.SimpleNamespace(lenders={"social_pred": "pred8"}, seed_dirs={"bc": seed_dirs}, commits=dict)
     block = summaries.preregistered_zero_shot(design, runs)
     assert (

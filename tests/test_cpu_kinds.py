@@ -12,7 +12,7 @@ from doc_sections import sections
 
 from jaxsocial.experiments.analyse import cpu_kinds
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import jsonio, metrics
 
 REPO = Path(__file__).resolve().parents[1]
 FINGERPRINTS = REPO / "benchmarks/results/op_fingerprints"
@@ -82,7 +82,7 @@ def _exact(report: dict) -> bool:
 
 @pytest.mark.parametrize("path", VERIFIED, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_the_committed_verify_reports_came_out_as_the_files_predict(path, kinds):
-    report = logs.read_json(path)
+    report = jsonio.read_json(path)
     cpu, flags, cores = report["cpu"], report["xla_flags"], report["cores"]["record"]
     expected = cpu_kinds.predict(cpu["record"], cpu["here"], flags, cores, kinds)["expected"]
     assert expected == (cpu_kinds.EXACT if _exact(report) else cpu_kinds.DIFFER), expected

@@ -17,7 +17,7 @@ from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import kinds, plot_figures, summaries, takeoff
 from jaxsocial.experiments.launch import runner
 from jaxsocial.experiments.plan import conditions, paths, recipes
-from jaxsocial.run import config, logs, metrics, schedule, startup
+from jaxsocial.run import config, jsonio, metrics, rundir, schedule, startup
 from jaxsocial.run.cost import read_rate
 
 
@@ -179,8 +179,8 @@ def _fake_run(root, scale, condition, first, last, iterations):
     for seed in range(first, last + 1):
         seed_dir = run / f"s{seed}" if last > first else run
         seed_dir.mkdir(parents=True)
-        logs.MetricsLog(seed_dir).append(_rows([float(seed)] * iterations, [1] * iterations))
-    (run / logs.CONFIG_FILE).write_text("{}")
+        rundir.MetricsLog(seed_dir).append(_rows([float(seed)] * iterations, [1] * iterations))
+    (run / rundir.CONFIG_FILE).write_text("{}")
 
 
 def test_a_seed_two_runs_hold_is_an_error_unless_one_is_picked(tmp_path):
@@ -270,7 +270,7 @@ def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
     scale = recipes.TINY
     cfg = recipes.condition_config(scale, "social_pred_mixed", 0, 1, str(mixing_runs))
     (run_dir,) = runner.config_seed_dirs(cfg)
-    rows = logs.read_metrics(run_dir)
+    rows = rundir.read_metrics(run_dir)
     assert [r["iteration"] for r in rows] == list(range(1, scale.iterations + 1))
     switch = round(scale.iterations / 3)
     assert [r["stage"] for r in rows] == [-1] * switch + [0] * (scale.iterations - switch)
@@ -281,11 +281,11 @@ def test_recipe_runs_evaluates_and_skips_finished_runs(mixing_runs, capsys):
             "eval/goalcycle3-solo:width=7,height=7,max_steps=20",
             "eval/goalcycle4:width=7,height=7,max_steps=20",
         }
-    before = (run_dir / logs.METRICS_FILE).stat().st_mtime_ns
+    before = (run_dir / rundir.METRICS_FILE).stat().st_mtime_ns
     capsys.readouterr()
     cli.main(["run", "fig6_mixing", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(mixing_runs)])
     assert capsys.readouterr().out.count(": finished") == 3
-    assert (run_dir / logs.METRICS_FILE).stat().st_mtime_ns == before  # not retrained
+    assert (run_dir / rundir.METRICS_FILE).stat().st_mtime_ns == before  # not retrained
 
 
 @pytest.mark.slow
@@ -313,7 +313,7 @@ def test_figure_summarises_the_runs(mixing_runs, tmp_path):
     }
     for name, entry in summary["conditions"].items():
         cfg = recipes.condition_config(recipes.TINY, name, 0, 1, str(mixing_runs))
-        rows = logs.read_metrics(runner.config_seed_dirs(cfg)[0])
+        rows = rundir.read_metrics(runner.config_seed_dirs(cfg)[0])
         assert entry["final_returns"] == [round(metrics.final_return(rows), 4)]
         assert entry["seeds_above_one_tile"] == int(metrics.final_return(rows) > metrics.LEARNED_RETURN)
         key = "eval/goalcycle4:width=7,height=7,max_steps=20"
@@ -384,7 +384,7 @@ def test_a_curves_recipe_with_transfer_envs_summarises_its_zero_shot_returns(tmp
                     {"kind": k, "mean_return": m, "ci95": ci} for k, m, ci in [("learner", r, None)] + others
                 ]
                 kinds.eval_path(seed_dir, spec).parent.mkdir(parents=True, exist_ok=True)
-                logs.write_json(kinds.eval_path(seed_dir, spec), {"results": results})
+                jsonio.write_json(kinds.eval_path(seed_dir, spec), {"results": results})
     configs = {c: recipes.condition_config(scale, c, 0, 1, str(tmp_path)) for c in learner}
     runs = SimpleNamespace(
         recipe=recipe, scale=scale, rows=rows, configs=configs, seed_dirs=seed_dirs, lenders={}
@@ -479,9 +479,9 @@ def test_ct_recipe_trains_evaluates_and_summarises(mixing_runs, tmp_path):
         assert result["protocol"] == "ct" and result["checkpoints"] == [str(seed_dir)]
         assert entry["ct"]["final_returns"] == [round(result["ct"]["mean"], 4)]
         assert entry["recall"]["final_returns"] == [round(result["recall"]["mean"], 4)]
-        assert entry["final_returns"] == [round(metrics.final_return(logs.read_metrics(seed_dir)), 4)]
+        assert entry["final_returns"] == [round(metrics.final_return(rundir.read_metrics(seed_dir)), 4)]
     medal = recipes.condition_config(recipes.TINY, "social_medal", 0, 1, str(mixing_runs))
-    assert "attention_loss/0" in logs.read_metrics(runner.config_seed_dirs(medal)[0])[-1]
+    assert "attention_loss/0" in rundir.read_metrics(runner.config_seed_dirs(medal)[0])[-1]
     assert set(summary["separated_ci95"]) == {"final", "ct", "recall"}
 
 
@@ -511,7 +511,7 @@ def test_time_to_learning_and_run_in_cpu_minutes_where_the_record_says_the_cores
     ]  # 10 env-steps an iteration at 5 a second: 2 s an iteration
     recorded, unrecorded = tmp_path / "a", tmp_path / "b"
     recorded.mkdir()
-    logs.write_json(recorded / "provenance.json", {"run": {"cores": 2}})
+    jsonio.write_json(recorded / "provenance.json", {"run": {"cores": 2}})
 
     class Runs:  # what `takeoffs` reads of a RecipeRuns
         rows = {"social_rec": [seed_rows, seed_rows]}
@@ -572,7 +572,7 @@ def test_vmapped_seed_programs_write_one_record_per_seed(tmp_path, capsys):
     dirs = runner.condition_seed_dirs(recipes.TINY, "social_pred", 0, 3, str(runs))
     assert dirs == [runs / "tiny/social_pred-s0-1/s0", runs / "tiny/social_pred-s0-1/s1",
                     runs / "tiny/social_pred-s2-2"]  # fmt: skip
-    assert logs.read_config(runs / "tiny/social_pred-s0-1")["seed_batching"] == "vmap"
+    assert rundir.read_config(runs / "tiny/social_pred-s0-1")["seed_batching"] == "vmap"
     log = tmp_path / "commands.log"
     log.write_text("".join(
         f"2026-01-01T00:00:00 {'a' * 40} python -m jaxsocial.train --run-name tiny/social_pred-{name}\n"
@@ -583,7 +583,7 @@ def test_vmapped_seed_programs_write_one_record_per_seed(tmp_path, capsys):
               "--allow-dirty"])  # fmt: skip
     for seed, record in enumerate([out / "tiny/social_pred-s0-1/s0", out / "tiny/social_pred-s0-1/s1",
                                    out / "tiny/social_pred-s2-2"]):  # fmt: skip
-        assert logs.read_config(record)["seed"] == seed and len(metrics.read_rows(record)) == 4
+        assert rundir.read_config(record)["seed"] == seed and len(rundir.read_metrics(record)) == 4
     with pytest.raises(SystemExit):
         cli.main(["run", "predictions", "--scale", "tiny", "--vmap-seeds", "0", "--dry-run"])
 

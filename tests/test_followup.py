@@ -12,7 +12,7 @@ from jaxsocial.experiments import followup
 from jaxsocial.experiments.analyse import kinds, plot_figures, records
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import designs, recipes
-from jaxsocial.run import checkpoint, logs, metrics
+from jaxsocial.run import checkpoint, jsonio, metrics, rundir
 
 pytestmark = pytest.mark.slow
 
@@ -42,11 +42,11 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
     assert followup.run(plan, str(runs), str(out), cores, "test command") == [0, 0]
     for arm, solo_prob in followup.ARMS.items():
         branch = plan.root(out) / f"{CONDITION}-s0-{arm}"
-        config = logs.read_config(branch)
+        config = rundir.read_config(branch)
         assert config["init_from"] == f"{source}@{recipes.TINY.iterations}" and config["seed"] == 0
         assert config["env"] == followup.BRANCH_ENV  # beside the experts, whatever the source's condition
         assert dict(pair.split("=") for pair in config["env_args"].split(","))["solo_prob"] == repr(solo_prob)
-        rows = logs.read_metrics(branch)
+        rows = rundir.read_metrics(branch)
         assert len(rows) == plan.branch_iterations == 1
         assert config["eval_episodes"] == plan.episodes
         assert set(metrics.eval_keys([rows])) == {
@@ -54,12 +54,12 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
         }
     evals = plan.root(out) / f"{CONDITION}-s0"
     for spec in followup.zero_shot_specs(plan.scale):
-        result = logs.read_json(kinds.eval_path(evals, spec))
+        result = jsonio.read_json(kinds.eval_path(evals, spec))
         assert result["checkpoints"] == [str(source)] and result["episodes_per_checkpoint"] == plan.episodes
-    assert logs.read_json(kinds.ct_path(evals, plan.scale))["protocol"] == "ct"
-    assert logs.read_json(evals / pinned.RUN_FILE)["command"] == "test command"
+    assert jsonio.read_json(kinds.ct_path(evals, plan.scale))["protocol"] == "ct"
+    assert jsonio.read_json(evals / pinned.RUN_FILE)["command"] == "test command"
     assert followup.run(plan, str(runs), str(out), [0], "again") == []  # everything done is kept
-    assert logs.read_json(evals / pinned.RUN_FILE)["command"] == "test command"
+    assert jsonio.read_json(evals / pinned.RUN_FILE)["command"] == "test command"
 
     recorded = followup.record(plan, str(out), str(recs), "a CPU", "0.1")
     assert sorted(d.name for d in recorded) == [
@@ -72,11 +72,11 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
     seed = summary["seeds"][f"{CONDITION}-s0"]
     assert seed["source"] == str(source)
     for arm in followup.ARMS:
-        rows = logs.read_metrics(plan.root(recs) / f"{CONDITION}-s0-{arm}")
+        rows = rundir.read_metrics(plan.root(recs) / f"{CONDITION}-s0-{arm}")
         for spec in followup.branch_specs(plan.scale):
             assert seed["branches"][arm][spec] == rows[-1][metrics.eval_key(spec)]
     spec = followup.zero_shot_specs(plan.scale)[1]  # 4-goal Goal Cycle, beside the experts
-    result = logs.read_json(kinds.eval_path(evals, spec))
+    result = jsonio.read_json(kinds.eval_path(evals, spec))
     assert seed["zero_shot"][spec] == {
         "learner": result["results"][0]["mean_return"],
         "experts": float(np.mean([r["mean_return"] for r in result["results"][1:]])),

@@ -10,7 +10,7 @@ from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "jaxsocial"
 TOOLS = ("jaxsocial.render", "jaxsocial.playback", "jaxsocial.plot", "jaxsocial.plot_parts")
-"""Tools for people, which stand on metrics, logs, policies and the environment only."""
+"""Tools for people, which stand on metrics, the run directory, policies and the environment only."""
 BELOW_RUN = ("jaxsocial.env", "jaxsocial.agents", "jaxsocial.specs")
 """What acts and what is parsed, which know no run directory, config or program."""
 ABOVE_TOOLS = (

@@ -11,7 +11,7 @@ from conftest import TINY, needs_records
 
 from jaxsocial import train
 from jaxsocial.experiments.launch import inflight, verify
-from jaxsocial.run import metrics
+from jaxsocial.run import rundir
 
 
 def test_a_packed_state_resumes_exactly(tmp_path, two_seed_run):
@@ -35,7 +35,7 @@ def test_a_packed_state_resumes_exactly(tmp_path, two_seed_run):
     assert not list(resumed.rglob("policy"))  # policies are left out: a resumed run exports its own
     train.run(dataclasses.replace(two_seeds, runs_dir=str(resumed.parent), resume=True))
     for seed in ("s0", "s1"):
-        rows, expected = metrics.read_rows(resumed / seed), metrics.read_rows(two_seed_run / seed)
+        rows, expected = rundir.read_metrics(resumed / seed), rundir.read_metrics(two_seed_run / seed)
         assert len(rows) == 4 and verify.first_difference(expected, rows) is None
 
 

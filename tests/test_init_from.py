@@ -12,7 +12,7 @@ from conftest import TINY
 from jaxsocial import train
 from jaxsocial.agents import ppo
 from jaxsocial.experiments.analyse import records
-from jaxsocial.run import checkpoint, driver, init_from, logs, loop, policy_io, startup
+from jaxsocial.run import checkpoint, driver, init_from, jsonio, loop, policy_io, rundir, startup
 from jaxsocial.specs import CheckpointRef
 
 
@@ -74,7 +74,7 @@ def test_a_resumed_branch_loads_its_own_state_without_the_source(source, tmp_pat
         assert train.run(again) == branch  # the source is gone: only a resumed run can go on
     finally:
         moved.rename(source)
-    assert [r["iteration"] for r in logs.read_metrics(branch)] == [1, 2, 3]
+    assert [r["iteration"] for r in rundir.read_metrics(branch)] == [1, 2, 3]
 
 
 def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
@@ -103,8 +103,8 @@ def test_a_branched_run_continues_the_sources_learners(source, tmp_path):
     branch has the source's config and seed, so without the source's state it would repeat the source's
     first 2 iterations and end with their count (the KL stop makes the step count per iteration vary)."""
     run_dir = train.run(_branch(tmp_path, str(source), iterations=2))
-    assert logs.read_config(run_dir)["init_from"] == f"{source}@{TINY.iterations}"
-    assert [r["iteration"] for r in logs.read_metrics(run_dir)] == [1, 2]
+    assert rundir.read_config(run_dir)["init_from"] == f"{source}@{TINY.iterations}"
+    assert [r["iteration"] for r in rundir.read_metrics(run_dir)] == [1, 2]
     twig = _branch(tmp_path, str(run_dir), run_name="twig")
     assert str(_pin(twig, tmp_path / "twig")) == f"{run_dir}@2"  # a branch of the branch
     _check(twig)
@@ -121,13 +121,13 @@ def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path)
     the committed record as from the run; without it a record has no checkpoint to branch from."""
     run = dict.fromkeys(records.RUN_FIELDS)
     plain = records.pack(source, tmp_path / "plain", run, "tiny/source")
-    assert logs.read_json(plain / records.PROVENANCE_FILE)["record"]["checkpoint_reason"] is None
+    assert jsonio.read_json(plain / records.PROVENANCE_FILE)["record"]["checkpoint_reason"] is None
     assert not (plain / "checkpoints").exists()
     reason = records.checkpoint_reason("all", 0.0, 5.0)
     record = records.pack(source, tmp_path / "record", run, "tiny/source", checkpoint_reason=reason)
     assert checkpoint.all_steps(record / "checkpoints") == [TINY.iterations]
     assert not list(record.rglob(records.ORBAX_COMMIT_NOTE))
-    packed = logs.read_json(record / records.PROVENANCE_FILE)["record"]
+    packed = jsonio.read_json(record / records.PROVENANCE_FILE)["record"]
     assert packed["checkpoint_iteration"] == TINY.iterations and packed["checkpoint_reason"] == reason
     cfg = _branch(tmp_path, str(record))
     _check(cfg)
@@ -170,5 +170,5 @@ def test_a_record_without_checkpoints_gives_its_policys_params_and_a_fresh_optim
     with pytest.raises(ValueError, match="some seeds hold checkpoints and some only a policy"):
         init_from.params_only(CheckpointRef(mixed), [7, 8])
     branch = train.run(dataclasses.replace(cfg, iterations=1))
-    assert logs.read_config(branch)["init_from"] == f"{plain}@{TINY.iterations}"
-    assert [r["iteration"] for r in logs.read_metrics(branch)] == [1]
+    assert rundir.read_config(branch)["init_from"] == f"{plain}@{TINY.iterations}"
+    assert [r["iteration"] for r in rundir.read_metrics(branch)] == [1]

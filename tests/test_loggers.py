@@ -11,7 +11,7 @@ import pytest
 from conftest import TINY, TINY_ENV_ARGS
 
 from jaxsocial import train
-from jaxsocial.run import logs
+from jaxsocial.run import rundir
 
 event_pb2 = pytest.importorskip("tensorboardX.proto.event_pb2")
 wandb = pytest.importorskip("wandb")
@@ -55,7 +55,7 @@ def test_tensorboard_event_files_hold_every_metric(tmp_path):
                 texts.append(value.tensor.string_val[0].decode())
             else:
                 scalars.setdefault(value.tag, {})[event.step] = value.simple_value
-    expected = logged_scalars(logs.read_metrics(run_dir))
+    expected = logged_scalars(rundir.read_metrics(run_dir))
     assert set(scalars) == set(expected) and {"return/0", "policy_loss/0", "env_steps_per_s"} <= set(scalars)
     for tag, by_step in expected.items():  # stored as float32
         assert scalars[tag] == {step: float(np.float32(v)) for step, v in by_step.items()}, tag
@@ -94,7 +94,7 @@ def test_wandb_offline_run_holds_every_metric_and_the_config(tmp_path, monkeypat
             history[items.pop("_step")] = {k: v for k, v in items.items() if not k.startswith("_")}
         elif kind == "run":
             config = {u.key: json.loads(u.value_json) for u in record.run.config.update}
-    expected = logged_scalars(logs.read_metrics(run_dir))
+    expected = logged_scalars(rundir.read_metrics(run_dir))
     assert {k for row in history.values() for k in row} == set(expected)
     for key, by_step in expected.items():
         assert {step: history[step][key] for step in by_step} == by_step, key

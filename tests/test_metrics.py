@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from jaxsocial import stats
-from jaxsocial.run import logs, metrics, rundir
+from jaxsocial.run import metrics, rundir
 
 
 def fake_pop(labels=("learner", "expert:explorer", "expert:explorer"), learners=(0,)):
@@ -47,8 +47,8 @@ def test_writer_rows_and_round_trip_through_the_log(tmp_path):
         "kl/0": 0.01,
     }
     rows[-1].update(metrics.eval_fields({"goalcycle4:width=9": 2.5}))
-    logs.MetricsLog(tmp_path).append(rows)
-    back = metrics.read_rows(tmp_path)
+    rundir.MetricsLog(tmp_path).append(rows)
+    back = rundir.read_metrics(tmp_path)
     assert back == rows
     assert metrics.slots(back[0]) == [0, 1, 2] and metrics.learners(back[0]) == [0]
     assert metrics.learner_metrics(back[-1]) == {"aux_loss": [0], "kl": [0]}
@@ -111,7 +111,7 @@ def test_seed_dirs_as_training_writes_them(tmp_path):
         names = rundir.seed_dir_names(seed, seeds)
         assert [tmp_path / n if n else tmp_path for n in names] == expected
         configs = [s.config for s in outputs.seed_runs(cfg, tmp_path)]
-        assert [metrics.one_seed_of_many(c) for c in configs] == [seeds > 1] * seeds
+        assert [rundir.one_seed_of_many(c) for c in configs] == [seeds > 1] * seeds
 
 
 def test_plot_groups_seeds_over_the_driver_fields():

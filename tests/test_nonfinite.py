@@ -12,7 +12,7 @@ import pytest
 from conftest import TINY
 
 from jaxsocial import train
-from jaxsocial.run import checkpoint, logs, nonfinite, policy_io
+from jaxsocial.run import checkpoint, nonfinite, policy_io, rundir
 
 HUGE_LR = 1e30  # one Adam step moves every param by ~1e30: the next minibatch's logits overflow
 
@@ -48,9 +48,9 @@ def healthy(tmp_path_factory):
 
 
 def with_lr(run_dir, lr):
-    config = json.loads((run_dir / logs.CONFIG_FILE).read_text())
+    config = json.loads((run_dir / rundir.CONFIG_FILE).read_text())
     config["ppo"]["lr"] = lr
-    logs.write_config(run_dir, config)
+    rundir.write_config(run_dir, config)
 
 
 def checkpoint_is_finite(run_dir, step):
@@ -74,13 +74,13 @@ def test_diverging_run_stops_keeping_the_last_finite_checkpoint(healthy, tmp_pat
     assert "loss" in message and "iteration 2's" in message, message
     assert checkpoint.all_steps(run_dir / "checkpoints") == [2]
     assert policy_io.policy_iteration(str(run_dir)) == 2 and checkpoint_is_finite(run_dir, 2)
-    rows = logs.read_metrics(run_dir)
+    rows = rundir.read_metrics(run_dir)
     assert [r["iteration"] for r in rows] == [1, 2, 3]
     assert "nonfinite" not in rows[1] and any(q.endswith("loss/0") for q in rows[2]["nonfinite"])
 
     with_lr(run_dir, TINY.ppo.lr)
     train.main(["--resume", str(run_dir), "--iterations", "4"])
-    rows = logs.read_metrics(run_dir)
+    rows = rundir.read_metrics(run_dir)
     assert [r["iteration"] for r in rows] == [1, 2, 3, 4] and not any("nonfinite" in r for r in rows)
     assert checkpoint.all_steps(run_dir / "checkpoints") == [2, 4]
 
@@ -98,7 +98,7 @@ def test_warn_trains_on_and_saves_nothing_non_finite(healthy, tmp_path, capsys):
     huge = state._replace(params=jax.tree.map(lambda x: x * np.float32(1e30), state.params))
     checkpoint.save(ckpt, 2, huge, metadata=metadata)
     train.main(["--resume", str(run_dir), "--iterations", "4", "--on-nonfinite", "warn"])
-    rows = logs.read_metrics(run_dir)
+    rows = rundir.read_metrics(run_dir)
     assert [r["iteration"] for r in rows] == [1, 2, 3, 4]
     assert [bool(r.get("nonfinite")) for r in rows] == [False, False, True, True]
     assert checkpoint.all_steps(ckpt) == [2] and policy_io.policy_iteration(str(run_dir)) == 2

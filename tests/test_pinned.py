@@ -10,7 +10,7 @@ import pytest
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import prereg
-from jaxsocial.run import autotune, logs
+from jaxsocial.run import autotune, rundir
 
 
 def _job(tmp_path, name: str, code: str) -> pinned.Job:
@@ -112,7 +112,7 @@ def test_a_recipe_trains_seed_by_seed_on_pinned_cores(tmp_path, monkeypatch):
     cli.main(["run", *common, "--cores", "0", "0"])
     for s in (0, 1):
         run_dir = runs / "tiny" / f"bc-s{s}-{s}"
-        assert len(logs.read_metrics(run_dir)) == 4 and (run_dir / pinned.RUN_FILE).is_file()
+        assert len(rundir.read_metrics(run_dir)) == 4 and (run_dir / pinned.RUN_FILE).is_file()
         assert f"--seed {s} --seeds 1" in json.loads((run_dir / pinned.RUN_FILE).read_text())["command"]
     recorded = ["--device", "a CPU", "--jax", "0.0", "--out-dir", str(records_dir), "--allow-dirty"]
     cli.main(["record", *common, *recorded])  # --allow-dirty: the tree may hold uncommitted work

@@ -11,7 +11,7 @@ import pytest
 from conftest import TINY_ENV_ARGS
 
 from jaxsocial import plot, plot_parts
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import metrics, rundir
 
 
 @pytest.fixture
@@ -23,8 +23,8 @@ def run_dir(two_seed_run):
 def copy_seed(src, dst, **changes):
     """A run of its own with one seed's config and metrics, and config `changes`."""
     dst.mkdir(parents=True)
-    shutil.copy(src / logs.METRICS_FILE, dst)
-    logs.write_config(dst, {**logs.read_config(src), "run_name": None, **changes})
+    shutil.copy(src / rundir.METRICS_FILE, dst)
+    rundir.write_config(dst, {**rundir.read_config(src), "run_name": None, **changes})
     return dst
 
 
@@ -158,13 +158,13 @@ def test_cli_errors_before_plotting(run_dir, tmp_path, capsys, case, message):
         target.mkdir()
     elif case == "bad_config":
         target.mkdir()
-        (target / logs.CONFIG_FILE).write_text(json.dumps({"env": "goalcycle3"}))
+        (target / rundir.CONFIG_FILE).write_text(json.dumps({"env": "goalcycle3"}))
     elif case == "missing_seed":
         shutil.copytree(run_dir, target)
         shutil.rmtree(target / "s1")
     elif case == "no_metrics":
         copy_seed(run_dir / "s0", target)
-        (target / logs.METRICS_FILE).write_text("")
+        (target / rundir.METRICS_FILE).write_text("")
     elif case in ("exists", "extension"):
         target = run_dir
     if case == "exists":

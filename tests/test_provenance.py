@@ -16,7 +16,7 @@ from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.launch import pinned, verify
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import autotune, checkout, logs, provenance
+from jaxsocial.run import autotune, checkout, jsonio, provenance
 
 REPO = Path(__file__).resolve().parents[1]
 RECORD = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2"]
@@ -80,7 +80,7 @@ def test_a_clean_tree_records_its_commit_and_no_diff(repo, tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     provenance.write_run_file(run_dir, "python -m jaxsocial.train", tree, None, provenance.now(), 0)
-    info = logs.read_json(run_dir / provenance.RUN_FILE)
+    info = jsonio.read_json(run_dir / provenance.RUN_FILE)
     assert (info["commit"], info["dirty"], info["tree_diff"]) == (head, False, None)
     assert [p.name for p in run_dir.iterdir()] == [provenance.RUN_FILE]  # no diff
 
@@ -102,7 +102,7 @@ def test_a_dirty_trees_diff_rebuilds_it_from_its_commit(repo, tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     provenance.write_run_file(run_dir, "python -m jaxsocial.train", tree, None, provenance.now(), 0)
-    info = logs.read_json(run_dir / provenance.RUN_FILE)
+    info = jsonio.read_json(run_dir / provenance.RUN_FILE)
     diff = run_dir / info["tree_diff"]
     assert info["dirty"] is True and info["tree_diff_sha256"] == hashlib.sha256(diff.read_bytes()).hexdigest()
     assert info["tree_diff"] == f"tree-{info['tree_diff_sha256'][:12]}.diff"
@@ -133,7 +133,7 @@ def test_outside_a_checkout_there_is_no_commit_and_a_reason(repo, tmp_path):
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     provenance.write_run_file(run_dir, "python -m jaxsocial.train", tree, None, provenance.now(), 0)
-    info = logs.read_json(run_dir / provenance.RUN_FILE)
+    info = jsonio.read_json(run_dir / provenance.RUN_FILE)
     assert info["commit"] is None and info["no_commit_reason"] == tree.reason and info["dirty"] is None
 
 
@@ -148,8 +148,8 @@ def test_a_training_process_records_itself_unless_its_runner_does(repo, tmp_path
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     with provenance.recorded(run_dir, "python -m jaxsocial.train --seed 0", resume=False):
-        during = logs.read_json(run_dir / provenance.RUN_FILE)
-    after = logs.read_json(run_dir / provenance.RUN_FILE)
+        during = jsonio.read_json(run_dir / provenance.RUN_FILE)
+    after = jsonio.read_json(run_dir / provenance.RUN_FILE)
     assert (during["ended"], during["rc"], after["rc"]) == (None, None, 0) and after["ended"] >= after[
         "started"
     ]
@@ -167,7 +167,7 @@ def test_a_training_process_records_itself_unless_its_runner_does(repo, tmp_path
         provenance.recorded(run_dir, "python -m jaxsocial.train --resume", True),
     ):
         raise RuntimeError("a failure while training")
-    resumed = logs.read_json(run_dir / provenance.RUN_FILE)
+    resumed = jsonio.read_json(run_dir / provenance.RUN_FILE)
     assert resumed["rc"] == 1 and resumed["earlier"] == [after]
     monkeypatch.setenv(provenance.PARENT_WRITES, "1")
     started_by_runner = tmp_path / "pinned"
@@ -186,7 +186,7 @@ def test_the_runner_records_the_tree_each_process_started_from(repo, tmp_path, m
     told = f"(d / 'told').write_text(os.environ[{provenance.PARENT_WRITES!r}])"
     assert pinned.run([pinned.Job("job", ("-c", f"{make}; {told}"), run_dir)], [0]) == [0]
     assert (run_dir / "told").read_text() == "1"  # so a training process would write no process file itself
-    info = logs.read_json(run_dir / pinned.RUN_FILE)
+    info = jsonio.read_json(run_dir / pinned.RUN_FILE)
     assert info["commit"] == _git(repo, "rev-parse", "HEAD") and info["dirty"] is True and info["cores"] == 1
     assert hashlib.sha256((run_dir / info["tree_diff"]).read_bytes()).hexdigest() == info["tree_diff_sha256"]
     run = pinned.run_provenance(run_dir, "a CPU", "0.0")
@@ -213,7 +213,7 @@ def test_record_refuses_a_dirty_tree_unless_allowed(repo, tmp_path, monkeypatch)
     packed = sorted(out.rglob(records.PROVENANCE_FILE))
     assert len(packed) == 4 and not list(out.rglob("tree-*.diff"))
     before = {p: p.read_text() for p in packed}
-    for provenance_ in map(logs.read_json, packed):
+    for provenance_ in map(jsonio.read_json, packed):
         assert provenance_["run"]["commit"] == clean.commit and provenance_["run"]["dirty"] is False
         assert provenance_["record"]["packed_at_commit"] == clean.commit
         assert provenance_["record"]["packed_dirty"] is False
@@ -225,7 +225,7 @@ def test_record_refuses_a_dirty_tree_unless_allowed(repo, tmp_path, monkeypatch)
         cli.main([*command, "--overwrite"])
     assert {p: p.read_text() for p in sorted(out.rglob(records.PROVENANCE_FILE))} == before  # nothing written
     cli.main([*command, "--overwrite", "--allow-dirty"])
-    assert all(logs.read_json(p)["record"]["packed_dirty"] is True for p in packed)
+    assert all(jsonio.read_json(p)["record"]["packed_dirty"] is True for p in packed)
 
 
 @needs_records("records/tiny")
@@ -250,7 +250,7 @@ def test_runs_trained_from_a_dirty_tree_are_recorded_only_when_allowed_and_with_
     packed = sorted(out.rglob(records.PROVENANCE_FILE))
     assert len(packed) == 4
     for path in packed:
-        run = logs.read_json(path)["run"]
+        run = jsonio.read_json(path)["run"]
         assert {k: run[k] for k in ("commit", *checkout.TREE_FIELDS)} == dirty.fields()
         assert (path.parent / dirty.diff_file).read_bytes() == dirty.diff  # rebuilds the code it ran
         assert records.tree_diffs(path.parent, run) == [path.parent / dirty.diff_file]

@@ -15,7 +15,7 @@ from jaxsocial.experiments import followup, sweep
 from jaxsocial.experiments.analyse import records, summaries, takeoff_power
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import catalogue, designs, paths, recipes
-from jaxsocial.run import logs, metrics, policy_io
+from jaxsocial.run import jsonio, metrics, policy_io, rundir
 
 REPO = Path(__file__).resolve().parents[1]
 SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"
@@ -41,10 +41,10 @@ def _record_dirs() -> list[Path]:
 def test_the_committed_summary_is_rederived_from_the_records_alone(in_repo, tmp_path):
     committed = json.loads(Path(SUMMARY).read_text())
     runs = summaries.RecipeRuns(RECIPE, recipes.TINY, 0, 2, str(paths.RECORDS))
-    assert logs.to_json(summaries.summarize(runs, committed["command"])) == committed
+    assert jsonio.to_json(summaries.summarize(runs, committed["command"])) == committed
     assert committed["provenance"]["unrecorded"] == []
     for condition, dirs in committed["seed_dirs"].items():
-        finals = [round(metrics.final_return(logs.read_metrics(d)), 4) for d in dirs]
+        finals = [round(metrics.final_return(rundir.read_metrics(d)), 4) for d in dirs]
         assert committed["training"][condition]["final_returns"] == finals
     argv = committed["command"].split()[3:]  # after 'python -m jaxsocial.experiments'
     argv[argv.index("--out-dir") + 1] = str(tmp_path)
@@ -61,9 +61,9 @@ def test_a_record_reads_like_a_run_directory():
     record_dirs = _record_dirs()
     assert len(record_dirs) == 4  # 2 conditions x 2 seeds
     for record in record_dirs:
-        config = logs.read_config(record)
-        assert len(logs.read_metrics(record)) == config["iterations"]
-        assert not (record / "checkpoints").exists() and not (record / logs.METRICS_FILE).exists()
+        config = rundir.read_config(record)
+        assert len(rundir.read_metrics(record)) == config["iterations"]
+        assert not (record / "checkpoints").exists() and not (record / rundir.METRICS_FILE).exists()
         assert policy_io.policy_iteration(str(record)) == config["iterations"]
         provenance = records.read_provenance(record)
         assert set(provenance["run"]) == set(records.RUN_FIELDS) and provenance["run"]["rc"] == 0
@@ -110,24 +110,24 @@ def test_pack_checks_before_it_writes(tmp_path):
     source = _record_dirs()[0]
     run = records.read_provenance(source)["run"]
     out = records.pack(source, tmp_path / "r", run, "tiny/x/s0")
-    assert logs.read_metrics(out) == logs.read_metrics(source)
+    assert rundir.read_metrics(out) == rundir.read_metrics(source)
     assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in source.iterdir())
     assert records.read_provenance(out)["run"] == run
     with pytest.raises(FileExistsError, match="--overwrite"):
         records.pack(source, out, run, "tiny/x/s0")
     unfinished = tmp_path / "unfinished"
     shutil.copytree(source, unfinished)
-    logs.write_config(unfinished, {**logs.read_config(source), "iterations": 1000})
+    rundir.write_config(unfinished, {**rundir.read_config(source), "iterations": 1000})
     with pytest.raises(ValueError, match="unfinished"):
         records.pack(unfinished, tmp_path / "u", run, "tiny/u/s0")
     # A run its --stop-at-return ended is finished when its last chunk's learner return reached the threshold.
-    stopped = {**logs.read_config(source), "iterations": 1000}
-    logs.write_config(unfinished, {**stopped, "stop_at_return": 1e9})
+    stopped = {**rundir.read_config(source), "iterations": 1000}
+    rundir.write_config(unfinished, {**stopped, "stop_at_return": 1e9})
     with pytest.raises(ValueError, match="unfinished"):
         records.pack(unfinished, tmp_path / "u", run, "tiny/u/s0")
-    logs.write_config(unfinished, {**stopped, "stop_at_return": -1e9})
+    rundir.write_config(unfinished, {**stopped, "stop_at_return": -1e9})
     packed = records.pack(unfinished, tmp_path / "s", run, "tiny/s/s0")
-    assert logs.read_json(packed / records.PROVENANCE_FILE)["record"]["stopped_early"] is True
+    assert jsonio.read_json(packed / records.PROVENANCE_FILE)["record"]["stopped_early"] is True
     with pytest.raises(FileNotFoundError, match="not a finished seed run"):
         records.pack(tmp_path / "nowhere", tmp_path / "n", run, "n")
     assert not (tmp_path / "u").exists() and not (tmp_path / "n").exists()
@@ -202,7 +202,7 @@ def test_record_command_skips_seeds_still_training(in_repo, tmp_path, capsys):
     seeds and names the unfinished one, which it leaves for a later call."""
 
     def still_training(seed_dir: Path) -> None:
-        logs.write_config(seed_dir, {**logs.read_config(seed_dir), "iterations": 1000})
+        rundir.write_config(seed_dir, {**rundir.read_config(seed_dir), "iterations": 1000})
 
     training = _record_all_but_one_seed(tmp_path, still_training)
     assert f"{training} is unfinished: 4 of 1000 iterations logged; skipped" in capsys.readouterr().out
@@ -269,7 +269,7 @@ def _rederivations() -> dict[str, functools.partial]:
     science = REPO / paths.SCIENCE
     out = {}
     for path in sorted(science.glob("*.json")):
-        summary = logs.read_json(path)
+        summary = jsonio.read_json(path)
         command = summary.get("command") or ""
         if command.startswith("python -m jaxsocial.experiments figure "):
             out[path.name] = functools.partial(cli.main, command.split()[3:])
@@ -287,7 +287,7 @@ def _records_read(name: str) -> tuple[str, ...]:
     """The folders under benchmarks/results/ that re-deriving the committed summary `name` reads: its
     scale's records, the sweep's, an evaluation design's, a branch design's and its material's, or none (the
     map reads the sweep's summary)."""
-    summary = logs.read_json(REPO / paths.SCIENCE / name)
+    summary = jsonio.read_json(REPO / paths.SCIENCE / name)
     command = (summary.get("command") or "").split()
     if name == paths.MAP_SUMMARY.name + ".json":
         return ()
@@ -315,7 +315,7 @@ def test_every_committed_summary_is_rederived_or_from_runs_not_committed():
     rederived = _rederivations()
     for path in sorted((REPO / paths.SCIENCE).glob("*.json")):
         if path.name not in rederived:
-            assert logs.read_json(path)["command"].startswith("python -m jaxsocial.experiments run "), path
+            assert jsonio.read_json(path)["command"].startswith("python -m jaxsocial.experiments run "), path
 
 
 @pytest.mark.slow

@@ -7,7 +7,7 @@ import json
 import subprocess
 import sys
 
-from jaxsocial.run import config, logs
+from jaxsocial.run import config, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.runlock import RunLock
 
@@ -33,9 +33,9 @@ def make_runs(runs) -> None:
     for name in ("trained", "live", "unstarted"):
         cfg = dataclasses.replace(TrainConfig(), runs_dir=str(runs), run_name=name, iterations=5)
         (runs / name).mkdir(parents=True)
-        logs.write_config(runs / name, config.config_dict(cfg))
+        rundir.write_config(runs / name, config.config_dict(cfg))
         if name != "unstarted":
-            (runs / name / logs.METRICS_FILE).write_text('{"iteration": 1}\n')
+            (runs / name / rundir.METRICS_FILE).write_text('{"iteration": 1}\n')
 
 
 def snapshot(runs) -> dict:

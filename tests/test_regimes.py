@@ -17,7 +17,7 @@ from jaxsocial import train
 from jaxsocial.agents import network, population
 from jaxsocial.env import core
 from jaxsocial.evaluate import EvalConfig, evaluate, mean_ci95
-from jaxsocial.run import logs, policy_io, schedule
+from jaxsocial.run import policy_io, rundir, schedule
 from jaxsocial.run.startup import setup
 from jaxsocial.specs import PolicyRef
 from jaxsocial.train import run
@@ -66,7 +66,7 @@ def test_penalty_curriculum_switches_at_the_configured_points(tmp_path):
     cfg = dataclasses.replace(
         TINY, stages=CURRICULUM, iterations=7, chunk_iterations=3, runs_dir=str(tmp_path)
     )
-    rows = logs.read_metrics(run(cfg))
+    rows = rundir.read_metrics(run(cfg))
     # before the first stage the plain environment runs; stage 0 starts exactly at iteration 2 (the first
     # chunk is cut short to land on it); the threshold of stage 1 is met by stage 0's first chunk
     # (iterations 3-5), so stage 1 runs from iteration 6

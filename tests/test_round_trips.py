@@ -16,7 +16,7 @@ import jaxsocial
 from jaxsocial import evaluate, syntax, train
 from jaxsocial.agents import expert_spec, network_config, population
 from jaxsocial.env import registry
-from jaxsocial.run import config, flags, logs, schedule
+from jaxsocial.run import config, flags, rundir, schedule
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import ENV_ARGS, CheckpointRef, EnvSpec, PolicyRef
 
@@ -240,7 +240,7 @@ def test_a_config_json_with_the_old_field_names_reads_as_today():
 @needs_records("records/tiny")
 def test_a_committed_records_config_with_the_old_field_names_reads_as_today():
     """A committed tiny record's config.json, written before the renames, reads under today's names."""
-    record = logs.read_config(REPO / "benchmarks/results/records/tiny/social_pred_nopenalty-s0-1/s0")
+    record = rundir.read_config(REPO / "benchmarks/results/records/tiny/social_pred_nopenalty-s0-1/s0")
     assert "chunk" in record["net"] and "chunk_length" in record["ppo"]  # written before the renames
     read = config.config_from_dict(record)
     assert read.net.frame_batch == record["net"]["chunk"]

@@ -6,7 +6,7 @@ from pathlib import Path
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import run_times
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import autotune, logs
+from jaxsocial.run import autotune, jsonio
 
 START = "2026-12-01T10:00:00+00:00"
 
@@ -16,7 +16,7 @@ def write_record(root: Path, name: str, minutes: int, **run) -> None:
     ended = f"2026-12-01T{10 + minutes // 60:02d}:{minutes % 60:02d}:00+00:00"
     fields = {"started": START, "ended": ended, "rc": 0, "cores": 1} | run
     (root / name).mkdir(parents=True)
-    logs.write_json(root / name / "provenance.json", {"run": fields, "record": {}})
+    jsonio.write_json(root / name / "provenance.json", {"run": fields, "record": {}})
 
 
 def test_minutes_by_cpu_keeps_whole_one_core_runs_that_ended_well(tmp_path):

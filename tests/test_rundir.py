@@ -1,4 +1,5 @@
-"""Tests of jaxsocial.run.logs: run dir policies, config, JSONL metrics, progress line, optional loggers."""
+"""Tests of jaxsocial.run.rundir and jsonio (run dir policies, config, JSONL metrics) and of loggers (progress
+line, optional loggers)."""
 
 import io
 import json
@@ -8,56 +9,56 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxsocial.run import loggers, logs
+from jaxsocial.run import loggers, rundir
 
 
 def test_run_dir_policies(tmp_path):
-    run = logs.prepare_run_dir(tmp_path, "exp1")
+    run = rundir.prepare_run_dir(tmp_path, "exp1")
     assert run == tmp_path / "exp1" and run.is_dir()
-    assert logs.prepare_run_dir(tmp_path, "exp1") == run  # empty: fine
+    assert rundir.prepare_run_dir(tmp_path, "exp1") == run  # empty: fine
     (run / "marker").write_text("x")
 
     with pytest.raises(FileExistsError, match="--resume.*--overwrite"):
-        logs.prepare_run_dir(tmp_path, "exp1")
-    assert logs.prepare_run_dir(tmp_path, "exp1", resume=True) == run and (run / "marker").exists()
-    assert logs.prepare_run_dir(tmp_path, "exp1", overwrite=True) == run and not any(run.iterdir())
+        rundir.prepare_run_dir(tmp_path, "exp1")
+    assert rundir.prepare_run_dir(tmp_path, "exp1", resume=True) == run and (run / "marker").exists()
+    assert rundir.prepare_run_dir(tmp_path, "exp1", overwrite=True) == run and not any(run.iterdir())
     with pytest.raises(ValueError, match="at most one"):
-        logs.prepare_run_dir(tmp_path, "exp1", resume=True, overwrite=True)
+        rundir.prepare_run_dir(tmp_path, "exp1", resume=True, overwrite=True)
     with pytest.raises(FileNotFoundError, match="cannot resume"):
-        logs.prepare_run_dir(tmp_path, "nope", resume=True)
+        rundir.prepare_run_dir(tmp_path, "nope", resume=True)
     with pytest.raises(ValueError):
-        logs.prepare_run_dir(tmp_path, "..", overwrite=True)
+        rundir.prepare_run_dir(tmp_path, "..", overwrite=True)
 
 
 def test_config_write_read_diff(tmp_path):
     config = {"seed": 0, "agent": {"lr": np.float32(0.5), "layers": (64, 64)}, "env": "goal_cycle"}
-    path = logs.write_config(tmp_path, config)
+    path = rundir.write_config(tmp_path, config)
     text = path.read_text()
     assert text.index('"agent"') < text.index('"env"') < text.index('"seed"') and '\n  "agent"' in text
-    loaded = logs.read_config(tmp_path)
+    loaded = rundir.read_config(tmp_path)
     assert loaded == {"seed": 0, "agent": {"lr": 0.5, "layers": [64, 64]}, "env": "goal_cycle"}
-    assert logs.config_diff(loaded, config) == []
+    assert rundir.config_diff(loaded, config) == []
     changed = {"seed": 1, "agent": {"lr": 0.5, "layers": [64, 64], "clip": 0.2}, "env": "goal_cycle"}
-    assert logs.config_diff(loaded, changed) == ["agent.clip", "seed"]
+    assert rundir.config_diff(loaded, changed) == ["agent.clip", "seed"]
     with pytest.raises(FileNotFoundError):
-        logs.read_config(tmp_path / "missing")
+        rundir.read_config(tmp_path / "missing")
 
 
 def test_metrics_append_read_truncate(tmp_path):
-    log = logs.MetricsLog(tmp_path)
-    assert logs.read_metrics(tmp_path) == []
+    log = rundir.MetricsLog(tmp_path)
+    assert rundir.read_metrics(tmp_path) == []
     log.append(
         {"iteration": np.int32(i), "return": np.float32(i / 2), "per_agent": jnp.array([i, 2 * i])}
         for i in range(1, 4)
     )
     log.append([{"iteration": 4, "loss": float("nan"), "kl": np.float64(np.inf), "ok": np.bool_(True)}])
-    rows = logs.read_metrics(tmp_path)
+    rows = rundir.read_metrics(tmp_path)
     assert rows[0] == {"iteration": 1, "return": 0.5, "per_agent": [1, 2]}
     assert rows[3] == {"iteration": 4, "loss": None, "kl": None, "ok": True}
     assert all(json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines())
 
     assert log.truncate_after(2) == 2
-    assert [r["iteration"] for r in logs.read_metrics(tmp_path)] == [1, 2]
+    assert [r["iteration"] for r in rundir.read_metrics(tmp_path)] == [1, 2]
 
     with open(log.path, "a") as f:  # a crash left a partial line
         f.write('{"iteration": 3, "ret')
@@ -75,12 +76,12 @@ def test_gzipped_metrics_read_like_plain_ones(tmp_path):
     import gzip
 
     rows = [{"iteration": 1, "return/0": 0.5}, {"iteration": 2, "return/0": None}]
-    assert not logs.has_metrics(tmp_path)
+    assert not rundir.has_metrics(tmp_path)
     text = "".join(json.dumps(r) + "\n" for r in rows)
-    (tmp_path / logs.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode()))
-    assert logs.read_metrics(tmp_path) == rows and logs.has_metrics(tmp_path)
-    logs.MetricsLog(tmp_path).append(rows[:1])
-    assert logs.read_metrics(tmp_path) == rows[:1]
+    (tmp_path / rundir.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode()))
+    assert rundir.read_metrics(tmp_path) == rows and rundir.has_metrics(tmp_path)
+    rundir.MetricsLog(tmp_path).append(rows[:1])
+    assert rundir.read_metrics(tmp_path) == rows[:1]
 
 
 def test_progress_non_tty(capsys):

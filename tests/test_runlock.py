@@ -15,7 +15,7 @@ import pytest
 from conftest import TINY_RUN_FLAGS
 
 from jaxsocial import train
-from jaxsocial.run import checkpoint, logs
+from jaxsocial.run import checkpoint, rundir
 from jaxsocial.run.runlock import RunLock, RunLockedError, lock_path
 
 HOLDER = f"process {os.getpid()} on host {socket.gethostname()}"
@@ -46,12 +46,12 @@ def test_a_stale_lock_is_taken_over_with_a_warning(tmp_path, capsys):
 def test_train_on_a_locked_run_directory_is_refused_before_touching_it(tmp_path, mode):
     run_dir = tmp_path / "x"
     run_dir.mkdir()
-    (run_dir / logs.METRICS_FILE).write_text('{"iteration": 1}\n')
+    (run_dir / rundir.METRICS_FILE).write_text('{"iteration": 1}\n')
     with RunLock(run_dir), pytest.raises(SystemExit) as exc:
         train.main([*TINY_RUN_FLAGS, "--runs-dir", str(tmp_path), "--run-name", "x", *mode])
     assert str(exc.value).startswith(f"error: run directory {run_dir} is in use by {HOLDER}"), exc.value
-    assert [p.name for p in run_dir.iterdir()] == [logs.METRICS_FILE]
-    assert (run_dir / logs.METRICS_FILE).read_text() == '{"iteration": 1}\n'
+    assert [p.name for p in run_dir.iterdir()] == [rundir.METRICS_FILE]
+    assert (run_dir / rundir.METRICS_FILE).read_text() == '{"iteration": 1}\n'
 
 
 @pytest.mark.slow  # a training subprocess, killed, then resumed here
@@ -81,7 +81,7 @@ def test_overwrite_during_a_run_is_refused_and_a_killed_run_resumes(tmp_path, ca
         for mode in (["--overwrite"], ["--resume"]):
             with pytest.raises(SystemExit, match=f"is in use by process {live.pid} on host"):
                 train.main([*flags, *mode])
-        assert live.poll() is None and (run_dir / logs.CONFIG_FILE).is_file()
+        assert live.poll() is None and (run_dir / rundir.CONFIG_FILE).is_file()
     finally:
         live.send_signal(signal.SIGKILL)
         live.wait()
@@ -90,5 +90,5 @@ def test_overwrite_during_a_run_is_refused_and_a_killed_run_resumes(tmp_path, ca
     total = steps[-1] + 2
     train.main([*flags, "--resume", "--iterations", str(total)])
     assert "taking over the lock" in capsys.readouterr().err
-    assert [r["iteration"] for r in logs.read_metrics(run_dir)] == list(range(1, total + 1))
+    assert [r["iteration"] for r in rundir.read_metrics(run_dir)] == list(range(1, total + 1))
     assert checkpoint.latest_step(run_dir / "checkpoints") == total and not lock_path(run_dir).exists()

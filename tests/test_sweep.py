@@ -12,7 +12,7 @@ from jaxsocial.experiments import sweep
 from jaxsocial.experiments.analyse import rundirs, takeoff
 from jaxsocial.experiments.launch import runner
 from jaxsocial.experiments.plan import recipes
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
@@ -34,12 +34,12 @@ def test_every_setting_file_loads():
     ],
 )
 def test_a_bad_setting_file_is_refused_naming_the_file_and_field(tmp_path, change, named):
-    good = logs.read_json(sweep.SETTINGS_DIR / "mb8k8_rec.json")
-    path = logs.write_json(tmp_path / "mb8k8_rec.json", {**good, **change})
+    good = jsonio.read_json(sweep.SETTINGS_DIR / "mb8k8_rec.json")
+    path = jsonio.write_json(tmp_path / "mb8k8_rec.json", {**good, **change})
     with pytest.raises(ValueError, match=f"{path}: .*{named}"):
         sweep.load_setting(path)
     del good["why"]
-    logs.write_json(path, good)
+    jsonio.write_json(path, good)
     with pytest.raises(ValueError, match=f"{path}: missing field 'why'"):
         sweep.load_setting(path)
     path.write_text("{")
@@ -79,14 +79,16 @@ def test_the_laptop_scale_is_the_sweeps_7x7_setting(condition, setting):
 def hand_built_run(path, returns, sps, cores):
     """A seed directory of 2 envs x 5 steps a row (10 env-steps), one learner episode a row."""
     path.mkdir(parents=True)
-    logs.write_json(path / logs.CONFIG_FILE, {"seed": 7, "num_envs": 2, "rollout_steps": 5, "iterations": 4})
+    jsonio.write_json(
+        path / rundir.CONFIG_FILE, {"seed": 7, "num_envs": 2, "rollout_steps": 5, "iterations": 4}
+    )
     rows = [
         {"iteration": i + 1, "env_steps_per_s": sps, "return/0": r, "episodes/0": 1, "return/1": 30.0,
          "episodes/1": 1}
         for i, r in enumerate(returns)
     ]  # fmt: skip
-    (path / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
-    logs.write_json(path / "provenance.json", {"run": {"cores": cores}})
+    (path / rundir.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    jsonio.write_json(path / "provenance.json", {"run": {"cores": cores}})
 
 
 def test_takeoff_in_env_steps_and_cpu_minutes(tmp_path, monkeypatch):
@@ -124,11 +126,13 @@ def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, c
     long = dataclasses.replace(sweep.SETTINGS["map_g4_40m_rec_7x7"], iterations=8)
     runs = str(tmp_path)
     hand_built_run(tmp_path / f"{short.name}-s0", [1.0] * 4, sps=1.0, cores=1)
-    logs.write_json(tmp_path / f"{short.name}-s0" / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
+    jsonio.write_json(
+        tmp_path / f"{short.name}-s0" / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"}
+    )
     sweep.extend(short, long, [0], runs)
     copied = tmp_path / f"{long.name}-s0"
-    assert logs.read_json(copied / sweep.pinned.RUN_FILE)["command"] == "first"  # the earlier process
-    assert len(logs.read_metrics(copied)) == 4 and sweep.seed_state(long, 0, runs) == "partial"
+    assert jsonio.read_json(copied / sweep.pinned.RUN_FILE)["command"] == "first"  # the earlier process
+    assert len(rundir.read_metrics(copied)) == 4 and sweep.seed_state(long, 0, runs) == "partial"
     with pytest.raises(ValueError, match="exists: extend only starts a run"):
         sweep.extend(short, long, [0], runs)
     with pytest.raises(ValueError, match="their flags differ"):
@@ -143,11 +147,11 @@ def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, c
         sweep.extend(short, long, [2], runs)
     took_off = tmp_path / f"{short.name}-s3"
     hand_built_run(took_off, [1.0, 6.0], sps=1.0, cores=1)
-    config = logs.read_config(took_off) | {"stop_at_return": 5.0, "chunk_iterations": 1}
-    logs.write_json(took_off / logs.CONFIG_FILE, config)
-    rows = [r | {"kl/0": 0.0} for r in logs.read_metrics(took_off)]  # slot 0 is a learner
-    (took_off / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
-    logs.write_json(took_off / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
+    config = rundir.read_config(took_off) | {"stop_at_return": 5.0, "chunk_iterations": 1}
+    jsonio.write_json(took_off / rundir.CONFIG_FILE, config)
+    rows = [r | {"kl/0": 0.0} for r in rundir.read_metrics(took_off)]  # slot 0 is a learner
+    (took_off / rundir.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    jsonio.write_json(took_off / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
     assert sweep.seed_state(short, 3, runs) == "finished"  # stopped early at return 6 >= 5
     assert rundirs.finished(took_off, 4) and not rundirs.finished(tmp_path / f"{short.name}-s1", 4)
     assert runner.status(long, [took_off]) == rundirs.FINISHED  # a recipe's run is not resumed past its stop

@@ -12,7 +12,7 @@ from float_bounds import assert_trees_within, decoder_error, gamma
 
 from jaxsocial import evaluate, train
 from jaxsocial.agents import network as net
-from jaxsocial.run import logs, policy_io
+from jaxsocial.run import policy_io, rundir
 
 SMALL = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred", obs="symbolic")
 T, B = 3, 2
@@ -116,7 +116,7 @@ def symbolic_run(tmp_path_factory):
 
 def test_tiny_symbolic_run_trains_saves_and_evaluates(symbolic_run):
     run_dir, _ = symbolic_run
-    rows = logs.read_metrics(run_dir)
+    rows = rundir.read_metrics(run_dir)
     assert [r["iteration"] for r in rows] == [1, 2, 3, 4]
     for key in ("aux_loss/0", "attention_loss/0", "value_loss/0", "policy_loss/0"):
         assert all(np.isfinite(r[key]) for r in rows), key

@@ -25,7 +25,7 @@ from jaxsocial.run import (
     checkout,
     checkpoint,
     config,
-    logs,
+    jsonio,
     loop,
     policy_io,
     provenance,
@@ -91,7 +91,7 @@ def tiny_runs(tmp_path_factory):
 def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, capsys):
     cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="stop", stop_at_return=-1e9)
     run_dir = run(cfg)
-    assert len(logs.read_metrics(run_dir)) == TINY.chunk_iterations < TINY.iterations
+    assert len(rundir.read_metrics(run_dir)) == TINY.chunk_iterations < TINY.iterations
     assert checkpoint.latest_step(run_dir / rundir.POLICY_DIR) == TINY.chunk_iterations  # saved at the stop
     shown = re.search(
         r"stopped after iteration (\d+): the learners' return (\S+) reached", capsys.readouterr().out
@@ -103,7 +103,7 @@ def test_stop_at_return_ends_the_run_after_the_chunk_that_reached_it(tmp_path, c
         in capsys.readouterr().out
     )
     never = run(dataclasses.replace(cfg, run_name="never", stop_at_return=1e9))
-    assert len(logs.read_metrics(never)) == TINY.iterations
+    assert len(rundir.read_metrics(never)) == TINY.iterations
 
 
 def test_the_run_ends_with_its_outcome():
@@ -195,7 +195,7 @@ def test_a_plain_run_records_its_code_and_machine(tiny_runs):
     """`train.run` (what `python -m jaxsocial.train` calls) writes the process file a runner writes: its
     command, the commit, whether the package's files were its (with the diff that rebuilds them where not),
     the CPU, visible cores, flags and versions; the resumed run keeps the process before it (issue 84)."""
-    info = logs.read_json(tiny_runs["full"] / provenance.RUN_FILE)
+    info = jsonio.read_json(tiny_runs["full"] / provenance.RUN_FILE)
     assert info["command"].startswith(
         "python -m jaxsocial.train --preset small --env goalcycle3 --iterations 4"
     )
@@ -211,7 +211,7 @@ def test_a_plain_run_records_its_code_and_machine(tiny_runs):
     assert info["xla_flags"] == os.environ.get("XLA_FLAGS", "")
     assert {k: info[k] for k in provenance.ENVIRONMENT_FIELDS} == provenance.environment()
     assert set(checkout.TREE_FIELDS) <= set(info)
-    resumed = logs.read_json(tiny_runs["resumed"] / provenance.RUN_FILE)
+    resumed = jsonio.read_json(tiny_runs["resumed"] / provenance.RUN_FILE)
     assert resumed["rc"] == 0 and [p["rc"] for p in resumed["earlier"]] == [0]
     assert "--iterations 2" in resumed["earlier"][0]["command"] and "--resume" in resumed["command"]
 
@@ -244,7 +244,7 @@ def test_frozen_slot_plays_the_saved_learner_and_is_never_updated(tiny_runs):
     ):
         np.testing.assert_array_equal(a, b)
     assert json.dumps(checkpoint.read_metadata(full / "policy")) == policy_before
-    rows = logs.read_metrics(frozen_dir)
+    rows = rundir.read_metrics(frozen_dir)
     assert "kl/0" in rows[0] and "kl/1" not in rows[0]  # only the learner is updated
 
 
@@ -320,12 +320,12 @@ def test_cli_end_to_end(tmp_path):
     run_dir = tmp_path / "cli"
     config = json.loads((run_dir / "config.json").read_text())
     assert config["num_envs"] == 4 and config["net"]["hidden"] == 16
-    rows = logs.read_metrics(run_dir)
+    rows = rundir.read_metrics(run_dir)
     assert [r["iteration"] for r in rows] == [1, 2] and "return/0" in rows[0] and "episodes/2" in rows[0]
     assert checkpoint.latest_step(run_dir / "checkpoints") == 2
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert again.returncode != 0 and "--overwrite" in again.stderr
-    assert logs.read_metrics(run_dir) == rows  # nothing overwritten
+    assert rundir.read_metrics(run_dir) == rows  # nothing overwritten
 
 
 @pytest.mark.parametrize(

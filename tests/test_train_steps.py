@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from conftest import TINY
 
-from jaxsocial.run import loggers, logs, metrics, nonfinite, outputs, schedule, startup
+from jaxsocial.run import loggers, metrics, nonfinite, outputs, rundir, schedule, startup
 from jaxsocial.run.chunks import Check, Chunk, check_chunk, checkpoint_due, evaluates, plan_chunk, pool_seeds
 from jaxsocial.run.driver import Driver
 
@@ -137,7 +137,7 @@ def test_pooled_seeds_read_as_one_seeds_iterations():
 def test_write_rows_keeps_rows_and_warns_at_the_first_non_finite_iteration(tmp_path, capsys):
     cfg = dataclasses.replace(TINY, iterations=6, on_nonfinite="warn")
     static = startup.setup(cfg)
-    metrics_log = logs.MetricsLog(tmp_path)
+    metrics_log = rundir.MetricsLog(tmp_path)
     out = outputs.Outputs(
         cfg,
         static,

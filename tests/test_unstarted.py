@@ -10,7 +10,7 @@ import pytest
 from conftest import TINY, TINY_FLAGS
 
 from jaxsocial import train
-from jaxsocial.run import config, driver, logs, unstarted
+from jaxsocial.run import config, driver, rundir, unstarted
 
 
 def interrupted(monkeypatch, fn, arg, raises=KeyboardInterrupt) -> pytest.ExceptionInfo:
@@ -45,7 +45,7 @@ def test_the_same_command_starts_again_where_a_run_was_interrupted_before_its_fi
     cfg = dataclasses.replace(TINY, runs_dir=str(tmp_path), run_name="x")
     interrupted_run(cfg, monkeypatch)
     run_dir = tmp_path / "x"
-    assert logs.read_config(run_dir) == config.config_dict(cfg)
+    assert rundir.read_config(run_dir) == config.config_dict(cfg)
     assert json.loads((run_dir / "process.json").read_text())["rc"] == 130
     assert unstarted.leftovers(run_dir, [""]) == []
     capsys.readouterr()

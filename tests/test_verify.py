@@ -14,7 +14,7 @@ from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.launch import pinned, verify
-from jaxsocial.run import autotune, config, logs, metrics
+from jaxsocial.run import autotune, config, rundir
 from jaxsocial.run.flags import config_flags
 
 TWO_CORES = len(pinned.visible_cores() or []) >= 2
@@ -64,10 +64,10 @@ def test_a_retrained_record_is_exact_up_to_a_changed_row(tiny_record, tmp_path, 
     the report names the changed one."""
     record = tmp_path / "record"
     shutil.copytree(tiny_record, record)
-    rows = [json.loads(line) for line in (record / logs.METRICS_FILE).read_text().splitlines()]
+    rows = [json.loads(line) for line in (record / rundir.METRICS_FILE).read_text().splitlines()]
     field = next(k for k in rows[-1] if k.startswith("policy_loss"))
     rows[-1][field] += 1e-7
-    (record / logs.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (record / rundir.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
     before = sorted(p.relative_to(record) for p in record.rglob("*"))
     cli.main(["verify", str(record), "--iterations", str(len(rows)), "--out", str(tmp_path / "v.json")])
     out = capsys.readouterr().out
@@ -106,7 +106,7 @@ def test_bad_input_is_refused_before_training(tiny_record, tmp_path):
 def test_the_retraining_has_the_records_xla_flags(tiny_record, tmp_path, monkeypatch, run, expected):
     record = tmp_path / "record"
     record.mkdir()
-    shutil.copy(tiny_record / logs.CONFIG_FILE, record)
+    shutil.copy(tiny_record / rundir.CONFIG_FILE, record)
     (record / records.PROVENANCE_FILE).write_text(json.dumps({"run": run}))
     monkeypatch.setenv("XLA_FLAGS", "--from-this-process")
     seen = []
@@ -199,9 +199,11 @@ def test_a_one_core_record_is_exact_from_a_process_that_sees_two(one_core_record
     result = verify.verify(one_core_record, iterations=4)
     assert result["exact"] and result["cores"] == {"record": 1, "here": 1}
     assert "cores seen: record 1 core; re-training 1 core" in verify.report(result)
-    cfg = config.config_from_dict(logs.read_config(one_core_record))
+    cfg = config.config_from_dict(rundir.read_config(one_core_record))
     both = verify.train_in_process(cfg, tmp_path, verify.retraining_flags(one_core_record), cores=None)
-    assert verify.first_difference(metrics.read_rows(one_core_record), metrics.read_rows(both)) is not None
+    assert (
+        verify.first_difference(rundir.read_metrics(one_core_record), rundir.read_metrics(both)) is not None
+    )
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,7 @@ from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.launch import pinned, verify
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import autotune, checkout, logs, metrics
+from jaxsocial.run import autotune, checkout, jsonio, rundir
 
 REPO = Path(__file__).resolve().parents[1]
 TINY_RECORDS = REPO / paths.RECORDS / "tiny"
@@ -36,8 +36,8 @@ def test_record_takes_the_device_each_runs_process_measured(tmp_path, monkeypatc
     assert {p["jax"] for p in provenances} == {jax.__version__}
     assert pinned.with_measured({"cpu": "X", "cores": 2}, None, "1", runs)["device"] == "X, 2 cores"
     for run_dir in (runs / "tiny").iterdir():  # a run file written before it held the machine
-        info = logs.read_json(run_dir / pinned.RUN_FILE)
-        logs.write_json(run_dir / pinned.RUN_FILE, {k: v for k, v in info.items() if k != "versions"})
+        info = jsonio.read_json(run_dir / pinned.RUN_FILE)
+        jsonio.write_json(run_dir / pinned.RUN_FILE, {k: v for k, v in info.items() if k != "versions"})
     with pytest.raises(SystemExit, match=f"its {pinned.RUN_FILE} does not say; give --jax"):
         cli.main([*RECORD, "--runs-dir", str(runs), "--out-dir", str(tmp_path / "more")])
     cli.main([*RECORD, "--runs-dir", str(runs), "--out-dir", str(tmp_path / "more"), "--jax", "0.1"])
@@ -52,7 +52,7 @@ def test_a_commands_logs_device_must_be_given(capsys):
 @needs_records("records/tiny")
 def test_verify_defaults_to_what_a_short_record_holds(monkeypatch):
     record = next(p.parent for p in TINY_RECORDS.rglob(records.PROVENANCE_FILE))
-    rows = len(metrics.read_rows(record))
+    rows = len(rundir.read_metrics(record))
     assert rows < verify.DEFAULT_ITERATIONS
     asked = []
     monkeypatch.setattr(verify, "verify", lambda record_dir, iterations: asked.append(iterations) or {})

@@ -14,7 +14,7 @@ from typing import Any
 from jaxsocial.experiments.analyse import records, rundirs, summaries, verdicts
 from jaxsocial.experiments.launch import pinned, runner, slurm, verify
 from jaxsocial.experiments.plan import catalogue, designs, paths, prereg, recipes
-from jaxsocial.run import checkout, logs, metrics
+from jaxsocial.run import checkout, jsonio, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
 RECIPE_COMMANDS = {
@@ -328,13 +328,13 @@ def run_verify(args: argparse.Namespace) -> None:
         raise SystemExit(f"error: --out {out} is inside the record; verify writes nothing there")
     record_dir = Path(args.record)
     try:
-        iterations = args.iterations or min(verify.DEFAULT_ITERATIONS, len(metrics.read_rows(record_dir)))
+        iterations = args.iterations or min(verify.DEFAULT_ITERATIONS, len(rundir.read_metrics(record_dir)))
         result = verify.verify(record_dir, iterations)
     except (ValueError, FileNotFoundError, RuntimeError) as err:
         raise SystemExit(f"error: {err}") from err
     print(verify.report(result))
     if out is not None:
-        logs.write_json(out, result)
+        jsonio.write_json(out, result)
         print(f"wrote {out}")
 
 
@@ -449,13 +449,15 @@ def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
         return
     json_path, png_path = summaries.write(runs, args.out_dir)
     print(f"wrote {json_path}\nwrote {png_path}")
-    summary = logs.read_json(json_path)
+    summary = jsonio.read_json(json_path)
     print("\n".join(summaries.outcome_lines(summary)))
     committed = paths.SCIENCE / json_path.name
     if committed.is_file() and committed.resolve() != json_path.resolve():
         print(f"against the committed summary {committed}:")
         print(
-            "\n".join(f"  {line}" for line in summaries.against_committed(summary, logs.read_json(committed)))
+            "\n".join(
+                f"  {line}" for line in summaries.against_committed(summary, jsonio.read_json(committed))
+            )
         )
     if recipe.design is not None:
         print(verdicts.verdict(summary))

@@ -37,7 +37,7 @@ from jaxsocial import stats
 from jaxsocial.experiments.analyse import kinds, plot_figures, records, rundirs
 from jaxsocial.experiments.launch import pinned, runner
 from jaxsocial.experiments.plan import conditions, paths, prereg, recipes
-from jaxsocial.run import checkout, logs, metrics
+from jaxsocial.run import checkout, jsonio, metrics, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
@@ -110,7 +110,7 @@ def sources(plan: Plan, from_dir: str) -> list[Source]:
     for condition in plan.recipe.conditions:
         dirs = rundirs.condition_seed_dirs(scale, condition, design.seed, design.seeds, from_dir)
         for seed, seed_dir in enumerate(dirs, start=design.seed):
-            rows = logs.read_metrics(seed_dir) if logs.has_metrics(seed_dir) else []
+            rows = rundir.read_metrics(seed_dir) if rundir.has_metrics(seed_dir) else []
             if len(rows) < design.iterations or metrics.final_return(rows) <= design.learned_threshold:
                 continue
             try:
@@ -216,17 +216,17 @@ def record(plan: Plan, runs_dir: str, out_dir: str, device: str, jax_version: st
             print(f"  {target}: already recorded, kept")
             continue
         run = pinned.run_provenance(directory, device, jax_version)
-        if (directory / logs.CONFIG_FILE).is_file():
+        if (directory / rundir.CONFIG_FILE).is_file():
             records.packable(directory)
-        elif not (directory / logs.EVAL_DIR).is_dir():
+        elif not (directory / rundir.EVAL_DIR).is_dir():
             raise FileNotFoundError(f"{directory} is neither a branch run nor a seed's evaluations")
         packing.append((directory, target, run))
     for directory, target, run in packing:
-        if (directory / logs.CONFIG_FILE).is_file():
+        if (directory / rundir.CONFIG_FILE).is_file():
             records.pack(directory, target, run, str(directory.relative_to(runs_dir)))
         else:
-            shutil.copytree(directory / logs.EVAL_DIR, target / logs.EVAL_DIR)
-            logs.write_json(target / records.PROVENANCE_FILE, {"run": run})
+            shutil.copytree(directory / rundir.EVAL_DIR, target / rundir.EVAL_DIR)
+            jsonio.write_json(target / records.PROVENANCE_FILE, {"run": run})
         print(f"recorded {directory} -> {target}")
     return [target for _, target, _ in packing]
 
@@ -242,17 +242,17 @@ def summarise(plan: Plan, records_dir: str) -> dict[str, Any]:
     (`conditions`), since learners trained alone and beside the experts differ."""
     scale, base = plan.scale, plan.root(records_dir)
     seeds: dict[str, Any] = {}
-    for eval_dir in sorted(base.glob(f"*/{logs.EVAL_DIR}")):
+    for eval_dir in sorted(base.glob(f"*/{rundir.EVAL_DIR}")):
         name, seed_dir = eval_dir.parent.name, eval_dir.parent
-        results = {spec: logs.read_json(kinds.eval_path(seed_dir, spec)) for spec in zero_shot_specs(scale)}
+        results = {spec: jsonio.read_json(kinds.eval_path(seed_dir, spec)) for spec in zero_shot_specs(scale)}
         zero_shot = {
             spec: {"learner": kinds.RETURNS.score(r), "experts": _experts_return(r)}
             for spec, r in results.items()
         }
-        ct = logs.read_json(kinds.ct_path(seed_dir, scale))
+        ct = jsonio.read_json(kinds.ct_path(seed_dir, scale))
         branches = {}
         for arm in ARMS:
-            rows = logs.read_metrics(base / f"{name}-{arm}")
+            rows = rundir.read_metrics(base / f"{name}-{arm}")
             branches[arm] = {
                 spec: metrics.final_eval(rows, metrics.eval_key(spec)) for spec in branch_specs(scale)
             }
@@ -358,7 +358,7 @@ def main(argv: list[str] | None = None) -> None:
         summary = summarise(plan, args.records_dir)
         out = Path(args.out_dir) / f"followup-{summary['design']}-{summary['scale']}"
         out.parent.mkdir(parents=True, exist_ok=True)
-        logs.write_json(out.with_suffix(".json"), summary)
+        jsonio.write_json(out.with_suffix(".json"), summary)
         plot_figures.draw_followup(summary, out.with_suffix(".png"), tuple(ARMS), kinds.CT_SCORES)
         print(
             f"{len(summary['seeds'])} learned seeds; wrote {out.with_suffix('.json')} and "

@@ -13,7 +13,7 @@ from typing import Any
 from jaxsocial.experiments.analyse import branch_results, evaluation_results, verdicts
 from jaxsocial.experiments.launch import branch_runs, evaluation_play, pinned, slurm
 from jaxsocial.experiments.plan import branch_design, catalogue, evaluation_design, paths
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio
 
 
 def design_parser(verbs: tuple[str, ...], module) -> argparse.ArgumentParser:
@@ -35,7 +35,7 @@ def write_figure(summary: dict[str, Any], science: Path, draw: Callable) -> None
     """`figure`: the summary `<science>/<design>.json`, its figure beside it, and the verdict printed."""
     stem = science / summary["design"]
     science.mkdir(parents=True, exist_ok=True)
-    logs.write_json(stem.with_suffix(".json"), summary)
+    jsonio.write_json(stem.with_suffix(".json"), summary)
     draw(summary, stem.with_suffix(".png"))
     print(verdicts.verdict(summary))
     print(f"wrote {stem}.json and .png")

@@ -40,7 +40,7 @@ from typing import Any
 from jaxsocial.experiments.analyse import plot_figures, records, rundirs, takeoff
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import conditions, paths, recipes
-from jaxsocial.run import logs, metrics, rundir
+from jaxsocial.run import jsonio, metrics, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 RECORDS_SUBDIR = "sweep"
@@ -82,7 +82,7 @@ def load_setting(path: Path) -> Setting:
     is missing, unknown or not what `FIELDS` says, or `name` is not the file's stem; naming the file if it
     is not JSON)."""
     try:
-        raw = logs.read_json(path)
+        raw = jsonio.read_json(path)
     except json.JSONDecodeError as err:
         raise ValueError(f"sweep setting {path}: not JSON ({err})") from err
     if not isinstance(raw, dict):
@@ -128,10 +128,10 @@ def seed_state(setting: Setting, seed: int, runs_dir: str) -> str:
     """`rundirs.FINISHED` (every iteration of `setting` logged, or stopped early past the plateau), PARTIAL
     (its run directory exists: training resumes it) or MISSING."""
     directory = run_dir(setting, seed, runs_dir)
-    if not (directory / logs.CONFIG_FILE).is_file():
+    if not (directory / rundir.CONFIG_FILE).is_file():
         return rundirs.MISSING
-    rows = logs.read_metrics(directory) if logs.has_metrics(directory) else []
-    finished = len(rows) >= setting.iterations or records.stopped_early(logs.read_config(directory), rows)
+    rows = rundir.read_metrics(directory) if rundir.has_metrics(directory) else []
+    finished = len(rows) >= setting.iterations or records.stopped_early(rundir.read_config(directory), rows)
     return rundirs.FINISHED if finished else rundirs.PARTIAL
 
 
@@ -168,7 +168,7 @@ def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) 
         finished = seed_state(shorter, seed, runs_dir) == rundirs.FINISHED
         if not finished or not (source / pinned.RUN_FILE).is_file():
             raise ValueError(f"{source}: not a finished run of {shorter.name} by `run`; nothing to extend")
-        if records.stopped_early(logs.read_config(source), logs.read_metrics(source)):
+        if records.stopped_early(rundir.read_config(source), rundir.read_metrics(source)):
             raise ValueError(f"{source} stopped early past the plateau: nothing to extend")
     for seed, (source, target) in zip(seeds, pairs, strict=True):
         shutil.copytree(source, target)
@@ -188,8 +188,8 @@ def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_v
 def seed_summary(seed_dir: Path) -> dict[str, Any]:
     """One seed's takeoff (env-steps and CPU-minutes; None if it stayed on the plateau), final return and
     cost, from its record or run directory."""
-    config = logs.read_config(seed_dir)
-    rows = metrics.read_rows(seed_dir)
+    config = rundir.read_config(seed_dir)
+    rows = rundir.read_metrics(seed_dir)
     prov = records.read_provenance(seed_dir) or {}
     cores = (prov.get("run") or {}).get("cores") or 1
     per_iteration = metrics.steps_per_iteration(config)
@@ -361,10 +361,10 @@ def main(argv: list[str] | None = None) -> None:
 
         record(SETTINGS[args.setting], args.seeds, args.runs_dir, args.device, jax.__version__)
     elif args.command == "map":
-        found = summarise_map(logs.read_json(Path(args.summary)))
+        found = summarise_map(jsonio.read_json(Path(args.summary)))
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        logs.write_json(out.with_suffix(".json"), found)
+        jsonio.write_json(out.with_suffix(".json"), found)
         plot_figures.draw_map(found, out.with_suffix(".png"))
         print("\n".join(map_table(found)))
         print(f"wrote {out.with_suffix('.json')} and {out.with_suffix('.png')}")
@@ -372,7 +372,7 @@ def main(argv: list[str] | None = None) -> None:
         summary = summarise(Path(args.records_dir))
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        logs.write_json(out.with_suffix(".json"), summary)
+        jsonio.write_json(out.with_suffix(".json"), summary)
         plot_figures.draw_sweep(summary, out.with_suffix(".png"))
         for name, s in summary["settings"].items():
             lifts = [x["takeoff_env_steps"] for x in s["seeds"]]

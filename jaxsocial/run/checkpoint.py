@@ -152,7 +152,7 @@ def _to_target_type(data: np.ndarray, leaf: Any, entry: Mapping[str, Any]) -> An
 
 
 def _jsonable(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
-    """`metadata` ({} for None), checked to be plain JSON values (`logs.to_json` makes them: dicts, lists,
+    """`metadata` ({} for None), checked to be plain JSON values (`jsonio.to_json` makes them: dicts, lists,
     str, finite numbers, bool, None); TypeError otherwise."""
     if metadata is None:
         return {}
@@ -162,7 +162,7 @@ def _jsonable(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
         json.dumps(metadata, allow_nan=False)
     except (TypeError, ValueError) as err:
         raise TypeError(
-            f"checkpoint metadata must be plain JSON values (logs.to_json makes them): {err}"
+            f"checkpoint metadata must be plain JSON values (jsonio.to_json makes them): {err}"
         ) from None
     return dict(metadata)
 

@@ -18,7 +18,7 @@ from jaxsocial.agents import network_config, population
 from jaxsocial.agents.bc_config import BCConfig
 from jaxsocial.agents.network_config import NetworkConfig
 from jaxsocial.agents.ppo_config import PPOConfig
-from jaxsocial.run import logs, schedule
+from jaxsocial.run import jsonio, rundir, schedule
 from jaxsocial.specs import CheckpointRef, EnvFlag, TextField
 
 STAGES = TextField(schedule.parse_stages, schedule.format_stages, "WHEN:FIELD=VALUE,...;...")
@@ -252,7 +252,7 @@ def resume_conflicts(saved: dict[str, Any], new: dict[str, Any]) -> list[str]:
     `saved` config (both as config.json holds them; `saved` is read as `config_from_dict` reads it, so text
     written differently, e.g. 'width=9, height=9', and fields added since at their defaults do not differ)."""
     saved = config_dict(config_from_dict(saved))
-    return [k for k in logs.config_diff(saved, new) if k.split(".")[0] in FIXED_FIELDS]
+    return [k for k in rundir.config_diff(saved, new) if k.split(".")[0] in FIXED_FIELDS]
 
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:
@@ -267,7 +267,7 @@ def config_dict(cfg: TrainConfig) -> dict[str, Any]:
         elif dataclasses.is_dataclass(value):
             value = dataclasses.asdict(value)
         values[field.name] = value
-    return logs.to_json(values)
+    return jsonio.to_json(values)
 
 
 LEGACY_KEYS = {

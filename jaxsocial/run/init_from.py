@@ -25,7 +25,7 @@ from pathlib import Path
 from jaxsocial.agents import population
 from jaxsocial.agents.network_config import NetworkConfig
 from jaxsocial.env import registry
-from jaxsocial.run import checkpoint, config, logs, policy_io, rundir
+from jaxsocial.run import checkpoint, config, policy_io, rundir
 from jaxsocial.run.config import RunConfig, TrainConfig
 from jaxsocial.specs import CheckpointRef
 
@@ -93,7 +93,7 @@ def source_iteration(source: CheckpointRef, seeds: list[int]) -> int:
 
 def source_config(seed_dir: Path) -> TrainConfig:
     """The source seed's config, without its own `init_from` (a branch of a branch needs only its source)."""
-    return dataclasses.replace(config.config_from_dict(logs.read_config(seed_dir)), init_from=None)
+    return dataclasses.replace(config.config_from_dict(rundir.read_config(seed_dir)), init_from=None)
 
 
 def _learners(run: RunConfig) -> tuple[int, ...]:

@@ -1,6 +1,6 @@
 """What a run reports as it trains, beside its metrics file: the terminal progress line (`Progress`) and the
 optional external loggers (`make_logger`: TensorBoard, Weights & Biases), each fed the same metrics rows as
-`jaxsocial.run.logs.MetricsLog`.
+`jaxsocial.run.rundir.MetricsLog`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any, Protocol, TextIO
 
 import numpy as np
 
-from jaxsocial.run.logs import to_json
+from jaxsocial.run.jsonio import to_json
 
 
 def _fmt_value(v: Any) -> str:

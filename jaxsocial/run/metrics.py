@@ -1,6 +1,6 @@
 """The metrics format: what the rows of a training run's `metrics.jsonl` hold, how they are written from a
 chunk's metrics (`metric_rows`) and how they are read back (curves, final returns, the slots, learners and
-evaluations present, the seed directories of a run).
+evaluations present, the cost of training).
 
 A row is one training iteration::
 
@@ -11,21 +11,18 @@ A row is one training iteration::
      "compile_s": 12.3, "nonfinite": [...]}                                   # where they apply
 
 Keys are built and taken apart only here (`key`, `eval_key`, `split_key`). The file itself (append,
-truncate, the gzipped copy of a record) is `jaxsocial.run.logs` (`MetricsLog`, `read_metrics`); the
-statistics over seeds are `jaxsocial.stats`. This module needs numpy and `logs` only: tools that read runs
-(`plot`, `render`, `experiments.summaries`) import it without the training stack.
+truncate, the gzipped copy of a record) and the seed directories of a run are `jaxsocial.run.rundir`'s
+(`MetricsLog`, `read_metrics`, `written_seed_dirs`); the statistics over seeds are `jaxsocial.stats`. This
+module needs numpy only: tools that read runs (`plot`, `render`, `experiments.summaries`) import it without
+the training stack.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from jaxsocial.run import logs, rundir
 
 ITERATION = "iteration"
 SPEED = "env_steps_per_s"
@@ -234,53 +231,8 @@ def final_eval(rows: list[Mapping[str, Any]], k: str) -> float:
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Run directories
+# Cost
 # ----------------------------------------------------------------------------------------------------------
-
-REQUIRED = {"env", "seed", "seeds", "num_envs", "rollout_steps"}
-"""Keys a training run's config.json must have to be read as one."""
-
-
-def run_config(run_dir: Path) -> dict[str, Any]:
-    """The config.json of a training run. ValueError if `run_dir` is not a run written by
-    `python -m jaxsocial.train`."""
-    if not run_dir.is_dir():
-        raise ValueError(f"run directory {run_dir} does not exist")
-    try:
-        config = logs.read_config(run_dir)
-    except FileNotFoundError:
-        raise ValueError(
-            f"{run_dir} is not a run directory (no {logs.CONFIG_FILE}): expected a directory written by "
-            "python -m jaxsocial.train"
-        ) from None
-    except json.JSONDecodeError as err:
-        raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not valid JSON: {err}") from None
-    if not isinstance(config, dict) or not set(config) >= REQUIRED:
-        raise ValueError(f"{run_dir / logs.CONFIG_FILE} is not the config of a training run")
-    return config
-
-
-def written_seed_dirs(run_dir: str | Path) -> list[Path]:
-    """The directory of every seed of a training run (the run itself for one seed). ValueError if
-    `run_dir` is not a run written by `python -m jaxsocial.train`, or a seed's directory is missing."""
-    run_dir = Path(run_dir)
-    config = run_config(run_dir)
-    dirs = rundir.seed_dirs(run_dir, config["seed"], config["seeds"])
-    for d in dirs:
-        if not (d / logs.CONFIG_FILE).is_file():
-            raise ValueError(f"{d} is missing ({run_dir} was trained with --seeds {config['seeds']})")
-    return dirs
-
-
-def one_seed_of_many(config: Mapping[str, Any]) -> bool:
-    """Whether a seed directory's config is that of one seed of a multi-seed run (its run name ends in
-    '/s<seed>', see `outputs.seed_runs`)."""
-    return (config.get("run_name") or "").endswith(f"/s{config['seed']}")
-
-
-def read_rows(seed_dir: str | Path) -> list[dict[str, Any]]:
-    """The rows of one seed's metrics (`logs.read_metrics`: metrics.jsonl, or a record's gzipped copy)."""
-    return logs.read_metrics(seed_dir)
 
 
 def steps_per_iteration(config: Mapping[str, Any]) -> int:

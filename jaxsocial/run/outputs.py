@@ -1,8 +1,7 @@
 """What a training run writes and says, on process 0: its directory (`run_path`, `seed_runs`,
-`prepare_run_dir`, `write_configs`), each seed's metrics rows with evaluations, the progress line, and the
+`start_run_dir`, `write_configs`), each seed's metrics rows with evaluations, the progress line, and the
 lines it ends with (`Outputs`, `outcome`, `stop_message`). `jaxsocial.run.driver.train_chunks` calls them
-between the steps of the `Driver`; the file names and layout are `jaxsocial.run.rundir`'s and
-`jaxsocial.run.logs`'."""
+between the steps of the `Driver`; the file names and layout are `jaxsocial.run.rundir`'s."""
 
 from __future__ import annotations
 
@@ -26,7 +25,6 @@ from jaxsocial.run import (
     distributed,
     interrupt,
     loggers,
-    logs,
     metrics,
     nonfinite,
     processes,
@@ -58,8 +56,8 @@ def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[SeedRun]:
     ]
 
 
-def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> None:
-    """Start-up on process 0: `logs.prepare_run_dir` (a resumed run's config may differ only in
+def start_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> None:
+    """Start-up on process 0: `rundir.prepare_run_dir` (a resumed run's config may differ only in
     `DriverConfig`'s fields; a new run starts again in a directory that a run of its very config left
     before its first iteration, `unstarted.restarts`), each seed's checkpoint and policy directories, and a
     new run's configs."""
@@ -67,9 +65,9 @@ def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> No
     if restart:
         print(f"{run_dir} holds only what a run of this config wrote before its first iteration (it was "
               "interrupted or killed): starting it again", flush=True)  # fmt: skip
-    logs.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite or restart)
-    if cfg.resume and (run_dir / logs.CONFIG_FILE).exists():
-        diff = config.resume_conflicts(logs.read_config(run_dir), config_dict(cfg))
+    rundir.prepare_run_dir(cfg.runs_dir, run_name(cfg), resume=cfg.resume, overwrite=cfg.overwrite or restart)
+    if cfg.resume and (run_dir / rundir.CONFIG_FILE).exists():
+        diff = config.resume_conflicts(rundir.read_config(run_dir), config_dict(cfg))
         if diff:
             raise ValueError(f"cannot resume {run_dir}: the config differs in {diff}")
     for seed in seeds:
@@ -81,10 +79,10 @@ def prepare_run_dir(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> No
 
 def write_configs(cfg: TrainConfig, run_dir: Path, seeds: list[SeedRun]) -> None:
     """The run's config.json and, with several seeds, each seed's (that of its one-seed run)."""
-    logs.write_config(run_dir, config_dict(cfg))
+    rundir.write_config(run_dir, config_dict(cfg))
     for seed in seeds:
         if seed.dir != run_dir:
-            logs.write_config(seed.dir, seed.config)
+            rundir.write_config(seed.dir, seed.config)
 
 
 def reached(threshold: float | None, learner_return: float | None) -> bool:
@@ -116,7 +114,7 @@ class Outputs:
     static: startup.Setup
     seeds: list[SeedRun]
     desc: str  # the run, as progress lines name it
-    metrics_logs: list[logs.MetricsLog]  # each seed's
+    metrics_logs: list[rundir.MetricsLog]  # each seed's
     extras: list[loggers.Logger]  # each seed's `cfg.logger`
     progress: loggers.Progress | None = None  # from the first chunk on, with `cfg.progress`
     nonfinite_iterations: list[int] = dataclasses.field(default_factory=list)
@@ -138,7 +136,7 @@ class Outputs:
         desc = f"{name} ({', '.join(parts)})" if parts else name
         if not processes.is_main():
             return cls(cfg, static, seeds, desc, [], [])
-        metrics_logs = [logs.MetricsLog(s.dir) for s in seeds]
+        metrics_logs = [rundir.MetricsLog(s.dir) for s in seeds]
         for metrics_log in metrics_logs:
             metrics_log.truncate_after(start)
         extras = [loggers.make_logger(cfg.logger, s.dir, s.config) for s in seeds]
@@ -228,10 +226,10 @@ class Outputs:
         if self.cfg.blind:
             print("blind run (a pre-registered design's): no return is shown until every seed is in")
             return
-        rows = metrics.read_rows(self.seeds[0].dir)
+        rows = rundir.read_metrics(self.seeds[0].dir)
         env_steps = len(rows) * self.cfg.num_envs * self.cfg.rollout_steps
         if len(self.seeds) > 1:
-            print(seeds_summary([metrics.read_rows(s.dir) for s in self.seeds], self.seeds, self.static))
+            print(seeds_summary([rundir.read_metrics(s.dir) for s in self.seeds], self.seeds, self.static))
             print(f"seed {self.seeds[0].seed} (s{self.seeds[0].seed}/), the first:")
         print(outcome(rows, self.static, env_steps, stopped_at))
         first = self.seeds[0].dir

@@ -13,7 +13,7 @@ from typing import Any
 import jax
 
 from jaxsocial.agents import network, network_config, population
-from jaxsocial.run import checkpoint, logs
+from jaxsocial.run import checkpoint, jsonio
 from jaxsocial.run.rundir import POLICY_DIR
 from jaxsocial.specs import PolicyRef
 
@@ -24,7 +24,7 @@ whatever `dtype` computes them: a bfloat16 run's policy plays in a float32 run, 
 
 def json_net(net_cfg: network.NetworkConfig) -> dict:
     """The network config as plain JSON types (for checkpoint metadata)."""
-    return logs.to_json(dataclasses.asdict(net_cfg))
+    return jsonio.to_json(dataclasses.asdict(net_cfg))
 
 
 def architecture(net_cfg: network.NetworkConfig) -> dict:

@@ -21,7 +21,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.run import checkout, logs, rundir
+from jaxsocial.run import checkout, jsonio, rundir
 
 RUN_FILE = rundir.RUN_FILE
 PARENT_WRITES = "JAXSOCIAL_PARENT_WRITES_RUN_FILE"
@@ -86,7 +86,7 @@ def earlier_processes(run_dir: Path) -> list[dict[str, Any]]:
     path = Path(run_dir) / RUN_FILE
     if not path.is_file():
         return []
-    last = logs.read_json(path)
+    last = jsonio.read_json(path)
     return [*last.pop("earlier", []), last]
 
 
@@ -116,7 +116,7 @@ def write_run_file(
         "rc": rc,
     }
     tree.write_diff(run_dir)
-    logs.write_json(Path(run_dir) / RUN_FILE, info | ({"earlier": earlier} if earlier else {}))
+    jsonio.write_json(Path(run_dir) / RUN_FILE, info | ({"earlier": earlier} if earlier else {}))
 
 
 @contextlib.contextmanager

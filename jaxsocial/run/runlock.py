@@ -1,10 +1,10 @@
 """The run-directory lock: one process at a time trains in, resumes or overwrites a run directory.
 
-The lock of `runs/NAME` is the file `runs/.NAME.lock` beside it (so `--overwrite` can delete the directory
-while holding it), locked with `fcntl.flock` and holding its holder's pid, host and start time. The kernel
-releases a flock when its process ends, however it ends (kill -9 included); a lock file whose flock is free
-but that still names a holder was left by a process that did not release it: it is stale and taken over,
-with a warning. A clean release deletes the file.
+The lock of `runs/NAME` is the file `runs/.NAME.lock` beside it (`rundir.lock_name`, so `--overwrite` can
+delete the directory while holding it), locked with `fcntl.flock` and holding its holder's pid, host and
+start time. The kernel releases a flock when its process ends, however it ends (kill -9 included); a lock
+file whose flock is free but that still names a holder was left by a process that did not release it: it is
+stale and taken over, with a warning. A clean release deletes the file.
 """
 
 from __future__ import annotations
@@ -18,6 +18,8 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from jaxsocial.run import rundir
+
 __all__ = ["RunLock", "RunLockedError", "lock_path"]
 
 
@@ -26,9 +28,9 @@ class RunLockedError(FileExistsError):
 
 
 def lock_path(run_dir: str | Path) -> Path:
-    """The lock file of `run_dir`: `.<name>.lock` in its parent."""
+    """The lock file of `run_dir`: `.<name>.lock` in its parent (`rundir.lock_name`)."""
     run_dir = Path(run_dir)
-    return run_dir.parent / f".{run_dir.name}.lock"
+    return run_dir.parent / rundir.lock_name(run_dir.name)
 
 
 def _holder(file: TextIO) -> dict[str, Any]:

@@ -12,7 +12,7 @@ import fnmatch
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.run import checkout, config, logs, rundir
+from jaxsocial.run import checkout, config, rundir
 from jaxsocial.run.config import TrainConfig
 
 EMPTY_DIRS = (rundir.CHECKPOINTS_DIR, rundir.POLICY_DIR)
@@ -34,9 +34,9 @@ def leftovers(run_dir: Path, seed_names: list[str]) -> list[Path]:
 def _written_before_an_iteration(entry: Path) -> bool:
     if entry.is_dir():
         return entry.name in EMPTY_DIRS and not any(entry.iterdir())
-    if entry.name == logs.METRICS_FILE:
+    if entry.name == rundir.METRICS_FILE:
         return entry.is_file() and entry.stat().st_size == 0
-    names = (logs.CONFIG_FILE, rundir.RUN_FILE)
+    names = (rundir.CONFIG_FILE, rundir.RUN_FILE)
     return entry.is_file() and (entry.name in names or fnmatch.fnmatch(entry.name, checkout.DIFF_GLOB))
 
 
@@ -44,7 +44,7 @@ def differences(saved: dict[str, Any], cfg: TrainConfig) -> list[str]:
     """The dotted keys in which a run directory's config.json `saved` differs from `cfg`'s (read as
     `config.config_from_dict` reads it, so text written differently does not differ)."""
     saved = config.config_dict(config.config_from_dict(saved))
-    return logs.config_diff(saved, config.config_dict(cfg))
+    return rundir.config_diff(saved, config.config_dict(cfg))
 
 
 def loose_keys(cfg: TrainConfig) -> set[str]:
@@ -71,14 +71,14 @@ def refusal(cfg: TrainConfig, run_dir: Path, loose: set[str] | frozenset[str] = 
     if leftovers(run_dir, rundir.seed_dir_names(cfg.seed, cfg.seeds)):
         return taken  # metrics, checkpoints or policies: a run that trained, or something else
     try:
-        diff = [k for k in differences(logs.read_config(run_dir), cfg) if k not in loose]
+        diff = [k for k in differences(rundir.read_config(run_dir), cfg) if k not in loose]
     except (OSError, ValueError, TypeError, KeyError, AttributeError):
         return taken  # no config.json, or one that is no run's
     if diff:
         return (
             f"run directory {run_dir} holds no completed iteration, but it is another run's: its "
-            f"{logs.CONFIG_FILE} differs in {diff}; pass --overwrite to delete it and start fresh (or choose "
-            "another --run-name)"
+            f"{rundir.CONFIG_FILE} differs in {diff}; pass --overwrite to delete it and start fresh (or "
+            "choose another --run-name)"
         )
     return None
 

@@ -16,7 +16,7 @@ from jaxsocial.experiments.analyse import kinds, plot_figures, records, verdicts
 from jaxsocial.experiments.plan import catalogue
 from jaxsocial.experiments.plan.branch_design import START, BranchDesign, start_row
 from jaxsocial.experiments.plan.catalogue import Test
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import jsonio, metrics, rundir
 from jaxsocial.specs import EnvSpec
 
 
@@ -28,7 +28,7 @@ def final_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str
     for arm in design.arms:
         for seed in design.seed_range:
             record_dir = records_root / design.run_name(arm, seed)
-            rows = logs.read_metrics(record_dir) if logs.has_metrics(record_dir) else None
+            rows = rundir.read_metrics(record_dir) if rundir.has_metrics(record_dir) else None
             for env in design.eval_envs:
                 value = None if rows is None else metrics.final_eval(rows, keys[env])
                 out[arm][env].append(None if value is None or np.isnan(value) else round(value, 4))
@@ -44,7 +44,7 @@ def start_scores(design: BranchDesign, records_root: Path) -> dict[str, dict[str
         started = [design.record_of(source, seed, records_root) for seed in design.seed_range]
         out[start_row(source)] = {
             env: [
-                round(kinds.RETURNS.score(logs.read_json(path)), 4) if path.is_file() else None
+                round(kinds.RETURNS.score(jsonio.read_json(path)), 4) if path.is_file() else None
                 for path in (kinds.eval_path(record_dir, env) for record_dir in started)
             ]
             for env in design.eval_envs
@@ -85,10 +85,10 @@ def as_designed(design: BranchDesign, records_root: Path) -> dict[str, Any]:
     for seed in design.seed_range:
         for arm in design.arms:
             record_dir = records_root / design.run_name(arm, seed)
-            if not (record_dir / logs.CONFIG_FILE).is_file():
+            if not (record_dir / rundir.CONFIG_FILE).is_file():
                 continue
             recorded += 1
-            got = logs.read_config(record_dir)
+            got = rundir.read_config(record_dir)
             spec = EnvSpec.parse(design.arms[arm].env)
             want = {
                 "iterations": design.iterations,
@@ -119,7 +119,7 @@ def summarise(design: BranchDesign, records_root: Path) -> dict[str, Any]:
     }
     recorded = [records_root / design.run_name(a, s) for a in design.arms for s in design.seed_range]
     provenance = {
-        str(d.relative_to(records_root)): logs.read_json(d / records.PROVENANCE_FILE)
+        str(d.relative_to(records_root)): jsonio.read_json(d / records.PROVENANCE_FILE)
         for d in recorded
         if (d / records.PROVENANCE_FILE).is_file()
     }
@@ -229,7 +229,7 @@ def pilot_scores(
     follow-up's zero-shot score of its source); otherwise the treatment's per-seed scores there and the
     control's from a committed summary (`pilot_control`: where the arm's source records ended, before any
     further training)."""
-    branches = logs.read_json(Path(sim["pilot_branches"]))
+    branches = jsonio.read_json(Path(sim["pilot_branches"]))
     sources = [s for s in branches["seeds"].values() if s["condition"].startswith(sim["pilot_sources"])]
     out = {}
     for name, test in tests.items():
@@ -245,7 +245,7 @@ def pilot_scores(
             control = [sign * s["branches"][test.control][test.env] for s in sources]
         else:
             where = sim["pilot_control"]
-            summary = logs.read_json(Path(where["summary"]))
+            summary = jsonio.read_json(Path(where["summary"]))
             per_seed = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
             out[name] = {"treatment": treatment, "control": [sign * c for c in per_seed]}
             continue

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio
 
 FOLDER = "op_fingerprints"
 """The kinds' files' folder under `paths.RESULTS`."""
@@ -58,7 +58,7 @@ def kind_key(cpu: str | None) -> tuple[str, int, int] | None:
 
 def read_kinds(where: Path | None = None) -> list[dict[str, Any]]:
     """Every kind's file in `where` (default `folder()`), in the order of their names ([] if none)."""
-    return [logs.read_json(path) for path in sorted((where or folder()).glob("*.json"))]
+    return [jsonio.read_json(path) for path in sorted((where or folder()).glob("*.json"))]
 
 
 def kind_for_cpu(kinds: list[dict[str, Any]], cpu: str | None) -> dict[str, Any] | None:

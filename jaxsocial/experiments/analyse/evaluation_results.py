@@ -21,14 +21,14 @@ from jaxsocial.experiments.plan.evaluation_design import (
     evaluations,
     out_dir,
 )
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio, rundir
 
 
 def absent_records(design: EvaluationDesign, records_root: Path) -> list[str]:
     """The design's records (and reference records) that hold no final policy."""
     wanted = [d for c in (design.treatment, design.control) for d in design.record_dirs(c, records_root)]
     wanted += [records_root / r.ckpt for r in design.references.values() if r.ckpt]
-    return [str(d) for d in wanted if not (d / "policy").is_dir()]
+    return [str(d) for d in wanted if not (d / rundir.POLICY_DIR).is_dir()]
 
 
 def scores(result: dict[str, Any]) -> list[float]:
@@ -59,7 +59,7 @@ def read_results(
 ) -> dict[Play, dict[str, Any] | None]:
     """Every evaluation of the design and its result (None: not played yet)."""
     return {
-        e: logs.read_json(e.path(out)) if e.path(out).exists() else None
+        e: jsonio.read_json(e.path(out)) if e.path(out).exists() else None
         for e in evaluations(design, records_root)
     }
 
@@ -179,7 +179,7 @@ def pilot_scores(design: EvaluationDesign) -> dict[str, dict[str, list[float]]]:
     for name, test in design.primary.items():
         split = {}
         for arm, condition in arms:
-            result = logs.read_json(Path(sim["pilot"]) / f"{paths.env_tag(test.env)}-{condition}.json")
+            result = jsonio.read_json(Path(sim["pilot"]) / f"{paths.env_tag(test.env)}-{condition}.json")
             took_off = np.array(
                 [takeoff_power.seed_lift(Path(c))["takeoff"] is not None for c in result["checkpoints"]]
             )

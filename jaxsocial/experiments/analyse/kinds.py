@@ -24,7 +24,7 @@ import numpy as np
 from jaxsocial.experiments.analyse import plot_figures, predictions, records, takeoff
 from jaxsocial.experiments.plan import paths, recipes
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import logs, metrics, startup
+from jaxsocial.run import jsonio, metrics, rundir, startup
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 from jaxsocial.stats import ct_score, kaplan_meier, learned_seed_tests, separations, summary
 
@@ -35,7 +35,7 @@ CT_SCORES = ("ct", "recall")
 # Evaluations after training: what is played and where the results go
 # ----------------------------------------------------------------------------------------------------------
 
-EVAL_DIR = logs.EVAL_DIR
+EVAL_DIR = rundir.EVAL_DIR
 """Sub-directory of a seed's run directory holding its post-training evaluations, one JSON per env spec."""
 
 
@@ -90,7 +90,7 @@ CT = Evaluation(
 def _read_json(path: Path) -> dict[str, Any]:
     if not path.exists():
         raise FileNotFoundError(f"no evaluation {path}: run the recipe first")
-    return logs.read_json(path)
+    return jsonio.read_json(path)
 
 
 def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
@@ -100,7 +100,7 @@ def _read_eval(seed_dir: Path, spec: str) -> list[dict[str, Any]]:
 def read_eval_file(seed_dir: Path, spec: str) -> dict[str, Any] | None:
     """A seed's whole evaluation in `spec` (`jaxsocial.evaluate`'s result), None if it has none yet."""
     path = eval_path(seed_dir, spec)
-    return logs.read_json(path) if path.is_file() else None
+    return jsonio.read_json(path) if path.is_file() else None
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -251,9 +251,9 @@ def zero_shot_scores(runs, seed_dir: Path) -> dict[str, float | None]:
     out: dict[str, float | None] = {}
     for name, env in ZERO_SHOT.items():
         path = eval_path(seed_dir, str(recipes.goalcycle_spec(env, runs.scale)))
-        out[name] = RETURNS.score(logs.read_json(path)) if path.exists() else None
+        out[name] = RETURNS.score(jsonio.read_json(path)) if path.exists() else None
     path = ct_path(seed_dir, runs.scale)
-    out["ct"] = CT.score(logs.read_json(path)) if path.exists() else None
+    out["ct"] = CT.score(jsonio.read_json(path)) if path.exists() else None
     return out
 
 

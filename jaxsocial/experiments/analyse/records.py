@@ -4,13 +4,13 @@ A record is itself a run directory, so every tool that reads a run reads a recor
 --runs-dir benchmarks/results/records`, `evaluate --ckpt`, `render --ckpt`). It holds:
 
 * `config.json`, as the run wrote it;
-* `metrics.jsonl.gz`, the metrics gzipped (`logs.read_metrics` reads it);
+* `metrics.jsonl.gz`, the metrics gzipped (`rundir.read_metrics` reads it);
 * `policy/<iteration>/`, the final policy exactly as `policy_io` exported it (params only);
 * `checkpoints/<iteration>/`, only where a follow-up branches from it (`pack`'s `checkpoint_reason`, which
   the provenance keeps): the final checkpoint (params, optimiser state and stage), so that a later sitting
   can branch from the record (`train --init-from RECORD`), e.g. the follow-ups of a design's learners that
   learned (about 1.5 MB at the laptop scale);
-* `eval/*.json`, the evaluations after training (`logs.EVAL_DIR`);
+* `eval/*.json`, the evaluations after training (`rundir.EVAL_DIR`);
 * `provenance.json`: how the run was made (`run`: the exact command, git commit, device, jax version, start
   date, exit status, as given to `pack`; from a run's process file also whether the package's files were the
   commit's, the CPU, visible cores and package versions) and how the record was made (`record`: source, date,
@@ -36,7 +36,7 @@ from typing import Any
 
 import jax
 
-from jaxsocial.run import checkout, checkpoint, logs, metrics, provenance, rundir
+from jaxsocial.run import checkout, checkpoint, jsonio, metrics, provenance, rundir
 
 PROVENANCE_FILE = "provenance.json"
 ORBAX_COMMIT_NOTE = "commit_success.txt"
@@ -49,7 +49,7 @@ def read_provenance(seed_dir: str | Path) -> dict[str, Any] | None:
     """The `provenance.json` of a seed's directory, or of the run directory holding it (None if neither)."""
     for where in (Path(seed_dir), Path(seed_dir).parent):
         if (where / PROVENANCE_FILE).is_file():
-            return logs.read_json(where / PROVENANCE_FILE)
+            return jsonio.read_json(where / PROVENANCE_FILE)
     return None
 
 
@@ -68,7 +68,7 @@ def read_process_file(seed_dir: str | Path) -> dict[str, Any] | None:
     neither has one)."""
     for where in (Path(seed_dir), Path(seed_dir).parent):
         if (where / provenance.RUN_FILE).is_file():
-            return logs.read_json(where / provenance.RUN_FILE)
+            return jsonio.read_json(where / provenance.RUN_FILE)
     return None
 
 
@@ -187,20 +187,20 @@ def pack(
     final_checkpoint = checkpoint_reason is not None
     iteration, rows = packable(seed_dir, final_checkpoint)
     diffs, tree = tree_diffs(seed_dir, run), checkout.tree()
-    planned = logs.read_config(seed_dir)["iterations"]
+    planned = rundir.read_config(seed_dir)["iterations"]
     if record_dir.exists() and any(record_dir.iterdir()):
         if not overwrite:
             raise FileExistsError(f"record {record_dir} exists; pass --overwrite to replace it")
         shutil.rmtree(record_dir)
     record_dir.mkdir(parents=True, exist_ok=True)
-    shutil.copy2(seed_dir / logs.CONFIG_FILE, record_dir / logs.CONFIG_FILE)
-    if (seed_dir / logs.METRICS_FILE).is_file():
+    shutil.copy2(seed_dir / rundir.CONFIG_FILE, record_dir / rundir.CONFIG_FILE)
+    if (seed_dir / rundir.METRICS_FILE).is_file():
         text = "".join(
-            line + "\n" for line in (seed_dir / logs.METRICS_FILE).read_text().splitlines() if line
+            line + "\n" for line in (seed_dir / rundir.METRICS_FILE).read_text().splitlines() if line
         )
-        (record_dir / logs.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode(), mtime=0))
+        (record_dir / rundir.METRICS_GZ_FILE).write_bytes(gzip.compress(text.encode(), mtime=0))
     else:  # a record packed again
-        shutil.copy2(seed_dir / logs.METRICS_GZ_FILE, record_dir / logs.METRICS_GZ_FILE)
+        shutil.copy2(seed_dir / rundir.METRICS_GZ_FILE, record_dir / rundir.METRICS_GZ_FILE)
     kept = [rundir.POLICY_DIR] + ([rundir.CHECKPOINTS_DIR] if final_checkpoint else [])
     for directory in kept:  # without orbax's commit notes, which name the absolute path it was written to
         shutil.copytree(
@@ -208,8 +208,8 @@ def pack(
             record_dir / directory / str(iteration),
             ignore=shutil.ignore_patterns(ORBAX_COMMIT_NOTE),
         )
-    if (seed_dir / logs.EVAL_DIR).is_dir():
-        shutil.copytree(seed_dir / logs.EVAL_DIR, record_dir / logs.EVAL_DIR)
+    if (seed_dir / rundir.EVAL_DIR).is_dir():
+        shutil.copytree(seed_dir / rundir.EVAL_DIR, record_dir / rundir.EVAL_DIR)
     for diff in diffs:
         shutil.copy2(diff, record_dir / diff.name)
     provenance = {
@@ -227,7 +227,7 @@ def pack(
             "packed_with_jax": jax.__version__,
         },
     }
-    logs.write_json(record_dir / PROVENANCE_FILE, provenance)
+    jsonio.write_json(record_dir / PROVENANCE_FILE, provenance)
     return record_dir
 
 
@@ -236,14 +236,14 @@ def packable(seed_dir: str | Path, final_checkpoint: bool = False) -> tuple[int,
     FileNotFoundError if it has no config, metrics or policy (or, with `final_checkpoint`, no checkpoint of
     that iteration), ValueError if it is unfinished (neither every iteration logged nor stopped early)."""
     seed_dir = Path(seed_dir)
-    if not (seed_dir / logs.CONFIG_FILE).is_file() or not logs.has_metrics(seed_dir):
+    if not (seed_dir / rundir.CONFIG_FILE).is_file() or not rundir.has_metrics(seed_dir):
         raise FileNotFoundError(f"{seed_dir} is not a finished seed run directory (no config or metrics)")
     policy_dir = seed_dir / rundir.POLICY_DIR
     iteration = checkpoint.latest_step(policy_dir)
     if iteration is None:
         raise FileNotFoundError(f"{seed_dir} has no exported policy under {policy_dir}")
-    rows = logs.read_metrics(seed_dir)
-    config = logs.read_config(seed_dir)
+    rows = rundir.read_metrics(seed_dir)
+    config = rundir.read_config(seed_dir)
     if len(rows) < config["iterations"] and not (stopped_early(config, rows) and iteration == len(rows)):
         raise ValueError(f"{seed_dir} is unfinished: {len(rows)} of {config['iterations']} iterations logged")
     if final_checkpoint:

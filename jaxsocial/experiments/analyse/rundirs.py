@@ -9,7 +9,7 @@ from pathlib import Path
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import recipes
 from jaxsocial.experiments.plan.recipes import Scale
-from jaxsocial.run import logs, outputs, rundir
+from jaxsocial.run import outputs, rundir
 from jaxsocial.run.config import TrainConfig
 
 FINISHED, PARTIAL, MISSING = "finished", "partial", "missing"
@@ -29,15 +29,15 @@ def config_seed_dirs(cfg: TrainConfig) -> list[Path]:
 def finished(seed_dir: Path, iterations: int) -> bool:
     """Whether the run in `seed_dir` is over: it logged `iterations` rows, or its `stop_at_return` ended it
     earlier (`records.stopped_early`), so resuming it would train past its stop."""
-    if not logs.has_metrics(seed_dir):
+    if not rundir.has_metrics(seed_dir):
         return False
-    rows = logs.read_metrics(seed_dir)
-    return len(rows) >= iterations or records.stopped_early(logs.read_config(seed_dir), rows)
+    rows = rundir.read_metrics(seed_dir)
+    return len(rows) >= iterations or records.stopped_early(rundir.read_config(seed_dir), rows)
 
 
 def branch_state(run_dir: Path, iterations: int) -> str:
     """FINISHED (`run_dir` logged `iterations` rows), PARTIAL (it exists: training resumes it), or MISSING."""
-    rows = len(logs.read_metrics(run_dir)) if logs.has_metrics(run_dir) else 0
+    rows = len(rundir.read_metrics(run_dir)) if rundir.has_metrics(run_dir) else 0
     return FINISHED if rows >= iterations else PARTIAL if run_dir.is_dir() else MISSING
 
 
@@ -64,7 +64,7 @@ def condition_seed_dirs(
         first, last = int(match[1]), int(match[2])
         for s in range(first, last + 1):
             d = run_dir if first == last else run_dir / rundir.seed_name(s)
-            if logs.has_metrics(d):
+            if rundir.has_metrics(d):
                 held.setdefault(s, []).append(d)
     return [_one_holder(condition, s, held.get(s, []), d, pick) for s, d in enumerate(own, start=seed)]
 

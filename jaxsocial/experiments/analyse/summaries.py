@@ -26,7 +26,7 @@ from jaxsocial.experiments.analyse.kinds import takeoffs
 from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
 from jaxsocial.experiments.plan.conditions import CONDITIONS
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import config, logs, metrics
+from jaxsocial.run import config, jsonio, metrics, rundir
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -68,7 +68,7 @@ class RecipeRuns:
         trained one program per seed: the first seed's), its seed directories and metrics rows."""
         self.configs[c] = recipes.condition_programs(scale, c, seed, seeds, runs_dir)[0]
         dirs = rundirs.condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick)
-        rows = [metrics.read_rows(d) for d in dirs]
+        rows = [rundir.read_metrics(d) for d in dirs]
         self.dirs_by_seed[c] = [d if r else None for d, r in zip(dirs, rows, strict=True)]
         self.seed_dirs[c] = [d for d, r in zip(dirs, rows, strict=True) if r]
         self.rows[c] = [r for r in rows if r]
@@ -100,7 +100,7 @@ class RecipeRuns:
                     unrecorded.append(str(d))
                     continue
                 run = prov.get("run", prov)
-                seed = logs.read_config(d).get("seed")
+                seed = rundir.read_config(d).get("seed")
                 same = [r for r in runs.setdefault(c, []) if r["command"] == run.get("command")]
                 if same:
                     same[0]["seeds"].append(seed)
@@ -120,7 +120,7 @@ class RecipeRuns:
 
     def header(self, command: str) -> dict[str, Any]:
         def short(seed_dir: Path, rows: list[dict[str, Any]], iterations: int) -> bool:
-            return len(rows) < iterations and not records.stopped_early(logs.read_config(seed_dir), rows)
+            return len(rows) < iterations and not records.stopped_early(rundir.read_config(seed_dir), rows)
 
         unfinished = {
             c: [len(r) for r in rows]
@@ -213,8 +213,8 @@ def design_problems(runs: RecipeRuns, design: prereg.TrainingDesign) -> list[str
             None
             if d is None
             else {
-                "config": logs.read_config(d) if (d / logs.CONFIG_FILE).is_file() else {},
-                "rows": len(metrics.read_rows(d)),
+                "config": rundir.read_config(d) if (d / rundir.CONFIG_FILE).is_file() else {},
+                "rows": len(rundir.read_metrics(d)),
                 "finished": rundirs.finished(d, design.iterations),
                 "commit": records.run_field(d, "commit"),
                 "xla_flags": records.run_field(d, "xla_flags"),
@@ -355,7 +355,7 @@ def preregistered_zero_shot(design: prereg.TrainingDesign, runs: RecipeRuns) -> 
         for c in getattr(design, arm):
             if c in runs.lenders:
                 path = source / f"{paths.env_tag(test['env'])}-{c}.json"
-                result = logs.read_json(path) if path.is_file() else None
+                result = jsonio.read_json(path) if path.is_file() else None
                 scores[arm] += (
                     [] if result is None else [float(v) for v in result["results"][0]["per_seed_mean"]]
                 )
@@ -417,7 +417,7 @@ def write(runs: RecipeRuns, out_dir: str) -> tuple[Path, Path]:
     stem = out_dir / f"{runs.recipe.name}-{runs.scale.name}"
     json_path, png_path = stem.with_suffix(".json"), stem.with_suffix(".png")
     out_dir.mkdir(parents=True, exist_ok=True)
-    logs.write_json(json_path, summary, indent=1)
+    jsonio.write_json(json_path, summary, indent=1)
     draw(runs, summary, png_path)
     return json_path, png_path
 

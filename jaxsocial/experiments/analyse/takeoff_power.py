@@ -33,7 +33,7 @@ from scipy import stats as scipy_stats
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import takeoff
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import logs, metrics
+from jaxsocial.run import jsonio, metrics, rundir
 
 EVIDENCE_DESIGNS = ("h1_laptop", "h1_early", "h1_sooner")
 EVIDENCE_EPISODES = 128
@@ -49,7 +49,7 @@ def evidence_eval_path(condition: str) -> Path:
 def seed_lift(seed_dir: Path) -> dict[str, Any]:
     """A trained seed's directory (config and metrics): its seed, takeoff and run end (env-steps; takeoff
     None if it never took off)."""
-    config, rows = logs.read_config(seed_dir), metrics.read_rows(seed_dir)
+    config, rows = rundir.read_config(seed_dir), rundir.read_metrics(seed_dir)
     per_iteration = metrics.steps_per_iteration(config)
     lift = takeoff.seed_takeoff(rows, per_iteration)
     return {
@@ -79,7 +79,7 @@ def seed_takeoffs(
 
 def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
     """Every evidence seed of `condition` (`EVIDENCE_DESIGNS`): `seed_takeoffs`, with its 4-goal score."""
-    scores = logs.read_json(evidence_eval_path(condition))
+    scores = jsonio.read_json(evidence_eval_path(condition))
     by_dir = {  # keyed by '<design folder>/<seed folder>', wherever the records root is
         Path(*Path(ck).parts[-2:]): score
         for ck, score in zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True)
@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> None:
     for name, designs in POOLED.items():
         path = paths.SCIENCE / name
         summary = pooled_summary(paths.RECORDS, designs)
-        logs.write_json(path, summary, indent=1)
+        jsonio.write_json(path, summary, indent=1)
         print(f"{', '.join(designs)}:")
         for c, v in summary["conditions"].items():
             by = ", ".join(

@@ -10,7 +10,7 @@ from pathlib import Path
 from jaxsocial.experiments.analyse import records, run_times, rundirs
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan.branch_design import BranchDesign
-from jaxsocial.run import config, logs
+from jaxsocial.run import config, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
@@ -23,7 +23,7 @@ def branch_config(
     arm's environment, from the record's policy, for the design's iterations with its branch seed, evaluated
     at its end, blind."""
     source = design.source_dir(arm, seed, records_root)
-    cfg = config.config_from_dict(logs.read_config(source))
+    cfg = config.config_from_dict(rundir.read_config(source))
     spec = EnvSpec.parse(design.arms[arm].env)
     return dataclasses.replace(
         cfg,
@@ -47,7 +47,7 @@ def branch_config(
 def missing_sources(design: BranchDesign, records_root: Path) -> list[str]:
     """The design's source records that hold no final policy."""
     wanted = {design.source_dir(a, s, records_root) for a in design.arms for s in design.seed_range}
-    return sorted(str(d) for d in wanted if not (d / "policy").is_dir())
+    return sorted(str(d) for d in wanted if not (d / rundir.POLICY_DIR).is_dir())
 
 
 def run(

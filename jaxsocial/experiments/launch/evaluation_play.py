@@ -11,7 +11,7 @@ from jaxsocial.experiments.analyse import evaluation_results
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import commits, paths
 from jaxsocial.experiments.plan.evaluation_design import PROVENANCE, EvaluationDesign, evaluations, out_dir
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio
 from jaxsocial.specs import EnvSpec
 
 
@@ -44,7 +44,7 @@ def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
         started = pinned.now()
         result = evaluate.evaluate(config)
         out.mkdir(parents=True, exist_ok=True)
-        logs.write_json(e.path(out), result)
+        jsonio.write_json(e.path(out), result)
         when = {
             "file": e.path(out).name,
             "commit": commits.head_commit(),

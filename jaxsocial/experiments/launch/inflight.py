@@ -22,7 +22,7 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from jaxsocial.run import checkpoint, logs, metrics
+from jaxsocial.run import checkpoint, jsonio, rundir
 from jaxsocial.run.rundir import CHECKPOINTS_DIR as CHECKPOINTS
 from jaxsocial.run.rundir import POLICY_DIR
 
@@ -34,7 +34,7 @@ block: progress lines with the learners' returns. Resuming needs none of them.""
 def slim(run_dir: Path) -> int:
     """Keep only the latest checkpoint every seed of `run_dir` has, drop the exported policies and the
     `PROGRESS_LOGS`; returns that checkpoint's step (ValueError if the seeds share none)."""
-    seeds = metrics.written_seed_dirs(run_dir)
+    seeds = rundir.written_seed_dirs(run_dir)
     common = set.intersection(*(set(checkpoint.all_steps(d / CHECKPOINTS)) for d in seeds))
     if not common:
         raise ValueError(f"{run_dir}: its seeds share no checkpoint to resume from")
@@ -84,8 +84,8 @@ def slim_states(tgzs: list[Path], out_dir: Path) -> list[Path]:
         for tgz in tgzs:
             with tarfile.open(tgz) as tar:
                 tar.extractall(tmp, filter="data")
-        for config in sorted(Path(tmp).rglob(logs.CONFIG_FILE)):
-            if not metrics.one_seed_of_many(logs.read_json(config)):
+        for config in sorted(Path(tmp).rglob(rundir.CONFIG_FILE)):
+            if not rundir.one_seed_of_many(jsonio.read_json(config)):
                 runs.append(config.parent)
         if out_dir.exists():
             shutil.rmtree(out_dir)

@@ -28,7 +28,7 @@ from typing import Any, Protocol
 
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import xla_flags
-from jaxsocial.run import checkout, compile_cache, logs, provenance
+from jaxsocial.run import checkout, compile_cache, jsonio, provenance, rundir
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
 """What each pinned process adds to the caller's $XLA_FLAGS (`process_xla_flags`). Until 2026-11-27 it ended
@@ -189,7 +189,7 @@ def run_processes(jobs: list[Job], cores: list[int], process_flags: str) -> list
         for i, (proc, core, started, tree, earlier, seen) in list(active.items()):
             job = jobs[i]
             process = (job.run_dir, shlex.join(["python", *job.argv]), tree, 1, started)
-            if earlier is None and (job.run_dir / logs.CONFIG_FILE).is_file():
+            if earlier is None and (job.run_dir / rundir.CONFIG_FILE).is_file():
                 earlier = earlier_processes(job.run_dir)  # its directory is there: say so before it ends
                 seen = visible_cores(proc.pid)  # python itself runs, pinned; `poll` has not reaped it
                 active[i] = (proc, core, started, tree, earlier, seen)
@@ -222,7 +222,7 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
             f"{path} does not exist: the run was not trained by `pinned.run`, nor by a `train` that writes "
             "one (since 2026-12-03)"
         )
-    info = logs.read_json(path)
+    info = jsonio.read_json(path)
     if info.get("ended") is None:
         raise RunNotEnded(f"{path}: its process (started {info.get('started')}) has not ended")
     later = (*MACHINE_FIELDS, *checkout.TREE_FIELDS)

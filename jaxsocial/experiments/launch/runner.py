@@ -25,7 +25,7 @@ from jaxsocial.experiments.analyse.rundirs import (
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import checkout, logs, outputs
+from jaxsocial.run import checkout, jsonio, outputs, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.startup import setup
@@ -48,7 +48,7 @@ def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol:
     )
     result = evaluate.evaluate(config)
     out.parent.mkdir(parents=True, exist_ok=True)
-    logs.write_json(out, result)
+    jsonio.write_json(out, result)
     return result
 
 
@@ -69,7 +69,7 @@ def status(cfg: TrainConfig, dirs: list[Path]) -> str:
     (the config's own run directory exists, so training resumes it) or MISSING."""
     if all(finished(d, cfg.iterations) for d in dirs):
         return FINISHED
-    return PARTIAL if (outputs.run_path(cfg) / logs.CONFIG_FILE).exists() else MISSING
+    return PARTIAL if (outputs.run_path(cfg) / rundir.CONFIG_FILE).exists() else MISSING
 
 
 def run(

@@ -32,7 +32,7 @@ from typing import Any
 
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio
 
 INSTALL = "pip install 'jaxsocial[slurm]'"
 """What installs submitit (the optional extra `slurm`)."""
@@ -145,7 +145,7 @@ class Slurm:
             submitted = [executor.submit(run_in_job, job, process_flags) for job in todo]
         for job, sub in zip(todo, submitted, strict=True):
             job.log.parent.mkdir(parents=True, exist_ok=True)
-            logs.write_json(
+            jsonio.write_json(
                 marker(job), {"job_id": sub.job_id, "folder": str(self.folder), "at": pinned.now()}
             )
             print(f"{job.label}: Slurm job {sub.job_id}, log {job.log}", flush=True)
@@ -201,7 +201,9 @@ def marker(job: pinned.Job) -> Path:
 def queued(jobs: list[pinned.Job]) -> dict[Path, str]:
     """The run directories of `jobs` whose last Slurm job (`marker`) is still queued or running (this user's
     jobs that `squeue` lists), with its id; {} where there is no `squeue`, with a warning if it fails."""
-    submitted = {job.run_dir: logs.read_json(marker(job))["job_id"] for job in jobs if marker(job).is_file()}
+    submitted = {
+        job.run_dir: jsonio.read_json(marker(job))["job_id"] for job in jobs if marker(job).is_file()
+    }
     if not submitted or not shutil.which("squeue"):
         return {}
     listed = subprocess.run(

@@ -42,7 +42,7 @@ from typing import Any
 from jaxsocial.experiments.analyse import cpu_kinds, records
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import xla_flags
-from jaxsocial.run import autotune, checkout, config, logs, metrics
+from jaxsocial.run import autotune, checkout, config, metrics, rundir
 from jaxsocial.run.flags import config_flags
 
 TIMING_FIELDS = (metrics.SPEED, metrics.COMPILE_S)
@@ -53,7 +53,7 @@ DEFAULT_ITERATIONS = 10
 def retrain(record_dir: Path, iterations: int, work_dir: Path) -> Path:
     """Train the first `iterations` of the record's config into `work_dir` in a process of its own, with
     `retraining_flags`, on `retraining_cores`; return the new run directory."""
-    cfg = config.config_from_dict(logs.read_config(record_dir))
+    cfg = config.config_from_dict(rundir.read_config(record_dir))
     if iterations > cfg.iterations:
         raise ValueError(f"--iterations {iterations}: the record trained only {cfg.iterations}")
     cfg = dataclasses.replace(cfg, iterations=iterations)
@@ -179,9 +179,9 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
     """Re-train the first `iterations` of a record and compare (see the module docstring). `work_dir`: where
     the new run goes (default: a temporary directory, removed afterwards)."""
     record_dir = Path(record_dir)
-    if not (record_dir / logs.CONFIG_FILE).is_file():
+    if not (record_dir / rundir.CONFIG_FILE).is_file():
         raise FileNotFoundError(f"{record_dir} holds no config.json: not a record or run directory")
-    recorded = metrics.read_rows(record_dir)[:iterations]
+    recorded = rundir.read_metrics(record_dir)[:iterations]
     if len(recorded) < iterations:
         raise ValueError(f"--iterations {iterations}: the record logged only {len(recorded)} rows")
     cores = record_cores(record_dir)
@@ -190,7 +190,7 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
     here = checkout.tree()
     with tempfile.TemporaryDirectory(prefix="jaxsocial-verify-") as tmp:
         run_dir = retrain(record_dir, iterations, Path(work_dir or tmp))
-        retrained = without_final_evaluation(metrics.read_rows(run_dir), recorded)
+        retrained = without_final_evaluation(rundir.read_metrics(run_dir), recorded)
     difference = first_difference(recorded, retrained)
     return {
         "record": str(record_dir),

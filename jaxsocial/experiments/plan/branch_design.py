@@ -36,7 +36,7 @@ from jaxsocial import stats
 from jaxsocial.env import registry
 from jaxsocial.experiments.plan import catalogue
 from jaxsocial.experiments.plan.catalogue import Test
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio
 from jaxsocial.specs import EnvSpec
 
 START = "start"
@@ -155,7 +155,7 @@ class BranchDesign(catalogue.Design):
         design = cls(**raw)
         name = design.name
         if catalogue.amendment_path(name).is_file():
-            added = logs.read_json(catalogue.amendment_path(name))
+            added = jsonio.read_json(catalogue.amendment_path(name))
             added["tests"] = {k: Test(**v) for k, v in added["tests"].items()}
             design = dataclasses.replace(design, amendment=Amendment(**added))
         for env in (*(arm.env for arm in design.arms.values()), *design.eval_envs):

@@ -24,7 +24,7 @@ from typing import Any, ClassVar, Self
 
 from jaxsocial import stats
 from jaxsocial.experiments.plan import commits
-from jaxsocial.run import logs
+from jaxsocial.run import jsonio
 
 DESIGNS_DIR = Path(__file__).parent.parent / "designs"
 DESIGN_KINDS = ("training", "evaluation", "branch")
@@ -143,7 +143,7 @@ def _raw(name: str) -> dict[str, Any]:
     path = path_of(name)
     if not path.is_file():
         raise FileNotFoundError(f"no design {path}; the designs are {design_names()}")
-    return logs.read_json(path)
+    return jsonio.read_json(path)
 
 
 def _kind_of(name: str, raw: dict[str, Any]) -> str:

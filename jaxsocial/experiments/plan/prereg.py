@@ -25,7 +25,7 @@ from typing import Any
 
 from jaxsocial import stats
 from jaxsocial.experiments.plan import catalogue, recipes, xla_flags
-from jaxsocial.run import config, logs
+from jaxsocial.run import config, jsonio
 
 ANALYSES = ("counts", "takeoff", "zero_shot")
 ZERO_SHOT_TEST = "mannwhitney-greater"
@@ -186,7 +186,7 @@ def deviations(name: str, directory: Path) -> list[dict[str, str]]:
     happened to its runs that its rules did not foresee ({"deviations": [{"date", "what"}, ...]}), carried
     into its summary's `preregistered` block and verdict."""
     path = directory / f"{name}.json"
-    return logs.read_json(path)["deviations"] if path.is_file() else []
+    return jsonio.read_json(path)["deviations"] if path.is_file() else []
 
 
 def recipe_scale(recipe: recipes.Recipe, scale: recipes.Scale) -> recipes.Scale:
