@@ -32,15 +32,15 @@ from jaxsocial.run import config, rundir, runlock
 from jaxsocial.run.config import TrainConfig
 
 REFUSALS = {
-    "unknown_env": (["--env", "goalcycle9"], "unknown environment"),
+    "unknown_env": (["--env", "goalcycle9"], "unknown environment 'goalcycle9'"),
     "bad_flag_value": (["--num-envs", "many"], "--num-envs"),
     "out_of_range": (["--iterations", "0"], "iterations=0 must be >= 1"),
-    "run_dir_with_metrics": (["--run-name", "trained"], "already exists and is not empty"),
+    "run_dir_with_metrics": (["--run-name", "trained"], "trained already exists and is not empty"),
     "run_dir_of_another_config": (
         ["--run-name", "unstarted", "--iterations", "7"],
         "differs in ['iterations']",
     ),
-    "run_dir_in_use": (["--resume", "RUNS/live"], "is in use by process"),
+    "run_dir_in_use": (["--resume", "RUNS/live"], "live is in use by process"),
 }
 """name -> (flags after `--runs-dir RUNS`, a part of the message it must print)."""
 FLOORS = {

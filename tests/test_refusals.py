@@ -2,14 +2,13 @@
 refused before JAX is imported, and before any of the training's heavy modules, the cost line or a write.
 How long they take is `benchmarks/refusal_times.py`'s to measure; this checks what makes them quick."""
 
-import dataclasses
 import json
 import subprocess
 import sys
+from pathlib import Path
 
-from jaxsocial.run import config, rundir
-from jaxsocial.run.config import TrainConfig
-from jaxsocial.run.runlock import RunLock
+sys.path.append(str(Path(__file__).resolve().parents[1] / "benchmarks"))  # the script and its `run_info`
+import refusal_times  # noqa: E402
 
 HEAVY = ("jax", "jaxlib", "flax", "orbax", "optax", "scipy", "jaxsocial.run.driver", "jaxsocial.run.loop")
 """Modules (with their submodules) a refusal imports none of."""
@@ -28,16 +27,6 @@ for argv in json.loads(sys.argv[1]):
 status) and the modules of its second argument imported by then."""
 
 
-def make_runs(runs) -> None:
-    """'trained' and 'live' hold a metrics row, 'unstarted' only the config.json of a run of 5 iterations."""
-    for name in ("trained", "live", "unstarted"):
-        cfg = dataclasses.replace(TrainConfig(), runs_dir=str(runs), run_name=name, iterations=5)
-        (runs / name).mkdir(parents=True)
-        rundir.write_config(runs / name, config.config_dict(cfg))
-        if name != "unstarted":
-            (runs / name / rundir.METRICS_FILE).write_text('{"iteration": 1}\n')
-
-
 def snapshot(runs) -> dict:
     """Every path under `runs` but the lock files, with a file's bytes."""
     return {p: p.is_file() and p.read_bytes() for p in runs.rglob("*") if p.suffix != ".lock"}
@@ -48,24 +37,22 @@ def test_refusals_come_before_jax_is_imported(tmp_path):
     range, a run directory with metrics, one of another config, one a live process holds), each refused with
     its message while `jax` is not in `sys.modules`, with nothing written and no cost line."""
     runs = tmp_path / "runs"
-    make_runs(runs)
+    lock = refusal_times.make_runs(runs)  # 'live' held by this process
     refusals = {
-        "unknown environment 'goalcycle9'": ["--env", "goalcycle9"],
-        "--num-envs": ["--num-envs", "many"],
-        "iterations=0 must be >= 1": ["--iterations", "0"],
-        "trained already exists and is not empty": ["--run-name", "trained"],
-        "differs in ['iterations']": ["--run-name", "unstarted", "--iterations", "7"],
-        "live is in use by process": ["--resume", str(runs / "live")],
+        message: [f.replace("RUNS", str(runs)) for f in flags]
+        for flags, message in refusal_times.REFUSALS.values()
     }
     argvs = [["--runs-dir", str(runs), *argv] for argv in refusals.values()]
     before = snapshot(runs)
-    with RunLock(runs / "live"):
+    try:
         out = subprocess.run(
             [sys.executable, "-c", REFUSE, json.dumps(argvs), ",".join(HEAVY)],
             capture_output=True,
             text=True,
             timeout=300,
         )
+    finally:
+        lock.release()
     outcomes = [json.loads(line) for line in out.stdout.splitlines() if line.startswith('{"refused"')]
     assert len(outcomes) == len(refusals), out.stdout + out.stderr
     for message, outcome in zip(refusals, outcomes, strict=True):
