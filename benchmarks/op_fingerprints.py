@@ -69,7 +69,7 @@ from run_info import REPO, portable, write_json
 
 from jaxsocial.experiments.analyse import cpu_kinds
 from jaxsocial.experiments.launch import pinned
-from jaxsocial.run import autotune, rundir, startup
+from jaxsocial.run import cpuinfo, rundir, startup
 
 OUT_DIR = REPO / "benchmarks/results/op_fingerprints"
 DOT_KS = (27, 256, 288, 432, 1024, 8192)
@@ -286,7 +286,7 @@ def main() -> None:
         found["all_cores"] = entry
         verdict = summary(entry["differ_from_default"])
         print(f"default seeing {entry['visible_cores']} cores against one: {verdict}")
-    found["cache_sizes"] = autotune.cache_sizes()
+    found["cache_sizes"] = cpuinfo.cache_sizes()
     describe_kind(found, args)
     found["against"] = {}
     for other in other_kinds(path, OUT_DIR):

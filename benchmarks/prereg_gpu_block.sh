@@ -72,8 +72,8 @@ device() {
   XLA_FLAGS=$(cat ../xla_flags.txt 2>/dev/null)
   local machine  # where this block's runs train, $XLA_FLAGS included, for the records' provenance
   machine=$(PYTHONPATH=$root:/tmp/site python3 -c 'import json, os
-from jaxsocial.experiments.launch import pinned
-print(json.dumps(pinned.machine(os.environ.get("XLA_FLAGS", ""))))') &&
+from jaxsocial.run import provenance
+print(json.dumps(provenance.machine(os.environ.get("XLA_FLAGS", ""))))') &&
     echo "$(date -u +%Y-%m-%dT%H:%M:%SZ) machine $machine" >>"$OUT/commands.log"
   nvidia-smi -L
   python3 -c 'import jax, flax, tyro; print("jax", jax.__version__, "flax", flax.__version__, jax.devices())'

@@ -1,7 +1,8 @@
-"""How long `python -m jaxsocial.train` takes to refuse bad input (issue 84, item 5): each refusal as a
-newcomer meets it, in a fresh process, wall-clock seconds from start to exit, `--repeats` times (the minimum
-and the median are reported), beside three floors: the Python start, `import jax` (which no refusal pays: they
-come before it, `tests/test_refusals.py`) and `import jaxsocial` (whose names are imported at first use).
+"""How long `python -m jaxsocial.train` and `python -m jaxsocial.experiments` take to refuse bad input
+(issue 84, item 5): each refusal as a newcomer meets it, in a fresh process, wall-clock seconds from start to
+exit, `--repeats` times (the minimum and the median are reported), beside three floors: the Python start,
+`import jax` (which no refusal pays: they come before it, `tests/test_refusals.py`) and `import jaxsocial`
+(whose names are imported at first use).
 
     python benchmarks/refusal_times.py --out benchmarks/results/refusal_times.json
     python benchmarks/refusal_times.py --before HEAD~1   # also the package of another commit, for comparison
@@ -31,18 +32,55 @@ import run_info
 from jaxsocial.run import config, rundir, runlock
 from jaxsocial.run.config import TrainConfig
 
+TRAIN, EXPERIMENTS = "jaxsocial.train", "jaxsocial.experiments"
 REFUSALS = {
-    "unknown_env": (["--env", "goalcycle9"], "unknown environment 'goalcycle9'"),
-    "bad_flag_value": (["--num-envs", "many"], "--num-envs"),
-    "out_of_range": (["--iterations", "0"], "iterations=0 must be >= 1"),
-    "run_dir_with_metrics": (["--run-name", "trained"], "trained already exists and is not empty"),
+    "unknown_env": (TRAIN, ["--env", "goalcycle9"], "unknown environment 'goalcycle9'"),
+    "bad_flag_value": (TRAIN, ["--num-envs", "many"], "--num-envs"),
+    "out_of_range": (TRAIN, ["--iterations", "0"], "iterations=0 must be >= 1"),
+    "run_dir_with_metrics": (TRAIN, ["--run-name", "trained"], "trained already exists and is not empty"),
+    "run_dir_with_metrics_cached": (
+        TRAIN,
+        ["--run-name", "trained", "--compile-cache", "RUNS/cache"],
+        "trained already exists and is not empty",
+    ),
     "run_dir_of_another_config": (
+        TRAIN,
         ["--run-name", "unstarted", "--iterations", "7"],
         "differs in ['iterations']",
     ),
-    "run_dir_in_use": (["--resume", "RUNS/live"], "live is in use by process"),
+    "run_dir_in_use": (TRAIN, ["--resume", "RUNS/live"], "live is in use by process"),
+    "unknown_recipe": (EXPERIMENTS, ["run", "goalcycle9"], "invalid choice: 'goalcycle9'"),
+    "unknown_design": (EXPERIMENTS, ["power", "pred9"], "invalid choice: 'pred9'"),
+    "design_seed_changed": (
+        EXPERIMENTS,
+        ["run", "pred8", "--scale", "laptop8", "--seed", "3"],
+        "--seed 3: the pre-registered design pred8 fixes",
+    ),
+    "unknown_option": (
+        EXPERIMENTS,
+        ["record", "pred8", "--scale", "laptop8", "--checkpoint", "all"],
+        "unrecognized arguments: --checkpoint all",
+    ),
+    "design_kind_option": (EXPERIMENTS, ["run", "transfer8", "--core", "0"], "unrecognized arguments"),
+    "delegated_verb": (EXPERIMENTS, ["sweep", "maps"], "invalid choice: 'maps'"),
+    "verify_no_record": (EXPERIMENTS, ["verify", "RUNS"], "holds no config.json"),
 }
-"""name -> (flags after `--runs-dir RUNS`, a part of the message it must print)."""
+"""name -> (the module `python -m` runs, its arguments (a training's after `--runs-dir RUNS`; RUNS: the run
+directories `make_runs` made), a part of the message it must print)."""
+
+
+def command(module: str, flags: list[str], runs: Path) -> list[str]:
+    """The `python` arguments of the refusal of `module` with `flags` (`REFUSALS`), RUNS made `runs`; the
+    experiments read this checkout's results (`--results`), as from the root of a clone."""
+    flags = [f.replace("RUNS", str(runs)) for f in flags]
+    where = (
+        ["--runs-dir", str(runs)]
+        if module == TRAIN
+        else ["--results", str(run_info.REPO / "benchmarks/results")]
+    )
+    return ["-m", module, *where, *flags]
+
+
 FLOORS = {
     "python": ["-c", "pass"],
     "import_jax": ["-c", "import jax"],
@@ -85,9 +123,8 @@ def time_refusals(runs: Path, env: dict[str, str], repeats: int, check: bool) ->
     """Each of `REFUSALS` `repeats` times, each a refusal (with `check`, also `CHECKED`); then the `FLOORS`.
     Each row says whether the refusal printed the cost line first."""
     rows = {}
-    for name, (flags, message) in REFUSALS.items():
-        flags = [f.replace("RUNS", str(runs)) for f in flags]
-        argv = ["-m", "jaxsocial.train", "--runs-dir", str(runs), *flags]
+    for name, (module, flags, message) in REFUSALS.items():
+        argv = command(module, flags, runs)
         seconds, costs = [], False
         for _ in range(repeats):
             took, out = timed(argv, runs.parent, env)
@@ -98,7 +135,7 @@ def time_refusals(runs: Path, env: dict[str, str], repeats: int, check: bool) ->
                     f"{name}: expected a refusal saying {message!r}, got {out.returncode}:\n{said}"
                 )
             seconds.append(took)
-        rows[name] = {"argv": flags, "cost_line_first": costs, **summary(seconds)}
+        rows[name] = {"argv": argv[1:], "cost_line_first": costs, **summary(seconds)}
         print(f"{name}: min {rows[name]['min_s']:.2f} s, median {rows[name]['median_s']:.2f} s", flush=True)
     for name, argv in FLOORS.items():
         rows[name] = {"argv": argv, **summary([timed(argv, runs.parent, env)[0] for _ in range(repeats)])}

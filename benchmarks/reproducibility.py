@@ -30,7 +30,7 @@ from pathlib import Path
 from run_info import REPO, metadata, portable, write_json
 
 from jaxsocial.experiments.launch import pinned, verify
-from jaxsocial.run import autotune, config, jsonio, metrics, rundir
+from jaxsocial.run import autotune, config, cpuinfo, jsonio, metrics, rundir
 
 NO_YNN = "-individual_dot,-individual_convolution,-dot,-eltwise,-reduce"
 """Every YNNPACK fusion type removed from XLA's default list: jaxlib 0.10.2 sends dots and reductions to
@@ -80,7 +80,7 @@ def this_kind(out_dir: str) -> tuple[Path, dict]:
     """This machine kind's JSON in `out_dir` and what it holds ({"cpu", "settings": {}} where it is new),
     without the settings that `SETTINGS` no longer has, whose flags have changed since they ran, or that ran
     seeing other than one core (before 2026-11-28 they ran seeing every core)."""
-    cpu = autotune.cpu_model()
+    cpu = cpuinfo.model()
     path = kind_file(cpu, Path(out_dir))
     found = jsonio.read_json(path) if path.exists() else {"cpu": cpu, "settings": {}}
     found["settings"] = {
@@ -98,7 +98,7 @@ def seen_one_core(entry: dict) -> bool:
 
 def describe_kind(found: dict, args: argparse.Namespace) -> None:
     """Add to a kind's JSON the instruction sets present (`autotune.MACHINE_FLAGS`) and the run's metadata."""
-    found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in autotune.cpu_flags())
+    found["cpu_flags"] = sorted(f for f in autotune.MACHINE_FLAGS if f in cpuinfo.flags())
     found["metadata"] = metadata(args)
 
 

@@ -17,8 +17,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxsocial.experiments.launch.pinned import package_version
-from jaxsocial.run.autotune import cpu_model  # the model name with its family and model numbers
+from jaxsocial.run import cpuinfo
+from jaxsocial.run.provenance import package_version
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -51,7 +51,7 @@ def metadata(args: argparse.Namespace) -> dict:
         "numpy": np.__version__,
         "devices": [f"{d} (platform={d.platform}, kind={d.device_kind})" for d in jax.devices()],
         "cpu_count": os.cpu_count(),
-        "cpu_model": cpu_model(),
+        "cpu_model": cpuinfo.model(),  # the model name with its family and model numbers
         "platform": platform.platform(),
         "git": git_revision(),
         "env": {k: os.environ.get(k) for k in ("XLA_FLAGS", "GLIBC_TUNABLES", "OMP_NUM_THREADS")},

@@ -78,7 +78,7 @@ from run_info import REPO, metadata, write_results
 
 from jaxsocial.agents import network
 from jaxsocial.agents.fast import conv
-from jaxsocial.run import autotune
+from jaxsocial.run import autotune, cpuinfo
 from jaxsocial.run.config import PRESETS
 
 TORCH_SCRIPT = Path(__file__).resolve().parent / "pytorch_paper_net.py"
@@ -96,7 +96,7 @@ AVX512-BF16 (or AMX, whose tiles multiply bfloat16 matrices)."""
 
 def cpu_flags() -> dict[str, bool]:
     """Which of `CPU_FLAGS` this machine's CPU has (all False where /proc/cpuinfo is missing)."""
-    flags = autotune.cpu_flags()
+    flags = cpuinfo.flags()
     return {flag: flag in flags for flag in CPU_FLAGS}
 
 

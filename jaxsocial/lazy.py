@@ -1,5 +1,6 @@
-"""A package's names, imported at their first use (PEP 562): `import jaxsocial` then costs nothing until a
-name is read, so what needs no JAX (the training command's refusals of bad input) answers at once."""
+"""Names imported at their first use: a package's (PEP 562, `exports`), so `import jaxsocial` costs nothing
+until a name is read, and a module's (`module`), so what needs no JAX or scipy (the commands' refusals of bad
+input) answers at once."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import importlib
 import importlib.util
 import sys
 from collections.abc import Callable
+from types import ModuleType
 from typing import Any
 
 
@@ -26,3 +28,14 @@ def exports(package: str, sources: dict[str, str]) -> Callable[[str], Any]:
         return value
 
     return __getattr__
+
+
+def module(name: str) -> ModuleType:
+    """A stand-in for the module `name` that imports it at its first attribute read (and nothing before:
+    not even its parent packages), then answers from it."""
+
+    class Deferred(ModuleType):
+        def __getattr__(self, attribute: str) -> Any:
+            return getattr(importlib.import_module(name), attribute)
+
+    return Deferred(name)

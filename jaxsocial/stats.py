@@ -24,7 +24,11 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy import stats as scipy_stats
+
+from jaxsocial import lazy
+
+scipy_stats = lazy.module("scipy.stats")
+"""scipy's tests and intervals, imported at their first use (a design's checks read only the names here)."""
 
 # ----------------------------------------------------------------------------------------------------------
 # Means over seeds

@@ -75,7 +75,7 @@ def run(cfg: TrainConfig, command: str | None = None) -> Path:
     RunLockedError where a live run holds it; for a new run, FileExistsError where it holds another run, or
     anything beyond what a run of this config leaves before its first iteration, which does not block it);
     only then are JAX and the modules that train imported (`_train`), so that a refusal is quick (JAX comes
-    first only for several processes, frozen slots to load or a compile cache). The run goes
+    first only for several processes or frozen slots to load). The run goes
     through the stages of `cfg.stages` (one compiled program each, switched between chunks); metrics rows
     record the stage, and checkpoints the stage to resume in. The run directory is locked (`runlock`) from
     before the cost line until the run ends. A non-finite iteration raises `nonfinite.NonFiniteError` (see
@@ -88,8 +88,6 @@ def run(cfg: TrainConfig, command: str | None = None) -> Path:
     `interrupt.Interrupted` at once.
     """
     processes.initialize(cfg.coordinator, cfg.num_processes, cfg.process_id)
-    if cfg.compile_cache:
-        compile_cache.enable(cfg.compile_cache)
     static = startup.setup(cfg)  # validate before touching the disk or compiling; once per run
     run_dir = rundir.run_path(cfg)
     processes.on_main(functools.partial(check_run_dir, cfg, run_dir))
@@ -110,6 +108,8 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
     from jaxsocial.run.driver import train_chunks
     from jaxsocial.run.outputs import seed_runs, start_run_dir, write_configs
 
+    if cfg.compile_cache:  # JAX's config: after the refusals, before anything compiles
+        compile_cache.enable(cfg.compile_cache)
     branching = cfg.init_from is not None and not cfg.resume  # a resumed run loads its own state
     numbers = list(range(cfg.seed, cfg.seed + cfg.seeds))
     if branching:

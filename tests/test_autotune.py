@@ -13,7 +13,7 @@ from float_bounds import assert_trees_within, gamma, network_error
 
 from jaxsocial.agents import network as net
 from jaxsocial.agents.network_config import CONV_LAYERS
-from jaxsocial.run import autotune, config
+from jaxsocial.run import autotune, config, cpuinfo
 
 TINY = net.NetworkConfig(conv_channels=(4, 6, 5), hidden=8, mlp=6, aux="pred")
 BATCH = 4  # frames per call (tiny shapes: every candidate compiles and runs in milliseconds)
@@ -218,7 +218,7 @@ def test_bad_batch_raises(tmp_path):
 )
 def test_auto_dtype(monkeypatch, tmp_path, counted, backend, flags, dtype):
     monkeypatch.setattr(autotune, "backend", lambda: backend)
-    monkeypatch.setattr(autotune, "cpu_flags", lambda: frozenset(flags))
+    monkeypatch.setattr(cpuinfo, "flags", lambda: frozenset(flags))
     assert autotune.auto_dtype() == dtype
     cfg = dataclasses.replace(TINY, dtype="auto")
     with pytest.raises(ValueError, match="autotune.resolve"):

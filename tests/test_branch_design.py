@@ -21,7 +21,7 @@ from jaxsocial.experiments.analyse import kinds, power, records, rundirs, verdic
 from jaxsocial.experiments.launch import branch_runs, pinned
 from jaxsocial.experiments.plan import branch_design as bd
 from jaxsocial.experiments.plan import catalogue, designs, paths
-from jaxsocial.run import checkout, jsonio, metrics, rundir
+from jaxsocial.run import checkout, jsonio, metrics, provenance, rundir
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.provenance import PARENT_WRITES
 from jaxsocial.specs import CheckpointRef
@@ -125,8 +125,8 @@ def _fake_record(root: Path, design, arm: str, seed: int, scores: dict[str, floa
     jsonio.write_json(directory / rundir.CONFIG_FILE, config)
     row = {metrics.ITERATION: design.iterations} | {metrics.eval_key(e): v for e, v in scores.items()}
     (directory / rundir.METRICS_FILE).write_text(json.dumps(row) + "\n")
-    provenance = {"run": dict.fromkeys(records.RUN_FIELDS) | {"commit": "0" * 40, "device": "a CPU"}}
-    jsonio.write_json(directory / records.PROVENANCE_FILE, provenance)
+    recorded = {"run": dict.fromkeys(provenance.RUN_FIELDS) | {"commit": "0" * 40, "device": "a CPU"}}
+    jsonio.write_json(directory / records.PROVENANCE_FILE, recorded)
 
 
 @needs_records("records/laptop/prereg-experts")
@@ -163,9 +163,9 @@ def test_the_summary_tests_the_recorded_branches_as_scipy_does(tmp_path, monkeyp
         jsonio.write_json(path, evaluation)
     ended = {"mixed-s300": "2026-11-28T16:17:21+00:00", "social-s300": "2026-12-01T20:00:00-03:00"}
     for name, when in ended.items():  # one run ended before the amendment and one after (23:00 UTC)
-        provenance = jsonio.read_json(tmp_path / design.out / name / records.PROVENANCE_FILE)
-        provenance["run"]["ended"] = when
-        jsonio.write_json(tmp_path / design.out / name / records.PROVENANCE_FILE, provenance)
+        recorded = jsonio.read_json(tmp_path / design.out / name / records.PROVENANCE_FILE)
+        recorded["run"]["ended"] = when
+        jsonio.write_json(tmp_path / design.out / name / records.PROVENANCE_FILE, recorded)
     committed = catalogue.file_commit  # the design's commit as it is; the amendment's at 22:00 UTC
     amendment = catalogue.amendment_path(design.name)
     monkeypatch.setattr(
@@ -230,7 +230,7 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     writes, `record` packs it with the machine the file measured and `summarise` finds it as designed."""
     source = train.run(dataclasses.replace(TINY, runs_dir=str(tmp_path / "material-runs"), run_name="source"))
     records_root, runs_root = tmp_path / "records", tmp_path / "runs"
-    run = dict.fromkeys(records.RUN_FIELDS)
+    run = dict.fromkeys(provenance.RUN_FIELDS)
     records.pack(source, records_root / "tiny/material/social-s0-0", run, "tiny/source")
     env, solo = f"goalcycle3:{TINY_ENV_ARGS}", f"goalcycle3-solo:{TINY_ENV_ARGS}"
     test = {"env": solo, "treatment": "mixed", "control": "social", "alternative": "greater"}
@@ -269,10 +269,12 @@ def test_a_branch_of_a_record_trains_is_recorded_and_summarised(tmp_path, capsys
     capsys.readouterr()
     assert branch_runs.record(design, runs_root, records_root) == []  # no process file yet
     assert f"  1 branches not started under {runs_root}\n" in capsys.readouterr().out  # the social arm
-    pinned.write_run_file(run_dir, "python -m jaxsocial.train", checkout.tree(), 1, pinned.now(), rc=0)
+    provenance.write_run_file(
+        run_dir, "python -m jaxsocial.train", checkout.tree(), 1, provenance.now(), rc=0
+    )
     assert branch_runs.record(design, runs_root, records_root) == [records_root / "tiny/branches/mixed-s0"]
-    provenance = jsonio.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
-    assert provenance["run"]["device"].endswith(", one core per seed")
+    recorded = jsonio.read_json(records_root / "tiny/branches/mixed-s0" / records.PROVENANCE_FILE)
+    assert recorded["run"]["device"].endswith(", one core per seed")
     summary = br.summarise(design, records_root)
     assert summary["recorded"] == 1 and summary["preregistered"]["checks"]["differing"] == []
     assert summary["environments"][solo]["mixed"]["per_seed"][0] is not None

@@ -10,9 +10,8 @@ import pytest
 from jaxsocial import train
 from jaxsocial.experiments import followup
 from jaxsocial.experiments.analyse import kinds, plot_figures, records
-from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import designs, recipes
-from jaxsocial.run import checkpoint, jsonio, metrics, rundir
+from jaxsocial.run import checkpoint, jsonio, metrics, provenance, rundir
 
 pytestmark = pytest.mark.slow
 
@@ -38,7 +37,7 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
     found = followup.sources(plan, str(runs))
     assert found == [followup.Source(CONDITION, 0, source)]  # the other conditions have no seed
     out, recs = tmp_path / "runs", tmp_path / "records"
-    cores = (pinned.visible_cores() or [0])[:2]  # both branches at once where two cores are seen
+    cores = (provenance.visible_cores() or [0])[:2]  # both branches at once where two cores are seen
     assert followup.run(plan, str(runs), str(out), cores, "test command") == [0, 0]
     for arm, solo_prob in followup.ARMS.items():
         branch = plan.root(out) / f"{CONDITION}-s0-{arm}"
@@ -57,9 +56,9 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
         result = jsonio.read_json(kinds.eval_path(evals, spec))
         assert result["checkpoints"] == [str(source)] and result["episodes_per_checkpoint"] == plan.episodes
     assert jsonio.read_json(kinds.ct_path(evals, plan.scale))["protocol"] == "ct"
-    assert jsonio.read_json(evals / pinned.RUN_FILE)["command"] == "test command"
+    assert jsonio.read_json(evals / provenance.RUN_FILE)["command"] == "test command"
     assert followup.run(plan, str(runs), str(out), [0], "again") == []  # everything done is kept
-    assert jsonio.read_json(evals / pinned.RUN_FILE)["command"] == "test command"
+    assert jsonio.read_json(evals / provenance.RUN_FILE)["command"] == "test command"
 
     recorded = followup.record(plan, str(out), str(recs), "a CPU", "0.1")
     assert sorted(d.name for d in recorded) == [
@@ -93,7 +92,7 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
 def test_a_learned_seed_without_its_final_checkpoint_is_refused(tiny, tmp_path):
     plan, runs, source = tiny
     record = tmp_path / source.relative_to(runs)
-    records.pack(source, record, dict.fromkeys(records.RUN_FIELDS), "tiny")
+    records.pack(source, record, dict.fromkeys(provenance.RUN_FIELDS), "tiny")
     assert checkpoint.all_steps(record / "checkpoints") == []
     with pytest.raises(FileNotFoundError, match="--final-checkpoint learned"):
         followup.sources(plan, str(tmp_path))

@@ -12,7 +12,7 @@ from conftest import TINY
 from jaxsocial import train
 from jaxsocial.agents import ppo
 from jaxsocial.experiments.analyse import records
-from jaxsocial.run import checkpoint, driver, init_from, jsonio, loop, policy_io, rundir, startup
+from jaxsocial.run import checkpoint, driver, init_from, jsonio, loop, policy_io, provenance, rundir, startup
 from jaxsocial.specs import CheckpointRef
 
 
@@ -119,7 +119,7 @@ def test_a_record_with_its_final_checkpoint_is_a_branch_source(source, tmp_path)
     """`records.pack(checkpoint_reason=...)` keeps the checkpoint of the final policy's iteration and says
     why in the provenance, without orbax's notes naming where it was written, so a later sitting branches from
     the committed record as from the run; without it a record has no checkpoint to branch from."""
-    run = dict.fromkeys(records.RUN_FIELDS)
+    run = dict.fromkeys(provenance.RUN_FIELDS)
     plain = records.pack(source, tmp_path / "plain", run, "tiny/source")
     assert jsonio.read_json(plain / records.PROVENANCE_FILE)["record"]["checkpoint_reason"] is None
     assert not (plain / "checkpoints").exists()
@@ -147,7 +147,7 @@ def test_a_record_without_checkpoints_gives_its_policys_params_and_a_fresh_optim
     """A record that kept only its exported policy (no `--final-checkpoint`) is a params-only source: the
     new run starts from the policy's params of the iteration it names, with the optimiser state a fresh run
     has (Adam's moments zero, step 0: what `optimizer.init` gives for the loaded params too)."""
-    plain = records.pack(source, tmp_path / "plain", dict.fromkeys(records.RUN_FIELDS), "tiny/source")
+    plain = records.pack(source, tmp_path / "plain", dict.fromkeys(provenance.RUN_FIELDS), "tiny/source")
     cfg = _branch(tmp_path, str(plain), seed=7)
     _check(cfg)
     assert init_from.params_only(cfg.init_from, [7])

@@ -10,7 +10,7 @@ import pytest
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import prereg
-from jaxsocial.run import autotune, rundir
+from jaxsocial.run import cpuinfo, provenance, rundir
 
 
 def _job(tmp_path, name: str, code: str) -> pinned.Job:
@@ -30,21 +30,25 @@ def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monke
         pinned.Job("nothing", ("-c", "pass"), tmp_path / "never_made"),
     ]
     assert pinned.run(jobs, [0]) == [0, 3, 0]  # in the jobs' order
-    first, second = (json.loads((tmp_path / n / pinned.RUN_FILE).read_text()) for n in ("first", "second"))
+    first, second = (
+        json.loads((tmp_path / n / provenance.RUN_FILE).read_text()) for n in ("first", "second")
+    )
     assert second["started"] >= first["ended"]  # one core: the second waited for the first
     assert first["rc"] == 0 and second["rc"] == 3 and first["cores"] == 1
-    assert first["visible_cores"] == ([0] if pinned.pin([0]) else pinned.visible_cores())  # what it could see
+    assert first["visible_cores"] == (
+        [0] if pinned.pin([0]) else provenance.visible_cores()
+    )  # what it could see
     assert first["command"].startswith("python -c ")
     assert not (tmp_path / "never_made").exists()  # no run directory: no provenance written
     assert "first: core 0" in capsys.readouterr().out
-    provenance = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
-    assert provenance["device"] == "a CPU" and provenance["rc"] == 0 and provenance["cores"] == 1
-    assert provenance["cpu"] == autotune.cpu_model() and provenance["xla_flags"] == pinned.process_xla_flags()
-    assert provenance["visible_cores"] == first["visible_cores"]
-    environment = {field: provenance[field] for field in pinned.ENVIRONMENT_FIELDS}
-    assert environment == pinned.environment()
-    assert provenance["versions"]["jax"] == jax.__version__
-    assert set(provenance["versions"]) == set(pinned.VERSIONED)
+    run = pinned.run_provenance(tmp_path / "first", "a CPU", "0.0")
+    assert run["device"] == "a CPU" and run["rc"] == 0 and run["cores"] == 1
+    assert run["cpu"] == cpuinfo.model() and run["xla_flags"] == pinned.process_xla_flags()
+    assert run["visible_cores"] == first["visible_cores"]
+    environment = {field: run[field] for field in provenance.ENVIRONMENT_FIELDS}
+    assert environment == provenance.environment()
+    assert run["versions"]["jax"] == jax.__version__
+    assert set(run["versions"]) == set(provenance.VERSIONED)
     with pytest.raises(pinned.RunNotEnded, match="not trained by"):
         pinned.run_provenance(tmp_path, "a CPU", "0.0")
     with pytest.raises(ValueError, match="at least one core"):
@@ -56,7 +60,7 @@ def test_a_resumed_run_keeps_its_earlier_processes_and_a_running_one_is_not_reco
     and a later process of the same run, e.g. one resumed after a killed sitting, keeps it under `earlier`."""
     monkeypatch.setattr(pinned, "POLL_SECONDS", 0.05)
     run_dir, seen = tmp_path / "run", tmp_path / "seen.json"
-    run_file = run_dir / pinned.RUN_FILE
+    run_file = run_dir / provenance.RUN_FILE
     copy_while_running = (
         f"import pathlib, shutil, time; f = pathlib.Path({str(run_file)!r})\n"
         "while not f.is_file(): time.sleep(0.02)\n"
@@ -70,11 +74,11 @@ def test_a_resumed_run_keeps_its_earlier_processes_and_a_running_one_is_not_reco
         pinned.run_provenance(run_dir, "a CPU", "0.0")
     resumed = pinned.Job("run", ("-c", "import sys; sys.exit(0)"), run_dir)
     assert pinned.run([resumed, resumed], [0]) == [0, 0]  # resumed twice: the killed process, then the first
-    provenance = pinned.run_provenance(run_dir, "a CPU", "0.0")
-    assert provenance["rc"] == 0 and provenance["command"] == "python -c 'import sys; sys.exit(0)'"
-    killed, first_resume = provenance["earlier"]
-    assert killed["ended"] is None and killed["command"] == running["command"] != provenance["command"]
-    assert first_resume["rc"] == 0 and first_resume["cpu"] == autotune.cpu_model()
+    run = pinned.run_provenance(run_dir, "a CPU", "0.0")
+    assert run["rc"] == 0 and run["command"] == "python -c 'import sys; sys.exit(0)'"
+    killed, first_resume = run["earlier"]
+    assert killed["ended"] is None and killed["command"] == running["command"] != run["command"]
+    assert first_resume["rc"] == 0 and first_resume["cpu"] == cpuinfo.model()
     assert "earlier" not in killed and "earlier" not in first_resume  # flat, oldest first
 
 
@@ -86,7 +90,7 @@ def test_the_xla_of_each_process_is_single_threaded_after_the_callers_flags(tmp_
     assert pinned.run([_job(tmp_path, "x", code)], [0], extra_xla_flags="--xla_cpu_max_isa=AVX2") == [0]
     expected = "--xla_backend_optimization_level=0 --xla_cpu_multi_thread_eigen=false --xla_cpu_max_isa=AVX2"
     assert out.read_text() == expected == pinned.process_xla_flags("--xla_cpu_max_isa=AVX2")
-    assert json.loads((tmp_path / "x" / pinned.RUN_FILE).read_text())["xla_flags"] == expected
+    assert json.loads((tmp_path / "x" / provenance.RUN_FILE).read_text())["xla_flags"] == expected
     monkeypatch.delenv("XLA_FLAGS")
     assert pinned.process_xla_flags() == pinned.SINGLE_CORE_XLA_FLAGS
 
@@ -112,12 +116,12 @@ def test_a_recipe_trains_seed_by_seed_on_pinned_cores(tmp_path, monkeypatch):
     cli.main(["run", *common, "--cores", "0", "0"])
     for s in (0, 1):
         run_dir = runs / "tiny" / f"bc-s{s}-{s}"
-        assert len(rundir.read_metrics(run_dir)) == 4 and (run_dir / pinned.RUN_FILE).is_file()
-        assert f"--seed {s} --seeds 1" in json.loads((run_dir / pinned.RUN_FILE).read_text())["command"]
+        assert len(rundir.read_metrics(run_dir)) == 4 and (run_dir / provenance.RUN_FILE).is_file()
+        assert f"--seed {s} --seeds 1" in json.loads((run_dir / provenance.RUN_FILE).read_text())["command"]
     recorded = ["--device", "a CPU", "--jax", "0.0", "--out-dir", str(records_dir), "--allow-dirty"]
     cli.main(["record", *common, *recorded])  # --allow-dirty: the tree may hold uncommitted work
-    provenance = json.loads((records_dir / "tiny" / "bc-s1-1" / "provenance.json").read_text())
-    assert provenance["run"]["device"] == "a CPU" and provenance["run"]["cores"] == 1
+    recorded = json.loads((records_dir / "tiny" / "bc-s1-1" / "provenance.json").read_text())
+    assert recorded["run"]["device"] == "a CPU" and recorded["run"]["cores"] == 1
     cli.main(["figure", *common[:-2], "--runs-dir", str(records_dir), "--out-dir", str(tmp_path / "fig")])
     summary = json.loads((tmp_path / "fig" / "bc-tiny.json").read_text())
     assert len(summary["conditions"]["bc"]["final_returns"]) == 2

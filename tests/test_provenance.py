@@ -16,7 +16,7 @@ from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.launch import pinned, verify
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import autotune, checkout, jsonio, provenance
+from jaxsocial.run import checkout, cpuinfo, jsonio, provenance
 
 REPO = Path(__file__).resolve().parents[1]
 RECORD = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2"]
@@ -159,7 +159,7 @@ def test_a_training_process_records_itself_unless_its_runner_does(repo, tmp_path
     assert after["command"] == "python -m jaxsocial.train --seed 0" and after["cores"] is None
     assert after["commit"] == _git(repo, "rev-parse", "HEAD") and after["dirty"] is True
     assert (run_dir / after["tree_diff"]).read_bytes() == checkout.tree(repo).diff
-    assert after["cpu"] == autotune.cpu_model() and after["visible_cores"] == provenance.visible_cores()
+    assert after["cpu"] == cpuinfo.model() and after["visible_cores"] == provenance.visible_cores()
     assert after["xla_flags"] == "--xla_cpu_multi_thread_eigen=false"
     assert {k: after[k] for k in provenance.ENVIRONMENT_FIELDS} == provenance.environment()
     with (
@@ -186,7 +186,7 @@ def test_the_runner_records_the_tree_each_process_started_from(repo, tmp_path, m
     told = f"(d / 'told').write_text(os.environ[{provenance.PARENT_WRITES!r}])"
     assert pinned.run([pinned.Job("job", ("-c", f"{make}; {told}"), run_dir)], [0]) == [0]
     assert (run_dir / "told").read_text() == "1"  # so a training process would write no process file itself
-    info = jsonio.read_json(run_dir / pinned.RUN_FILE)
+    info = jsonio.read_json(run_dir / provenance.RUN_FILE)
     assert info["commit"] == _git(repo, "rev-parse", "HEAD") and info["dirty"] is True and info["cores"] == 1
     assert hashlib.sha256((run_dir / info["tree_diff"]).read_bytes()).hexdigest() == info["tree_diff_sha256"]
     run = pinned.run_provenance(run_dir, "a CPU", "0.0")
@@ -299,10 +299,10 @@ def test_verify_reads_a_plain_runs_process_file_and_names_its_diff(repo, tmp_pat
     with provenance.recorded(run_dir, "python -m jaxsocial.train", resume=False):
         pass
     assert records.run_field(run_dir, "cpu") is None  # no record
-    assert verify.record_cpu(run_dir) == autotune.cpu_model()
+    assert verify.record_cpu(run_dir) == cpuinfo.model()
     assert verify.record_cores(run_dir) == len(provenance.visible_cores())
-    environment = {field: verify.record_field(run_dir, field) for field in pinned.ENVIRONMENT_FIELDS}
-    assert verify.environment_differences(environment, pinned.environment()) == []
+    environment = {field: verify.record_field(run_dir, field) for field in provenance.ENVIRONMENT_FIELDS}
+    assert verify.environment_differences(environment, provenance.environment()) == []
     tree = {k: verify.record_field(run_dir, k) for k in checkout.TREE_FIELDS}
     result = {
         "record": str(run_dir),
@@ -311,8 +311,8 @@ def test_verify_reads_a_plain_runs_process_file_and_names_its_diff(repo, tmp_pat
         "rows": [1, 1],
         "first_difference": None,
         "compared": "every field",
-        "cpu": {"record": verify.record_cpu(run_dir), "here": autotune.cpu_model()},
-        "environment": {"record": environment, "here": pinned.environment()},
+        "cpu": {"record": verify.record_cpu(run_dir), "here": cpuinfo.model()},
+        "environment": {"record": environment, "here": provenance.environment()},
         "commit": {"record": verify.record_field(run_dir, "commit"), "here": "b" * 40},
         "tree": {"record": tree, "here": {"dirty": False}},
         "xla_flags": verify.retraining_flags(run_dir),

@@ -13,9 +13,8 @@ from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import followup, sweep
 from jaxsocial.experiments.analyse import records, summaries, takeoff_power
-from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import catalogue, designs, paths, recipes
-from jaxsocial.run import jsonio, metrics, policy_io, rundir
+from jaxsocial.run import jsonio, metrics, policy_io, provenance, rundir
 
 REPO = Path(__file__).resolve().parents[1]
 SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"
@@ -65,11 +64,9 @@ def test_a_record_reads_like_a_run_directory():
         assert len(rundir.read_metrics(record)) == config["iterations"]
         assert not (record / "checkpoints").exists() and not (record / rundir.METRICS_FILE).exists()
         assert policy_io.policy_iteration(str(record)) == config["iterations"]
-        provenance = records.read_provenance(record)
-        assert set(provenance["run"]) == set(records.RUN_FIELDS) and provenance["run"]["rc"] == 0
-        assert (
-            f"--run-name {provenance['record']['source'].rsplit('/', 1)[0]}" in provenance["run"]["command"]
-        )
+        recorded = records.read_provenance(record)
+        assert set(recorded["run"]) == set(provenance.RUN_FIELDS) and recorded["run"]["rc"] == 0
+        assert f"--run-name {recorded['record']['source'].rsplit('/', 1)[0]}" in recorded["run"]["command"]
     # what `render --ckpt` and `evaluate --ckpt` load: the policy with the network it was trained with
     spec = str(recipes.goalcycle_spec("goalcycle3", recipes.TINY))
     setup = playback.episode_setup(str(record_dirs[0]), spec)
@@ -230,7 +227,7 @@ def test_record_command_skips_seeds_whose_command_has_not_ended(in_repo, tmp_pat
     argv = ["record", "no_penalty", "--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs),
             "--device", "a CPU", "--jax", "0.1", "--out-dir", str(tmp_path / "r"), *UNCOMMITTED]  # fmt: skip
     cli.main(argv)
-    assert capsys.readouterr().out.count(f"{pinned.RUN_FILE} does not exist") == 4
+    assert capsys.readouterr().out.count(f"{provenance.RUN_FILE} does not exist") == 4
     assert not (tmp_path / "r").exists()
 
 

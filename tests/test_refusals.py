@@ -13,18 +13,17 @@ import refusal_times  # noqa: E402
 HEAVY = ("jax", "jaxlib", "flax", "orbax", "optax", "scipy", "jaxsocial.run.driver", "jaxsocial.run.loop")
 """Modules (with their submodules) a refusal imports none of."""
 REFUSE = """
-import json, sys
-from jaxsocial import train
+import importlib, json, sys
 heavy = sys.argv[2].split(",")
-for argv in json.loads(sys.argv[1]):
+for module, argv in json.loads(sys.argv[1]):
     try:
-        train.main(argv)
+        importlib.import_module(module if module.endswith("train") else module + ".__main__").main(argv)
     except SystemExit as exit:
         imported = [m for m in sorted(sys.modules) if any(m == h or m.startswith(h + ".") for h in heavy)]
         print(json.dumps({"refused": str(exit.code), "imported": imported}))
 """
-"""`train.main` on each argv of its first argument, in one process: as each is refused, its message (or exit
-status) and the modules of its second argument imported by then."""
+"""The `main` of each (module, argv) of its first argument (`python -m MODULE ARGV`), in one process: as each
+is refused, its message (or exit status) and the modules of its second argument imported by then."""
 
 
 def snapshot(runs) -> dict:
@@ -33,16 +32,19 @@ def snapshot(runs) -> dict:
 
 
 def test_refusals_come_before_jax_is_imported(tmp_path):
-    """The refusals `benchmarks/refusal_times.py` times (an unknown --env, a bad flag value, a setting out of
-    range, a run directory with metrics, one of another config, one a live process holds), each refused with
-    its message while `jax` is not in `sys.modules`, with nothing written and no cost line."""
+    """The refusals `benchmarks/refusal_times.py` times (training: an unknown --env, a bad flag value, a
+    setting out of range, a run directory with metrics, with a compile cache too, one of another config, one
+    a live process holds; experiments: an unknown recipe or design, a design's seed changed, an unknown option
+    of a recipe's verb and of a design kind's, a delegated command's unknown verb, a verify of no record),
+    each refused with its message while `jax` is not in `sys.modules`, with nothing written and no cost
+    line."""
     runs = tmp_path / "runs"
     lock = refusal_times.make_runs(runs)  # 'live' held by this process
     refusals = {
-        message: [f.replace("RUNS", str(runs)) for f in flags]
-        for flags, message in refusal_times.REFUSALS.values()
+        message: refusal_times.command(module, flags, runs)[1:]
+        for module, flags, message in refusal_times.REFUSALS.values()
     }
-    argvs = [["--runs-dir", str(runs), *argv] for argv in refusals.values()]
+    argvs = [(module, argv) for module, *argv in refusals.values()]
     before = snapshot(runs)
     try:
         out = subprocess.run(
@@ -61,3 +63,18 @@ def test_refusals_come_before_jax_is_imported(tmp_path):
         assert message in said and outcome["imported"] == [], (message, outcome)
     assert "cost:" not in out.stdout + out.stderr
     assert snapshot(runs) == before
+
+
+def test_a_deferred_module_is_imported_at_its_first_attribute_read():
+    """`lazy.module` (how `stats` holds scipy's tests): nothing imported until an attribute is read, then the
+    module's own answer."""
+    script = """
+import sys
+from jaxsocial import lazy
+deferred = lazy.module("colorsys")
+before = "colorsys" in sys.modules
+hsv = deferred.rgb_to_hsv(1.0, 0.0, 0.0)
+print(before, "colorsys" in sys.modules, hsv == sys.modules["colorsys"].rgb_to_hsv(1.0, 0.0, 0.0))
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.stdout.split() == ["False", "True", "True"], out.stderr

@@ -6,7 +6,7 @@ from pathlib import Path
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import run_times
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import autotune, jsonio
+from jaxsocial.run import cpuinfo, jsonio
 
 START = "2026-12-01T10:00:00+00:00"
 
@@ -59,7 +59,7 @@ def test_run_prints_the_pace_of_the_designs_records_for_the_runs_it_starts(tmp_p
     monkeypatch.setattr(paths, "RECORDS", tmp_path / "records")
     for k, minutes in enumerate((30, 40)):
         write_record(tmp_path / "records/laptop8/prereg-pred8", f"solo_pred-s{k}-{k}", minutes,
-                     cpu=autotune.cpu_model())  # fmt: skip
+                     cpu=cpuinfo.model())  # fmt: skip
     cli.main(["run", "pred8", "--scale", "laptop8", "--runs-dir", str(tmp_path / "runs"), "--dry-run",
               "--cores", "0", "1", "--max-runs", "3"])  # fmt: skip
     # 3 runs on 2 cores: two rounds of the median 35 minutes

@@ -16,6 +16,7 @@ from conftest import metrics_without_speed, needs_records
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import kind_commands
 from jaxsocial.experiments.launch import pinned, slurm
+from jaxsocial.run import provenance
 
 RUN = ["run", "bc", "--scale", "tiny"]
 
@@ -89,7 +90,7 @@ def test_each_job_runs_its_process_on_one_cpu_with_the_local_runs_process_file(t
     assert executor.cluster == "local" and executor.folder == slurm.DEFAULT_FOLDER
     assert executor.parameters["cpus_per_task"] == 1 and executor.parameters["timeout_min"] == 30
     assert executor.parameters["slurm_partition"] == "cpu"
-    info = json.loads((tmp_path / "ok" / pinned.RUN_FILE).read_text())
+    info = json.loads((tmp_path / "ok" / provenance.RUN_FILE).read_text())
     assert info["command"] == shlex.join(["python", *jobs[0].argv]) and info["cores"] == 1
     assert info["xla_flags"] == pinned.process_xla_flags("--xla_cpu_max_isa=AVX2") and info["rc"] == 0
     assert len(info["visible_cores"]) == 1 or not pinned.pin([0])  # pinned where there is taskset
@@ -277,7 +278,7 @@ def test_a_seed_trained_as_a_slurm_job_is_a_local_runs_seed(trained):
     assert "bc: Slurm job " in trained.out and "bc: exit 0 (Slurm job " in trained.out
     rows = metrics_without_speed(slurm_run)
     assert len(rows) == 4 and rows == metrics_without_speed(local_run)
-    mine, local = (json.loads((run / pinned.RUN_FILE).read_text()) for run in (slurm_run, local_run))
+    mine, local = (json.loads((run / provenance.RUN_FILE).read_text()) for run in (slurm_run, local_run))
     assert mine["rc"] == 0 and mine["ended"] is not None and mine["cores"] == 1
     assert mine["command"] == local["command"].replace("local-runs", "slurm-runs")
     assert sorted(mine) == sorted(local) and mine["xla_flags"] == local["xla_flags"]

@@ -12,7 +12,7 @@ from jaxsocial.experiments import sweep
 from jaxsocial.experiments.analyse import rundirs, takeoff
 from jaxsocial.experiments.launch import runner
 from jaxsocial.experiments.plan import recipes
-from jaxsocial.run import jsonio, rundir
+from jaxsocial.run import jsonio, provenance, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
@@ -126,12 +126,10 @@ def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, c
     long = dataclasses.replace(sweep.SETTINGS["map_g4_40m_rec_7x7"], iterations=8)
     runs = str(tmp_path)
     hand_built_run(tmp_path / f"{short.name}-s0", [1.0] * 4, sps=1.0, cores=1)
-    jsonio.write_json(
-        tmp_path / f"{short.name}-s0" / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"}
-    )
+    jsonio.write_json(tmp_path / f"{short.name}-s0" / provenance.RUN_FILE, {"command": "first", "ended": "t"})
     sweep.extend(short, long, [0], runs)
     copied = tmp_path / f"{long.name}-s0"
-    assert jsonio.read_json(copied / sweep.pinned.RUN_FILE)["command"] == "first"  # the earlier process
+    assert jsonio.read_json(copied / provenance.RUN_FILE)["command"] == "first"  # the earlier process
     assert len(rundir.read_metrics(copied)) == 4 and sweep.seed_state(long, 0, runs) == "partial"
     with pytest.raises(ValueError, match="exists: extend only starts a run"):
         sweep.extend(short, long, [0], runs)
@@ -151,7 +149,7 @@ def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, c
     jsonio.write_json(took_off / rundir.CONFIG_FILE, config)
     rows = [r | {"kl/0": 0.0} for r in rundir.read_metrics(took_off)]  # slot 0 is a learner
     (took_off / rundir.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
-    jsonio.write_json(took_off / sweep.pinned.RUN_FILE, {"command": "first", "ended": "t"})
+    jsonio.write_json(took_off / provenance.RUN_FILE, {"command": "first", "ended": "t"})
     assert sweep.seed_state(short, 3, runs) == "finished"  # stopped early at return 6 >= 5
     assert rundirs.finished(took_off, 4) and not rundirs.finished(tmp_path / f"{short.name}-s1", 4)
     assert runner.status(long, [took_off]) == rundirs.FINISHED  # a recipe's run is not resumed past its stop

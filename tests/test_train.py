@@ -21,10 +21,10 @@ from jaxsocial.agents.network import init as init_params
 from jaxsocial.agents.ppo_config import PPOConfig
 from jaxsocial.env.observe import observe
 from jaxsocial.run import (
-    autotune,
     checkout,
     checkpoint,
     config,
+    cpuinfo,
     jsonio,
     loop,
     policy_io,
@@ -207,7 +207,7 @@ def test_a_plain_run_records_its_code_and_machine(tiny_runs):
         assert hashlib.sha256(diff).hexdigest() == info["tree_diff_sha256"]
     else:
         assert info["dirty"] is False and info["tree_diff"] is None
-    assert info["cpu"] == autotune.cpu_model() and info["visible_cores"] == provenance.visible_cores()
+    assert info["cpu"] == cpuinfo.model() and info["visible_cores"] == provenance.visible_cores()
     assert info["xla_flags"] == os.environ.get("XLA_FLAGS", "")
     assert {k: info[k] for k in provenance.ENVIRONMENT_FIELDS} == provenance.environment()
     assert set(checkout.TREE_FIELDS) <= set(info)

@@ -14,10 +14,10 @@ from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.launch import pinned, verify
-from jaxsocial.run import autotune, config, rundir
+from jaxsocial.run import config, cpuinfo, provenance, rundir
 from jaxsocial.run.flags import config_flags
 
-TWO_CORES = len(pinned.visible_cores() or []) >= 2
+TWO_CORES = len(provenance.visible_cores() or []) >= 2
 
 
 @pytest.fixture(scope="module")
@@ -185,9 +185,9 @@ def one_core_record(tmp_path_factory):
     cfg = dataclasses.replace(LONG_PRODUCTS, runs_dir=str(tmp), run_name=name)
     fresh_cache = ["--compile-cache", str(tmp / "cache")]  # compiled seeing one core, as the designs' seeds
     job = pinned.Job("pinned", pinned.train_command([*config_flags(cfg), *fresh_cache]), tmp / name)
-    assert pinned.run([job], pinned.visible_cores()[:1]) == [0]
-    provenance = pinned.run_provenance(job.run_dir, "this CPU", jax.__version__)
-    return records.pack(job.run_dir, tmp / "record", provenance, name)
+    assert pinned.run([job], provenance.visible_cores()[:1]) == [0]
+    run = pinned.run_provenance(job.run_dir, "this CPU", jax.__version__)
+    return records.pack(job.run_dir, tmp / "record", run, name)
 
 
 @pytest.mark.slow
@@ -195,7 +195,7 @@ def one_core_record(tmp_path_factory):
 def test_a_one_core_record_is_exact_from_a_process_that_sees_two(one_core_record, tmp_path):
     """The record's provenance says its process saw one core; verify, seeing two, re-trains pinned to one and
     is exact. Re-trained seeing both cores (as verify did before), the same rows differ."""
-    assert records.run_field(one_core_record, "visible_cores") == pinned.visible_cores()[:1]
+    assert records.run_field(one_core_record, "visible_cores") == provenance.visible_cores()[:1]
     result = verify.verify(one_core_record, iterations=4)
     assert result["exact"] and result["cores"] == {"record": 1, "here": 1}
     assert "cores seen: record 1 core; re-training 1 core" in verify.report(result)
@@ -220,7 +220,7 @@ def test_a_one_core_record_is_exact_from_a_process_that_sees_two(one_core_record
 def test_the_cores_a_records_process_saw(tmp_path, monkeypatch, run, cores):
     (tmp_path / records.PROVENANCE_FILE).write_text(json.dumps({"run": run}))
     assert verify.record_cores(tmp_path) == cores
-    monkeypatch.setattr(pinned, "visible_cores", lambda pid=0: [4, 5])
+    monkeypatch.setattr(provenance, "visible_cores", lambda pid=0: [4, 5])
     assert verify.retraining_cores(cores) == ([4] if cores == 1 else None)  # 2 or 3: as many or more here
 
 
@@ -243,9 +243,9 @@ def predicted(tmp_path, monkeypatch):
         fingerprints(ZEN3, {"dot": "x", "init/params": "2"}),
     ]
     monkeypatch.setattr(verify.cpu_kinds, "read_kinds", lambda where=None: kinds)
-    monkeypatch.setattr(verify.autotune, "cpu_model", lambda: INTEL)
+    monkeypatch.setattr(cpuinfo, "model", lambda: INTEL)
     flags = f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"
-    versions = pinned.environment()["versions"]
+    versions = provenance.environment()["versions"]
 
     def predict(cores=1, here=1, **run):
         run = {"cpu": ZEN5, "xla_flags": flags, "versions": versions, **run}
@@ -278,7 +278,7 @@ def test_the_prediction_weighs_the_cores_and_the_versions_first(predicted):
         said["says"] == "expected to differ, because its process saw 2 cores and the re-training sees 1 core"
     )
     assert predicted(cores=None)["says"] == "the record does not say how many cores its process saw: unknown"
-    said = predicted(versions={**pinned.environment()["versions"], "jaxlib": "0.0.1"})
+    said = predicted(versions={**provenance.environment()["versions"], "jaxlib": "0.0.1"})
     assert said["expected"] == "unknown" and said["says"].startswith(
         "package versions differ (jaxlib: record 0.0.1, here "
     )
@@ -298,7 +298,7 @@ def test_verify_says_its_prediction_before_it_trains_and_reports_it_first(
 
     monkeypatch.setattr(verify, "retrain", retrain)
     result = verify.verify(tiny_record, iterations=4)
-    assert result["exact"] and result["cpu"]["record"] == autotune.cpu_model()  # from its process file
+    assert result["exact"] and result["cpu"]["record"] == cpuinfo.model()  # from its process file
     assert "not recorded" not in verify.report(result)  # a plain run says what a record says (issue 84)
     assert printed == [f"prediction: {result['prediction']['says']}\n"]
     assert verify.report(result).splitlines()[0] == f"prediction: {result['prediction']['says']}"

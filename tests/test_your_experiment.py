@@ -13,7 +13,7 @@ from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.launch import pinned, verify
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import autotune, checkout, jsonio, rundir
+from jaxsocial.run import checkout, cpuinfo, jsonio, provenance, rundir
 
 REPO = Path(__file__).resolve().parents[1]
 TINY_RECORDS = REPO / paths.RECORDS / "tiny"
@@ -27,18 +27,20 @@ def test_record_takes_the_device_each_runs_process_measured(tmp_path, monkeypatc
     runs = tmp_path / "runs"
     shutil.copytree(TINY_RECORDS, runs / "tiny")
     for run_dir in (runs / "tiny").iterdir():  # as `run --cores` leaves them: a process file each
-        pinned.write_run_file(run_dir, "python -m jaxsocial.train", checkout.tree(), 1, pinned.now(), rc=0)
+        provenance.write_run_file(
+            run_dir, "python -m jaxsocial.train", checkout.tree(), 1, provenance.now(), rc=0
+        )
     out = tmp_path / "records"
     cli.main([*RECORD, "--runs-dir", str(runs), "--out-dir", str(out)])
     provenances = [records.read_provenance(p.parent)["run"] for p in out.rglob(records.PROVENANCE_FILE)]
     assert len(provenances) == 4
-    assert {p["device"] for p in provenances} == {f"{autotune.cpu_model()}, one core per seed"}
+    assert {p["device"] for p in provenances} == {f"{cpuinfo.model()}, one core per seed"}
     assert {p["jax"] for p in provenances} == {jax.__version__}
     assert pinned.with_measured({"cpu": "X", "cores": 2}, None, "1", runs)["device"] == "X, 2 cores"
     for run_dir in (runs / "tiny").iterdir():  # a run file written before it held the machine
-        info = jsonio.read_json(run_dir / pinned.RUN_FILE)
-        jsonio.write_json(run_dir / pinned.RUN_FILE, {k: v for k, v in info.items() if k != "versions"})
-    with pytest.raises(SystemExit, match=f"its {pinned.RUN_FILE} does not say; give --jax"):
+        info = jsonio.read_json(run_dir / provenance.RUN_FILE)
+        jsonio.write_json(run_dir / provenance.RUN_FILE, {k: v for k, v in info.items() if k != "versions"})
+    with pytest.raises(SystemExit, match=f"its {provenance.RUN_FILE} does not say; give --jax"):
         cli.main([*RECORD, "--runs-dir", str(runs), "--out-dir", str(tmp_path / "more")])
     cli.main([*RECORD, "--runs-dir", str(runs), "--out-dir", str(tmp_path / "more"), "--jax", "0.1"])
 

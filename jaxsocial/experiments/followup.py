@@ -35,9 +35,9 @@ import numpy as np
 
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import kinds, plot_figures, records, rundirs
-from jaxsocial.experiments.launch import pinned, runner
+from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import conditions, paths, prereg, recipes
-from jaxsocial.run import checkout, jsonio, metrics, rundir
+from jaxsocial.run import checkout, jsonio, metrics, provenance, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import CheckpointRef, EnvSpec
@@ -161,8 +161,11 @@ def branch_dir(plan: Plan, source: Source, arm: str, runs_dir: str | Path) -> Pa
 
 def evaluate_source(plan: Plan, source: Source, out_dir: Path, command: str) -> None:
     """The zero-shot and cultural-transmission evaluations of a learned seed's final policy, into
-    `out_dir/eval/` (those already there are kept), and how they were made (`pinned.RUN_FILE`: `command`)."""
-    scale, started, written = plan.scale, pinned.now(), False
+    `out_dir/eval/` (those already there are kept), and how they were made (the process file, `provenance`:
+    `command`)."""
+    from jaxsocial.experiments.launch import runner  # JAX: imported to evaluate, not by a refusal
+
+    scale, started, written = plan.scale, provenance.now(), False
     plays = [(spec, kinds.RETURNS) for spec in zero_shot_specs(scale)] + [(kinds.ct_spec(scale), kinds.CT)]
     for spec, evaluation in plays:
         path = evaluation.path(out_dir, spec, scale)
@@ -174,7 +177,7 @@ def evaluate_source(plan: Plan, source: Source, out_dir: Path, command: str) -> 
             f"  {source.name} in {spec} ({evaluation.protocol}): {evaluation.score(result):.3f}", flush=True
         )
     if written:  # how they were made, as a training run's process records it
-        pinned.write_run_file(out_dir, command, checkout.tree(), None, started, 0)
+        provenance.write_run_file(out_dir, command, checkout.tree(), None, started, 0)
 
 
 def run(

@@ -40,7 +40,7 @@ from typing import Any
 from jaxsocial.experiments.analyse import plot_figures, records, rundirs, takeoff
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import conditions, paths, recipes
-from jaxsocial.run import jsonio, metrics, rundir
+from jaxsocial.run import jsonio, metrics, provenance, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 RECORDS_SUBDIR = "sweep"
@@ -166,7 +166,7 @@ def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) 
         if target.exists():
             raise ValueError(f"{target} exists: extend only starts a run")
         finished = seed_state(shorter, seed, runs_dir) == rundirs.FINISHED
-        if not finished or not (source / pinned.RUN_FILE).is_file():
+        if not finished or not (source / provenance.RUN_FILE).is_file():
             raise ValueError(f"{source}: not a finished run of {shorter.name} by `run`; nothing to extend")
         if records.stopped_early(rundir.read_config(source), rundir.read_metrics(source)):
             raise ValueError(f"{source} stopped early past the plateau: nothing to extend")
@@ -179,9 +179,9 @@ def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_v
     """Pack each seed's run directory into its record (`records.pack`), with the runner's provenance."""
     for seed in seeds:
         source = run_dir(setting, seed, runs_dir)
-        provenance = pinned.run_provenance(source, device, jax_version)
+        run = pinned.run_provenance(source, device, jax_version)
         target = paths.RECORDS / RECORDS_SUBDIR / setting.name / rundir.seed_name(seed)
-        records.pack(source, target, provenance, f"{RECORDS_SUBDIR}/{setting.name}/{rundir.seed_name(seed)}")
+        records.pack(source, target, run, f"{RECORDS_SUBDIR}/{setting.name}/{rundir.seed_name(seed)}")
         print(f"recorded {target}")
 
 

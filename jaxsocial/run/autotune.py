@@ -35,11 +35,9 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import functools
 import json
 import logging
 import os
-import platform as _platform
 import sys
 import time
 import warnings
@@ -62,6 +60,7 @@ from jaxsocial.agents.network_config import (
     parse_conv_impl,
 )
 from jaxsocial.agents.symbolic import SYMBOLIC_SHAPE
+from jaxsocial.run import cpuinfo
 
 __all__ = [
     "CACHE_VERSION",
@@ -72,7 +71,6 @@ __all__ = [
     "auto_dtype",
     "cache_path",
     "choose",
-    "cpu_flags",
     "layer_specs",
     "machine_id",
     "measure",
@@ -99,64 +97,6 @@ GIVE_UP = 3.0
 """A candidate whose best time is this many times the best candidate's after a round is timed no further."""
 MACHINE_FLAGS = ("avx2", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
 """The /proc/cpuinfo flags that decide the formulations' relative speed (bfloat16: AVX512-BF16, AMX)."""
-NUMERICS_FLAGS = frozenset(
-    ("sse4_2", "avx", "avx2", "fma", "f16c", "avx512f", "avx512dq", "avx512bw", "avx512vl", "avx512_vnni")
-    + ("avx512_bf16", "avx512_fp16", "amx_tile", "amx_bf16", "amx_int8")
-)
-"""The /proc/cpuinfo flags that choose code and kernels at run time (XLA's LLVM target, YNNPACK's and
-oneDNN's dispatch), so the floats a CPU computes can follow them."""
-
-
-# ------------------------------------------------------------------------------------------ the machine
-
-
-@functools.cache
-def _cpuinfo() -> dict[str, str]:
-    """The first processor's /proc/cpuinfo fields (empty where it is missing)."""
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-    except OSError:
-        lines = []
-    fields: dict[str, str] = {}
-    for line in lines:
-        key, _, value = line.partition(":")
-        fields.setdefault(key.strip(), value.strip())
-    return fields
-
-
-def cpu_flags() -> frozenset[str]:
-    """The CPU's flags from /proc/cpuinfo (empty where it is missing)."""
-    return frozenset(_cpuinfo().get("flags", "").split())
-
-
-def cache_sizes() -> dict[str, str]:
-    """'L<level><d|i|>' -> size as Linux reports the first CPU's caches, e.g. {'L1d': '48K', ...} (empty where
-    it does not): Eigen sizes its blocks of a matrix product's contraction from them."""
-    sizes = {}
-    for index in sorted(Path("/sys/devices/system/cpu/cpu0/cache").glob("index*")):
-        try:
-            kind = (index / "type").read_text().strip()
-            level = (index / "level").read_text().strip()
-            size = (index / "size").read_text().strip()
-        except OSError:
-            continue
-        suffix = {"Data": "d", "Instruction": "i"}.get(kind, "")
-        sizes[f"L{level}{suffix}"] = size
-    return sizes
-
-
-def cpu_model() -> str:
-    """The CPU's model name, with its family and model numbers where /proc/cpuinfo gives them, e.g. 'AMD EPYC
-    9R14 96-Core Processor (family 25, model 17)': what tells machine kinds apart (several kinds share a
-    name)."""
-    info = _cpuinfo()
-    if "cpu family" in info and "model" in info:
-        return f"{_model_name()} (family {info['cpu family']}, model {info['model']})"
-    return _model_name()
-
-
-def _model_name() -> str:
-    return _cpuinfo().get("model name") or _platform.processor() or _platform.machine()
 
 
 def backend() -> str:
@@ -168,7 +108,7 @@ def auto_dtype() -> str:
     """``dtype="auto"``: "bfloat16" on GPUs, TPUs and CPUs with AMX (`amx_bf16` flag), "float32" otherwise."""
     if backend() != "cpu":
         return "bfloat16"
-    return "bfloat16" if "amx_bf16" in cpu_flags() else "float32"
+    return "bfloat16" if "amx_bf16" in cpuinfo.flags() else "float32"
 
 
 def machine_id() -> str:
@@ -179,8 +119,8 @@ def machine_id() -> str:
     device = jax.devices()[0]
     if device.platform == "cpu":
         model, flags = (
-            _cpuinfo().get("model name") or _platform.processor() or _platform.machine(),
-            cpu_flags(),
+            cpuinfo.model_name(),
+            cpuinfo.flags(),
         )
         present = "+".join(f for f in MACHINE_FLAGS if f in flags) or "-"
         what = f"cpu {model} [{present}] x{os.cpu_count()}"

@@ -14,7 +14,7 @@ import dataclasses
 import json
 from pathlib import Path
 
-from jaxsocial.run import checkpoint, rundir
+from jaxsocial.run import rundir
 from jaxsocial.run.config import PRESETS, TrainConfig
 
 REPO = Path(__file__).resolve().parents[2]
@@ -103,6 +103,8 @@ def duration(seconds: float) -> str:
 def trained_iterations(cfg: TrainConfig, run_dir: Path) -> int:
     """The iterations a run resumed from `run_dir` has trained: its first seed's latest checkpoint (0 for a
     new run, or one that saved none)."""
+    from jaxsocial.run import checkpoint  # orbax and JAX: not imported by those that only read rates
+
     first = rundir.checkpoints(rundir.seed_dirs(run_dir, cfg.seed, cfg.seeds)[0])
     return (checkpoint.latest_step(first) or 0) if cfg.resume and first.is_dir() else 0
 

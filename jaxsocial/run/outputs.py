@@ -36,7 +36,6 @@ from jaxsocial.run import (
 from jaxsocial.run.chunks import Check, Chunk, evaluates, seed_part
 from jaxsocial.run.config import TrainConfig, config_dict
 from jaxsocial.run.rundir import SeedRun, run_name
-from jaxsocial.run.rundir import run_path as run_path  # where it was, for its importers
 
 
 def seed_runs(cfg: TrainConfig, run_dir: Path) -> list[SeedRun]:

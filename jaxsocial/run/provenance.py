@@ -21,17 +21,19 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.run import checkout, jsonio, rundir
+from jaxsocial.run import checkout, cpuinfo, jsonio, rundir
 
 RUN_FILE = rundir.RUN_FILE
 PARENT_WRITES = "JAXSOCIAL_PARENT_WRITES_RUN_FILE"
 """Set to '1' in the environment of a process whose `RUN_FILE` the process that started it writes
 (`pinned.run`): the training then writes none itself."""
+RUN_FIELDS = ("command", "commit", "device", "jax", "started", "ended", "rc")
+"""What a record's provenance says about the run that trained it (None where unknown)."""
 ENVIRONMENT_FIELDS = ("cpu_features", "cache_sizes", "versions")
 """The fields of `environment`."""
 MACHINE_FIELDS = ("cpu", "xla_flags", "visible_cores", *ENVIRONMENT_FIELDS)
-"""What `RUN_FILE` says of where the run trained, beside `records.RUN_FIELDS`: the CPU (model, family and
-model numbers, `autotune.cpu_model`), the process's $XLA_FLAGS, the cores it could run on (`visible_cores`:
+"""What `RUN_FILE` says of where the run trained, beside `RUN_FIELDS`: the CPU (model, family and
+model numbers, `cpuinfo.model`), the process's $XLA_FLAGS, the cores it could run on (`visible_cores`:
 XLA's CPU bits depend on how many) and its `environment`; records carry them in provenance, and `verify`
 compares them with the machine it re-trains on, and re-trains on as many cores."""
 VERSIONED = ("jax", "jaxlib", "flax", "optax", "numpy")
@@ -45,25 +47,21 @@ def visible_cores(pid: int = 0) -> list[int] | None:
 
 
 def machine(xla_flags: str | None) -> dict[str, Any]:
-    """Where a process with $XLA_FLAGS `xla_flags` trains (`MACHINE_FIELDS`): this CPU (`autotune.cpu_model`),
+    """Where a process with $XLA_FLAGS `xla_flags` trains (`MACHINE_FIELDS`): this CPU (`cpuinfo.model`),
     the flags, the cores this process sees (`visible_cores`: a process it starts sees the same unless pinned)
     and the `environment`. A GPU block logs it in its commands log (`records.read_commands_log`): its flags
     say whether `--xla_gpu_deterministic_ops` was on."""
-    from jaxsocial.run import autotune  # its network and kernels: imported by a run, not by its refusals
-
     seen = visible_cores()
-    return {"cpu": autotune.cpu_model(), "xla_flags": xla_flags, "visible_cores": seen, **environment()}
+    return {"cpu": cpuinfo.model(), "xla_flags": xla_flags, "visible_cores": seen, **environment()}
 
 
 def environment() -> dict[str, Any]:
     """What besides the program and its XLA flags decides the floats a CPU run computes: the instruction sets
-    present (`autotune.NUMERICS_FLAGS`; XLA's code and YNNPACK's kernels follow them), the cache sizes (Eigen
+    present (`cpuinfo.NUMERICS_FLAGS`; XLA's code and YNNPACK's kernels follow them), the cache sizes (Eigen
     sizes its blocks from them) and the versions of the `VERSIONED` packages (None: not installed)."""
-    from jaxsocial.run import autotune
-
     return {
-        "cpu_features": sorted(autotune.NUMERICS_FLAGS & autotune.cpu_flags()),
-        "cache_sizes": autotune.cache_sizes(),
+        "cpu_features": sorted(cpuinfo.NUMERICS_FLAGS & cpuinfo.flags()),
+        "cache_sizes": cpuinfo.cache_sizes(),
         "versions": {package: package_version(package) for package in VERSIONED},
     }
 

@@ -40,7 +40,7 @@ def folder() -> Path:
 
 
 def file_name(cpu: str) -> str:
-    """A kind's file name: its CPU description (`autotune.cpu_model`) lower-cased, every run of other
+    """A kind's file name: its CPU description (`cpuinfo.model`) lower-cased, every run of other
     characters than letters and digits a '-' (as `benchmarks/reproducibility.kind_file` names it)."""
     return re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json"
 

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxsocial.experiments.analyse import plot_figures, predictions, records, takeoff
+from jaxsocial.experiments.analyse import plot_figures, records, takeoff
 from jaxsocial.experiments.plan import paths, recipes
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
 from jaxsocial.run import jsonio, metrics, rundir, startup
@@ -278,6 +278,8 @@ def summarise_takeoff(runs) -> dict[str, Any]:
 
 def draw_predictions(runs, summary: dict[str, Any], path: Path) -> None:
     """A trained learner's predicted next frames in the scale's 3-goal Goal Cycle (`predictions.draw`)."""
+    from jaxsocial.experiments.analyse import predictions  # JAX: imported to draw, not to summarise or refuse
+
     predictions.draw(runs, path, ct_spec(runs.scale))
 
 

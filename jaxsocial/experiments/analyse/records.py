@@ -34,15 +34,11 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-import jax
-
-from jaxsocial.run import checkout, checkpoint, jsonio, metrics, provenance, rundir
+from jaxsocial.run import checkout, jsonio, metrics, provenance, rundir
 
 PROVENANCE_FILE = "provenance.json"
 ORBAX_COMMIT_NOTE = "commit_success.txt"
 """The file orbax writes into each saved item naming the absolute path it went to (reading needs none)."""
-RUN_FIELDS = ("command", "commit", "device", "jax", "started", "ended", "rc")
-"""What `provenance.json` says about the run (None where unknown)."""
 
 
 def read_provenance(seed_dir: str | Path) -> dict[str, Any] | None:
@@ -108,7 +104,7 @@ def read_commands_log(path: str | Path) -> dict[str, dict[str, Any]]:
     A line `<ISO date> <40-hex commit> <command>` starts a run; a later line
     `<ISO date> done <condition> rc=<k> [<seconds>s]` ends the last started run of that condition (whose run
     name is `<scale>/<condition>-s<first>-<last>`); a line `<ISO date> machine <JSON object>` says where the
-    runs started after it train (`pinned.machine`: CPU, $XLA_FLAGS, instruction sets, versions). Returns
+    runs started after it train (`provenance.machine`: CPU, $XLA_FLAGS, instruction sets, versions). Returns
     {run name: {'command', 'commit', 'started', 'ended', 'rc', 'machine'}} ('machine' {} where no line said
     it); a run started twice keeps its last start (a resumed run continues its directory)."""
     runs: dict[str, dict[str, Any]] = {}
@@ -149,17 +145,19 @@ def logged_provenance(
     has no such run."""
     if run_name not in commands:
         raise ValueError(f"the commands log has no command with --run-name {run_name}")
-    entry = {**dict.fromkeys(RUN_FIELDS), **commands[run_name], "device": device, "jax": jax_version}
-    return {k: entry[k] for k in RUN_FIELDS} | entry.get("machine", {})
-
-
-CHECKPOINT_CHOICES = ("learned", "all")
-"""`record --final-checkpoint`: keep the final checkpoint of the seeds that learned, or of every seed."""
+    entry = {
+        **dict.fromkeys(provenance.RUN_FIELDS),
+        **commands[run_name],
+        "device": device,
+        "jax": jax_version,
+    }
+    return {k: entry[k] for k in provenance.RUN_FIELDS} | entry.get("machine", {})
 
 
 def checkpoint_reason(which: str | None, final: float, threshold: float) -> str | None:
-    """Why a seed's record keeps its final checkpoint (`which` of `CHECKPOINT_CHOICES`, or None: never), given
-    its final return `final` and the learned threshold; None when it keeps none."""
+    """Why a seed's record keeps its final checkpoint (`which`, as `record --final-checkpoint` says:
+    'learned', 'all', or None: never), given its final return `final` and the learned threshold; None when it
+    keeps none."""
     branch = "later sittings branch from it (train --init-from RECORD)"
     if which == "all":
         return f"every seed's was asked for (--final-checkpoint all): {branch}"
@@ -178,11 +176,11 @@ def pack(
     checkpoint_reason: str | None = None,
 ) -> Path:
     """Pack one seed's run directory into the record `record_dir` (see the module docstring); `run` is the
-    run's provenance (`RUN_FIELDS`), `source` the seed's name under its runs root (e.g. 'cpu/RUN/s0'); with a
-    `checkpoint_reason` (why a follow-up branches from it; the provenance keeps it) the checkpoint of the
-    final policy's iteration goes in too. Checks everything before writing (`packable`; FileExistsError if
-    the record exists, unless `overwrite`; ValueError if a diff the run names is missing or altered:
-    `tree_diffs`, which go in too). Returns it."""
+    run's provenance (`provenance.RUN_FIELDS`), `source` the seed's name under its runs root (e.g.
+    'cpu/RUN/s0'); with a `checkpoint_reason` (why a follow-up branches from it; the provenance keeps it) the
+    checkpoint of the final policy's iteration goes in too. Checks everything before writing (`packable`;
+    FileExistsError if the record exists, unless `overwrite`; ValueError if a diff the run names is missing
+    or altered: `tree_diffs`, which go in too). Returns it."""
     seed_dir, record_dir = Path(seed_dir), Path(record_dir)
     final_checkpoint = checkpoint_reason is not None
     iteration, rows = packable(seed_dir, final_checkpoint)
@@ -212,7 +210,7 @@ def pack(
         shutil.copytree(seed_dir / rundir.EVAL_DIR, record_dir / rundir.EVAL_DIR)
     for diff in diffs:
         shutil.copy2(diff, record_dir / diff.name)
-    provenance = {
+    recorded = {
         "run": run,
         "record": {
             "source": source,
@@ -224,10 +222,10 @@ def pack(
             "packed": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "packed_at_commit": tree.commit,
             "packed_dirty": tree.dirty,
-            "packed_with_jax": jax.__version__,
+            "packed_with_jax": provenance.package_version("jax"),
         },
     }
-    jsonio.write_json(record_dir / PROVENANCE_FILE, provenance)
+    jsonio.write_json(record_dir / PROVENANCE_FILE, recorded)
     return record_dir
 
 
@@ -235,6 +233,8 @@ def packable(seed_dir: str | Path, final_checkpoint: bool = False) -> tuple[int,
     """The final policy's iteration and the metrics rows of a seed's run directory that `pack` can pack:
     FileNotFoundError if it has no config, metrics or policy (or, with `final_checkpoint`, no checkpoint of
     that iteration), ValueError if it is unfinished (neither every iteration logged nor stopped early)."""
+    from jaxsocial.run import checkpoint  # orbax and JAX: imported by packing, not by reading a record
+
     seed_dir = Path(seed_dir)
     if not (seed_dir / rundir.CONFIG_FILE).is_file() or not rundir.has_metrics(seed_dir):
         raise FileNotFoundError(f"{seed_dir} is not a finished seed run directory (no config or metrics)")
@@ -253,6 +253,8 @@ def packable(seed_dir: str | Path, final_checkpoint: bool = False) -> tuple[int,
 
 def require_checkpoint(seed_dir: str | Path, iteration: int) -> None:
     """FileNotFoundError unless the seed's run directory (or record) holds the checkpoint of `iteration`."""
+    from jaxsocial.run import checkpoint
+
     if iteration not in checkpoint.all_steps(rundir.checkpoints(seed_dir)):
         raise FileNotFoundError(f"{seed_dir} has no checkpoint of its final iteration {iteration}")
 

@@ -13,7 +13,7 @@ from collections import defaultdict
 from pathlib import Path
 
 from jaxsocial.experiments.analyse import records
-from jaxsocial.run import autotune, cost
+from jaxsocial.run import cost, cpuinfo
 
 UNNAMED = "a CPU not recorded"
 """The kind of a record whose provenance names no CPU."""
@@ -38,13 +38,13 @@ def minutes_by_cpu(root: Path) -> dict[str, list[float]]:
 
 def recorded_pace(root: Path, runs: int, processes: int, cpu: str | None = None) -> str | None:
     """The cost of `runs` more runs like those recorded in `root`, `processes` at a time, one core each: on
-    this CPU (`cpu`; default `autotune.cpu_model()`), where records trained on it, their median minutes a
+    this CPU (`cpu`; default `cpuinfo.model()`), where records trained on it, their median minutes a
     run and the wall-clock time of ceil(runs / processes) rounds of it; else each recorded kind's median and
     no total. None where `root` holds no such record."""
     times = minutes_by_cpu(root)
     if not times:
         return None
-    cpu = cpu or autotune.cpu_model()
+    cpu = cpu or cpuinfo.model()
     head = f"the {_runs(sum(map(len, times.values())))} recorded in {root} took"
     if cpu in times:
         mine = times[cpu]

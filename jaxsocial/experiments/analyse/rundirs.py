@@ -9,7 +9,7 @@ from pathlib import Path
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import recipes
 from jaxsocial.experiments.plan.recipes import Scale
-from jaxsocial.run import outputs, rundir
+from jaxsocial.run import rundir
 from jaxsocial.run.config import TrainConfig
 
 FINISHED, PARTIAL, MISSING = "finished", "partial", "missing"
@@ -23,7 +23,7 @@ def resume_flags(state: str) -> list[str]:
 
 def config_seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
-    return [s.dir for s in outputs.seed_runs(cfg, outputs.run_path(cfg))]
+    return rundir.seed_dirs(rundir.run_path(cfg), cfg.seed, cfg.seeds)
 
 
 def finished(seed_dir: Path, iterations: int) -> bool:

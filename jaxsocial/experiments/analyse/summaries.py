@@ -26,7 +26,7 @@ from jaxsocial.experiments.analyse.kinds import takeoffs
 from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
 from jaxsocial.experiments.plan.conditions import CONDITIONS
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import config, jsonio, metrics, rundir
+from jaxsocial.run import config, jsonio, metrics, provenance, rundir
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.metrics import LEARNED_RETURN, final_return
 
@@ -105,7 +105,7 @@ class RecipeRuns:
                 if same:
                     same[0]["seeds"].append(seed)
                     continue
-                runs[c].append({"seeds": [seed], **{k: run.get(k) for k in records.RUN_FIELDS}})
+                runs[c].append({"seeds": [seed], **{k: run.get(k) for k in provenance.RUN_FIELDS}})
         return {"training_runs": runs, "unrecorded": unrecorded}
 
     def commits(self) -> dict[str, str | None]:

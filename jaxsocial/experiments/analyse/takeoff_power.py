@@ -28,12 +28,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import stats as scipy_stats
 
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import takeoff
 from jaxsocial.experiments.plan import paths
 from jaxsocial.run import jsonio, metrics, rundir
+from jaxsocial.stats import scipy_stats
 
 EVIDENCE_DESIGNS = ("h1_laptop", "h1_early", "h1_sooner")
 EVIDENCE_EPISODES = 128

@@ -8,10 +8,9 @@ from pathlib import Path
 
 from jaxsocial.env import registry
 from jaxsocial.experiments.analyse import evaluation_results
-from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import commits, paths
 from jaxsocial.experiments.plan.evaluation_design import PROVENANCE, EvaluationDesign, evaluations, out_dir
-from jaxsocial.run import jsonio
+from jaxsocial.run import jsonio, provenance
 from jaxsocial.specs import EnvSpec
 
 
@@ -41,7 +40,7 @@ def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
             seed=design.eval_seed,
             slots=slots,
         )
-        started = pinned.now()
+        started = provenance.now()
         result = evaluate.evaluate(config)
         out.mkdir(parents=True, exist_ok=True)
         jsonio.write_json(e.path(out), result)
@@ -49,9 +48,9 @@ def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
             "file": e.path(out).name,
             "commit": commits.head_commit(),
             "started": started,
-            "ended": pinned.now(),
+            "ended": provenance.now(),
         }
-        line = when | pinned.machine(None)
+        line = when | provenance.machine(None)
         with (out / PROVENANCE).open("a") as f:
             f.write(json.dumps(line) + "\n")
         print(f"[{design.name}] {e.env} {e.player}: played ({len(e.ckpts) or 1} policies)", flush=True)

@@ -22,7 +22,7 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from jaxsocial.run import checkpoint, jsonio, rundir
+from jaxsocial.run import jsonio, rundir
 from jaxsocial.run.rundir import CHECKPOINTS_DIR as CHECKPOINTS
 from jaxsocial.run.rundir import POLICY_DIR
 
@@ -34,6 +34,8 @@ block: progress lines with the learners' returns. Resuming needs none of them.""
 def slim(run_dir: Path) -> int:
     """Keep only the latest checkpoint every seed of `run_dir` has, drop the exported policies and the
     `PROGRESS_LOGS`; returns that checkpoint's step (ValueError if the seeds share none)."""
+    from jaxsocial.run import checkpoint  # orbax and JAX: imported to slim, not by a refusal
+
     seeds = rundir.written_seed_dirs(run_dir)
     common = set.intersection(*(set(checkpoint.all_steps(d / CHECKPOINTS)) for d in seeds))
     if not common:

@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 from typing import Any, Protocol
 
-from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import xla_flags
 from jaxsocial.run import checkout, compile_cache, jsonio, provenance, rundir
 
@@ -44,23 +43,10 @@ measured under it agreeing with them (an AVX2 kind differs in Eigen's transposed
 initialiser); `cpu_kinds` reads the files, `verify` predicts from them (docs/experiments.md, "Does the
 training re-run?")."""
 CROSS_CPU_KINDS = ("AMD EPYC (family 26, model 2)", "Intel(R) Xeon(R) Processor (family 6, model 167)")
-"""The CPU kinds (`autotune.cpu_model`) whose committed operation fingerprints all agree under
+"""The CPU kinds (`cpuinfo.model`) whose committed operation fingerprints all agree under
 `SINGLE_CORE_XLA_FLAGS` then `CROSS_CPU_XLA_FLAGS`: every fingerprint, the laptop recipe's state after one
 iteration included (measured in processes whose cores were not recorded). A test derives the agreement
 from the files and fails where this says more or less than they show."""
-# The process file and what it says of the machine, `jaxsocial.run.provenance`'s (a plain training run writes
-# it too), under the names this module's callers use.
-RUN_FILE = provenance.RUN_FILE
-ENVIRONMENT_FIELDS = provenance.ENVIRONMENT_FIELDS
-MACHINE_FIELDS = provenance.MACHINE_FIELDS
-VERSIONED = provenance.VERSIONED
-visible_cores = provenance.visible_cores
-machine = provenance.machine
-environment = provenance.environment
-package_version = provenance.package_version
-now = provenance.now
-earlier_processes = provenance.earlier_processes
-write_run_file = provenance.write_run_file
 POLL_SECONDS = 2.0
 
 
@@ -95,7 +81,7 @@ def cores_seen(cores: list[int] | None) -> int | None:
     """How many cores a process started after `pin(cores)` sees (None: not known here)."""
     if cores and pin(cores):
         return len(cores)
-    return len(visible_cores() or []) or None
+    return len(provenance.visible_cores() or []) or None
 
 
 def process_xla_flags(extra: str = "") -> str:
@@ -183,18 +169,22 @@ def run_processes(jobs: list[Job], cores: list[int], process_flags: str) -> list
                 stderr=subprocess.STDOUT,
                 env=env,
             )
-            active[i] = (proc, core, now(), tree, None, None)  # None: its RUN_FILE not written yet
+            active[i] = (proc, core, provenance.now(), tree, None, None)  # None: its RUN_FILE not written yet
             print(f"{job.label}: core {core}, log {job.log}", flush=True)
         time.sleep(POLL_SECONDS)
         for i, (proc, core, started, tree, earlier, seen) in list(active.items()):
             job = jobs[i]
             process = (job.run_dir, shlex.join(["python", *job.argv]), tree, 1, started)
             if earlier is None and (job.run_dir / rundir.CONFIG_FILE).is_file():
-                earlier = earlier_processes(job.run_dir)  # its directory is there: say so before it ends
-                seen = visible_cores(proc.pid)  # python itself runs, pinned; `poll` has not reaped it
+                earlier = provenance.earlier_processes(
+                    job.run_dir
+                )  # its directory is there: say so before it ends
+                seen = provenance.visible_cores(
+                    proc.pid
+                )  # python itself runs, pinned; `poll` has not reaped it
                 active[i] = (proc, core, started, tree, earlier, seen)
                 if proc.poll() is None:
-                    write_run_file(*process, None, process_flags, earlier, seen)
+                    provenance.write_run_file(*process, None, process_flags, earlier, seen)
             rc = proc.poll()
             if rc is None:
                 continue
@@ -202,7 +192,7 @@ def run_processes(jobs: list[Job], cores: list[int], process_flags: str) -> list
             free.append(core)
             codes[i] = rc
             if earlier is not None:  # it made its run directory
-                write_run_file(*process, rc, process_flags, earlier, seen)
+                provenance.write_run_file(*process, rc, process_flags, earlier, seen)
             print(f"{job.label}: exit {rc}", flush=True)
     return [codes[i] for i in range(len(jobs))]
 
@@ -216,7 +206,7 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     """The `run` part of a record's provenance from a run's `RUN_FILE`, with the device and jax version it
     ran on, the cores it had and the processes before its last (`earlier`, if it was resumed). RunNotEnded
     if the run has none, or its process has not ended."""
-    path = Path(run_dir) / RUN_FILE
+    path = Path(run_dir) / provenance.RUN_FILE
     if not path.is_file():
         raise RunNotEnded(
             f"{path} does not exist: the run was not trained by `pinned.run`, nor by a `train` that writes "
@@ -225,10 +215,10 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     info = jsonio.read_json(path)
     if info.get("ended") is None:
         raise RunNotEnded(f"{path}: its process (started {info.get('started')}) has not ended")
-    later = (*MACHINE_FIELDS, *checkout.TREE_FIELDS)
+    later = (*provenance.MACHINE_FIELDS, *checkout.TREE_FIELDS)
     machine = {k: info[k] for k in later if k in info}  # runs written before these fields lack them
     return (
-        {k: info.get(k) for k in records.RUN_FIELDS}
+        {k: info.get(k) for k in provenance.RUN_FIELDS}
         | machine
         | {"device": device, "jax": jax_version, "cores": info.get("cores")}
         | ({"earlier": info["earlier"]} if info.get("earlier") else {})
@@ -247,5 +237,5 @@ def with_measured(run: dict, device: str | None, jax_version: str | None, seed_d
     }
     unknown = [f"--{key}" for key in ("device", "jax") if not run[key]]
     if unknown:
-        raise ValueError(f"{seed_dir}: its {RUN_FILE} does not say; give {' and '.join(unknown)}")
+        raise ValueError(f"{seed_dir}: its {provenance.RUN_FILE} does not say; give {' and '.join(unknown)}")
     return run

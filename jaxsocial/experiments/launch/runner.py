@@ -25,7 +25,7 @@ from jaxsocial.experiments.analyse.rundirs import (
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import checkout, jsonio, outputs, rundir
+from jaxsocial.run import checkout, jsonio, provenance, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.startup import setup
@@ -69,7 +69,7 @@ def status(cfg: TrainConfig, dirs: list[Path]) -> str:
     (the config's own run directory exists, so training resumes it) or MISSING."""
     if all(finished(d, cfg.iterations) for d in dirs):
         return FINISHED
-    return PARTIAL if (outputs.run_path(cfg) / rundir.CONFIG_FILE).exists() else MISSING
+    return PARTIAL if (rundir.run_path(cfg) / rundir.CONFIG_FILE).exists() else MISSING
 
 
 def run(
@@ -169,8 +169,8 @@ def tree_checked(recipe: Recipe, blind: bool, training: bool, allow_dirty: bool)
             "was trained"
         )
     print(
-        f"warning: {tree.describe()}: each run records the commit and the diff beside its {pinned.RUN_FILE}; "
-        "commit before recording (docs/your-experiment.md)",
+        f"warning: {tree.describe()}: each run records the commit and the diff beside its "
+        f"{provenance.RUN_FILE}; commit before recording (docs/your-experiment.md)",
         file=sys.stderr,
     )
 
@@ -263,7 +263,7 @@ def train_programs(
                 print("  python -m jaxsocial.train " + shlex.join(flags))
             if state != FINISHED and train_missing and launcher:
                 train_argv = pinned.train_command([*flags, *resume_flags(state)])
-                jobs.append((cfg.seed, pinned.Job(label, train_argv, outputs.run_path(cfg))))
+                jobs.append((cfg.seed, pinned.Job(label, train_argv, rundir.run_path(cfg))))
             elif dry_run:
                 continue
             elif state != FINISHED and train_missing:

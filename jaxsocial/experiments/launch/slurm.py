@@ -32,7 +32,7 @@ from typing import Any
 
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import jsonio
+from jaxsocial.run import jsonio, provenance
 
 INSTALL = "pip install 'jaxsocial[slurm]'"
 """What installs submitit (the optional extra `slurm`)."""
@@ -146,7 +146,7 @@ class Slurm:
         for job, sub in zip(todo, submitted, strict=True):
             job.log.parent.mkdir(parents=True, exist_ok=True)
             jsonio.write_json(
-                marker(job), {"job_id": sub.job_id, "folder": str(self.folder), "at": pinned.now()}
+                marker(job), {"job_id": sub.job_id, "folder": str(self.folder), "at": provenance.now()}
             )
             print(f"{job.label}: Slurm job {sub.job_id}, log {job.log}", flush=True)
         if not self.wait:
@@ -189,7 +189,7 @@ def wait(submitted: dict[pinned.Job, Any], submitit) -> dict[pinned.Job, int]:
 def run_in_job(job: pinned.Job, process_flags: str) -> int:
     """Inside a Slurm job: `job`'s process pinned to the first CPU the job has, with $XLA_FLAGS
     `process_flags` (`pinned.run_processes`: the process file as a local run's); its exit code."""
-    (rc,) = pinned.run_processes([job], (pinned.visible_cores() or [0])[:1], process_flags)
+    (rc,) = pinned.run_processes([job], (provenance.visible_cores() or [0])[:1], process_flags)
     return rc
 
 

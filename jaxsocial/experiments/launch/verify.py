@@ -11,7 +11,7 @@ was, since XLA's CPU bits depend on how many cores a process sees even single-th
 "Does the training re-run?"). The two metrics logs are compared row by row, every field but the timings
 (`TIMING_FIELDS`). The report says **exact**, or the first row and field that differ with both values and
 the size of the difference, and names the CPU of the record and of this machine, the cores each process
-saw, and where their instruction sets, cache sizes or package versions differ (`pinned.environment`):
+saw, and where their instruction sets, cache sizes or package versions differ (`provenance.environment`):
 bitwise agreement is expected on the same CPU model, commit and count of cores, and across models only
 where their committed operation fingerprints agree under the record's $XLA_FLAGS (`cpu_kinds`). Before it
 trains it says what to expect (`prediction`: "exact expected", "expected to differ, because ..." or
@@ -42,7 +42,7 @@ from typing import Any
 from jaxsocial.experiments.analyse import cpu_kinds, records
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import xla_flags
-from jaxsocial.run import autotune, checkout, config, metrics, rundir
+from jaxsocial.run import checkout, config, cpuinfo, metrics, provenance, rundir
 from jaxsocial.run.flags import config_flags
 
 TIMING_FIELDS = (metrics.SPEED, metrics.COMPILE_S)
@@ -86,7 +86,7 @@ def record_cores(record_dir: Path) -> int | None:
 def retraining_cores(count: int | None) -> list[int] | None:
     """The cores to pin a re-training of a record whose process saw `count` to: the first `count` of this
     process's where it sees more (None: no pinning, where it sees as many, fewer, or `count` is unknown)."""
-    mine = pinned.visible_cores()
+    mine = provenance.visible_cores()
     return mine[:count] if count and mine and count < len(mine) else None
 
 
@@ -202,11 +202,11 @@ def verify(record_dir: Path, iterations: int = DEFAULT_ITERATIONS, work_dir: Pat
         "compared": "every field of every row but " + ", ".join(TIMING_FIELDS),
         "cpu": {
             "record": record_field(record_dir, "device") or record_field(record_dir, "cpu"),
-            "here": autotune.cpu_model(),
+            "here": cpuinfo.model(),
         },
         "environment": {
-            "record": {field: record_field(record_dir, field) for field in pinned.ENVIRONMENT_FIELDS},
-            "here": pinned.environment(),
+            "record": {field: record_field(record_dir, field) for field in provenance.ENVIRONMENT_FIELDS},
+            "here": provenance.environment(),
         },
         "commit": {"record": record_field(record_dir, "commit"), "here": here.commit},
         "tree": {
@@ -232,7 +232,7 @@ def prediction(record_dir: Path, cores: int | None, cores_here: int | None) -> d
     cpu, flags = record_cpu(record_dir), retraining_flags(record_dir)
     kinds = cpu_kinds.read_kinds()
     alike = {"alike": cpu_kinds.alike(kinds, cpu, flags)}
-    theirs, mine = record_field(record_dir, "versions"), pinned.environment()["versions"]
+    theirs, mine = record_field(record_dir, "versions"), provenance.environment()["versions"]
     if cores is None:
         said = "the record does not say how many cores its process saw: unknown"
         return cpu_kinds.expectation(cpu_kinds.UNKNOWN, said) | alike
@@ -245,11 +245,11 @@ def prediction(record_dir: Path, cores: int | None, cores_here: int | None) -> d
         )
         said = f"package versions differ ({changed}): unknown"
         return cpu_kinds.expectation(cpu_kinds.UNKNOWN, said) | alike
-    return cpu_kinds.predict(cpu, autotune.cpu_model(), flags, cores, kinds) | alike
+    return cpu_kinds.predict(cpu, cpuinfo.model(), flags, cores, kinds) | alike
 
 
 def environment_differences(record: dict, here: dict) -> list[str]:
-    """One line per `pinned.environment` field in which the record's run and this machine differ, for
+    """One line per `provenance.environment` field in which the record's run and this machine differ, for
     people ('not recorded' where the record predates the field)."""
     lines = []
     for field, mine in here.items():

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from jaxsocial.agents.experts import ExpertSpec
+from jaxsocial.agents.expert_spec import ExpertSpec
 from jaxsocial.agents.network_config import Aux
 from jaxsocial.agents.population import Slot
 from jaxsocial.specs import EnvArgsFlag
