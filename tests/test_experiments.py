@@ -600,7 +600,7 @@ def test_a_designs_evaluations_are_written_blind(tmp_path, capsys):
     shutil.rmtree(seed_dir / "eval")
     runner.run(recipe, scale, 0, 2, str(tmp_path), train_missing=False)
     out = capsys.readouterr().out
-    (evaluation, spec, written), *_ = runner.evaluation_outputs(recipe, scale, seed_dir)
+    (evaluation, spec, written), *_ = kinds.evaluation_outputs(recipe, scale, seed_dir)
     assert written.exists()
     assert f"solo_pred_nopenalty s1 in {spec} ({evaluation.protocol}): written (blind" in out
     assert not re.search(r"\): -?\d", out)  # no score printed, for any seed

@@ -315,3 +315,13 @@ def kind_of(recipe: Recipe) -> Kind:
     if recipe.kind not in KINDS:
         raise ValueError(f"recipe {recipe.name}: unknown kind {recipe.kind!r}; choose one of {sorted(KINDS)}")
     return KINDS[recipe.kind]
+
+
+def evaluation_outputs(recipe: Recipe, scale: Scale, seed_dir: Path) -> list[tuple[Evaluation, str, Path]]:
+    """What the recipe's kind evaluates of a finished seed: (evaluation, environment spec, its output file)
+    for each, in order."""
+    return [
+        (evaluation, spec, evaluation.path(seed_dir, spec, scale))
+        for evaluation in kind_of(recipe).evaluations
+        for spec in evaluation.specs(recipe, scale)
+    ]

@@ -52,18 +52,6 @@ def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol:
     return result
 
 
-def evaluation_outputs(
-    recipe: Recipe, scale: Scale, seed_dir: Path
-) -> list[tuple[kinds.Evaluation, str, Path]]:
-    """What the recipe's kind evaluates of a finished seed: (evaluation, environment spec, its output file)
-    for each, in order."""
-    return [
-        (evaluation, spec, evaluation.path(seed_dir, spec, scale))
-        for evaluation in kinds.kind_of(recipe).evaluations
-        for spec in evaluation.specs(recipe, scale)
-    ]
-
-
 def status(cfg: TrainConfig, dirs: list[Path]) -> str:
     """FINISHED (each seed's directory `dirs` logged every iteration, or its early stop ended it), PARTIAL
     (the config's own run directory exists, so training resumes it) or MISSING."""
@@ -279,7 +267,7 @@ def evaluate_finished(recipe: Recipe, scale: Scale, dirs: dict[str, list[Path]],
     it; a blind design's scores are not shown."""
     for name, seed_dirs_ in dirs.items():
         for seed_dir in [d for d in seed_dirs_ if finished(d, scale.iterations)]:
-            for evaluation, spec, out in evaluation_outputs(recipe, scale, seed_dir):
+            for evaluation, spec, out in kinds.evaluation_outputs(recipe, scale, seed_dir):
                 if out.exists():
                     continue
                 result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
