@@ -277,7 +277,7 @@ def _contains_zero(value: dict[str, Any]) -> bool:
     return value["ci95"][0] <= 0.0 <= value["ci95"][1]
 
 
-def verdict(learner: float, experts: float, env_params: EnvParams) -> str:
+def learning_verdict(learner: float, experts: float, env_params: EnvParams) -> str:
     """Whether a learner's mean return beside experts shows the task learned: in Goal Cycle under a penalty,
     against the one-tile plateau (`metrics.LEARNED_RETURN`); elsewhere, as a share of the experts'."""
     share = f"{learner / experts:.0%} of the experts' return" if experts > 0 else "the experts score nothing"
@@ -294,7 +294,7 @@ def verdict(learner: float, experts: float, env_params: EnvParams) -> str:
     )
 
 
-def outcome(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
+def result_lines(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
     """What an `evaluate` result shows, in words, and the commands to look further: the learner's return
     against its experts'; for `--protocol ct`, whether the experts make a difference and whether it lasts
     after they leave."""
@@ -319,7 +319,9 @@ def outcome(result: dict[str, Any], eval_cfg: EvalConfig) -> list[str]:
             learner = np.mean([s["mean_return"] for s in by_kind["learner"]])
             experts = np.mean([s["mean_return"] for s in by_kind["expert"]])
             lines.append(f"the learner scored {learner:.2f} per episode beside experts scoring {experts:.2f}")
-            lines.append(verdict(learner, experts, registry.env_params(eval_cfg.env, eval_cfg.env_args)))
+            lines.append(
+                learning_verdict(learner, experts, registry.env_params(eval_cfg.env, eval_cfg.env_args))
+            )
     lines += _next(result, eval_cfg)
     if not eval_cfg.out:
         lines.append("      add --out FILE to keep every number above (and the per-seed values) as JSON")
@@ -361,7 +363,7 @@ def main(argv: list[str] | None = None) -> None:
     except (ValueError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
     print(format_table(result))
-    for line in outcome(result, eval_cfg):
+    for line in result_lines(result, eval_cfg):
         print(line)
     if eval_cfg.out:
         Path(eval_cfg.out).parent.mkdir(parents=True, exist_ok=True)

@@ -246,7 +246,7 @@ def _draw_together(ax, groups: list[Group], points: int, colors) -> None:
     ax.legend(fontsize=7)
 
 
-def summary(groups: list[Group]) -> list[str]:
+def final_return_lines(groups: list[Group]) -> list[str]:
     """Lines with each group's final return per slot: mean and 95% CI over seeds (`metrics.final_return`)."""
     lines = []
     for g in groups:
@@ -316,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
-    print("\n".join(summary(args.groups)))
+    print("\n".join(final_return_lines(args.groups)))
     print(f"wrote {out}")
     return 0
 

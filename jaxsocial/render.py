@@ -101,13 +101,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     args = parser.parse_args(argv)
     try:
-        check_args(args)
+        complete_args(args)
     except (ValueError, RuntimeError) as err:  # one line: the usage is for flags argparse cannot read
         raise SystemExit(f"{parser.prog}: error: {err}") from None
     return args
 
 
-def check_args(args: argparse.Namespace) -> None:
+def complete_args(args: argparse.Namespace) -> None:
     """Check the parsed flags and complete them (the output path, the episode set-up), before JAX compiles
     anything; ValueError or RuntimeError says what is wrong."""
     if args.ckpt is None and args.env is None:

@@ -65,7 +65,7 @@ def compiled_program(cfg: TrainConfig, stage: int = -1) -> loop.Program:
     from jaxsocial.run.driver import stage_program
 
     static = startup.setup(cfg, load_frozen=False)
-    return stage_program(cfg.program, static, loop.data_mesh(cfg.program, cfg.devices), stage)
+    return stage_program(cfg.program, static, loop.program_mesh(cfg.program, cfg.devices), stage)
 
 
 def run(cfg: TrainConfig, command: str | None = None) -> Path:
@@ -113,8 +113,8 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
     branching = cfg.init_from is not None and not cfg.resume  # a resumed run loads its own state
     numbers = list(range(cfg.seed, cfg.seed + cfg.seeds))
     if branching:
-        init_from.check(cfg.init_from, numbers, cfg.net, static.pop.learners)
-    mesh = loop.data_mesh(cfg.program, cfg.devices)
+        init_from.check_source(cfg.init_from, numbers, cfg.net, static.pop.learners)
+    mesh = loop.program_mesh(cfg.program, cfg.devices)
     if branching:  # RUN_DIR@ITERATION in config.json
         cfg = dataclasses.replace(cfg, init_from=init_from.pin_iteration(cfg.init_from, numbers, run_dir))
         if processes.is_main() and init_from.params_only(cfg.init_from, numbers):

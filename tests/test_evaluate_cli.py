@@ -67,32 +67,32 @@ def test_the_outcome_says_what_the_evaluation_shows():
     cfg = evaluate.EvalConfig(ckpt=("runs/a", "runs/b"), env="goalcycle3", env_args="width=9,height=9")
     assert cfg.ckpt == (PolicyRef(Path("runs/a")), PolicyRef(Path("runs/b")))  # text is parsed once
     ct = {"protocol": "ct", "ct": _interval(0.125), "recall": _interval(0.0, 0.05)}
-    said = evaluate.outcome(ct, cfg)
+    said = evaluate.result_lines(ct, cfg)
     assert "follows them rather than having learned the task" in said[0]
     assert said[1] == ONWARDS  # after the CT protocol: onwards (render points back here)
     assert "--out FILE" in said[2]
-    kept = evaluate.outcome({**ct, "recall": _interval(0.2)}, cfg)[0]
+    kept = evaluate.result_lines({**ct, "recall": _interval(0.2)}, cfg)[0]
     assert "keeps part of it after they leave" in kept
-    assert "no difference" in evaluate.outcome({**ct, "ct": _interval(0.0, 0.1)}, cfg)[0]
+    assert "no difference" in evaluate.result_lines({**ct, "ct": _interval(0.0, 0.1)}, cfg)[0]
     slots = [
         {"kind": "learner", "mean_return": 3.0, "episodes": 4},
         {"kind": "expert", "mean_return": 30.0, "episodes": 4},
         {"kind": "expert", "mean_return": 32.0, "episodes": 4},
     ]
-    said = evaluate.outcome({"results": slots}, dataclasses.replace(cfg, out="x.json"))
+    said = evaluate.result_lines({"results": slots}, dataclasses.replace(cfg, out="x.json"))
     assert said == [
         "the learner scored 3.00 per episode beside experts scoring 31.00",
         "past the one-tile plateau (return > 2): it completes the cycle here, 10% of the experts' return",
         CT,
     ]
     randoms = [{**s, "kind": "random"} if s["kind"] == "expert" else s for s in slots]
-    assert evaluate.outcome({"results": randoms}, dataclasses.replace(cfg, out="x.json")) == [ONWARDS]
+    assert evaluate.result_lines({"results": randoms}, dataclasses.replace(cfg, out="x.json")) == [ONWARDS]
     four = registry.env_params("goalcycle4")
-    below = evaluate.verdict(-4.93, 45.5, four)
+    below = evaluate.learning_verdict(-4.93, 45.5, four)
     assert below.startswith("on the one-tile plateau (return <= 2): it does not complete the 4-goal cycle")
     assert below.endswith("; below 0 it pays more wrong-tile penalties than it earns")
     rooms = registry.env_params("fourrooms")
-    assert evaluate.verdict(0.5, 0.9, rooms) == "that is 56% of the experts' return"
+    assert evaluate.learning_verdict(0.5, 0.9, rooms) == "that is 56% of the experts' return"
 
 
 def test_a_mistyped_flag_names_the_module_to_ask_for_help(capsys):

@@ -14,7 +14,7 @@ import pytest
 
 import jaxsocial
 from jaxsocial.agents import expert_spec
-from jaxsocial.agents.expert_spec import ExpertSpec, parse_expert, validate
+from jaxsocial.agents.expert_spec import ExpertSpec, check_playable, parse_expert
 from jaxsocial.agents.experts import act, act_batch, init_memory
 from jaxsocial.env import core, state_from_layout
 from jaxsocial.env.dynamics import world_step
@@ -415,15 +415,15 @@ def test_parse_expert():
 def test_validate():
     gc3 = jaxsocial.make("goalcycle3")[1]
     for spec in (EXPLORER, ORACLE):
-        validate(spec, gc3)
+        check_playable(spec, gc3)
         with pytest.raises(ValueError, match="n_goals >= 2"):
-            validate(spec, gc3.replace(n_goals=1))
+            check_playable(spec, gc3.replace(n_goals=1))
         with pytest.raises(ValueError, match="Goal Cycle"):
-            validate(spec, jaxsocial.make("maze")[1])
-    validate(NAVIGATOR, jaxsocial.make("fourrooms")[1])
-    validate(NAVIGATOR, jaxsocial.make("maze")[1])
+            check_playable(spec, jaxsocial.make("maze")[1])
+    check_playable(NAVIGATOR, jaxsocial.make("fourrooms")[1])
+    check_playable(NAVIGATOR, jaxsocial.make("maze")[1])
     with pytest.raises(ValueError, match="navigator"):
-        validate(NAVIGATOR, gc3)
+        check_playable(NAVIGATOR, gc3)
 
 
 def test_memory_shapes():

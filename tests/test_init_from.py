@@ -33,7 +33,7 @@ def _seeds(cfg):
 
 
 def _check(cfg):
-    init_from.check(cfg.init_from, _seeds(cfg), cfg.net, startup.setup(cfg).pop.learners)
+    init_from.check_source(cfg.init_from, _seeds(cfg), cfg.net, startup.setup(cfg).pop.learners)
 
 
 def _pin(cfg, run_dir):
@@ -80,7 +80,7 @@ def test_a_resumed_branch_loads_its_own_state_without_the_source(source, tmp_pat
 def test_apply_loads_the_sources_learners_and_nothing_else(source, tmp_path):
     cfg = _branch(tmp_path, f"{source}@2", seed=7)
     static = startup.setup(cfg)
-    program = loop.compiled(cfg.program, loop.data_mesh(cfg.program, 0), static.stage(-1), static.pop)
+    program = loop.compiled(cfg.program, loop.program_mesh(cfg.program, 0), static.stage(-1), static.pop)
     fresh = program.init(np.int32(cfg.seed))
     state = driver.load_source_learners(cfg.init_from, [cfg.seed], fresh, program)
     template = jax.eval_shape(lambda: fresh)
@@ -155,7 +155,7 @@ def test_a_record_without_checkpoints_gives_its_policys_params_and_a_fresh_optim
     with pytest.raises(FileNotFoundError, match=r"no checkpoint of iteration 3 \(policy exports"):
         _check(_branch(tmp_path, f"{plain}@3"))
     static = startup.setup(cfg)
-    program = loop.compiled(cfg.program, loop.data_mesh(cfg.program, 0), static.stage(-1), static.pop)
+    program = loop.compiled(cfg.program, loop.program_mesh(cfg.program, 0), static.stage(-1), static.pop)
     fresh = program.init(np.int32(cfg.seed))
     state = driver.load_source_learners(cfg.init_from, [cfg.seed], fresh, program)
     saved = policy_io.load_learners(plain, fresh.params)

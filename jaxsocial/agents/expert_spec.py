@@ -1,7 +1,7 @@
 """What a scripted expert is, as `--slots` names it: its kind and its imperfections (`ExpertSpec`, read by
-`parse_expert`), and whether it can play an environment (`validate`). Plain Python, no JAX: a run's slots
-are read and checked before JAX is imported; `jaxsocial.agents.experts` registers `ExpertSpec` with JAX and
-makes the experts act.
+`parse_expert`), and whether it can play an environment (`check_playable`). Plain Python, no JAX: a run's
+slots are read and checked before JAX is imported; `jaxsocial.agents.experts` registers `ExpertSpec` with JAX
+and makes the experts act.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def parse_expert(text: str) -> ExpertSpec:
     return ExpertSpec(kind, **values)
 
 
-def validate(spec: ExpertSpec, env_params: EnvParams) -> None:
+def check_playable(spec: ExpertSpec, env_params: EnvParams) -> None:
     """Raise ValueError unless the expert can play the environment."""
     if spec.kind in ("explorer", "oracle"):
         if env_params.layout != "goalcycle" or env_params.n_goals < 2:

@@ -47,7 +47,7 @@ measured fastest on CPU and GPU for the paper network; the same function as ever
 DECODER_PARAMS = ("aux_fc", "deconv1", "deconv2", "deconv3")  # the `Decoder`'s entries of the params tree
 LEGACY_KEYS = {"chunk": "frame_batch"}
 """Fields of saved network configs (a policy's metadata, config.json's "net") renamed since: old -> new
-(`modern_keys`)."""
+(`modern_net_keys`)."""
 
 
 def renamed_keys(values: dict[str, Any], renames: dict[str, str]) -> dict[str, Any]:
@@ -56,7 +56,7 @@ def renamed_keys(values: dict[str, Any], renames: dict[str, str]) -> dict[str, A
     return {renames.get(k, k): v for k, v in values.items() if not (k in renames and renames[k] in values)}
 
 
-def modern_keys(net: dict[str, Any]) -> dict[str, Any]:
+def modern_net_keys(net: dict[str, Any]) -> dict[str, Any]:
     """A saved network config's fields (JSON) under today's names (`LEGACY_KEYS`): what `NetworkConfig(**...)`
     takes, also for policies and runs written before the renames."""
     return renamed_keys(net, LEGACY_KEYS)

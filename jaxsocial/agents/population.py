@@ -185,7 +185,7 @@ class Population:
         """Raise ValueError if a scripted expert cannot play this environment."""
         for i in self.experts:
             try:
-                expert_spec.validate(self.slots[i].expert, env_params)
+                expert_spec.check_playable(self.slots[i].expert, env_params)
             except ValueError as err:
                 raise ValueError(f"slot {i}: {err}") from err
 

@@ -12,9 +12,10 @@ total training a learner has had is the source's ITERATION plus the new run's.
 
 RUN_DIR is one seed's run directory (every seed of the new run starts from it) or a several-seed run
 directory holding `s<seed>/` for each of the new run's seeds (each starts from its own). The network
-architecture and the learner slots must be the source's (`check`, called by `jaxsocial.train.run` before
-anything is written or compiled). A resumed run continues from its own checkpoints and ignores the source.
-This module validates and names the source; the driver loads its learners (`driver.load_source_learners`).
+architecture and the learner slots must be the source's (`check_source`, called by `jaxsocial.train.run`
+before anything is written or compiled). A resumed run continues from its own checkpoints and ignores the
+source. This module validates and names the source; the driver loads its learners
+(`driver.load_source_learners`).
 """
 
 from __future__ import annotations
@@ -102,7 +103,9 @@ def _learners(run: RunConfig) -> tuple[int, ...]:
     return population.Population(population.run_slots(run.slots, env_params)).learners
 
 
-def check(source: CheckpointRef, seeds: list[int], net_cfg: NetworkConfig, learners: tuple[int, ...]) -> None:
+def check_source(
+    source: CheckpointRef, seeds: list[int], net_cfg: NetworkConfig, learners: tuple[int, ...]
+) -> None:
     """Validate `source` for a new run of `seeds` with the network `net_cfg` and its learners in slots
     `learners`: the source exists, has the checkpoint, and has this run's network architecture and learner
     slots. ValueError or FileNotFoundError naming the difference; nothing is compiled."""

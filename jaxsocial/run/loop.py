@@ -119,7 +119,7 @@ def compiled(
     pop: population.Population,
 ) -> Program:
     """The `Program` of `program_cfg` in the validated environment `env_params` with the slots `pop`
-    (`startup.Setup`) on `mesh` (`data_mesh`), shared between runs whose programs are the same (tests,
+    (`startup.Setup`) on `mesh` (`program_mesh`), shared between runs whose programs are the same (tests,
     notebooks, sweeps and a run's stages of one environment compile once)."""
     init, run_chunk = make_program(program_cfg, env_params, pop, mesh)
     replicated = distributed.replicated(mesh)
@@ -157,7 +157,7 @@ def compiled(
     )
 
 
-def data_mesh(program_cfg: ProgramConfig, devices: int) -> jax.sharding.Mesh:
+def program_mesh(program_cfg: ProgramConfig, devices: int) -> jax.sharding.Mesh:
     """The `devices` (0: all) the environments of `program_cfg` are split over (ValueError, before
     compiling, if they do not split)."""
     sizes = {"num_envs": program_cfg.num_envs}

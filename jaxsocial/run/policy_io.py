@@ -78,8 +78,9 @@ def saved_net(policy: PolicyRef | str | Path) -> network.NetworkConfig:
 
 
 def _meta_net(meta: dict[str, Any]) -> network.NetworkConfig:
-    """The `NetworkConfig` of a policy's metadata (old field names read as today's: `modern_keys`)."""
-    return network.NetworkConfig(**network_config.modern_keys(meta["net"]))
+    """The `NetworkConfig` of a policy's metadata (old field names read as today's:
+    `network_config.modern_net_keys`)."""
+    return network.NetworkConfig(**network_config.modern_net_keys(meta["net"]))
 
 
 def load_policy(policy: PolicyRef | str | Path, net_cfg: network.NetworkConfig):

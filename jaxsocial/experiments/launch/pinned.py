@@ -86,8 +86,10 @@ def cores_seen(cores: list[int] | None) -> int | None:
 
 def process_xla_flags(extra: str = "") -> str:
     """$XLA_FLAGS of a pinned process: the caller's, then `SINGLE_CORE_XLA_FLAGS`, then `extra` (e.g. a
-    design's). ValueError if a word of them is not a `--flag` (`xla_flags.check`)."""
-    return xla_flags.check(f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS} {extra}", "$XLA_FLAGS")
+    design's). ValueError if a word of them is not a `--flag` (`xla_flags.normalised`)."""
+    return xla_flags.normalised(
+        f"{os.environ.get('XLA_FLAGS', '')} {SINGLE_CORE_XLA_FLAGS} {extra}", "$XLA_FLAGS"
+    )
 
 
 def positive_int(text: str) -> int:

@@ -149,7 +149,7 @@ class TrainingDesign(catalogue.Design):
         if set(design.treatment) & set(design.control) or not design.treatment or not design.control:
             raise ValueError(f"design {name}: the arms must be disjoint and non-empty")
         if design.xla_flags is not None:
-            xla_flags.check(design.xla_flags, f"design {name}'s xla_flags")
+            xla_flags.normalised(design.xla_flags, f"design {name}'s xla_flags")
         if design.learned_by not in LEARNED_BY:
             raise ValueError(
                 f"design {name}: unknown learned_by {design.learned_by!r}; choose from {LEARNED_BY}"

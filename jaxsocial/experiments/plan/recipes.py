@@ -283,7 +283,7 @@ def mixing_switch(scale: Scale, cond: Condition) -> int:
     return max(1, round(scale.iterations * cond.mixed_from))
 
 
-def run_name(scale: Scale, condition: str, seed: int, seeds: int) -> str:
+def condition_run_name(scale: Scale, condition: str, seed: int, seeds: int) -> str:
     """The run directory of a condition under the runs root:
     `<scale>[/<runs_subdir>]/<condition>-s<first>-<last>` (`Scale.runs_root`)."""
     return f"{scale.runs_root}/{condition}-s{seed}-{seed + seeds - 1}"
@@ -327,7 +327,7 @@ def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_d
         seed=seed,
         seeds=seeds,
         runs_dir=runs_dir,
-        run_name=run_name(scale, condition, seed, seeds),
+        run_name=condition_run_name(scale, condition, seed, seeds),
         **evaluation,
     )
     return startup.with_env_observation(cfg)

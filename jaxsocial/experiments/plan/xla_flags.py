@@ -4,7 +4,7 @@ a run's provenance."""
 from __future__ import annotations
 
 
-def check(flags: str, source: str) -> str:
+def normalised(flags: str, source: str) -> str:
     """`flags` with single spaces; ValueError naming `source` if a word of them is not a `--flag` (XLA would
     ignore it and, silently, every flag after it)."""
     stray = [word for word in flags.split() if not word.startswith("--")]
