@@ -15,7 +15,7 @@ import pytest
 import jaxsocial
 from jaxsocial.agents import expert_spec
 from jaxsocial.agents.expert_spec import ExpertSpec, check_playable, parse_expert
-from jaxsocial.agents.experts import act, act_batch, init_memory
+from jaxsocial.agents.experts import act_batch, act_one, init_memory
 from jaxsocial.env import core, state_from_layout
 from jaxsocial.env.dynamics import world_step
 from jaxsocial.env.layouts import generate
@@ -332,7 +332,7 @@ def test_single_env_act_steps_off_its_target_and_back():
     """The oracle stands on the tile it must enter next (cycle state 2, tile 0) facing east."""
     params = jaxsocial.make("goalcycle3", n_agents=1)[1]
     state = state_from_layout(params, embed(OPEN3), [(1, 2)], [0], cycle_state=[2])
-    policy, step = jax.jit(act, static_argnums=(1, 2, 4)), jax.jit(world_step, static_argnums=2)
+    policy, step = jax.jit(act_one, static_argnums=(1, 2, 4)), jax.jit(world_step, static_argnums=2)
     memory, reward, actions, rewards = init_memory(params), jnp.float32(0), [], []
     for t in range(4):
         action, memory = policy(jax.random.key(t), ORACLE, params, state, 0, memory, reward, t == 0)
@@ -356,7 +356,7 @@ def test_act_batch_equals_vmapped_act():
     size, steps = 8, 60
 
     def one(key, state, memory, reward, reset):
-        return act(key, spec, params, state, 0, memory, reward, reset)
+        return act_one(key, spec, params, state, 0, memory, reward, reset)
 
     @jax.jit
     def run(key):

@@ -95,7 +95,8 @@ class Memory:
 
 
 def init_memory(env_params: EnvParams) -> Memory:
-    """An empty memory with the shapes `env_params` implies (call `act` with `reset=True` first)."""
+    """An empty memory with the shapes `env_params` implies (call `act_one` or `act_batch` with `reset=True`
+    first)."""
     n = _n_targets(env_params)
     minus_one = jnp.full((), -1, jnp.int32)
     return Memory(
@@ -211,7 +212,7 @@ def _oracle_target(labels, best_reach, cycle, forgot, u, inf: int) -> jax.Array:
 
 
 def _decide(key, spec, env_params, state, agent, memory, reward, reset, cost):
-    """`act` given the (already refreshed) cost fields."""
+    """`act_one` given the (already refreshed) cost fields."""
     inf = _inf(env_params)
     n = cost.shape[0]
     labels = jnp.arange(n, dtype=jnp.int32)
@@ -262,7 +263,7 @@ def _decide(key, spec, env_params, state, agent, memory, reward, reset, cost):
     return action.astype(jnp.int32), new_memory
 
 
-def act(
+def act_one(
     key: jax.Array,
     spec: ExpertSpec,
     env_params: EnvParams,

@@ -2,9 +2,9 @@
 
 Modules create each parameter with `param` and an `Init` (its distribution), which it notes;
 `param_inits(module, *args)` collects every parameter's path -> (shape, `Init`) from an abstract
-``module.init``, and `draw(key, specs)` builds the params tree (float32 arrays) from one standard-normal and
-one U(-1, 1) buffer: a `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time each. Orthogonal
-matrices come from Gram-Schmidt (`_gram_schmidt` says why not ``jnp.linalg.qr``).
+``module.init``, and `sample_params(key, specs)` builds the params tree (float32 arrays) from one
+standard-normal and one U(-1, 1) buffer: a `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time
+each. Orthogonal matrices come from Gram-Schmidt (`_gram_schmidt` says why not ``jnp.linalg.qr``).
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def param_inits(module: nn.Module, *args) -> Specs:
     return {path: (shapes[path].shape, inits[path][0]) for path in shapes}
 
 
-def draw(key: jax.Array, specs: Specs) -> Params:
+def sample_params(key: jax.Array, specs: Specs) -> Params:
     """The params tree of `specs` (nested dict of float32 arrays); pure, so it can be vmapped over keys.
 
     Every parameter is a slice of one of two flat random buffers (standard normal and U(-1, 1)), in the

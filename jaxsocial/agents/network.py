@@ -135,11 +135,11 @@ def _initialisers(net_cfg: NetworkConfig) -> initialisers.Specs:
 
 def init(key: jax.Array, net_cfg: NetworkConfig) -> Params:
     """Initial params of ``ActorCritic(net_cfg)`` (a nested dict of float32 arrays); pure, so it can be
-    vmapped over keys. Every parameter is a slice of one of two flat random buffers (`initialisers.draw`): a
-    separate `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile time each (11 s for the whole
-    network).
+    vmapped over keys. Every parameter is a slice of one of two flat random buffers
+    (`initialisers.sample_params`): a separate `jax.random` call per tensor costs ~0.4 s of XLA:CPU compile
+    time each (11 s for the whole network).
     """
-    return initialisers.draw(key, _initialisers(net_cfg))
+    return initialisers.sample_params(key, _initialisers(net_cfg))
 
 
 def initial_carry(net_cfg: NetworkConfig, batch_shape: tuple[int, ...]) -> Carry:

@@ -169,7 +169,7 @@ def all_params(state: RunnerState, frozen_params) -> Any:
     return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), state.params, frozen_params)
 
 
-def attention_targets(w: Wiring, env_states: EnvState) -> jax.Array | None:
+def _attention_targets(w: Wiring, env_states: EnvState) -> jax.Array | None:
     """int32[S_l, E, N-1] where each learner sees the other agents (`observe.attention_targets`), or None
     without an attention head."""
     if not w.net_cfg.attention:
@@ -195,7 +195,7 @@ def iteration(
         state, slot_params = carry
         k_act, k_env = jax.random.split(key)
         # ACT: every slot on the same joint state; the neural slots sample from their networks' policies
-        actions, slots, logp, values = act(w, k_act, slot_params, state)
+        actions, slots, logp, values = _act(w, k_act, slot_params, state)
         # STEP every environment; the last views of truncated episodes are valued to bootstrap them
         obs, env_states, reward, terminated, _, info = core.step_batch(
             jax.random.split(k_env, w.num_envs), state.env_states, actions, w.env_params, w.observers
@@ -235,7 +235,7 @@ def iteration(
     return state._replace(key=key), losses, ended
 
 
-def act(w: Wiring, key: jax.Array, slot_params, state: RunnerState):
+def _act(w: Wiring, key: jax.Array, slot_params, state: RunnerState):
     """`acting.act` of every slot on the joint state `state`, with every neural slot's params [S, ...]:
     actions int32[E, N], the slots' new `acting.SlotState`, logp and values float32[S, E]."""
     slots, obs, env_states, resets = state.slots, state.obs, state.env_states, state.resets
@@ -281,7 +281,7 @@ def record_learners(
         agent_done=agent_done[:, w.learners].T,
         final_values=final_values[:n_learners],
         valid=state.env_states.active[:, w.training_slots].T,
-        attention=attention_targets(w, state.env_states),
+        attention=_attention_targets(w, state.env_states),
         values=values[:n_learners],
         carry=jax.tree.map(lambda c: c[:n_learners], state.slots.carry),
     )
