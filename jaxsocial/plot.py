@@ -264,7 +264,7 @@ def final_return_lines(groups: list[Group]) -> list[str]:
     return lines
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+def _parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.plot", description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", metavar="RUN_DIR", help="runs of python -m jaxsocial.train")
     parser.add_argument(
@@ -311,7 +311,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
+    args = _parse_args(argv)
     fig = draw(args.groups, args.points, together=args.together)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

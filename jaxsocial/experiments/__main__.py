@@ -27,7 +27,7 @@ CHECKPOINT_CHOICES = ("learned", "all")
 """`record --final-checkpoint`: keep the final checkpoint of the seeds that learned, or of every seed."""
 
 
-def make_parser() -> argparse.ArgumentParser:
+def _make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="the recipes, their conditions and the scales")
@@ -50,7 +50,7 @@ def make_parser() -> argparse.ArgumentParser:
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     """The command line, after `--results DIR` is read, checked, with the committed results found."""
-    return paths.parse_command(make_parser, argv, check_args)
+    return paths.parse_command(_make_parser, argv, check_args)
 
 
 def check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:

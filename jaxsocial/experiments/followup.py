@@ -310,7 +310,7 @@ def measures(learned: list[dict[str, Any]], scale: recipes.Scale) -> dict[str, A
     }
 
 
-def make_parser() -> argparse.ArgumentParser:
+def _make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m jaxsocial.experiments followup", description=__doc__.split("\n")[0]
     )
@@ -346,7 +346,7 @@ def make_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
-    args = paths.parse_command(make_parser, argv)
+    args = paths.parse_command(_make_parser, argv)
     try:
         plan = Plan.of(args.recipe)
         if args.command == "run":

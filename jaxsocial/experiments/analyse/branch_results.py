@@ -66,7 +66,7 @@ def compare_arms(
     return {"test": "mann-whitney"} | stats.mann_whitney(kept[0], kept[1], test.alternative)
 
 
-def tested(
+def _tested(
     design: BranchDesign, family: dict[str, Test], scores: dict[str, dict[str, list]], alpha: float
 ) -> dict:
     """Each test of `family`, Holm-corrected among themselves at `alpha`."""
@@ -131,8 +131,8 @@ def summarise(design: BranchDesign, records_root: Path) -> dict[str, Any]:
     block = {
         "commit": commit,
         "alpha": design.alpha,
-        "primary": tested(design, design.primary, scores, design.alpha),
-        "secondary": tested(design, design.secondary, scores, design.alpha),
+        "primary": _tested(design, design.primary, scores, design.alpha),
+        "secondary": _tested(design, design.secondary, scores, design.alpha),
         "checks": checks,
         "valid": all(v for v in checks.values() if isinstance(v, bool)),
     }
@@ -180,7 +180,7 @@ def amended(
         "committed": when,
         "added": amendment.added,
         "alpha": amendment.alpha,
-        "tests": tested(design, amendment.tests, scores, amendment.alpha),
+        "tests": _tested(design, amendment.tests, scores, amendment.alpha),
         "checks": checks,
         "valid": all(v for v in checks.values() if isinstance(v, bool)),
     }
