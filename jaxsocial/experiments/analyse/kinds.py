@@ -35,12 +35,10 @@ CT_SCORES = ("ct", "recall")
 # Evaluations after training: what is played and where the results go
 # ----------------------------------------------------------------------------------------------------------
 
-EVAL_DIR = rundir.EVAL_DIR
-"""Sub-directory of a seed's run directory holding its post-training evaluations, one JSON per env spec."""
-
 
 def eval_path(seed_dir: Path, spec: str) -> Path:
-    return seed_dir / EVAL_DIR / f"{paths.env_tag(spec)}.json"
+    """A seed's evaluation in the environment `spec`: `<seed_dir>/eval/<env tag>.json` (`rundir.EVAL_DIR`)."""
+    return seed_dir / rundir.EVAL_DIR / f"{paths.env_tag(spec)}.json"
 
 
 def transfer_specs(recipe: Recipe, scale: Scale) -> list[str]:
