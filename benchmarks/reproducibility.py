@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import re
 import statistics
 import sys
 import tempfile
@@ -62,7 +61,7 @@ ONE_CORE = verify.retraining_cores(1)
 
 def kind_file(cpu: str, out_dir: Path = OUT_DIR) -> Path:
     """A machine kind's JSON in `out_dir`: the CPU description as a file name."""
-    return out_dir / (re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json")
+    return out_dir / (cpuinfo.slug(cpu) + ".json")
 
 
 def kind_arguments(parser: argparse.ArgumentParser, committed: Path) -> None:

@@ -124,7 +124,9 @@ def pytest_configure(config):
 
     One persistent XLA cache for every test process: the pytest-xdist workers (and later runs) load the
     programs another one compiled (the same training programs recur across test files) instead of
-    compiling them again. Keyed by program, JAX version, flags and devices, so it is safe to share."""
+    compiling them again. Keyed by program, JAX version, flags and devices, and kept per CPU kind and
+    visible-core count (`compile_cache.enable`), so it is safe to share, also between runs of the suite whose
+    processes see different numbers of cores."""
     flags = os.environ.get("XLA_FLAGS", "")
     added = [f"--{name}={value}" for name, value in TEST_XLA_FLAGS.items() if name not in flags]
     os.environ["XLA_FLAGS"] = " ".join([flags, *added]).strip()

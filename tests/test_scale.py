@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from conftest import TINY, TINY_RUN_FLAGS, metrics_without_speed
 
-from jaxsocial.run import checkpoint, compile_cache, distributed, policy_io
+from jaxsocial.run import checkpoint, compile_cache, cpuinfo, distributed, policy_io
 from jaxsocial.train import run
 
 REPO = Path(__file__).resolve().parent.parent
@@ -160,3 +160,32 @@ def test_compile_cache_command(tmp_path, capsys):
     assert "1 programs" in capsys.readouterr().out
     compile_cache.main([str(tmp_path), "--clear"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]  # only the cache's own files go
+
+
+ENABLE = "import sys; from jaxsocial.run import compile_cache; print(compile_cache.enable(sys.argv[1]))"
+"""A process that enables the cache `argv[1]` and prints the directory its programs go to."""
+
+
+def test_the_compile_cache_keeps_each_cpu_and_core_count_apart(tmp_path):
+    """XLA's CPU code follows the CPU and how many cores the process sees, which JAX's key does not name: a
+    process seeing one core and one seeing every core store and load in sub-directories of their own (a
+    program compiled seeing two cores, loaded seeing one, trained other numbers than a fresh compile)."""
+    cores = sorted(os.sched_getaffinity(0))
+    pins = [[], ["taskset", "-c", str(cores[0])]] if len(cores) > 1 else [[]]
+    dirs = [
+        Path(
+            subprocess.run(
+                [*pin, sys.executable, "-c", ENABLE, str(tmp_path)],
+                capture_output=True,
+                text=True,
+                timeout=120,
+                check=True,
+            ).stdout.strip()
+        )
+        for pin in pins
+    ]
+    kind = cpuinfo.slug(cpuinfo.model())
+    assert [d.name for d in dirs] == [f"{kind}-{len(cores)}-cores", f"{kind}-1-cores"][: len(pins)]
+    assert all(d.parent == tmp_path.absolute() and d.is_dir() for d in dirs)
+    (dirs[0] / "jit_f-0123-cache").write_bytes(b"x")
+    assert compile_cache.entries(tmp_path) == [dirs[0] / "jit_f-0123-cache"]  # the command sees them

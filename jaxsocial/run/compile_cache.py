@@ -4,9 +4,14 @@
     python -m jaxsocial.run.compile_cache                # where the default cache is, its entries and size
     python -m jaxsocial.run.compile_cache --clear        # delete its entries
 
-The cache is keyed by the program, the JAX/XLA versions and the devices, so one directory serves every
-configuration. Programs that compile in under `MIN_COMPILE_SECONDS` are not stored (JAX runs many tiny ones).
-Setting $JAX_COMPILATION_CACHE_DIR has the same effect for any JAX program.
+JAX keys the cache by the program, the JAX/XLA versions, the flags and the devices, but not by the CPU or by
+how many cores the process sees, on which XLA's CPU code (and so the bits it computes) depends: a program
+compiled seeing two cores and loaded by a process that sees one trains other numbers than that process would
+compile. So each directory holds one sub-directory per CPU kind and visible-core count
+(`cpuinfo.compiled_for`), and one directory serves every configuration and machine. Programs that compile
+in under `MIN_COMPILE_SECONDS` are not stored (JAX runs many tiny ones). Setting $JAX_COMPILATION_CACHE_DIR
+makes JAX use that directory itself, for any JAX program, without the sub-directories; `default_dir` reads it
+for the runs a runner starts, which name it with `--compile-cache`.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import os
 from pathlib import Path
 
 from jaxsocial import user_cache
+from jaxsocial.run import cpuinfo
 
 __all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "default_dir", "enable", "entries", "main"]
 
@@ -31,11 +37,13 @@ def default_dir() -> Path:
 
 
 def enable(directory: str | Path, min_compile_seconds: float = MIN_COMPILE_SECONDS) -> Path:
-    """Stores compiled programs in `directory` (created if missing) and loads them from there from now on in
-    this process. Returns the absolute directory."""
-    path = Path(directory).expanduser().absolute()
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"compile cache {path} exists and is not a directory")
+    """Stores compiled programs in `directory`'s sub-directory for this CPU and visible-core count
+    (`cpuinfo.compiled_for`; both created if missing) and loads them from there from now on in this process.
+    Returns that sub-directory (absolute)."""
+    base = Path(directory).expanduser().absolute()
+    if base.exists() and not base.is_dir():
+        raise ValueError(f"compile cache {base} exists and is not a directory")
+    path = base / cpuinfo.compiled_for()
     path.mkdir(parents=True, exist_ok=True)
     import jax  # here, not above: `python -m jaxsocial.train` checks its input before JAX is imported
 
@@ -49,12 +57,14 @@ def enable(directory: str | Path, min_compile_seconds: float = MIN_COMPILE_SECON
 
 
 def entries(directory: str | Path) -> list[Path]:
-    """The files of JAX's cache in `directory`: a `<key>-cache` per program and maybe `<key>-atime` (its last
-    use); [] if `directory` does not exist. Nothing else there counts (or is deleted by --clear)."""
+    """The files of JAX's cache in `directory`, in any machine's sub-directory (`enable`) or beside them (as
+    caches were filled before): a `<key>-cache` per program and maybe `<key>-atime` (its last use); [] if
+    `directory` does not exist. Nothing else there counts (or is deleted by --clear)."""
     path = Path(directory).expanduser()
     if not path.is_dir():
         return []
-    return sorted(p for p in path.iterdir() if p.is_file() and p.name.endswith(("-cache", "-atime")))
+    files = [*path.iterdir(), *(p for d in path.iterdir() if d.is_dir() for p in d.iterdir())]
+    return sorted(p for p in files if p.is_file() and p.name.endswith(("-cache", "-atime")))
 
 
 def main(argv: list[str] | None = None) -> None:

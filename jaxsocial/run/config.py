@@ -141,8 +141,8 @@ class DriverConfig:
     process_id: int | None = None
     """Multi-host: this process's index, 0 to num_processes - 1 (default $JAX_PROCESS_ID)."""
     compile_cache: str | None = None
-    """Persistent compilation cache directory: a later run of the same program skips compiling (off by
-    default; see `python -m jaxsocial.run.compile_cache`)."""
+    """Persistent compilation cache directory: a later run of the same program on the same CPU kind and
+    visible-core count skips compiling (off by default; see `python -m jaxsocial.run.compile_cache`)."""
     eval_envs: tuple[EnvFlag, ...] = ()
     """Environments the first learner is evaluated in during training, each NAME or NAME:field=value,...
     (e.g. goalcycle3-solo goalcycle4), beside that environment's default companions; logged in

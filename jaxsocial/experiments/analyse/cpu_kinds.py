@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from jaxsocial.experiments.plan import paths
-from jaxsocial.run import jsonio
+from jaxsocial.run import cpuinfo, jsonio
 
 FOLDER = "op_fingerprints"
 """The kinds' files' folder under `paths.RESULTS`."""
@@ -42,7 +42,7 @@ def folder() -> Path:
 def file_name(cpu: str) -> str:
     """A kind's file name: its CPU description (`cpuinfo.model`) lower-cased, every run of other
     characters than letters and digits a '-' (as `benchmarks/reproducibility.kind_file` names it)."""
-    return re.sub(r"[^a-z0-9]+", "-", cpu.lower()).strip("-") + ".json"
+    return cpuinfo.slug(cpu) + ".json"
 
 
 def kind_key(cpu: str | None) -> tuple[str, int, int] | None:
