@@ -8,7 +8,7 @@ JAX keys the cache by the program, the JAX/XLA versions, the flags and the devic
 how many cores the process sees, on which XLA's CPU code (and so the bits it computes) depends: a program
 compiled seeing two cores and loaded by a process that sees one trains other numbers than that process would
 compile. So each directory holds one sub-directory per CPU kind and visible-core count
-(`cpuinfo.compiled_for`), and one directory serves every configuration and machine. Programs that compile
+(`machine_dir`), and one directory serves every configuration and machine. Programs that compile
 in under `MIN_COMPILE_SECONDS` are not stored (JAX runs many tiny ones). Setting $JAX_COMPILATION_CACHE_DIR
 makes JAX use that directory itself, for any JAX program, without the sub-directories; `default_dir` reads it
 for the runs a runner starts, which name it with `--compile-cache`.
@@ -21,7 +21,7 @@ import os
 from pathlib import Path
 
 from jaxsocial import user_cache
-from jaxsocial.run import cpuinfo
+from jaxsocial.run import cpuinfo, provenance
 
 __all__ = ["DEFAULT_DIR", "MIN_COMPILE_SECONDS", "default_dir", "enable", "entries", "main"]
 
@@ -36,14 +36,23 @@ def default_dir() -> Path:
     return Path(os.environ.get("JAX_COMPILATION_CACHE_DIR") or DEFAULT_DIR).expanduser()
 
 
+def machine_dir() -> str:
+    """A cache's sub-directory for this process's programs: what XLA's CPU code depends on beyond the program,
+    flags and versions that JAX's key names: this CPU (`cpuinfo.slug` of its model) and how many cores this
+    process sees (`provenance.visible_cores`; the machine's count where the OS cannot say), e.g.
+    'amd-epyc-family-25-model-1-2-cores'."""
+    cores = provenance.visible_cores()
+    return f"{cpuinfo.slug(cpuinfo.model())}-{len(cores) if cores else os.cpu_count()}-cores"
+
+
 def enable(directory: str | Path, min_compile_seconds: float = MIN_COMPILE_SECONDS) -> Path:
     """Stores compiled programs in `directory`'s sub-directory for this CPU and visible-core count
-    (`cpuinfo.compiled_for`; both created if missing) and loads them from there from now on in this process.
+    (`machine_dir`; both created if missing) and loads them from there from now on in this process.
     Returns that sub-directory (absolute)."""
     base = Path(directory).expanduser().absolute()
     if base.exists() and not base.is_dir():
         raise ValueError(f"compile cache {base} exists and is not a directory")
-    path = base / cpuinfo.compiled_for()
+    path = base / machine_dir()
     path.mkdir(parents=True, exist_ok=True)
     import jax  # here, not above: `python -m jaxsocial.train` checks its input before JAX is imported
 

@@ -5,7 +5,6 @@ file records them (`provenance`), `verify` compares them, and the autotuner's ca
 from __future__ import annotations
 
 import functools
-import os
 import platform
 import re
 from pathlib import Path
@@ -71,10 +70,3 @@ def slug(model_text: str) -> str:
     """`model_text` (a `model()`) as a file name: lower-case, every run of other characters than letters and
     digits a '-', e.g. 'amd-epyc-family-25-model-1'."""
     return re.sub(r"[^a-z0-9]+", "-", model_text.lower()).strip("-")
-
-
-def compiled_for() -> str:
-    """What XLA's CPU code depends on beyond the program, flags and versions that JAX's cache key names: this
-    CPU (`slug` of `model`) and how many cores this process sees (XLA splits its work by that count, and the
-    bits follow), e.g. 'amd-epyc-family-25-model-1-2-cores'."""
-    return f"{slug(model())}-{len(os.sched_getaffinity(0))}-cores"
