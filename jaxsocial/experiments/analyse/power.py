@@ -12,6 +12,7 @@ import numpy as np
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import branch_results, evaluation_results
 from jaxsocial.experiments.plan import catalogue
+from jaxsocial.stats import scipy_stats
 
 
 def power_table(
@@ -32,8 +33,6 @@ def power_table(
     control one). Either way the effect is diluted to a fraction d of the pilot's while every value stays
     one the pilot had. Returns per discount each test's probability of rejection, and that of rejecting all
     of them and any of them (3 decimals)."""
-    from scipy import stats as scipy_stats
-
     rng = np.random.default_rng(rng_seed)
     names = list(pilot)
     evidence = [{k: np.asarray(v, np.float64) for k, v in pilot[n].items()} for n in names]
@@ -83,8 +82,6 @@ def zero_shot_power(
     when a treatment seed's score beats a control seed's with probability `p_above`: scores drawn from two
     unit normal distributions `sqrt(2) * Phi^-1(p_above)` apart, `reps` simulated designs (numpy `rng_seed`);
     rounded to 3 decimals."""
-    from scipy import stats as scipy_stats
-
     rng = np.random.default_rng(rng_seed)
     shift = np.sqrt(2) * scipy_stats.norm.ppf(p_above)
     rejected = [

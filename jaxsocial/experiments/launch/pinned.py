@@ -178,12 +178,10 @@ def run_processes(jobs: list[Job], cores: list[int], process_flags: str) -> list
             job = jobs[i]
             process = (job.run_dir, shlex.join(["python", *job.argv]), tree, 1, started)
             if earlier is None and (job.run_dir / rundir.CONFIG_FILE).is_file():
-                earlier = provenance.earlier_processes(
-                    job.run_dir
-                )  # its directory is there: say so before it ends
-                seen = provenance.visible_cores(
-                    proc.pid
-                )  # python itself runs, pinned; `poll` has not reaped it
+                # its directory is there: say so before it ends
+                earlier = provenance.earlier_processes(job.run_dir)
+                # python itself runs, pinned; `poll` has not reaped it
+                seen = provenance.visible_cores(proc.pid)
                 active[i] = (proc, core, started, tree, earlier, seen)
                 if proc.poll() is None:
                     provenance.write_run_file(*process, None, process_flags, earlier, seen)
