@@ -317,8 +317,8 @@ def test_run_starts_only_max_runs_branches_in_seed_order(tmp_path, monkeypatch, 
 
 @needs_records("records/laptop/prereg-experts")  # the branches' sources
 def test_run_resumes_a_begun_branch_and_skips_a_finished_one(tmp_path, monkeypatch, capsys):
-    """A branch's state (`rundirs.branch_state`): one that logged every iteration is not started again, one
-    begun resumes (`--resume`), one never begun starts afresh."""
+    """A branch's state (`rundirs.run_state`): one that logged every iteration is not started again, one
+    begun (its config written) resumes (`--resume`), one never begun starts afresh."""
     started = {}
     monkeypatch.setattr(
         pinned, "run", lambda jobs, cores, flags: started.update({j.label: j.argv for j in jobs}) or [0]
@@ -326,8 +326,9 @@ def test_run_resumes_a_begun_branch_and_skips_a_finished_one(tmp_path, monkeypat
     finished, begun = (tmp_path / MIXING.run_name(arm, MIXING.seed) for arm in ("mixed", "social"))
     for run_dir, rows in ((finished, MIXING.iterations), (begun, MIXING.iterations - 1)):
         run_dir.mkdir(parents=True)
+        rundir.write_config(run_dir, {"iterations": MIXING.iterations})
         rundir.MetricsLog(run_dir).append({"iteration": i + 1} for i in range(rows))
-    assert rundirs.branch_state(tmp_path / "nowhere", MIXING.iterations) == rundirs.MISSING
+    assert rundirs.run_state(tmp_path / "nowhere", MIXING.iterations) == rundirs.MISSING
     with pytest.raises(SystemExit):
         kind_commands.branch_main(["run", "mixing", "--runs-dir", str(tmp_path), "--max-runs", "2"])
     assert "[mixing] branches: 1 finished, 1 partial, 118 missing" in capsys.readouterr().out

@@ -14,7 +14,7 @@ from conftest import needs_records
 
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments.analyse import kinds, plot_figures, summaries, takeoff
+from jaxsocial.experiments.analyse import kinds, plot_figures, rundirs, summaries, takeoff
 from jaxsocial.experiments.launch import runner
 from jaxsocial.experiments.plan import conditions, paths, recipes
 from jaxsocial.run import config, jsonio, metrics, rundir, schedule, startup
@@ -217,7 +217,8 @@ def test_seeds_are_read_from_whichever_run_holds_them(tmp_path):
         base / "social_rec-s3-5" / f"s{s}" for s in range(3, 6)
     ]
     social_rec = recipes.condition_config(scale, "social_rec", 0, 6, str(tmp_path))
-    assert runner.status(social_rec, dirs) == "finished"
+    run_dir = rundir.run_path(social_rec)
+    assert rundirs.run_state(run_dir, social_rec.iterations, dirs) == "finished"
     runs = summaries.RecipeRuns(recipes.RECIPES["h1"], scale, 0, 6, str(tmp_path))
     assert runs.missing == ["solo_pred", "social_pred"]
     assert runs.missing_seeds == {"social_none": [1, 2, 3, 4, 5]}

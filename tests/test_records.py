@@ -13,7 +13,7 @@ from jaxsocial import playback
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import followup, sweep
 from jaxsocial.experiments.analyse import records, summaries, takeoff_power
-from jaxsocial.experiments.plan import catalogue, designs, paths, recipes
+from jaxsocial.experiments.plan import catalogue, designs, paths, recipes, sweep_settings
 from jaxsocial.run import jsonio, metrics, policy_io, provenance, rundir
 
 REPO = Path(__file__).resolve().parents[1]
@@ -289,7 +289,7 @@ def _records_read(name: str) -> tuple[str, ...]:
     if name == paths.MAP_SUMMARY.name + ".json":
         return ()
     if name == paths.SWEEP_SUMMARY.name + ".json":
-        return (f"records/{sweep.RECORDS_SUBDIR}",)
+        return (f"records/{sweep_settings.RECORDS_SUBDIR}",)
     designed = summary.get("design") in catalogue.design_names()
     kind = catalogue.design_kind(summary["design"]) if designed else None
     if kind == "evaluation":

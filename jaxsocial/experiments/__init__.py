@@ -17,8 +17,7 @@ keeps the arrows so): `plan/` imports neither of the others; `launch/` uses plan
 
 The commands on top use all three: `__main__` (one command, every verb), `kind_commands` (the verbs of the
 evaluation and branch designs, whose parts are `plan.<kind>_design`, `launch.evaluation_play` or
-`launch.branch_runs`, and `analyse.<kind>_results`), `sweep` (screens settings) and `followup` (branches,
-transfers and probes a design's learners that learned), each of the last two with its plan, launch and
-analysis in that order. They work on a checkout of the repository, run from its root
-(`paths.require_checkout`).
-"""
+`launch.branch_runs`, and `analyse.<kind>_results`), `sweep` (screens settings: `plan.sweep_settings`,
+`launch.sweep_runs`, `analyse.sweep_results`) and `followup` (branches, transfers and probes a design's
+learners that learned: `plan.followup_plan`, `launch.followup_runs`, `analyse.followup_results`). They work on
+a checkout of the repository, run from its root (`paths.require_checkout`)."""

@@ -35,10 +35,13 @@ def finished(seed_dir: Path, iterations: int) -> bool:
     return len(rows) >= iterations or records.stopped_early(rundir.read_config(seed_dir), rows)
 
 
-def branch_state(run_dir: Path, iterations: int) -> str:
-    """FINISHED (`run_dir` logged `iterations` rows), PARTIAL (it exists: training resumes it), or MISSING."""
-    rows = len(rundir.read_metrics(run_dir)) if rundir.has_metrics(run_dir) else 0
-    return FINISHED if rows >= iterations else PARTIAL if run_dir.is_dir() else MISSING
+def run_state(run_dir: Path, iterations: int, seed_dirs: list[Path] | None = None) -> str:
+    """FINISHED (each of `seed_dirs`, or the run directory itself where a run has one seed, is over:
+    `finished`), PARTIAL (the run's config is written, so training resumes it) or MISSING. The one rule for
+    every run a design or the sweep trains: a recipe's conditions, branches, sweep seeds, follow-ups."""
+    if all(finished(d, iterations) for d in seed_dirs or [run_dir]):
+        return FINISHED
+    return PARTIAL if (run_dir / rundir.CONFIG_FILE).exists() else MISSING
 
 
 def condition_seed_dirs(

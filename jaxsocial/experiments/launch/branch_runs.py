@@ -71,7 +71,7 @@ def run(
         for arm in design.arms:
             cfg = branch_config(design, arm, seed, runs_root, records_root)
             run_dir = runs_root / cfg.run_name
-            state = rundirs.branch_state(run_dir, design.iterations)
+            state = rundirs.run_state(run_dir, design.iterations)
             counts[state] += 1
             flags = config_flags(cfg) + rundirs.resume_flags(state)
             if dry_run:
@@ -102,7 +102,7 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
             run_dir, target = runs_root / name, records_root / name
             if target.exists():
                 continue
-            state = rundirs.branch_state(run_dir, design.iterations)
+            state = rundirs.run_state(run_dir, design.iterations)
             not_started += state == rundirs.MISSING
             if state == rundirs.PARTIAL:
                 print(f"  {name}: not finished, not recorded")

@@ -1,10 +1,12 @@
-"""An evaluation design's evaluations played (`run`): what is missing, blind, each process logged
-(`plan.evaluation_design`)."""
+"""Policies played zero-shot: an evaluation design's evaluations (`run`: what is missing, blind, each
+process logged, `plan.evaluation_design`), and one seed's final policy in one environment, its result
+written (`evaluate_into`: the recipes' evaluations after training, the follow-ups')."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 from jaxsocial.env import registry
 from jaxsocial.experiments.analyse import evaluation_results
@@ -54,3 +56,18 @@ def run(design: EvaluationDesign, records_root: Path, science: Path) -> None:
         with (out / PROVENANCE).open("a") as f:
             f.write(json.dumps(line) + "\n")
         print(f"[{design.name}] {e.env} {e.player}: played ({len(e.ckpts) or 1} policies)", flush=True)
+
+
+def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol: str) -> dict[str, Any]:
+    """Play the final policy of `seed_dir` in the environment `spec` (NAME[:field=value,...]) for `episodes`
+    episodes with the evaluation `protocol` (`jaxsocial.evaluate`); write the result to `out`, return it."""
+    from jaxsocial import evaluate
+
+    env = EnvSpec.parse(spec)
+    config = evaluate.EvalConfig(
+        ckpt=(str(seed_dir),), env=env.name, env_args=env.args, episodes=episodes, protocol=protocol
+    )
+    result = evaluate.evaluate(config)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    jsonio.write_json(out, result)
+    return result

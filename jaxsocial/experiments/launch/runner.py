@@ -9,27 +9,25 @@ import os
 import shlex
 import sys
 from pathlib import Path
-from typing import Any
 
-from jaxsocial import evaluate, train
+from jaxsocial import train
 from jaxsocial.experiments.analyse import kinds, run_times
 from jaxsocial.experiments.analyse.rundirs import (
     FINISHED,
-    MISSING,
     PARTIAL,
     condition_seed_dirs,
     config_seed_dirs,
     finished,
     resume_flags,
+    run_state,
 )
-from jaxsocial.experiments.launch import pinned
+from jaxsocial.experiments.launch import evaluation_play, pinned
 from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import checkout, jsonio, provenance, rundir
+from jaxsocial.run import checkout, provenance, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.startup import setup
-from jaxsocial.specs import EnvSpec
 
 BLIND_SCORE = "written (blind until every seed is in)"
 """What `run` prints for a pre-registered design's evaluation in place of its score."""
@@ -37,27 +35,6 @@ BLIND_SCORE = "written (blind until every seed is in)"
 
 class TrainingFailed(Exception):
     """A training process (`run` with a launcher) exited with an error."""
-
-
-def evaluate_into(out: Path, seed_dir: Path, spec: str, episodes: int, protocol: str) -> dict[str, Any]:
-    """Play the final policy of `seed_dir` in the environment `spec` (NAME[:field=value,...]) for `episodes`
-    episodes with the evaluation `protocol` (`jaxsocial.evaluate`); write the result to `out`, return it."""
-    env = EnvSpec.parse(spec)
-    config = evaluate.EvalConfig(
-        ckpt=(str(seed_dir),), env=env.name, env_args=env.args, episodes=episodes, protocol=protocol
-    )
-    result = evaluate.evaluate(config)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    jsonio.write_json(out, result)
-    return result
-
-
-def status(cfg: TrainConfig, dirs: list[Path]) -> str:
-    """FINISHED (each seed's directory `dirs` logged every iteration, or its early stop ended it), PARTIAL
-    (the config's own run directory exists, so training resumes it) or MISSING."""
-    if all(finished(d, cfg.iterations) for d in dirs):
-        return FINISHED
-    return PARTIAL if (rundir.run_path(cfg) / rundir.CONFIG_FILE).exists() else MISSING
 
 
 def run(
@@ -99,7 +76,9 @@ def run(
         xla_flags_held(recipe, design_flags)
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     states = {  # each program's state, by its condition and first seed
-        (name, cfg.seed): status(cfg, dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds])
+        (name, cfg.seed): run_state(
+            rundir.run_path(cfg), cfg.iterations, dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds]
+        )
         for name, cfgs in programs.items()
         for cfg in cfgs
     }
@@ -270,6 +249,8 @@ def evaluate_finished(recipe: Recipe, scale: Scale, dirs: dict[str, list[Path]],
             for evaluation, spec, out in kinds.evaluation_outputs(recipe, scale, seed_dir):
                 if out.exists():
                     continue
-                result = evaluate_into(out, seed_dir, spec, scale.eval_episodes, evaluation.protocol)
+                result = evaluation_play.evaluate_into(
+                    out, seed_dir, spec, scale.eval_episodes, evaluation.protocol
+                )
                 shown = BLIND_SCORE if blind else f"{evaluation.score(result):.3f}"
                 print(f"  {name} {seed_dir.name} in {spec} ({evaluation.protocol}): {shown}")
