@@ -7,15 +7,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import re
 from pathlib import Path
-from typing import Any
 
-from jaxsocial.experiments.analyse import kinds, records, rundirs, summaries, verdicts
-from jaxsocial.experiments.launch import pinned, slurm, verify
+from jaxsocial.experiments.analyse import summaries, verdicts
+from jaxsocial.experiments.launch import pinned, recipe_records, slurm, verify
 from jaxsocial.experiments.plan import catalogue, designs, paths, prereg, recipes
-from jaxsocial.run import checkout, jsonio, provenance, rundir
-from jaxsocial.run.metrics import LEARNED_RETURN, final_return
+from jaxsocial.run import jsonio, provenance, rundir
+from jaxsocial.run.metrics import LEARNED_RETURN
 
 RECIPE_COMMANDS = {
     "run": "train and evaluate what a recipe needs",
@@ -23,8 +21,6 @@ RECIPE_COMMANDS = {
     "record": "pack a recipe's run directories into records (config, metrics, final policy, evaluations)",
 }
 """The subcommands that act on a recipe's conditions and seeds, and their help."""
-CHECKPOINT_CHOICES = ("learned", "all")
-"""`record --final-checkpoint`: keep the final checkpoint of the seeds that learned, or of every seed."""
 
 
 def _make_parser() -> argparse.ArgumentParser:
@@ -172,7 +168,7 @@ def _record_options(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--final-checkpoint",
-        choices=CHECKPOINT_CHOICES,
+        choices=recipe_records.CHECKPOINT_CHOICES,
         default=None,
         help="also keep the final checkpoint (params and optimiser state) of the seeds that learned "
         f"(final return > the design's threshold, else {LEARNED_RETURN:g}) or of all, so later "
@@ -345,106 +341,8 @@ def list_recipes() -> None:
 
 
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
-    """Pack every finished seed of the recipe that has no record yet (or every one, with --overwrite); seeds
-    still training or not evaluated yet (the evaluations the recipe's kind asks for) are skipped with a note,
-    and everything is checked before the first write. Unless --allow-dirty, a dirty tree here
-    (`checkout.tree`) and runs whose process file says they trained from one are refused first."""
-    tree = checkout.tree()
-    if tree.dirty and not args.allow_dirty:
-        raise ValueError(
-            f"refusing to record from a dirty tree: {tree.describe()}, so a record made now would name a "
-            'commit it may not be rebuilt from. Commit first (docs/your-experiment.md, "4. Record it"), or '
-            "pass --allow-dirty to record anyway (each record then says packed_dirty). Nothing was recorded"
-        )
-    plan = record_plan(args, recipe, scale)
-    dirty = [
-        f"{seed_dir} ({', '.join(diffs)})"
-        for seed_dir, _, run, _ in plan
-        if (diffs := records.dirty_diffs(run))
-    ]
-    if dirty and not args.allow_dirty:
-        raise ValueError(
-            f"refusing to record runs trained from a dirty tree, whose process file names the diff that "
-            f"rebuilds their code from its commit: {', '.join(dirty)}. Train them again from a commit, or "
-            "pass --allow-dirty to record them with their diffs. Nothing was recorded"
-        )
-    for seed_dir, relative, run, reason in plan:
-        record_dir = Path(args.out_dir) / relative
-        if record_dir.exists() and any(record_dir.iterdir()) and not args.overwrite:
-            print(f"  {record_dir}: already recorded, kept (--overwrite replaces it)")
-            continue
-        records.pack(seed_dir, record_dir, run, str(relative), args.overwrite, checkpoint_reason=reason)
-        with_checkpoint = f", with its final checkpoint: {reason}" if reason else ""
-        print(
-            f"recorded {seed_dir} -> {record_dir} ({records.size_bytes(record_dir) / 1024:.0f} KiB"
-            f"{with_checkpoint})"
-        )
-
-
-def record_plan(
-    args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale
-) -> list[tuple[Path, Path, dict[str, Any], str | None]]:
-    """What `record` packs: each finished and evaluated seed's directory, its path under --runs-dir, its
-    run's provenance and why its final checkpoint goes in (None: it does not); each other seed is skipped
-    with a note. ValueError for a run that failed or whose diff is missing or altered."""
-    commands = records.read_commands_log(args.commands_log) if args.commands_log else None
-    threshold = (
-        prereg.TrainingDesign.read(recipe.design).learned_threshold if recipe.design else LEARNED_RETURN
-    )
-    plan = []
-    for condition in recipe.conditions:
-        for seed_dir in rundirs.condition_seed_dirs(
-            scale, condition, args.seed, args.seeds, args.runs_dir, tuple(args.pick)
-        ):
-            planned = _record_seed(args, recipe, scale, condition, seed_dir, commands, threshold)
-            if planned is not None:
-                plan.append(planned)
-    return plan
-
-
-def _record_seed(
-    args: argparse.Namespace,
-    recipe: recipes.Recipe,
-    scale: recipes.Scale,
-    condition: str,
-    seed_dir: Path,
-    commands: dict[str, dict[str, Any]] | None,
-    threshold: float,
-) -> tuple[Path, Path, dict[str, Any], str | None] | None:
-    """One seed of `record_plan` (None: skipped, with a note)."""
-    if not seed_dir.is_dir():
-        print(f"  {condition}: no run {seed_dir}, skipped")
-        return None
-    try:
-        iteration, rows = records.packable(seed_dir)
-    except (ValueError, FileNotFoundError) as err:  # still training, or stopped: not a result yet
-        print(f"  {condition}: {err}; skipped")
-        return None
-    outputs = kinds.evaluation_outputs(recipe, scale, seed_dir)
-    unevaluated = [spec for _, spec, out in outputs if not out.exists()]
-    if unevaluated:  # a record holds the seed's evaluations: `run --no-train` makes them
-        print(f"  {condition}: {seed_dir} not evaluated yet in {', '.join(unevaluated)}; skipped")
-        return None
-    runs_dir = Path(args.runs_dir)
-    relative = seed_dir.relative_to(runs_dir)
-    one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
-    run_name = relative.parent if one_of_several else relative
-    if commands is None:
-        try:
-            run = pinned.run_provenance(runs_dir / run_name, args.device, args.jax)
-        except FileNotFoundError as err:  # its command has not ended yet (or recorded no process file)
-            print(f"  {condition}: {err}; skipped")
-            return None
-        run = pinned.with_measured(run, args.device, args.jax, seed_dir)
-    else:
-        run = records.logged_provenance(str(run_name), commands, args.device, args.jax)
-    if run["rc"] not in (None, 0):
-        raise ValueError(f"{seed_dir}: its command exited with {run['rc']}; not a result to record")
-    records.tree_diffs(seed_dir, run)
-    reason = records.checkpoint_reason(args.final_checkpoint, final_return(rows), threshold)
-    if reason:
-        records.require_checkpoint(seed_dir, iteration)
-    return seed_dir, relative, run, reason
+    """`record`: pack the recipe's finished seeds (`recipe_records.record`)."""
+    recipe_records.record(recipe, scale, recipe_records.RecordOptions.of(args))
 
 
 def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
