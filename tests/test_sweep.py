@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from jaxsocial import train
+from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import sweep
 from jaxsocial.experiments.analyse import rundirs, sweep_results, takeoff
 from jaxsocial.experiments.launch import sweep_runs
-from jaxsocial.experiments.plan import recipes, sweep_settings
+from jaxsocial.experiments.plan import catalogue, recipes, sweep_settings
 from jaxsocial.run import jsonio, provenance, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -161,10 +162,20 @@ def test_extend_starts_a_longer_budget_from_the_finished_shorter_run(tmp_path, c
     assert not any((tmp_path / f"{long.name}-s{s}").exists() for s in (1, 2, 3))
 
 
-def test_confirmatory_seeds_are_refused(capsys):
+@pytest.mark.parametrize("command", [sweep.main, cli.main])
+def test_confirmatory_seeds_are_refused(command, capsys):
+    """`experiments sweep run SETTING` and `experiments run SETTING` (a sweep setting's name: its kind) are
+    one command."""
     with pytest.raises(SystemExit):
-        sweep.main(["run", "mb8k8_rec", "--seeds", "200"])
+        command(["run", "mb8k8_rec", "--seeds", "200"])
     assert "seeds must be in 0-99" in capsys.readouterr().err
+
+
+def test_a_setting_takes_only_the_sweeps_verbs_and_no_name_is_two_things():
+    with pytest.raises(SystemExit, match="the sweep setting mb8k8_rec takes run, record"):
+        cli.main(["figure", "mb8k8_rec"])
+    others = {*recipes.RECIPES, *catalogue.design_names()}
+    assert not set(sweep_settings.SETTINGS) & others
 
 
 def test_the_map_pairs_social_and_solo_settings_that_both_have_records():

@@ -1,5 +1,6 @@
-"""The paper's experiments: one command, `python -m jaxsocial.experiments VERB NAME`, for recipes and for
-pre-registered designs of every kind (NAME's kind comes from its design file, `catalogue`).
+"""The paper's experiments: one command, `python -m jaxsocial.experiments VERB NAME`, for recipes, for
+pre-registered designs of every kind (NAME's kind comes from its design file, `catalogue`) and for the
+exploratory sweep's settings (`sweeps/NAME.json`).
 
     python -m jaxsocial.experiments list                              # recipes, designs by kind, scales
     python -m jaxsocial.experiments run h1 --scale cpu --seeds 3      # train what is missing, resume the rest
@@ -9,6 +10,7 @@ pre-registered designs of every kind (NAME's kind comes from its design file, `c
     python -m jaxsocial.experiments run transfer8                     # an evaluation design: plays records
     python -m jaxsocial.experiments run mixing --cores 0 1            # a branch design: trains on from them
     python -m jaxsocial.experiments sweep list                        # the exploratory sweep of settings
+    python -m jaxsocial.experiments run mb8k8_rec --seeds 0 1         # a sweep setting's seeds, a core each
     python -m jaxsocial.experiments followup run h1_laptop            # follow-ups of a design's learned seeds
 
 The modules form three layers, each a folder, in the order the work flows (`tests/test_experiment_layers.py`

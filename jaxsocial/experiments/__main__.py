@@ -11,7 +11,7 @@ from pathlib import Path
 
 from jaxsocial.experiments.analyse import summaries, verdicts
 from jaxsocial.experiments.launch import pinned, recipe_records, slurm, verify
-from jaxsocial.experiments.plan import catalogue, designs, paths, prereg, recipes
+from jaxsocial.experiments.plan import catalogue, designs, paths, prereg, recipes, sweep_settings
 from jaxsocial.run import jsonio, provenance, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -243,18 +243,32 @@ DELEGATED = {
 `jaxsocial.experiments.sweep.main(ARGS)`."""
 
 
+SWEEP_VERBS = ("run", "record")
+"""What `python -m jaxsocial.experiments VERB SETTING` does to a sweep setting: train its seeds, or record
+them (`experiments sweep VERB SETTING`); the sweep's summary and map are `experiments sweep figure` and
+`map`."""
+
+
 def _names_help() -> str:
     """The names a recipe command takes: the recipes, and the designs of the other kinds, with their verbs."""
     others = [
         f"{kind} designs ({', '.join(verbs)}): {', '.join(catalogue.design_names(kind))}"
         for kind, verbs in catalogue.VERBS.items()
     ]
-    return f"a recipe ({', '.join(recipes.RECIPES)}); {'; '.join(others)}"
+    sweep = f"sweep settings ({', '.join(SWEEP_VERBS)}): {len(sweep_settings.SETTINGS)}, see `sweep list`"
+    return f"a recipe ({', '.join(recipes.RECIPES)}); {'; '.join(others)}; {sweep}"
 
 
 def kind_command(argv: list[str]):
     """The `main` that acts on the design `VERB NAME ...` names, where it is of a kind with verbs of its own
-    (`catalogue.VERBS`; None otherwise), imported only then; SystemExit where VERB is not one of them."""
+    (`catalogue.VERBS`), or on the sweep setting it names (`sweep.main`, `SWEEP_VERBS`); None otherwise.
+    Imported only then; SystemExit where VERB is not one of the kind's."""
+    if len(argv) >= 2 and argv[1] in sweep_settings.SETTINGS:
+        if argv[0] not in SWEEP_VERBS:
+            raise SystemExit(
+                f"error: {argv[0]} {argv[1]}: the sweep setting {argv[1]} takes {', '.join(SWEEP_VERBS)}"
+            )
+        return importlib.import_module("jaxsocial.experiments.sweep").main
     verbs = {verb for kind_verbs in catalogue.VERBS.values() for verb in kind_verbs}
     if len(argv) < 2 or argv[0] not in verbs - {"power"} or argv[1] not in catalogue.design_names():
         return None  # `power` is every kind's, in one place
