@@ -75,13 +75,7 @@ def run(
     if design_flags and train_missing and launcher is None and not dry_run:
         xla_flags_held(recipe, design_flags)
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
-    states = {  # each program's state, by its condition and first seed
-        (name, cfg.seed): run_state(
-            rundir.run_path(cfg), cfg.iterations, dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds]
-        )
-        for name, cfgs in programs.items()
-        for cfg in cfgs
-    }
+    states = {(n, c.seed): program_state(c, dirs[n], seed) for n, cs in programs.items() for c in cs}
     if train_missing:
         to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != FINISHED]
         tree_checked(recipe, blind, bool(to_train) and not dry_run, allow_dirty)
@@ -99,6 +93,13 @@ def run(
     where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
     figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
     print(f"next: python -m jaxsocial.experiments {figure}   # the summary and figure, tests over seeds")
+
+
+def program_state(cfg: TrainConfig, condition_dirs: list[Path], seed: int) -> str:
+    """`rundirs.run_state` of the program `cfg` of a condition whose seeds from `seed` on have the directories
+    `condition_dirs`: FINISHED where each of its seeds is, else PARTIAL or MISSING by its run directory."""
+    held = condition_dirs[cfg.seed - seed : cfg.seed - seed + cfg.seeds]
+    return run_state(rundir.run_path(cfg), cfg.iterations, held)
 
 
 def validated_programs(
