@@ -87,7 +87,7 @@ def test_the_amendment_tests_each_branch_against_where_it_started():
         "social_rec",
         "solo_rec",
     )
-    pilot = br.pilot_scores(MIXING, MIXING.amendment.tests, MIXING.amendment.power_simulation)
+    pilot = power.pilot_scores(MIXING, amendment=True)
     follow_up = jsonio.read_json(Path(MIXING.amendment.power_simulation["pilot_branches"]))
     solo3 = fades.env
     social = [s for s in follow_up["seeds"].values() if s["condition"].startswith("social")]

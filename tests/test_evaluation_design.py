@@ -191,7 +191,7 @@ def test_a_committed_design_names_its_material_and_its_pilot(name):
     if not (paths.RECORDS / design.records).is_dir():
         pytest.skip(f"needs the committed records {paths.RECORDS / design.records}")
     assert er.absent_records(design, paths.RECORDS) == []
-    pilot = er.pilot_scores(design)
+    pilot = power.pilot_scores(design)
     assert set(pilot) == set(design.primary) and all(
         len(p["treatment"]) and len(p["control"]) for p in pilot.values()
     )
@@ -211,7 +211,7 @@ def test_a_committed_design_has_the_power_it_states(name):
 
 
 def test_a_weighted_pool_draws_each_group_with_its_weight():
-    pool = er.weighted_pool(
+    pool = power.weighted_pool(
         [(np.array([1.0, 2.0]), 0.775), (np.array([5.0, 6.0, 7.0]), 0.225), (np.array([9.0]), 0.0)]
     )
     values = np.array(pool)

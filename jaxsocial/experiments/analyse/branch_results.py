@@ -218,36 +218,3 @@ def draw(summary: dict[str, Any], path: Path) -> None:
         fontsize=10,
     )
     plot_figures.save_png(fig, path)
-
-
-def pilot_scores(
-    design: BranchDesign, tests: dict[str, Test], sim: dict[str, Any]
-) -> dict[str, dict[str, list[float]]]:
-    """Per test of `tests`, the pilot's evidence, each oriented so that the effect the test looks for is
-    positive: for a paired test the per-seed differences of the exploratory follow-up's branches of its
-    social seeds (`pilot_branches`), against the other branch or against where the branch started (the
-    follow-up's zero-shot score of its source); otherwise the treatment's per-seed scores there and the
-    control's from a committed summary (`pilot_control`: where the arm's source records ended, before any
-    further training)."""
-    branches = jsonio.read_json(Path(sim["pilot_branches"]))
-    sources = [s for s in branches["seeds"].values() if s["condition"].startswith(sim["pilot_sources"])]
-    out = {}
-    for name, test in tests.items():
-        if test.alternative == "two-sided":
-            raise ValueError(
-                f"design {design.name}, test {name}: power is simulated for one-sided tests only"
-            )
-        sign = -1.0 if test.alternative == "less" else 1.0  # scores negated: a fall is a rise
-        treatment = [sign * s["branches"][test.treatment][test.env] for s in sources]
-        if test.control == START:
-            control = [sign * s["zero_shot"][test.env]["learner"] for s in sources]
-        elif design.paired(test):
-            control = [sign * s["branches"][test.control][test.env] for s in sources]
-        else:
-            where = sim["pilot_control"]
-            summary = jsonio.read_json(Path(where["summary"]))
-            per_seed = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
-            out[name] = {"treatment": treatment, "control": [sign * c for c in per_seed]}
-            continue
-        out[name] = {"differences": [t - c for t, c in zip(treatment, control, strict=True)]}
-    return out

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments.plan import catalogue, paths
+from jaxsocial.experiments.plan import catalogue
 from jaxsocial.experiments.plan.catalogue import Test
 from jaxsocial.experiments.plan.evaluation_design import (
     PROVENANCE,
@@ -158,49 +158,3 @@ def draw(summary: dict[str, Any], path: Path) -> None:
         ax.set_ylabel("learner return per episode")
     fig.suptitle(f"{summary['design']}: zero-shot, {summary['episodes']} episodes a policy", fontsize=10)
     plot_figures.save_png(fig, path)
-
-
-def pilot_scores(design: EvaluationDesign) -> dict[str, dict[str, list[float]]]:
-    """Per primary test, the pilot's `treatment` and `control` per-seed scores in its environment, each arm
-    weighted to the material's known fraction of seeds past the one-tile plateau.
-
-    The pilot (`power_simulation['pilot']`, a folder of `<env tag>-<condition>.json` evaluations of other
-    records) splits each arm into its seeds that took off (`takeoff_power.seed_lift`) and those that did not;
-    a simulated seed of the arm is one that took off with the probability `material_took_off[arm]` (what
-    the material's own design found before any of this design's evaluations), then a uniform draw among
-    the pilot's seeds of that kind: of its own arm, or, where `power_simulation['plateau_from_both_arms']`
-    holds, for a seed that did not take off, of both arms (a pilot arm in which every seed took off has no
-    plateau seeds of its own). Returned as one pool per arm whose uniform draws have those weights."""
-    from jaxsocial.experiments.analyse import takeoff_power
-
-    sim = design.power_simulation
-    arms = (("treatment", sim["pilot_treatment"]), ("control", sim["pilot_control"]))
-    out = {}
-    for name, test in design.primary.items():
-        split = {}
-        for arm, condition in arms:
-            result = jsonio.read_json(Path(sim["pilot"]) / f"{paths.env_tag(test.env)}-{condition}.json")
-            took_off = np.array(
-                [takeoff_power.seed_lift(Path(c))["takeoff"] is not None for c in result["checkpoints"]]
-            )
-            values = np.array(scores(result))
-            split[arm] = (values[took_off], values[~took_off])
-        plateau_of_both = np.concatenate([split[arm][1] for arm, _ in arms])
-        pools = []
-        for arm, _ in arms:
-            lifted, plateau = split[arm]
-            if sim.get("plateau_from_both_arms", False):
-                plateau = plateau_of_both
-            rate = sim["material_took_off"][arm]
-            pools.append(weighted_pool([(lifted, rate), (plateau, 1.0 - rate)]))
-        out[name] = {"treatment": pools[0], "control": pools[1]}
-    return out
-
-
-def weighted_pool(groups: list[tuple[np.ndarray, float]]) -> list[float]:
-    """One list whose uniform draws pick group g with probability weight_g, then a uniform member of it:
-    every member of g repeated in proportion to weight_g / len(g) (weights are rounded to 1/1000; a group
-    with weight 0 or no members is left out)."""
-    kept = [(np.asarray(v), round(w * 1000)) for v, w in groups if len(v) and round(w * 1000)]
-    size = int(np.prod([len(v) for v, _ in kept]))  # each group's share, as whole repeats
-    return [float(x) for v, w in kept for x in np.repeat(v, w * size // len(v))]

@@ -1,17 +1,22 @@
 """A design's power, simulated: one table for every family of per-seed score tests (an evaluation design's,
 a branch design's and its amendment's), the power of a 'zero_shot' training design's test, and a design's
-stated power recomputed from its pilot as its file says (`stated_power`). A 'takeoff' design's log-rank
-power is `takeoff_power`'s."""
+stated power recomputed from its pilot as its file says (`pilot_scores`, `stated_power`). A 'takeoff'
+design's log-rank power is `takeoff_power`'s."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from jaxsocial import stats
-from jaxsocial.experiments.analyse import branch_results, evaluation_results
-from jaxsocial.experiments.plan import catalogue
+from jaxsocial.experiments.analyse import evaluation_results, takeoff_power
+from jaxsocial.experiments.plan import catalogue, paths
+from jaxsocial.experiments.plan.branch_design import START, BranchDesign
+from jaxsocial.experiments.plan.catalogue import Test
+from jaxsocial.experiments.plan.evaluation_design import EvaluationDesign
+from jaxsocial.run import jsonio
 from jaxsocial.stats import scipy_stats
 
 
@@ -63,16 +68,99 @@ def power_table(
     return table
 
 
+def pilot_scores(design: catalogue.Design, amendment: bool = False) -> dict[str, dict[str, list[float]]]:
+    """Per test of an evaluation or branch design (or of a branch design's `amendment`), the pilot's
+    evidence `power_table` takes, read as its `power_simulation` says."""
+    if design.KIND == "evaluation":
+        return _evaluation_pilot(design)
+    planned: Any = design.amendment if amendment else design
+    return _branch_pilot(design, planned.tests if amendment else design.primary, planned.power_simulation)
+
+
 def stated_power(design: catalogue.Design, amendment: bool = False) -> dict[str, dict[str, float]]:
     """The power table of an evaluation or branch design (or of a branch design's `amendment`), recomputed
     from its pilot as its `power_simulation` says."""
     planned: Any = design.amendment if amendment else design
     sim = planned.power_simulation
-    if design.KIND == "evaluation":
-        pilot = evaluation_results.pilot_scores(design)
-    else:
-        pilot = branch_results.pilot_scores(design, planned.tests if amendment else design.primary, sim)
+    pilot = pilot_scores(design, amendment)
     return power_table(pilot, design.seeds, planned.alpha, tuple(sim["discounts"]), sim["reps"])
+
+
+def _evaluation_pilot(design: EvaluationDesign) -> dict[str, dict[str, list[float]]]:
+    """Per primary test, the pilot's `treatment` and `control` per-seed scores in its environment, each arm
+    weighted to the material's known fraction of seeds past the one-tile plateau.
+
+    The pilot (`power_simulation['pilot']`, a folder of `<env tag>-<condition>.json` evaluations of other
+    records) splits each arm into its seeds that took off (`takeoff_power.seed_lift`) and those that did not;
+    a simulated seed of the arm is one that took off with the probability `material_took_off[arm]` (what
+    the material's own design found before any of this design's evaluations), then a uniform draw among
+    the pilot's seeds of that kind: of its own arm, or, where `power_simulation['plateau_from_both_arms']`
+    holds, for a seed that did not take off, of both arms (a pilot arm in which every seed took off has no
+    plateau seeds of its own). Returned as one pool per arm whose uniform draws have those weights."""
+    sim = design.power_simulation
+    arms = (("treatment", sim["pilot_treatment"]), ("control", sim["pilot_control"]))
+    out = {}
+    for name, test in design.primary.items():
+        split = {}
+        for arm, condition in arms:
+            result = jsonio.read_json(Path(sim["pilot"]) / f"{paths.env_tag(test.env)}-{condition}.json")
+            took_off = np.array(
+                [takeoff_power.seed_lift(Path(c))["takeoff"] is not None for c in result["checkpoints"]]
+            )
+            values = np.array(evaluation_results.scores(result))
+            split[arm] = (values[took_off], values[~took_off])
+        plateau_of_both = np.concatenate([split[arm][1] for arm, _ in arms])
+        pools = []
+        for arm, _ in arms:
+            lifted, plateau = split[arm]
+            if sim.get("plateau_from_both_arms", False):
+                plateau = plateau_of_both
+            rate = sim["material_took_off"][arm]
+            pools.append(weighted_pool([(lifted, rate), (plateau, 1.0 - rate)]))
+        out[name] = {"treatment": pools[0], "control": pools[1]}
+    return out
+
+
+def weighted_pool(groups: list[tuple[np.ndarray, float]]) -> list[float]:
+    """One list whose uniform draws pick group g with probability weight_g, then a uniform member of it:
+    every member of g repeated in proportion to weight_g / len(g) (weights are rounded to 1/1000; a group
+    with weight 0 or no members is left out)."""
+    kept = [(np.asarray(v), round(w * 1000)) for v, w in groups if len(v) and round(w * 1000)]
+    size = int(np.prod([len(v) for v, _ in kept]))  # each group's share, as whole repeats
+    return [float(x) for v, w in kept for x in np.repeat(v, w * size // len(v))]
+
+
+def _branch_pilot(
+    design: BranchDesign, tests: dict[str, Test], sim: dict[str, Any]
+) -> dict[str, dict[str, list[float]]]:
+    """Per test of `tests`, the pilot's evidence, each oriented so that the effect the test looks for is
+    positive: for a paired test the per-seed differences of the exploratory follow-up's branches of its
+    social seeds (`pilot_branches`), against the other branch or against where the branch started (the
+    follow-up's zero-shot score of its source); otherwise the treatment's per-seed scores there and the
+    control's from a committed summary (`pilot_control`: where the arm's source records ended, before any
+    further training)."""
+    branches = jsonio.read_json(Path(sim["pilot_branches"]))
+    sources = [s for s in branches["seeds"].values() if s["condition"].startswith(sim["pilot_sources"])]
+    out = {}
+    for name, test in tests.items():
+        if test.alternative == "two-sided":
+            raise ValueError(
+                f"design {design.name}, test {name}: power is simulated for one-sided tests only"
+            )
+        sign = -1.0 if test.alternative == "less" else 1.0  # scores negated: a fall is a rise
+        treatment = [sign * s["branches"][test.treatment][test.env] for s in sources]
+        if test.control == START:
+            control = [sign * s["zero_shot"][test.env]["learner"] for s in sources]
+        elif design.paired(test):
+            control = [sign * s["branches"][test.control][test.env] for s in sources]
+        else:
+            where = sim["pilot_control"]
+            summary = jsonio.read_json(Path(where["summary"]))
+            per_seed = summary["conditions"][where["condition"]][where["measure"]]["per_seed"]
+            out[name] = {"treatment": treatment, "control": [sign * c for c in per_seed]}
+            continue
+        out[name] = {"differences": [t - c for t, c in zip(treatment, control, strict=True)]}
+    return out
 
 
 def zero_shot_power(

@@ -17,8 +17,8 @@ and its record mirrors it. A test compares two arms' per-seed final evaluations 
 Wilcoxon signed-rank test where both arms branch the same records (paired by source seed), Mann-Whitney U
 otherwise; the primary tests are Holm-corrected at `alpha` as a family, the secondary ones among themselves.
 
-The power is simulated from a pilot (`pilot_scores`): paired differences and each arm's scores, the effect
-diluted by a discount (`analyse.power`).
+The power is simulated from a pilot (`analyse.power.pilot_scores`): paired differences and each arm's
+scores, the effect diluted by a discount.
 
 Tests added after a design's runs began, blind (no result seen: `figure` refuses until every branch is in),
 are an amendment in `designs/amendments/<name>.json`: a family of their own, Holm-corrected among
