@@ -51,6 +51,8 @@ def test_one_process_per_core_at_a_time_each_with_its_provenance(tmp_path, monke
     assert set(run["versions"]) == set(provenance.VERSIONED)
     with pytest.raises(pinned.RunNotEnded, match="not trained by"):
         pinned.run_provenance(tmp_path, "a CPU", "0.0")
+    with pytest.raises(ValueError, match="exited with 3; not a result to record"):  # every kind's records
+        pinned.run_provenance(tmp_path / "second", "a CPU", "0.0")
     with pytest.raises(ValueError, match="at least one core"):
         pinned.run(jobs, [])
 

@@ -81,7 +81,9 @@ def test_commands_log(tmp_path):
         "2026-01-01T00:10:00 done x rc=0 600s\n"
         '2026-01-01T00:10:30 machine {"cpu": "a GPU host", "xla_flags": ""}\n'
         f"2026-01-01T00:11:00 {commit} python -m jaxsocial.train --run-name cpu/y-s0-0\n"
-        "2026-01-01T00:12:00 done y rc=1 60s\n"
+        "2026-01-01T00:12:00 done y rc=0 60s\n"
+        f"2026-01-01T00:13:00 {commit} python -m jaxsocial.train --run-name cpu/w-s0-0\n"
+        "2026-01-01T00:14:00 done w rc=1 60s\n"
         "a line that is neither\n"
     )
     runs = records.read_commands_log(log)
@@ -93,11 +95,13 @@ def test_commands_log(tmp_path):
         "rc": 0,
         "machine": {},  # no machine line before its start
     }
-    assert runs["cpu/y-s0-0"]["rc"] == 1
+    assert runs["cpu/w-s0-0"]["rc"] == 1
     run = records.logged_provenance("cpu/x-s0-2", runs, "a CPU", "0.1")
     assert (run["device"], run["jax"], run["commit"]) == ("a CPU", "0.1", commit) and "xla_flags" not in run
     run = records.logged_provenance("cpu/y-s0-0", runs, "a GPU", "0.1")
-    assert (run["cpu"], run["xla_flags"], run["rc"]) == ("a GPU host", "", 1)  # no deterministic GPU ops
+    assert (run["cpu"], run["xla_flags"], run["rc"]) == ("a GPU host", "", 0)  # no deterministic GPU ops
+    with pytest.raises(ValueError, match="exited with 1; not a result to record"):
+        records.logged_provenance("cpu/w-s0-0", runs, "a GPU", "0.1")
     with pytest.raises(ValueError, match="no command with --run-name cpu/z"):
         records.logged_provenance("cpu/z", runs, None, None)
 

@@ -142,7 +142,7 @@ def logged_provenance(
 ) -> dict[str, Any]:
     """The `run` part of a record's provenance: the commands log's entry for `run_name` (its `--run-name`)
     with the device and jax version it ran on, and the machine its last start logged. ValueError if the log
-    has no such run."""
+    has no such run, or it failed (`ended_well`)."""
     if run_name not in commands:
         raise ValueError(f"the commands log has no command with --run-name {run_name}")
     entry = {
@@ -151,7 +151,16 @@ def logged_provenance(
         "device": device,
         "jax": jax_version,
     }
+    ended_well(entry, f"{run_name} in the commands log")
     return {k: entry[k] for k in provenance.RUN_FIELDS} | entry.get("machine", {})
+
+
+def ended_well(run: dict[str, Any], where: str | Path) -> None:
+    """ValueError if the process of `run` (a run's provenance, or its process file) exited with an error: a
+    failed run is not a result to record. Every record's provenance passes here (`pinned.run_provenance`,
+    `logged_provenance`)."""
+    if run.get("rc") not in (None, 0):
+        raise ValueError(f"{where}: its process exited with {run['rc']}; not a result to record")
 
 
 def checkpoint_reason(which: str | None, final: float, threshold: float) -> str | None:

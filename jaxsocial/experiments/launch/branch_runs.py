@@ -117,9 +117,6 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
             packing.append((run_dir, target, pinned.with_measured(run_info, None, None, run_dir), name))
     if not_started:
         print(f"  {not_started} branches not started under {runs_root}")
-    for run_dir, _, run_info, _ in packing:
-        if run_info["rc"] != 0:
-            raise ValueError(f"{run_dir}: its process exited with {run_info['rc']}; not a result to record")
     for run_dir, target, run_info, name in packing:
         records.pack(run_dir, target, run_info, name)
         print(f"recorded {run_dir} -> {target}")

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 from typing import Any, Protocol
 
+from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import xla_flags
 from jaxsocial.run import checkout, compile_cache, jsonio, provenance, rundir
 
@@ -205,7 +206,7 @@ class RunNotEnded(FileNotFoundError):
 def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, Any]:
     """The `run` part of a record's provenance from a run's `RUN_FILE`, with the device and jax version it
     ran on, the cores it had and the processes before its last (`earlier`, if it was resumed). RunNotEnded
-    if the run has none, or its process has not ended."""
+    if the run has none, or its process has not ended; ValueError if it failed (`records.ended_well`)."""
     path = Path(run_dir) / provenance.RUN_FILE
     if not path.is_file():
         raise RunNotEnded(
@@ -215,6 +216,7 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     info = jsonio.read_json(path)
     if info.get("ended") is None:
         raise RunNotEnded(f"{path}: its process (started {info.get('started')}) has not ended")
+    records.ended_well(info, run_dir)
     later = (*provenance.MACHINE_FIELDS, *checkout.TREE_FIELDS)
     machine = {k: info[k] for k in later if k in info}  # runs written before these fields lack them
     return (

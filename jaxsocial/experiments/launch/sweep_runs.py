@@ -58,10 +58,11 @@ def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) 
 
 
 def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_version: str) -> None:
-    """Pack each seed's run directory into its record (`records.pack`), with the runner's provenance."""
-    for seed in seeds:
-        source = run_dir(setting, seed, runs_dir)
-        run = pinned.run_provenance(source, device, jax_version)
-        target = paths.RECORDS / RECORDS_SUBDIR / setting.name / rundir.seed_name(seed)
-        records.pack(source, target, run, f"{RECORDS_SUBDIR}/{setting.name}/{rundir.seed_name(seed)}")
-        print(f"recorded {target}")
+    """Pack each seed's run directory into its record (`records.pack`), with the runner's provenance; every
+    seed's is read first, so that a run not ended or failed (`pinned.run_provenance`) records none."""
+    dirs = {seed: run_dir(setting, seed, runs_dir) for seed in seeds}
+    runs = {seed: pinned.run_provenance(d, device, jax_version) for seed, d in dirs.items()}
+    for seed, run in runs.items():
+        name = f"{RECORDS_SUBDIR}/{setting.name}/{rundir.seed_name(seed)}"
+        records.pack(dirs[seed], paths.RECORDS / name, run, name)
+        print(f"recorded {paths.RECORDS / name}")
