@@ -16,11 +16,6 @@ FINISHED, PARTIAL, MISSING = "finished", "partial", "missing"
 """A run's state: every iteration logged; begun (its directory is there: training resumes it); not begun."""
 
 
-def resume_flags(state: str) -> list[str]:
-    """The `train` flags that go on with a run in `state`: `--resume` for a PARTIAL one."""
-    return ["--resume"] if state == PARTIAL else []
-
-
 def config_seed_dirs(cfg: TrainConfig) -> list[Path]:
     """The run directory of every seed of a condition's config."""
     return rundir.seed_dirs(rundir.run_path(cfg), cfg.seed, cfg.seeds)

@@ -73,11 +73,11 @@ def run(
             run_dir = runs_root / cfg.run_name
             state = rundirs.run_state(run_dir, design.iterations)
             counts[state] += 1
-            flags = config_flags(cfg) + rundirs.resume_flags(state)
+            flags = config_flags(cfg)
             if dry_run:
                 print(f"  {cfg.run_name}: {state}\n    python -m jaxsocial.train {' '.join(flags)}")
             if state != rundirs.FINISHED:
-                jobs.append(pinned.Job(cfg.run_name, pinned.train_command(flags), run_dir))
+                jobs.append(pinned.training_job(cfg.run_name, flags, run_dir, state == rundirs.PARTIAL))
     print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
     pending = counts[rundirs.PARTIAL] + counts[rundirs.MISSING]
     starting = min(pending, max_runs or pending)

@@ -85,8 +85,9 @@ def run(
             if dry_run:
                 print("    python -m jaxsocial.train " + " ".join(flags))
             elif state != rundirs.FINISHED:
-                train_argv = pinned.train_command([*flags, *rundirs.resume_flags(state)])
-                jobs.append(pinned.Job(f"{source.name}-{arm}", train_argv, run_dir))
+                jobs.append(
+                    pinned.training_job(f"{source.name}-{arm}", flags, run_dir, state == rundirs.PARTIAL)
+                )
     if dry_run:
         return []
     for source in found:

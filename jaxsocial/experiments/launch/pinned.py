@@ -72,6 +72,12 @@ def train_command(flags: list[str]) -> tuple[str, ...]:
     return ("-m", "jaxsocial.train", *flags, *cache)
 
 
+def training_job(label: str, flags: list[str], run_dir: Path, begun: bool) -> Job:
+    """The job that trains the run `run_dir`: its `train_command`, with `--resume` where it has `begun`
+    (`rundirs.PARTIAL`: it goes on from its latest checkpoint)."""
+    return Job(label, train_command([*flags, *(["--resume"] if begun else [])]), run_dir)
+
+
 def pin(cores: list[int] | None) -> list[str]:
     """The argv prefix that starts a process on `cores` only (`taskset -c`, Linux's util-linux; [] where there
     is none, or no `cores`: the process then sees the caller's)."""

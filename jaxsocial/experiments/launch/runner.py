@@ -18,7 +18,6 @@ from jaxsocial.experiments.analyse.rundirs import (
     condition_seed_dirs,
     config_seed_dirs,
     finished,
-    resume_flags,
     run_state,
 )
 from jaxsocial.experiments.launch import evaluation_play, pinned
@@ -230,8 +229,9 @@ def train_programs(
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
             if state != FINISHED and train_missing and launcher:
-                train_argv = pinned.train_command([*flags, *resume_flags(state)])
-                jobs.append((cfg.seed, pinned.Job(label, train_argv, rundir.run_path(cfg))))
+                jobs.append(
+                    (cfg.seed, pinned.training_job(label, flags, rundir.run_path(cfg), state == PARTIAL))
+                )
             elif dry_run:
                 continue
             elif state != FINISHED and train_missing:

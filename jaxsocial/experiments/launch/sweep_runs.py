@@ -26,9 +26,11 @@ def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> 
         state = seed_state(setting, seed, runs_dir)
         print(f"{setting.name} seed {seed}: {state}")
         if state != rundirs.FINISHED:
-            flags = train_flags(setting, seed, runs_dir) + rundirs.resume_flags(state)
+            flags = train_flags(setting, seed, runs_dir)
             label = f"{setting.name} seed {seed}"
-            jobs.append(pinned.Job(label, pinned.train_command(flags), run_dir(setting, seed, runs_dir)))
+            jobs.append(
+                pinned.training_job(label, flags, run_dir(setting, seed, runs_dir), state == rundirs.PARTIAL)
+            )
     return pinned.run(jobs, cores) if jobs else []
 
 
