@@ -3,17 +3,19 @@ and seeds outside the exploratory range refused."""
 
 import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pytest
+from conftest import needs_records
 
 from jaxsocial import train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments import sweep
-from jaxsocial.experiments.analyse import rundirs, sweep_results, takeoff
+from jaxsocial.experiments.analyse import records, rundirs, sweep_results, takeoff
 from jaxsocial.experiments.launch import sweep_runs
-from jaxsocial.experiments.plan import catalogue, recipes, sweep_settings
-from jaxsocial.run import jsonio, provenance, rundir
+from jaxsocial.experiments.plan import catalogue, paths, recipes, sweep_settings
+from jaxsocial.run import checkout, jsonio, provenance, rundir
 from jaxsocial.run.metrics import LEARNED_RETURN
 
 
@@ -216,3 +218,33 @@ def test_the_experiments_command_reaches_the_sweep(capsys):
 
     cli.main(["sweep", "list"])
     assert "map_g4_rec_7x7: social_rec" in capsys.readouterr().out
+
+
+@needs_records("records/tiny")
+def test_record_packs_each_ended_seed_once_with_what_its_process_measured(tmp_path, capsys):
+    """`record` reads every seed's process file before it packs any (a failed run records none), takes the
+    CPU and jax that process measured, and keeps the records already made."""
+    setting = sweep_settings.SETTINGS["map_g4_rec_7x7"]
+    tiny = sorted((paths.RECORDS / "tiny").rglob(records.PROVENANCE_FILE))[0].parent
+    runs, out = tmp_path / "runs", tmp_path / "records"
+    seed_dirs = [sweep_settings.run_dir(setting, seed, str(runs)) for seed in (0, 1)]
+    for seed_dir, rc in zip(seed_dirs, (0, 1), strict=True):
+        shutil.copytree(tiny, seed_dir, ignore=shutil.ignore_patterns(records.PROVENANCE_FILE))
+        provenance.write_run_file(
+            seed_dir, "python -m jaxsocial.train", checkout.tree(), 1, provenance.now(), rc
+        )
+    with pytest.raises(ValueError, match="exited with 1; not a result to record"):
+        sweep_runs.record(setting, [0, 1], str(runs), None, out)
+    assert not out.exists()
+    provenance.write_run_file(
+        seed_dirs[1], "python -m jaxsocial.train", checkout.tree(), 1, provenance.now(), 0
+    )
+    written = sweep_runs.record(setting, [0, 1], str(runs), None, out)
+    assert written == [out / "sweep" / setting.name / f"s{seed}" for seed in (0, 1)]
+    run = jsonio.read_json(written[0] / records.PROVENANCE_FILE)["run"]
+    process = jsonio.read_json(seed_dirs[0] / provenance.RUN_FILE)
+    assert (
+        run["jax"] == process["versions"]["jax"] and run["device"] == f"{process['cpu']}, one core per seed"
+    )
+    assert sweep_runs.record(setting, [0, 1], str(runs), "a CPU", out) == []
+    assert capsys.readouterr().out.count("already recorded, kept") == 2

@@ -70,7 +70,11 @@ def make_parser() -> argparse.ArgumentParser:
                 help="the CPU cores to pin the seeds' processes to, one process a core (default: all)",
             )
         else:
-            p.add_argument("--device", required=True, help="the machine the runs trained on, in words")
+            p.add_argument(
+                "--device",
+                default=None,
+                help="the machine the runs trained on, in words (default: the CPU each process measured)",
+            )
     p = sub.add_parser("map", help="the map of where solo learners fail, from the sweep's summary")
     p.add_argument(
         "--summary",
@@ -103,9 +107,10 @@ def main(argv: list[str] | None = None) -> None:
                 raise SystemExit(f"error: {err}") from err
         sys.exit(max(run(SETTINGS[args.setting], args.seeds, args.runs_dir, args.cores), default=0))
     elif args.command == "record":
-        import jax
-
-        record(SETTINGS[args.setting], args.seeds, args.runs_dir, args.device, jax.__version__)
+        try:
+            record(SETTINGS[args.setting], args.seeds, args.runs_dir, args.device)
+        except (ValueError, FileNotFoundError) as err:
+            raise SystemExit(f"error: {err}") from err
     elif args.command == "map":
         found = summarise_map(jsonio.read_json(Path(args.summary)))
         out = Path(args.out)

@@ -4,6 +4,7 @@ budget (`extend`) and recorded (`record`); the settings are `plan.sweep_settings
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 from jaxsocial.experiments.analyse import records, rundirs
 from jaxsocial.experiments.launch import pinned
@@ -59,12 +60,23 @@ def extend(shorter: Setting, setting: Setting, seeds: list[int], runs_dir: str) 
         print(f"{setting.name} seed {seed}: starts from {source}")
 
 
-def record(setting: Setting, seeds: list[int], runs_dir: str, device: str, jax_version: str) -> None:
-    """Pack each seed's run directory into its record (`records.pack`), with the runner's provenance; every
-    seed's is read first, so that a run not ended or failed (`pinned.run_provenance`) records none."""
-    dirs = {seed: run_dir(setting, seed, runs_dir) for seed in seeds}
-    runs = {seed: pinned.run_provenance(d, device, jax_version) for seed, d in dirs.items()}
-    for seed, run in runs.items():
+def record(
+    setting: Setting, seeds: list[int], runs_dir: str, device: str | None, records_root: Path = paths.RECORDS
+) -> list[Path]:
+    """Pack each seed's run directory that has no record yet into `records_root/sweep/<setting>/s<seed>`
+    (`records.pack`), with its process's provenance: `device`, or where None the CPU its process measured,
+    and the jax it trained with (`pinned.with_measured`). Every seed is read first, so that a run not ended
+    or failed (`pinned.run_provenance`) records none. Returns the records written."""
+    packing = []
+    for seed in seeds:
+        source = run_dir(setting, seed, runs_dir)
         name = f"{RECORDS_SUBDIR}/{setting.name}/{rundir.seed_name(seed)}"
-        records.pack(dirs[seed], paths.RECORDS / name, run, name)
-        print(f"recorded {paths.RECORDS / name}")
+        if (records_root / name).exists():
+            print(f"  {records_root / name}: already recorded, kept")
+            continue
+        run = pinned.with_measured(pinned.run_provenance(source, device, None), device, None, source)
+        packing.append((source, records_root / name, run, name))
+    for source, target, run, name in packing:
+        records.pack(source, target, run, name)
+        print(f"recorded {source} -> {target}")
+    return [target for _, target, _, _ in packing]
