@@ -4,6 +4,7 @@ against 75% solo), the evaluations, the records and the summary read back from t
 
 import dataclasses
 
+import jax
 import numpy as np
 import pytest
 
@@ -61,13 +62,16 @@ def test_follow_ups_branch_evaluate_record_and_summarise(tiny, tmp_path):
     assert followup_runs.run(plan, str(runs), str(out), [0], "again") == []  # everything done is kept
     assert jsonio.read_json(evals / provenance.RUN_FILE)["command"] == "test command"
 
-    recorded = followup_runs.record(plan, str(out), str(recs), "a CPU", "0.1")
+    recorded = followup_runs.record(plan, str(out), str(recs), None)
     assert sorted(d.name for d in recorded) == [
         f"{CONDITION}-s0",
         f"{CONDITION}-s0-mixed",
         f"{CONDITION}-s0-social",
     ]
-    assert followup_runs.record(plan, str(out), str(recs), "a CPU", "0.1") == []
+    evaluations = jsonio.read_json(plan.root(recs) / f"{CONDITION}-s0" / records.PROVENANCE_FILE)["run"]
+    assert evaluations["jax"] == jax.__version__  # what the process that played them ran with
+    assert evaluations["device"] == jsonio.read_json(evals / provenance.RUN_FILE)["cpu"]
+    assert followup_runs.record(plan, str(out), str(recs), "a CPU") == []
     summary = followup_results.summarise(plan, str(recs))
     seed = summary["seeds"][f"{CONDITION}-s0"]
     assert seed["source"] == str(source)

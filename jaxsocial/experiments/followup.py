@@ -77,7 +77,11 @@ def _make_parser() -> argparse.ArgumentParser:
         "--dry-run", action="store_true", help="print the learned seeds and the branch commands"
     )
     record_p.add_argument("--out-dir", default=str(paths.RECORDS))
-    record_p.add_argument("--device", required=True, help="the machine the follow-ups ran on, in words")
+    record_p.add_argument(
+        "--device",
+        default=None,
+        help="the machine they ran on, in words (default: what each process measured)",
+    )
     figure_p.add_argument("--records-dir", default=str(paths.RECORDS))
     figure_p.add_argument("--out-dir", default=str(paths.SCIENCE))
     return parser
@@ -93,9 +97,7 @@ def main(argv: list[str] | None = None) -> None:
             codes = run(plan, args.from_dir, args.runs_dir, args.cores, command, args.dry_run)
             sys.exit(max(codes, default=0))
         if args.command == "record":
-            import jax
-
-            record(plan, args.runs_dir, args.out_dir, args.device, jax.__version__)
+            record(plan, args.runs_dir, args.out_dir, args.device)
             return
         summary = summarise(plan, args.records_dir)
         out = Path(args.out_dir) / f"followup-{summary['design']}-{summary['scale']}"
