@@ -109,12 +109,12 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
             if state != rundirs.FINISHED:
                 continue
             try:
-                run_info = pinned.run_provenance(run_dir, None, None)
+                run_info = pinned.run_provenance(run_dir)
             except pinned.RunNotEnded as err:
                 print(f"  {name}: {err}; not recorded")
                 continue
             records.packable(run_dir)
-            packing.append((run_dir, target, pinned.with_measured(run_info, None, None, run_dir), name))
+            packing.append((run_dir, target, run_info, name))
     if not_started:
         print(f"  {not_started} branches not started under {runs_root}")
     for run_dir, target, run_info, name in packing:

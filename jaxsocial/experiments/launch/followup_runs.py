@@ -98,7 +98,7 @@ def run(
 def record(plan: Plan, runs_dir: str, out_dir: str, device: str | None) -> list[Path]:
     """Pack every finished follow-up under `runs_dir` into `out_dir` (the branches with `records.pack`, the
     evaluations with their provenance), each with `device` (None: the CPU its process measured) and the jax
-    it ran with (`pinned.with_measured`); those recorded already are kept. Everything is checked first."""
+    it ran with (`pinned.run_provenance`); those recorded already are kept. Everything is checked first."""
     source_root, target_root = plan.root(runs_dir), plan.root(out_dir)
     packing = []
     for directory in sorted(p for p in source_root.glob("*") if p.is_dir()):
@@ -106,7 +106,7 @@ def record(plan: Plan, runs_dir: str, out_dir: str, device: str | None) -> list[
         if target.exists():
             print(f"  {target}: already recorded, kept")
             continue
-        run = pinned.with_measured(pinned.run_provenance(directory, device, None), device, None, directory)
+        run = pinned.run_provenance(directory, device)
         if (directory / rundir.CONFIG_FILE).is_file():
             records.packable(directory)
         elif not (directory / rundir.EVAL_DIR).is_dir():

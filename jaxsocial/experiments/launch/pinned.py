@@ -209,10 +209,13 @@ class RunNotEnded(FileNotFoundError):
     `run`, before 2026-12-03), or its process has not ended."""
 
 
-def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, Any]:
+def run_provenance(
+    run_dir: Path, device: str | None = None, jax_version: str | None = None
+) -> dict[str, Any]:
     """The `run` part of a record's provenance from a run's `RUN_FILE`, with the device and jax version it
-    ran on, the cores it had and the processes before its last (`earlier`, if it was resumed). RunNotEnded
-    if the run has none, or its process has not ended; ValueError if it failed (`records.ended_well`)."""
+    ran on (where None, what its process measured: `with_measured`), the cores it had and the processes
+    before its last (`earlier`, if it was resumed). RunNotEnded if the run has none, or its process has not
+    ended; ValueError if it failed (`records.ended_well`) or the file does not say what is not given."""
     path = Path(run_dir) / provenance.RUN_FILE
     if not path.is_file():
         raise RunNotEnded(
@@ -225,16 +228,17 @@ def run_provenance(run_dir: Path, device: str, jax_version: str) -> dict[str, An
     records.ended_well(info, run_dir)
     later = (*provenance.MACHINE_FIELDS, *checkout.TREE_FIELDS)
     machine = {k: info[k] for k in later if k in info}  # runs written before these fields lack them
-    return (
+    run = (
         {k: info.get(k) for k in provenance.RUN_FIELDS}
         | machine
-        | {"device": device, "jax": jax_version, "cores": info.get("cores")}
+        | {"cores": info.get("cores")}
         | ({"earlier": info["earlier"]} if info.get("earlier") else {})
     )
+    return with_measured(run, device, jax_version, run_dir)
 
 
 def with_measured(run: dict, device: str | None, jax_version: str | None, seed_dir: Path) -> dict:
-    """`run` (`run_provenance`) with `device` and `jax_version`, or where not given, what its process
+    """`run` (`run_provenance`'s fields) with `device` and `jax_version`, or where not given, what its process
     file measured (`machine`): the CPU (one core per seed where pinned) and the jax it had. ValueError
     naming the flags to give where the file lacks them (written before it held them)."""
     cpu, cores = run.get("cpu"), run.get("cores")

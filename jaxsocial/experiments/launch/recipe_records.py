@@ -136,7 +136,6 @@ def _record_seed(
         except FileNotFoundError as err:  # its command has not ended yet (or recorded no process file)
             print(f"  {condition}: {err}; skipped")
             return None
-        run = pinned.with_measured(run, options.device, options.jax, seed_dir)
     else:
         run = records.logged_provenance(str(run_name), commands, options.device, options.jax)
     records.tree_diffs(seed_dir, run)

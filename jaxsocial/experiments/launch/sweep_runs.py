@@ -65,7 +65,7 @@ def record(
 ) -> list[Path]:
     """Pack each seed's run directory that has no record yet into `records_root/sweep/<setting>/s<seed>`
     (`records.pack`), with its process's provenance: `device`, or where None the CPU its process measured,
-    and the jax it trained with (`pinned.with_measured`). Every seed is read first, so that a run not ended
+    and the jax it trained with. Every seed is read first, so that a run not ended
     or failed (`pinned.run_provenance`) records none. Returns the records written."""
     packing = []
     for seed in seeds:
@@ -74,7 +74,7 @@ def record(
         if (records_root / name).exists():
             print(f"  {records_root / name}: already recorded, kept")
             continue
-        run = pinned.with_measured(pinned.run_provenance(source, device, None), device, None, source)
+        run = pinned.run_provenance(source, device)
         packing.append((source, records_root / name, run, name))
     for source, target, run, name in packing:
         records.pack(source, target, run, name)
