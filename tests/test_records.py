@@ -338,3 +338,49 @@ def test_a_committed_summary_rederives_byte_for_byte_at_head(name, tmp_path, mon
     monkeypatch.chdir(tmp_path)
     _rederivations()[name]()
     assert (tmp_path / paths.SCIENCE / name).read_bytes() == (REPO / paths.SCIENCE / name).read_bytes()
+
+
+@TINY_RECORDS
+def test_restore_copies_records_back_so_the_runner_trains_only_the_rest(in_repo, tmp_path, capsys):
+    """On a fresh machine (or in a worktree at a design's commit) the run directories are gone: `restore`
+    copies the records back where they were packed from, the runner then counts those seeds finished, and
+    `record` leaves them alone; a second `restore` keeps what is there, and a seed that began training again
+    beside its record is refused before anything is copied."""
+    runs = tmp_path / "runs"
+    seeds = ["--scale", "tiny", "--seeds", "2", "--runs-dir", str(runs)]
+    cli.main(["restore", "no_penalty", *seeds])
+    restored = sorted(p.parent for p in runs.rglob("restored.json"))
+    assert [d.relative_to(runs) for d in restored] == [
+        d.relative_to(REPO / paths.RECORDS) for d in _record_dirs()
+    ]
+    for seed_dir, record_dir in zip(restored, _record_dirs(), strict=True):
+        assert rundir.read_metrics(seed_dir) == rundir.read_metrics(record_dir)
+    capsys.readouterr()
+    cli.main(["run", "no_penalty", *seeds, "--dry-run"])
+    states = [line for line in capsys.readouterr().out.splitlines() if line.startswith("[no_penalty/tiny] ")]
+    assert len(states) == 2 and all(line.endswith(": finished") for line in states), states
+    cli.main(["record", "no_penalty", *seeds, "--out-dir", str(tmp_path / "r"), *UNCOMMITTED])
+    assert capsys.readouterr().out.count("was restored from its record, kept as it is") == 4
+    assert not (tmp_path / "r").exists()
+    cli.main(["restore", "no_penalty", *seeds])
+    assert capsys.readouterr().out.count("there already, kept") == 4
+
+    fresh = tmp_path / "fresh"
+    begun = fresh / restored[-1].relative_to(runs)
+    begun.mkdir(parents=True)
+    with pytest.raises(SystemExit, match="has begun training again"):
+        cli.main(["restore", "no_penalty", *seeds[:-1], str(fresh)])
+    assert not list(fresh.rglob("restored.json"))
+
+
+@needs_records("records/laptop8/prereg-imitation8")
+def test_restore_finds_a_designs_one_seed_runs(in_repo, tmp_path):
+    """A design trains one seed a program (`<condition>-s<k>-<k>`): its records go back to those names, not
+    to the one program its seeds would share without --cores."""
+    folder = REPO / paths.RECORDS / "laptop8" / "prereg-imitation8"
+    cli.main(["restore", "imitation8", "--scale", "laptop8", "--runs-dir", str(tmp_path)])
+    restored = sorted(p.parent.relative_to(tmp_path) for p in tmp_path.rglob("restored.json"))
+    committed = sorted(
+        p.parent.relative_to(REPO / paths.RECORDS) for p in folder.rglob(records.PROVENANCE_FILE)
+    )
+    assert restored == committed and committed

@@ -19,6 +19,8 @@ RECIPE_COMMANDS = {
     "run": "train and evaluate what a recipe needs",
     "figure": "summarise and draw",
     "record": "pack a recipe's run directories into records (config, metrics, final policy, evaluations)",
+    "restore": "copy a recipe's committed records back into its run directories, so `run` trains only the "
+    "seeds not recorded (a fresh machine, or a worktree at a design's commit)",
 }
 """The subcommands that act on a recipe's conditions and seeds, and their help."""
 
@@ -27,7 +29,12 @@ def _make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m jaxsocial.experiments", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="the recipes, their conditions and the scales")
-    options = {"run": _run_options, "figure": _figure_options, "record": _record_options}
+    options = {
+        "run": _run_options,
+        "figure": _figure_options,
+        "record": _record_options,
+        "restore": _restore_options,
+    }
     for name, help_ in RECIPE_COMMANDS.items():
         options[name](_recipe_parser(sub, name, help_))
     for name, (_, help_) in DELEGATED.items():
@@ -68,6 +75,7 @@ def _recipe_parser(sub, name: str, help_: str) -> argparse.ArgumentParser:
         "run": "seeds per condition, trained in one program",
         "figure": "seeds per condition, each read from whichever of the condition's runs holds it",
         "record": "seeds per condition to pack (those without metrics are skipped)",
+        "restore": "seeds per condition to restore (those without a record are left to train)",
     }
     p.add_argument(
         "--seeds", type=int, default=None, help=seeds_help[name] + " (default 3, or the recipe's design)"
@@ -173,6 +181,14 @@ def _record_options(p: argparse.ArgumentParser) -> None:
         help="also keep the final checkpoint (params and optimiser state) of the seeds that learned "
         f"(final return > the design's threshold, else {LEARNED_RETURN:g}) or of all, so later "
         "sittings can branch from the records (default: none)",
+    )
+
+
+def _restore_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--records",
+        default=str(paths.RECORDS),
+        help="root of the records to copy from (default: the committed ones; mirrors --runs-dir)",
     )
 
 
@@ -305,7 +321,8 @@ def main(argv: list[str] | None = None) -> None:
     recipe = recipes.RECIPES[args.recipe]
     scale = prereg.recipe_scale(recipe, recipes.SCALES[args.scale])
     try:
-        {"run": train_recipe, "record": record, "figure": figure}[args.command](args, recipe, scale)
+        commands = {"run": train_recipe, "record": record, "restore": restore, "figure": figure}
+        commands[args.command](args, recipe, scale)
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
 
@@ -357,6 +374,13 @@ def list_recipes() -> None:
 def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
     """`record`: pack the recipe's finished seeds (`recipe_records.record`)."""
     recipe_records.record(recipe, scale, recipe_records.RecordOptions.of(args))
+
+
+def restore(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
+    """`restore`: copy the recipe's records back into its run directories (`launch.restore`)."""
+    from jaxsocial.experiments.launch import restore as restoring
+
+    restoring.restore(recipe, scale, args.seed, args.seeds, args.runs_dir, args.records, tuple(args.pick))
 
 
 def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:

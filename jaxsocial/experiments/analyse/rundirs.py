@@ -14,6 +14,9 @@ from jaxsocial.run.config import TrainConfig
 
 FINISHED, PARTIAL, MISSING = "finished", "partial", "missing"
 """A run's state: every iteration logged; begun (its directory is there: training resumes it); not begun."""
+RESTORED_FILE = "restored.json"
+"""In a run directory copied from its record (`launch.restore`): the record's path, the commit it was read at,
+and when; `record` leaves such a directory alone."""
 
 
 def config_seed_dirs(cfg: TrainConfig) -> list[Path]:

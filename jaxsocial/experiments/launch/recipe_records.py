@@ -116,6 +116,9 @@ def _record_seed(
     if not seed_dir.is_dir():
         print(f"  {condition}: no run {seed_dir}, skipped")
         return None
+    if (seed_dir / rundirs.RESTORED_FILE).is_file():
+        print(f"  {condition}: {seed_dir} was restored from its record, kept as it is")
+        return None
     try:
         iteration, rows = records.packable(seed_dir)
     except (ValueError, FileNotFoundError) as err:  # still training, or stopped: not a result yet
