@@ -321,7 +321,7 @@ def main(argv: list[str] | None = None) -> None:
     recipe = recipes.RECIPES[args.recipe]
     scale = prereg.recipe_scale(recipe, recipes.SCALES[args.scale])
     try:
-        commands = {"run": train_recipe, "record": record, "restore": restore, "figure": figure}
+        commands = {"run": train_recipe, "record": record, "restore": restore_records, "figure": figure}
         commands[args.command](args, recipe, scale)
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
@@ -376,11 +376,11 @@ def record(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scal
     recipe_records.record(recipe, scale, recipe_records.RecordOptions.of(args))
 
 
-def restore(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
+def restore_records(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
     """`restore`: copy the recipe's records back into its run directories (`launch.restore`)."""
-    from jaxsocial.experiments.launch import restore as restoring
+    from jaxsocial.experiments.launch import restore
 
-    restoring.restore(recipe, scale, args.seed, args.seeds, args.runs_dir, args.records, tuple(args.pick))
+    restore.into_run_dirs(recipe, scale, args.seed, args.seeds, args.runs_dir, args.records, tuple(args.pick))
 
 
 def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:

@@ -18,7 +18,7 @@ from jaxsocial.experiments.plan import recipes
 from jaxsocial.run import checkout, jsonio, provenance, rundir
 
 
-def restore(
+def into_run_dirs(
     recipe: recipes.Recipe,
     scale: recipes.Scale,
     seed: int,
