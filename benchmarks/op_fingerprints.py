@@ -32,11 +32,12 @@ how the `dot_k<K>` products sum (`dot_blocks`: the blocks of K whose emulated FM
 equal the product bit for bit), the operations that differ from this kind's default, and, against every other
 kind's committed file, the operations that differ there. A run on a second kind thus names what disagrees.
 
-`--compare` measures nothing: it reads the committed kinds' files and prints the tables docs/experiments.md
-quotes ("Does the training re-run?"; `experiments.analyse.cpu_kinds.markdown`): each kind's instruction
-sets, caches and settings; per pair of kinds, whether they agree under the designs' cross-CPU flags
-(`pinned.CROSS_CPU_XLA_FLAGS` after the single-core ones) and the first operation that differs; and per pair
-and setting both measured, how many operations and fingerprints differ. A test checks the docs against it.
+`--compare` measures nothing: it reads the committed kinds' files and prints the tables
+docs/reproducibility.md quotes ("Does the training re-run?"; `experiments.analyse.cpu_kinds.markdown`): each
+kind's instruction sets, caches and settings; per pair of kinds, whether they agree under the designs'
+cross-CPU flags (`pinned.CROSS_CPU_XLA_FLAGS` after the single-core ones) and the first operation that
+differs; and per pair and setting both measured, how many operations and fingerprints differ. A test checks
+the docs against it.
 
     python benchmarks/op_fingerprints.py                      # every setting
     python benchmarks/op_fingerprints.py --settings default portable

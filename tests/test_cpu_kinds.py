@@ -1,7 +1,7 @@
 """`cpu_kinds` (issue 85): which CPU kinds agree is derived from the committed operation fingerprints, and
 what the repository says of them is checked against the files: the kinds `pinned.CROSS_CPU_KINDS` says the
-cross-CPU flags make agree, the tables docs/experiments.md quotes, and the committed `verify` reports, which
-must have come out as the files predict. The prediction itself on hand-built fingerprint files."""
+cross-CPU flags make agree, the tables docs/reproducibility.md quotes, and the committed `verify` reports,
+which must have come out as the files predict. The prediction itself on hand-built fingerprint files."""
 
 import itertools
 import sys
@@ -59,12 +59,12 @@ def test_the_cross_cpu_kinds_are_exactly_those_the_files_show_agreeing(kinds):
 
 
 def test_the_docs_quote_the_tables_the_files_give():
-    """docs/experiments.md's section on re-training holds `op_fingerprints.py --compare`'s output as it is
+    """docs/reproducibility.md's section on re-training holds `op_fingerprints.py --compare`'s output as it is
     now: a kind file added or changed without the docs fails here."""
-    text = dict(sections(REPO / "docs/experiments.md"))[SECTION]
+    text = dict(sections(REPO / "docs/reproducibility.md"))[SECTION]
     tables = op_fingerprints.compared(FINGERPRINTS)
     assert tables == cpu_kinds.markdown(cpu_kinds.read_kinds(FINGERPRINTS), CROSS_CPU)
-    assert tables in text, "docs/experiments.md: paste `python benchmarks/op_fingerprints.py --compare`"
+    assert tables in text, "docs/reproducibility.md: paste `python benchmarks/op_fingerprints.py --compare`"
 
 
 def _exact(report: dict) -> bool:

@@ -155,7 +155,7 @@ def test_the_run_says_how_it_re_trains_bit_for_bit(monkeypatch):
     line = reproduce_line(Path("runs/x"))
     assert "$XLA_FLAGS '--xla_cpu_multi_thread_eigen=false', in a process that sees 1 core(s)" in line
     assert line.endswith(
-        "jaxsocial.experiments verify runs/x checks it (docs/experiments.md names the kinds that agree)"
+        "jaxsocial.experiments verify runs/x checks it (docs/reproducibility.md names the kinds that agree)"
     )
 
 

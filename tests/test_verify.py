@@ -173,7 +173,7 @@ LONG_PRODUCTS = dataclasses.replace(
 )
 """TINY with every sample of an iteration in one minibatch, so that the conv layers' weight gradients
 contract over 32 x 8 samples' positions: products that long give other bits seeing two cores than one
-(at TINY's 16 samples a minibatch they do not: docs/experiments.md, "Does the training re-run?")."""
+(at TINY's 16 samples a minibatch they do not: docs/reproducibility.md, "Does the training re-run?")."""
 
 
 @pytest.fixture(scope="module")

@@ -244,14 +244,15 @@ class Outputs:
 
 
 def reproduce_line(run_dir: Path) -> str:
-    """How the run re-trains bit for bit (docs/experiments.md, "Does the training re-run?"): the same commit
-    and package versions, a CPU of a kind that agrees with this one, this process's $XLA_FLAGS and as many
-    visible cores; `experiments verify` re-trains it so and says whether it is exact."""
+    """How the run re-trains bit for bit (docs/reproducibility.md, "Does the training re-run?"): the same
+    commit and package versions, a CPU of a kind that agrees with this one, this process's $XLA_FLAGS and as
+    many visible cores; `experiments verify` re-trains it so and says whether it is exact."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return (
         f"bit for bit it re-trains from this commit on this CPU kind, with $XLA_FLAGS "
         f"'{os.environ.get('XLA_FLAGS', '')}', in a process that sees {cores} core(s): python -m "
-        f"jaxsocial.experiments verify {run_dir} checks it (docs/experiments.md names the kinds that agree)"
+        f"jaxsocial.experiments verify {run_dir} checks it "
+        "(docs/reproducibility.md names the kinds that agree)"
     )
 
 
@@ -267,7 +268,7 @@ def seeds_summary(seed_rows: list[list[dict[str, Any]]], seeds: list[SeedRun], s
 
 SMALL_BUDGET = 2_000_000
 """Env-steps below which a learner beside experts is expected on the one-tile plateau: the sweep's first
-takeoffs came after 4.5M (docs/experiments.md)."""
+takeoffs came after 4.5M (docs/reproducibility.md)."""
 
 
 def outcome(
@@ -309,7 +310,7 @@ def outcome(
     if env_steps < SMALL_BUDGET and static.pop.experts:
         return text + (
             f": expected at this budget ({env_steps:,} env-steps) under the {env.penalty:g} penalty; "
-            "learners that leave it beside experts take millions of env-steps (docs/experiments.md)"
+            "learners that leave it beside experts take millions of env-steps (docs/reproducibility.md)"
         )
     return text + f" after {env_steps:,} env-steps under the {env.penalty:g} penalty"
 

@@ -6,8 +6,8 @@ under XLA settings, into one JSON per CPU kind (`folder()`: `benchmarks/results/
 *agree* under some $XLA_FLAGS where both files measured a setting with exactly those flags and every
 fingerprint both hold is equal (`compare`). From that, `verify` says before it trains whether a record should
 re-train bit for bit here (`predict`), and names the kinds a record re-trains alike on (`alike`);
-`op_fingerprints.py --compare` prints, from the same files, the tables docs/experiments.md quotes ("Does the
-training re-run?": `markdown`).
+`op_fingerprints.py --compare` prints, from the same files, the tables docs/reproducibility.md quotes
+("Does the training re-run?": `markdown`).
 
 A kind is its CPU's vendor with its family and model numbers (`kind_key`), so that a record whose provenance
 names its CPU only inside its device text ("AMD EPYC (family 25, model 17), 2 cores, ...", before records
@@ -240,7 +240,7 @@ def settings_table(kinds: list[dict[str, Any]]) -> list[str]:
 
 
 def markdown(kinds: list[dict[str, Any]], xla_flags: str) -> str:
-    """The three tables docs/experiments.md quotes: the kinds, each pair under `xla_flags` (the designs'
+    """The three tables docs/reproducibility.md quotes: the kinds, each pair under `xla_flags` (the designs'
     cross-CPU flags), and each pair under every setting both measured."""
     return "\n".join(
         [

@@ -41,7 +41,7 @@ the orthogonal initialiser) AMD and Intel CPUs round differently. Pre-registered
 train with it (`TrainingDesign.xla_flags`), at no speed cost. It does not make every CPU kind agree: after the
 single-core flags, the committed operation fingerprints show `CROSS_CPU_KINDS` agreeing and no other kind
 measured under it agreeing with them (an AVX2 kind differs in Eigen's transposed products and the orthogonal
-initialiser); `cpu_kinds` reads the files, `verify` predicts from them (docs/experiments.md, "Does the
+initialiser); `cpu_kinds` reads the files, `verify` predicts from them (docs/reproducibility.md, "Does the
 training re-run?")."""
 CROSS_CPU_KINDS = ("AMD EPYC (family 26, model 2)", "Intel(R) Xeon(R) Processor (family 6, model 167)")
 """The CPU kinds (`cpuinfo.model`) whose committed operation fingerprints all agree under

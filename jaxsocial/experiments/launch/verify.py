@@ -7,17 +7,17 @@ The record's config.json (read under today's field names) is trained again for i
 fresh run directory outside the record, in a process of its own with the $XLA_FLAGS the record's run
 had (from its provenance; older records: single-threaded XLA where it says one core, as `pinned` trains)
 and seeing as many CPU cores as the record's process saw (`record_cores`): pinned to one where the record's
-was, since XLA's CPU bits depend on how many cores a process sees even single-threaded (docs/experiments.md,
-"Does the training re-run?"). The two metrics logs are compared row by row, every field but the timings
-(`TIMING_FIELDS`). The report says **exact**, or the first row and field that differ with both values and
-the size of the difference, and names the CPU of the record and of this machine, the cores each process
-saw, and where their instruction sets, cache sizes or package versions differ (`provenance.environment`):
-bitwise agreement is expected on the same CPU model, commit and count of cores, and across models only
-where their committed operation fingerprints agree under the record's $XLA_FLAGS (`cpu_kinds`). Before it
-trains it says what to expect (`prediction`: "exact expected", "expected to differ, because ..." or
-unknown, from the record's CPU and this machine's, the record's flags and the kinds' fingerprint files, the
-cores and the package versions), and its report starts with that; it ends with what re-trains the record
-bit for bit (`how_to_reproduce`). Nothing is written into the record.
+was, since XLA's CPU bits depend on how many cores a process sees even single-threaded
+(docs/reproducibility.md, "Does the training re-run?"). The two metrics logs are compared row by row, every
+field but the timings (`TIMING_FIELDS`). The report says **exact**, or the first row and field that differ
+with both values and the size of the difference, and names the CPU of the record and of this machine, the
+cores each process saw, and where their instruction sets, cache sizes or package versions differ
+(`provenance.environment`): bitwise agreement is expected on the same CPU model, commit and count of cores,
+and across models only where their committed operation fingerprints agree under the record's $XLA_FLAGS
+(`cpu_kinds`). Before it trains it says what to expect (`prediction`: "exact expected", "expected to differ,
+because ..." or unknown, from the record's CPU and this machine's, the record's flags and the kinds'
+fingerprint files, the cores and the package versions), and its report starts with that; it ends with what
+re-trains the record bit for bit (`how_to_reproduce`). Nothing is written into the record.
 
 A run directory that is no record verifies too: its process file (`provenance.RUN_FILE`, which every
 training run writes) says what a record's provenance says. Run it from a worktree of the record's commit
@@ -285,12 +285,12 @@ def report(result: dict) -> str:
         lines.append(
             "  where the CPU models differ that is expected: the record trained with XLA's platform-dependent"
             f" math, whose bits differ across them ({pinned.CROSS_CPU_XLA_FLAGS} removes it; "
-            "docs/experiments.md)"
+            "docs/reproducibility.md)"
         )
     if not result["exact"] and (cores["record"] is None or cores["record"] != cores["here"]):
         lines.append(
             "  where the counts of cores differ that is expected: XLA's CPU bits depend on how many cores a"
-            " process sees, even single-threaded (docs/experiments.md)"
+            " process sees, even single-threaded (docs/reproducibility.md)"
         )
     lines += environment_differences(result["environment"]["record"], result["environment"]["here"])
     tree = result.get("tree") or {"record": {}, "here": {}}
@@ -312,7 +312,7 @@ def _count(cores: int | None) -> str:
 
 
 def how_to_reproduce(result: dict) -> str:
-    """What re-trains the record bit for bit, as measured (docs/experiments.md, "Does the training
+    """What re-trains the record bit for bit, as measured (docs/reproducibility.md, "Does the training
     re-run?")."""
     flags, cores, cpu = result["xla_flags"], result["cores"]["record"], result["cpu"]["record"]
     cpus = f"a {cpu}" if cpu else "its CPU model (not recorded)"
