@@ -289,10 +289,8 @@ def _parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
 
     # Everything is checked before plotting.
-    try:
-        from matplotlib.backend_bases import FigureCanvasBase
-    except ImportError:
-        parser.error("plotting needs matplotlib: pip install matplotlib")
+    from matplotlib.backend_bases import FigureCanvasBase
+
     if args.out is None:
         args.out = os.path.join(args.runs[0], "curves.png")
     formats = FigureCanvasBase.get_supported_filetypes()
