@@ -15,6 +15,7 @@ from jaxsocial.experiments import followup, sweep
 from jaxsocial.experiments.analyse import records, summaries, takeoff_power
 from jaxsocial.experiments.plan import catalogue, designs, paths, recipes, sweep_settings
 from jaxsocial.run import jsonio, metrics, policy_io, provenance, rundir
+from jaxsocial.run.runlock import RunLock
 
 REPO = Path(__file__).resolve().parents[1]
 SUMMARY = "benchmarks/results/science/no_penalty-tiny.json"
@@ -371,6 +372,34 @@ def test_restore_copies_records_back_so_the_runner_trains_only_the_rest(in_repo,
     with pytest.raises(SystemExit, match="has begun training again"):
         cli.main(["restore", "no_penalty", *seeds[:-1], str(fresh)])
     assert not list(fresh.rglob("restored.json"))
+
+
+@TINY_RECORDS
+def test_status_says_where_each_seed_stands(in_repo, tmp_path, capsys):
+    """`status` reads the records and the run directories: recorded, finished but not recorded, stopped
+    partway, training now (a live lock), not begun; with the iterations of each seed begun, and no return."""
+    runs = tmp_path / "runs"
+    seeds = ["--scale", "tiny", "--seeds", "3", "--runs-dir", str(runs)]
+    cli.main(["status", "no_penalty", *seeds])
+    out = capsys.readouterr().out
+    for condition in RECIPE.conditions:  # the committed tiny records hold seeds 0 and 1
+        assert f"  {condition}: 2 recorded (0-1); 1 not begun (2)" in out, out
+    cli.main(["restore", "no_penalty", *seeds])
+    record = _record_dirs()[0]
+    begun = runs / "tiny" / f"{RECIPE.conditions[0]}-s2-2"  # where `run --cores` trains seed 2
+    begun.mkdir()
+    shutil.copy(record / rundir.CONFIG_FILE, begun)
+    first_row = json.dumps(rundir.read_metrics(record)[0])
+    (begun / rundir.METRICS_FILE).write_text(first_row + "\n")
+    elsewhere = ["--records", str(tmp_path / "no-records")]
+    capsys.readouterr()
+    cli.main(["status", "no_penalty", *seeds, *elsewhere])
+    out = capsys.readouterr().out
+    stopped = "1 stopped partway (run resumes it) (2: 1 of 4 iterations)"
+    assert f"  {RECIPE.conditions[0]}: 2 finished, not recorded (0-1); {stopped}" in out, out
+    with RunLock(begun):
+        cli.main(["status", "no_penalty", *seeds, *elsewhere])
+    assert "1 training now (2: 1 of 4 iterations)" in capsys.readouterr().out
 
 
 @needs_records("records/laptop8/prereg-imitation8")

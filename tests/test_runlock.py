@@ -42,6 +42,25 @@ def test_a_stale_lock_is_taken_over_with_a_warning(tmp_path, capsys):
     assert f"taking over the lock of {run_dir} left by process {2**22 + 1} on host gone" in err
 
 
+def test_live_holder_looks_without_taking_the_lock(tmp_path):
+    """`live_holder` names a live holder on this host (or any holder elsewhere) and takes no flock, so a look
+    cannot make a starting run's `acquire` fail; a lock file left by a process that ended names no one."""
+    run_dir = tmp_path / "run"
+    assert RunLock(run_dir).live_holder() is None  # no lock file
+    with RunLock(run_dir):
+        assert RunLock(run_dir).live_holder()["pid"] == os.getpid()
+        with pytest.raises(RunLockedError):  # still held after the look
+            RunLock(run_dir).acquire()
+    print_pid = [sys.executable, "-c", "import os; print(os.getpid())"]
+    ended = subprocess.run(print_pid, capture_output=True, text=True, check=True)
+    here = {"pid": int(ended.stdout), "host": socket.gethostname(), "started": time.time()}
+    lock_path(run_dir).write_text(json.dumps(here))
+    assert RunLock(run_dir).live_holder() is None
+    elsewhere = {"pid": int(ended.stdout), "host": "another-host", "started": time.time()}
+    lock_path(run_dir).write_text(json.dumps(elsewhere))
+    assert RunLock(run_dir).live_holder() == elsewhere
+
+
 @pytest.mark.parametrize("mode", [["--overwrite"], ["--resume"], []])
 def test_train_on_a_locked_run_directory_is_refused_before_touching_it(tmp_path, mode):
     run_dir = tmp_path / "x"

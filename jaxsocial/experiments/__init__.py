@@ -6,6 +6,7 @@ exploratory sweep's settings (`sweeps/NAME.json`).
     python -m jaxsocial.experiments run h1 --scale cpu --seeds 3      # train what is missing, resume the rest
     python -m jaxsocial.experiments figure h1 --scale cpu --seeds 3   # into runs/experiments/figures/
     python -m jaxsocial.experiments record h1 --scale cpu --seeds 3 --commands-log LOG --device D --jax V
+    python -m jaxsocial.experiments status pred8 --scale laptop8      # where each seed stands, blind
     python -m jaxsocial.experiments power h1_prereg                   # a pre-registered design and its power
     python -m jaxsocial.experiments run transfer8                     # an evaluation design: plays records
     python -m jaxsocial.experiments run mixing --cores 0 1            # a branch design: trains on from them

@@ -9,7 +9,7 @@ import argparse
 import importlib
 from pathlib import Path
 
-from jaxsocial.experiments.analyse import summaries, verdicts
+from jaxsocial.experiments.analyse import seed_status, summaries, verdicts
 from jaxsocial.experiments.launch import pinned, recipe_records, slurm, verify
 from jaxsocial.experiments.plan import catalogue, designs, paths, prereg, recipes, sweep_settings
 from jaxsocial.run import jsonio, provenance, rundir
@@ -21,6 +21,8 @@ RECIPE_COMMANDS = {
     "record": "pack a recipe's run directories into records (config, metrics, final policy, evaluations)",
     "restore": "copy a recipe's committed records back into its run directories, so `run` trains only the "
     "seeds not recorded (a fresh machine, or a worktree at a design's commit)",
+    "status": "where each seed stands: recorded, finished but not recorded, training now, stopped partway or "
+    "not begun (iteration counts only: a design stays blind)",
 }
 """The subcommands that act on a recipe's conditions and seeds, and their help."""
 
@@ -33,7 +35,8 @@ def _make_parser() -> argparse.ArgumentParser:
         "run": _run_options,
         "figure": _figure_options,
         "record": _record_options,
-        "restore": _restore_options,
+        "restore": _records_option,
+        "status": _records_option,
     }
     for name, help_ in RECIPE_COMMANDS.items():
         options[name](_recipe_parser(sub, name, help_))
@@ -76,6 +79,7 @@ def _recipe_parser(sub, name: str, help_: str) -> argparse.ArgumentParser:
         "figure": "seeds per condition, each read from whichever of the condition's runs holds it",
         "record": "seeds per condition to pack (those without metrics are skipped)",
         "restore": "seeds per condition to restore (those without a record are left to train)",
+        "status": "seeds per condition to report",
     }
     p.add_argument(
         "--seeds", type=int, default=None, help=seeds_help[name] + " (default 3, or the recipe's design)"
@@ -184,11 +188,11 @@ def _record_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _restore_options(p: argparse.ArgumentParser) -> None:
+def _records_option(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--records",
         default=str(paths.RECORDS),
-        help="root of the records to copy from (default: the committed ones; mirrors --runs-dir)",
+        help="root of the records to read (default: the committed ones; mirrors --runs-dir)",
     )
 
 
@@ -321,7 +325,13 @@ def main(argv: list[str] | None = None) -> None:
     recipe = recipes.RECIPES[args.recipe]
     scale = prereg.recipe_scale(recipe, recipes.SCALES[args.scale])
     try:
-        commands = {"run": train_recipe, "record": record, "restore": restore_records, "figure": figure}
+        commands = {
+            "run": train_recipe,
+            "record": record,
+            "restore": restore_records,
+            "status": status,
+            "figure": figure,
+        }
         commands[args.command](args, recipe, scale)
     except (ValueError, FileExistsError, FileNotFoundError) as err:
         raise SystemExit(f"error: {err}") from err
@@ -381,6 +391,16 @@ def restore_records(args: argparse.Namespace, recipe: recipes.Recipe, scale: rec
     from jaxsocial.experiments.launch import restore
 
     restore.into_run_dirs(recipe, scale, args.seed, args.seeds, args.runs_dir, args.records, tuple(args.pick))
+
+
+def status(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:
+    """`status`: where each seed of the recipe stands (`seed_status`), read from the records and the runs."""
+    statuses = seed_status.seed_statuses(
+        recipe, scale, args.seed, args.seeds, args.runs_dir, args.records, tuple(args.pick)
+    )
+    last = args.seed + args.seeds - 1
+    print(f"[{recipe.name}/{scale.name}] seeds {args.seed}-{last}, {scale.iterations:,} iterations a run")
+    print("\n".join(seed_status.status_lines(statuses, scale.iterations)))
 
 
 def figure(args: argparse.Namespace, recipe: recipes.Recipe, scale: recipes.Scale) -> None:

@@ -108,6 +108,28 @@ class RunLock:
                 return  # a file system without locks: `acquire` warns
             fcntl.flock(file, fcntl.LOCK_UN)
 
+    def live_holder(self) -> dict[str, Any] | None:
+        """The holder the lock file names where it is a live process on this host, else None: read only, with
+        no flock taken, so that looking cannot make a starting run's `acquire` fail (a process on another
+        host, whose liveness this host cannot see, counts as live)."""
+        try:
+            with open(self.path) as file:
+                holder = _holder(file)
+        except OSError:
+            return None
+        pid = holder.get("pid")
+        if not isinstance(pid, int):
+            return None
+        if holder.get("host") != socket.gethostname():
+            return holder
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return None
+        except PermissionError:
+            return holder  # alive, another user's
+        return holder
+
     def _in_use(self, holder: dict[str, Any]) -> RunLockedError:
         return RunLockedError(
             f"run directory {self.run_dir} is in use by {_describe(holder)}; wait for that run to end (or "

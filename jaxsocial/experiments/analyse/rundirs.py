@@ -70,20 +70,43 @@ def condition_seed_dirs(
     return [_one_holder(condition, s, held.get(s, []), d, pick) for s, d in enumerate(own, start=seed)]
 
 
+def records_beside_runs(
+    scale: Scale,
+    conditions: tuple[str, ...],
+    seed: int,
+    seeds: int,
+    runs_dir: str,
+    records_dir: str,
+    pick: tuple[str, ...] = (),
+) -> list[tuple[str, int, Path, Path]]:
+    """(condition, seed, record directory, run directory) of each seed seed..seed+seeds-1 of every condition,
+    each directory as `condition_seed_dirs` finds it under `records_dir` and under `runs_dir`."""
+    return [
+        (condition, k, record_dir, run_dir)
+        for condition in conditions
+        for k, record_dir, run_dir in zip(
+            range(seed, seed + seeds),
+            condition_seed_dirs(scale, condition, seed, seeds, records_dir, pick),
+            condition_seed_dirs(scale, condition, seed, seeds, runs_dir, pick),
+            strict=True,
+        )
+    ]
+
+
 def _one_holder(condition: str, seed: int, holders: list[Path], default: Path, pick: tuple[str, ...]) -> Path:
     """The one directory of `holders` that holds `seed` (`default` if none; see `condition_seed_dirs`)."""
     if len(holders) <= 1:
         return holders[0] if holders else default
-    picked = [d for d in holders if _run_of(d).name in pick]
+    picked = [d for d in holders if run_of(d).name in pick]
     if len(picked) == 1:
         return picked[0]
-    runs = ", ".join(str(_run_of(d)) for d in holders)
+    runs = ", ".join(str(run_of(d)) for d in holders)
     raise ValueError(
         f"seed {seed} of {condition} is held by {len(holders)} runs ({runs}); name the one to read with "
-        f"--pick RUN (e.g. --pick {_run_of(holders[0]).name})"
+        f"--pick RUN (e.g. --pick {run_of(holders[0]).name})"
     )
 
 
-def _run_of(seed_dir: Path) -> Path:
+def run_of(seed_dir: Path) -> Path:
     """The run directory of a seed directory (itself for a one-seed run)."""
     return seed_dir.parent if re.fullmatch(r"s\d+", seed_dir.name) else seed_dir

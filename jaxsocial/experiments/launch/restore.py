@@ -32,22 +32,20 @@ def into_run_dirs(
     seed whose directory is there already is kept. ValueError, before anything is copied, where a seed with a
     record has begun training again without finishing: that run and its record would be two results."""
     planned = []
-    for condition in recipe.conditions:
-        in_records = rundirs.condition_seed_dirs(scale, condition, seed, seeds, records_dir, pick)
-        in_runs = rundirs.condition_seed_dirs(scale, condition, seed, seeds, runs_dir, pick)
-        for record_dir, held in zip(in_records, in_runs, strict=True):
-            if not rundir.has_metrics(record_dir):
-                continue
-            seed_dir = Path(runs_dir) / record_dir.relative_to(records_dir)
-            if not seed_dir.exists() and not rundir.has_metrics(held):
-                planned.append((record_dir, seed_dir))
-            elif (seed_dir / rundirs.RESTORED_FILE).is_file() or _logged_as_much(held, record_dir):
-                print(f"  {held}: there already, kept")
-            else:
-                raise ValueError(
-                    f"{held} has begun training again while {record_dir} records it: keep one of the two "
-                    "(remove the run directory to restore the record). Nothing was restored"
-                )
+    dirs = rundirs.records_beside_runs(scale, recipe.conditions, seed, seeds, runs_dir, records_dir, pick)
+    for _, _, record_dir, held in dirs:
+        if not rundir.has_metrics(record_dir):
+            continue
+        seed_dir = Path(runs_dir) / record_dir.relative_to(records_dir)
+        if not seed_dir.exists() and not rundir.has_metrics(held):
+            planned.append((record_dir, seed_dir))
+        elif (seed_dir / rundirs.RESTORED_FILE).is_file() or _logged_as_much(held, record_dir):
+            print(f"  {held}: there already, kept")
+        else:
+            raise ValueError(
+                f"{held} has begun training again while {record_dir} records it: keep one of the two "
+                "(remove the run directory to restore the record). Nothing was restored"
+            )
     commit = checkout.head_commit()
     for record_dir, seed_dir in planned:
         shutil.copytree(record_dir, seed_dir)

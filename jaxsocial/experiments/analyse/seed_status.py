@@ -1,0 +1,100 @@
+"""Where each seed of a recipe stands (`status`, the command `python -m jaxsocial.experiments status NAME`):
+recorded, finished but not recorded, training now, stopped partway, or not begun. It reads the records and
+the run directories and writes nothing; it shows iteration counts only, so a blind design stays blind."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from jaxsocial.experiments.analyse import rundirs
+from jaxsocial.experiments.plan import recipes
+from jaxsocial.run import rundir, runlock
+
+RECORDED, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN = (
+    "recorded",
+    "finished, not recorded",
+    "training now",
+    "stopped partway (run resumes it)",
+    "not begun",
+)
+"""A seed's states, in the order `status_lines` reports them."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SeedStatus:
+    """One seed of a condition: its `state` and, where it is begun but not finished, the iterations logged."""
+
+    condition: str
+    seed: int
+    state: str
+    logged: int | None = None
+
+
+def seed_statuses(
+    recipe: recipes.Recipe,
+    scale: recipes.Scale,
+    seed: int,
+    seeds: int,
+    runs_dir: str,
+    records_dir: str,
+    pick: tuple[str, ...] = (),
+) -> list[SeedStatus]:
+    """The state of each seed seed..seed+seeds-1 of every condition of `recipe`: `RECORDED` where
+    `records_dir` holds its record, else by its run directory under `runs_dir` (that of `condition_seed_dirs`,
+    or the one-seed program's `<condition>-s<k>-<k>` that `run --cores` trains): `TO_RECORD` where it is over
+    (`rundirs.finished`), `TRAINING` where a live process on this host holds its lock, `STOPPED` where its
+    config is written, else `NOT_BEGUN`."""
+    out = []
+    dirs = rundirs.records_beside_runs(scale, recipe.conditions, seed, seeds, runs_dir, records_dir, pick)
+    for condition, k, record_dir, held in dirs:
+        if rundir.has_metrics(record_dir):
+            out.append(SeedStatus(condition, k, RECORDED))
+            continue
+        if not rundir.has_metrics(held):  # not logging yet: where `run --cores` trains it
+            held = Path(runs_dir) / recipes.condition_run_name(scale, condition, k, 1)
+        out.append(_run_status(condition, k, held, scale.iterations))
+    return out
+
+
+def _run_status(condition: str, seed: int, seed_dir: Path, iterations: int) -> SeedStatus:
+    """`TO_RECORD`, `TRAINING`, `STOPPED` or `NOT_BEGUN` for a seed without a record, from `seed_dir`."""
+    if rundirs.finished(seed_dir, iterations):
+        return SeedStatus(condition, seed, TO_RECORD)
+    logged = len(rundir.read_metrics(seed_dir)) if rundir.has_metrics(seed_dir) else 0
+    run_dir = rundirs.run_of(seed_dir)
+    if runlock.RunLock(run_dir).live_holder() is not None:
+        return SeedStatus(condition, seed, TRAINING, logged)
+    if (run_dir / rundir.CONFIG_FILE).is_file():
+        return SeedStatus(condition, seed, STOPPED, logged)
+    return SeedStatus(condition, seed, NOT_BEGUN)
+
+
+def seed_ranges(numbers: list[int]) -> str:
+    """Sorted whole numbers as ranges: [1, 2, 3, 5] -> '1-3, 5'."""
+    ranges: list[list[int]] = []
+    for n in sorted(numbers):
+        if ranges and n == ranges[-1][1] + 1:
+            ranges[-1][1] = n
+        else:
+            ranges.append([n, n])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in ranges)
+
+
+def status_lines(statuses: list[SeedStatus], iterations: int) -> list[str]:
+    """Per condition, how many seeds are in each state, with their seeds (and the iterations logged of each
+    seed begun but not finished, of `iterations`)."""
+    lines = []
+    for condition in dict.fromkeys(s.condition for s in statuses):
+        parts = []
+        for state in (RECORDED, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN):
+            mine = [s for s in statuses if s.condition == condition and s.state == state]
+            if not mine:
+                continue
+            if state in (TRAINING, STOPPED):
+                which = ", ".join(f"{s.seed}: {s.logged:,} of {iterations:,} iterations" for s in mine)
+            else:
+                which = seed_ranges([s.seed for s in mine])
+            parts.append(f"{len(mine)} {state} ({which})")
+        lines.append(f"  {condition}: " + "; ".join(parts))
+    return lines
