@@ -402,6 +402,23 @@ def test_status_says_where_each_seed_stands(in_repo, tmp_path, capsys):
     assert "1 training now (2: 1 of 4 iterations)" in capsys.readouterr().out
 
 
+@needs_records("records/laptop8/prereg-pred8", "records/laptop/prereg-mixing")
+def test_status_of_an_evaluation_and_a_branch_design(in_repo, tmp_path, capsys):
+    """`status` of the other kinds: an evaluation design's plays written or not, environment by environment;
+    a branch design's branches by arm, recorded or not begun."""
+    cli.main(["status", "transfer8"])
+    played = capsys.readouterr().out
+    assert "  goalcycle4:width=8,height=8: 4 of 4 played\n" in played, played
+    cli.main(["status", "transfer8", "--science", str(tmp_path)])
+    left = capsys.readouterr().out
+    assert "  goalcycle4:width=8,height=8: 0 of 4 played; to play: social_pred, solo_pred, " in left, left
+    assert left.count(" played") == played.count(" played")  # every environment, either way
+    cli.main(["status", "mixing"])
+    assert "  social: 40 recorded (300-339)\n" in capsys.readouterr().out
+    cli.main(["status", "mixing", "--records", str(tmp_path), "--runs-dir", str(tmp_path)])
+    assert "  social: 40 not begun (300-339)\n" in capsys.readouterr().out
+
+
 @needs_records("records/laptop8/prereg-imitation8")
 def test_restore_finds_a_designs_one_seed_runs(in_repo, tmp_path):
     """A design trains one seed a program (`<condition>-s<k>-<k>`): its records go back to those names, not

@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from jaxsocial.experiments.analyse import branch_results, evaluation_results, verdicts
+from jaxsocial.experiments.analyse import branch_results, evaluation_results, seed_status, verdicts
 from jaxsocial.experiments.launch import branch_runs, evaluation_play, pinned, slurm
 from jaxsocial.experiments.plan import branch_design, catalogue, evaluation_design, paths
 from jaxsocial.run import jsonio
@@ -48,6 +48,9 @@ def evaluation_main(argv: list[str]) -> None:
     records_root, science = Path(args.records), Path(args.science)
     if args.action == "run":
         evaluation_play.run(design, records_root, science)
+    elif args.action == "status":
+        print(f"[{design.name}] plays written under {evaluation_design.out_dir(design, science)}")
+        print("\n".join(seed_status.play_lines(design, records_root, science)))
     else:
         summary = evaluation_results.summarise(design, records_root, science)
         write_figure(summary, science, evaluation_results.draw)
@@ -86,6 +89,11 @@ def branch_main(argv: list[str]) -> None:
             raise SystemExit(max((rc for rc in codes if rc is not None), default=0))
         elif args.action == "record":
             branch_runs.record(design, runs_root, records_root)
+        elif args.action == "status":
+            statuses = seed_status.branch_statuses(design, runs_root, records_root)
+            seeds = seed_status.seed_ranges(list(design.seed_range))
+            print(f"[{design.name}] branches by arm, source seeds {seeds}")
+            print("\n".join(seed_status.status_lines(statuses, design.iterations)))
         else:
             recorded = branch_results.as_designed(design, records_root)
             if not recorded["every_branch_recorded"] and not args.interim:

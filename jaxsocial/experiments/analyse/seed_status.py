@@ -1,6 +1,8 @@
-"""Where each seed of a recipe stands (`status`, the command `python -m jaxsocial.experiments status NAME`):
-recorded, finished but not recorded, training now, stopped partway, or not begun. It reads the records and
-the run directories and writes nothing; it shows iteration counts only, so a blind design stays blind."""
+"""Where each seed of a design or recipe stands (`status`, the command `python -m jaxsocial.experiments status
+NAME`): a training design's or recipe's seeds and a branch design's branches recorded, finished but not
+recorded, training now, stopped partway, or not begun; an evaluation design's plays written or not. It reads
+the records, run directories and results and writes nothing; it shows counts only, so a blind design stays
+blind."""
 
 from __future__ import annotations
 
@@ -8,7 +10,9 @@ import dataclasses
 from pathlib import Path
 
 from jaxsocial.experiments.analyse import rundirs
-from jaxsocial.experiments.plan import recipes
+from jaxsocial.experiments.plan import evaluation_design, recipes
+from jaxsocial.experiments.plan.branch_design import BranchDesign
+from jaxsocial.experiments.plan.evaluation_design import EvaluationDesign
 from jaxsocial.run import rundir, runlock
 
 RECORDED, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN = (
@@ -55,6 +59,34 @@ def seed_statuses(
             held = Path(runs_dir) / recipes.condition_run_name(scale, condition, k, 1)
         out.append(_run_status(condition, k, held, scale.iterations))
     return out
+
+
+def branch_statuses(design: BranchDesign, runs_root: Path, records_root: Path) -> list[SeedStatus]:
+    """The state of each branch of `design` (its arm as the condition, its source seed as the seed):
+    `RECORDED` where `records_root` holds it, else by its run directory under `runs_root`."""
+    out = []
+    for seed in design.seed_range:
+        for arm in design.arms:
+            name = design.run_name(arm, seed)
+            if rundir.has_metrics(records_root / name):
+                out.append(SeedStatus(arm, seed, RECORDED))
+            else:
+                out.append(_run_status(arm, seed, runs_root / name, design.iterations))
+    return out
+
+
+def play_lines(design: EvaluationDesign, records_root: Path, science: Path) -> list[str]:
+    """Per environment of an evaluation design, how many of its plays have a result under `science`, and the
+    players still to play."""
+    out = evaluation_design.out_dir(design, science)
+    plays = evaluation_design.evaluations(design, records_root)
+    lines = []
+    for env in dict.fromkeys(p.env for p in plays):
+        mine = [p for p in plays if p.env == env]
+        left = [p.player for p in mine if not p.path(out).exists()]
+        still = f"; to play: {', '.join(left)}" if left else ""
+        lines.append(f"  {env}: {len(mine) - len(left)} of {len(mine)} played{still}")
+    return lines
 
 
 def _run_status(condition: str, seed: int, seed_dir: Path, iterations: int) -> SeedStatus:

@@ -29,12 +29,13 @@ from jaxsocial.run import jsonio
 DESIGNS_DIR = Path(__file__).parent.parent / "designs"
 DESIGN_KINDS = ("training", "evaluation", "branch")
 VERBS = {
-    "evaluation": ("power", "run", "figure"),
-    "branch": ("power", "run", "record", "figure"),
+    "evaluation": ("power", "run", "status", "figure"),
+    "branch": ("power", "run", "status", "record", "figure"),
 }
 """What `python -m jaxsocial.experiments VERB NAME` does to a design of a kind that is not a recipe's
-(`kind_commands`): its power; play or train what is missing, blind; record the finished branches; and its
-summary, tests and figure. A training design takes its recipe's verbs."""
+(`kind_commands`): its power; play or train what is missing, blind; say what is played, or where each
+branch stands; record the finished branches; and its summary, tests and figure. A training design takes its
+recipe's verbs."""
 P_DECIMALS = 6
 """A summary's p-values and other floats: 6 decimals, 3 significant digits below 1e-6 (`stats.round_p`)."""
 KIND_FIELDS = {"references": "evaluation", "arms": "branch"}
