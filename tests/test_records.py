@@ -420,13 +420,22 @@ def test_status_of_an_evaluation_and_a_branch_design(in_repo, tmp_path, capsys):
 
 
 @needs_records("records/laptop8/prereg-imitation8")
-def test_restore_finds_a_designs_one_seed_runs(in_repo, tmp_path):
+def test_restore_finds_a_designs_one_seed_runs(in_repo, tmp_path, capsys):
     """A design trains one seed a program (`<condition>-s<k>-<k>`): its records go back to those names, not
-    to the one program its seeds would share without --cores."""
+    to the one program its seeds would share without --cores; and `run` plans the design's programs so with
+    or without --cores, so a dry run counts the restored seeds finished and the others missing."""
     folder = REPO / paths.RECORDS / "laptop8" / "prereg-imitation8"
-    cli.main(["restore", "imitation8", "--scale", "laptop8", "--runs-dir", str(tmp_path)])
+    where = ["--scale", "laptop8", "--runs-dir", str(tmp_path)]
+    cli.main(["restore", "imitation8", *where])
     restored = sorted(p.parent.relative_to(tmp_path) for p in tmp_path.rglob("restored.json"))
     committed = sorted(
         p.parent.relative_to(REPO / paths.RECORDS) for p in folder.rglob(records.PROVENANCE_FILE)
     )
     assert restored == committed and committed
+    capsys.readouterr()
+    cli.main(["run", "imitation8", *where, "--dry-run"])
+    prefix = "[imitation8/laptop8] bc"
+    states = [line for line in capsys.readouterr().out.splitlines() if line.startswith(prefix)]
+    recorded = {int(d.name.rsplit("-", 1)[1]) for d in restored}
+    seeds = designs.load("imitation8").seed_range
+    assert states == [f"{prefix} s{k}: {'finished' if k in recorded else 'missing'}" for k in seeds]

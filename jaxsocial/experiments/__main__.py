@@ -221,10 +221,10 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
                 parser.error(f"{flag} {value}: the pre-registered design {design.name} fixes {designed}")
         args.seed, args.seeds = design.seed, design.seeds
         stated = design.seeds_per_program
-        if args.command == "run" and stated is not None and (args.vmap_seeds or 1) != stated:
+        given = getattr(args, "vmap_seeds", None)
+        if stated is not None and given is not None and given != stated:
             parser.error(
-                f"--vmap-seeds {args.vmap_seeds or 1}: the pre-registered design {design.name} runs {stated} "
-                "seed(s) a program"
+                f"--vmap-seeds {given}: the pre-registered design {design.name} runs {stated} seed(s) a program"
             )
     args.seed = 0 if args.seed is None else args.seed
     args.seeds = 3 if args.seeds is None else args.seeds

@@ -63,13 +63,14 @@ def run(
     they end if any failed; a dry run shows what the launcher would start (`show`).
     `seeds_per_program` K: each K consecutive seeds of a condition are one vmapped program
     (`<condition>-s<first>-<last>`, one directory per seed inside, recorded one record per seed), in a
-    process of its own with a `launcher`, else in this one (default: one a seed with a launcher, else all).
+    process of its own with a `launcher`, else in this one (default: a design's own at its scale,
+    `designed_per_program`; else one a seed with a launcher, else all).
     `max_runs`: start only the first that many of the launcher's processes (`pinned.first_runs`).
     A design's runs at its own scale train and are evaluated blind (no return or score shown), with its
     `xla_flags` (ValueError if it has them and no `launcher` is given, unless this process's $XLA_FLAGS end
     in them: they must be set before XLA starts), and from a clean tree unless `allow_dirty` (`tree_checked`).
     """
-    per_program = seeds_per_program or (1 if launcher else None)
+    per_program = seeds_per_program or designed_per_program(recipe, scale) or (1 if launcher else None)
     programs, blind, design_flags = validated_programs(recipe, scale, seed, seeds, runs_dir, per_program)
     if design_flags and train_missing and launcher is None and not dry_run:
         xla_flags_held(recipe, design_flags)
@@ -92,6 +93,14 @@ def run(
     where = "" if runs_dir == str(paths.EXPERIMENT_RUNS) else f" --runs-dir {runs_dir}"
     figure = f"figure {recipe.name} --scale {scale.name} --seed {seed} --seeds {seeds}{where}"
     print(f"next: python -m jaxsocial.experiments {figure}   # the summary and figure, tests over seeds")
+
+
+def designed_per_program(recipe: Recipe, scale: Scale) -> int | None:
+    """The seeds a program of the recipe's design at its own scale (`seeds_per_program` of its file), so that
+    its runs are planned as they train, with a launcher or without; None for a recipe without one."""
+    if recipe.design is None or not scale.runs_subdir:
+        return None
+    return prereg.TrainingDesign.read(recipe.design).seeds_per_program
 
 
 def program_state(cfg: TrainConfig, condition_dirs: list[Path], seed: int) -> str:
