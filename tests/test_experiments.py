@@ -19,6 +19,7 @@ from jaxsocial.experiments.launch import runner
 from jaxsocial.experiments.plan import conditions, paths, recipes
 from jaxsocial.run import config, jsonio, metrics, rundir, schedule, startup
 from jaxsocial.run.cost import read_rate
+from jaxsocial.run.runlock import RunLock
 
 
 @pytest.mark.parametrize("scale", sorted(recipes.SCALES))
@@ -545,6 +546,23 @@ def test_run_states_its_cost_before_training_and_ends_with_the_figure_command(tm
               "--cores", "0", "1"])  # fmt: skip
     assert "[h1/laptop] to train: 8 runs x 20.00M env-steps" in capsys.readouterr().out
     assert recipes.cost(recipes.TINY, 1, 100, 1) is None
+
+
+def test_a_run_that_another_process_trains_is_left_to_it(tmp_path, capsys):
+    """Two runners on one recipe (a core freed while the other trains): a begun run whose lock a live process
+    holds is neither resumed nor counted by the second; once released it is resumed as before."""
+    begun = tmp_path / "tiny" / "social_pred_nopenalty-s0-0"
+    begun.mkdir(parents=True)
+    (begun / rundir.CONFIG_FILE).write_text("{}")
+    argv = ["run", "no_penalty", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path), "--dry-run"]
+    with RunLock(begun):
+        cli.main([*argv, "--cores", "0"])
+    out = capsys.readouterr().out
+    assert f"social_pred_nopenalty: {runner.TRAINING_ELSEWHERE}\n" in out, out
+    assert "[no_penalty/tiny] to train: 1 runs" in out
+    cli.main([*argv, "--cores", "0"])
+    out = capsys.readouterr().out
+    assert "social_pred_nopenalty: partial\n" in out and "[no_penalty/tiny] to train: 2 runs" in out
 
 
 def test_figure_compares_ones_runs_with_the_committed_summary():

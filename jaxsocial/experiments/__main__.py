@@ -224,7 +224,8 @@ def _seed_range(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
         given = getattr(args, "vmap_seeds", None)
         if stated is not None and given is not None and given != stated:
             parser.error(
-                f"--vmap-seeds {given}: the pre-registered design {design.name} runs {stated} seed(s) a program"
+                f"--vmap-seeds {given}: the pre-registered design {design.name} runs {stated} seed(s) a "
+                "program"
             )
     args.seed = 0 if args.seed is None else args.seed
     args.seeds = 3 if args.seeds is None else args.seeds

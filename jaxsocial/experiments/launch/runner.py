@@ -23,12 +23,16 @@ from jaxsocial.experiments.analyse.rundirs import (
 from jaxsocial.experiments.launch import evaluation_play, pinned
 from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import checkout, provenance, rundir
+from jaxsocial.run import checkout, provenance, rundir, runlock
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.startup import setup
 
 BLIND_SCORE = "written (blind until every seed is in)"
+TRAINING_ELSEWHERE = "training now in another process (left to it)"
+"""A program's state where its run directory is begun and a live process holds its lock: another runner's."""
+LEFT_ALONE = (FINISHED, TRAINING_ELSEWHERE)
+"""The states of a program `run` neither trains nor resumes."""
 """What `run` prints for a pre-registered design's evaluation in place of its score."""
 
 
@@ -77,7 +81,7 @@ def run(
     dirs = {c: condition_seed_dirs(scale, c, seed, seeds, runs_dir, pick) for c in programs}
     states = {(n, c.seed): program_state(c, dirs[n], seed) for n, cs in programs.items() for c in cs}
     if train_missing:
-        to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] != FINISHED]
+        to_train = [c for n, cs in programs.items() for c in cs if states[n, c.seed] not in LEFT_ALONE]
         tree_checked(recipe, blind, bool(to_train) and not dry_run, allow_dirty)
         print_cost(recipe, scale, to_train, launcher, max_runs)
     prefix = f"[{recipe.name}/{scale.name}]"
@@ -105,9 +109,13 @@ def designed_per_program(recipe: Recipe, scale: Scale) -> int | None:
 
 def program_state(cfg: TrainConfig, condition_dirs: list[Path], seed: int) -> str:
     """`rundirs.run_state` of the program `cfg` of a condition whose seeds from `seed` on have the directories
-    `condition_dirs`: FINISHED where each of its seeds is, else PARTIAL or MISSING by its run directory."""
+    `condition_dirs`: FINISHED where each of its seeds is, else PARTIAL or MISSING by its run directory;
+    `TRAINING_ELSEWHERE` for a PARTIAL one that a live process holds (another runner's seed, left to it)."""
     held = condition_dirs[cfg.seed - seed : cfg.seed - seed + cfg.seeds]
-    return run_state(rundir.run_path(cfg), cfg.iterations, held)
+    state = run_state(rundir.run_path(cfg), cfg.iterations, held)
+    if state == PARTIAL and runlock.RunLock(rundir.run_path(cfg)).live_holder() is not None:
+        return TRAINING_ELSEWHERE
+    return state
 
 
 def validated_programs(
@@ -237,16 +245,18 @@ def train_programs(
             flags = config_flags(cfg)
             if dry_run:
                 print("  python -m jaxsocial.train " + shlex.join(flags))
-            if state != FINISHED and train_missing and launcher:
+            if state in LEFT_ALONE:
+                continue
+            if train_missing and launcher:
                 jobs.append(
                     (cfg.seed, pinned.training_job(label, flags, rundir.run_path(cfg), state == PARTIAL))
                 )
             elif dry_run:
                 continue
-            elif state != FINISHED and train_missing:
+            elif train_missing:
                 train.run(dataclasses.replace(cfg, resume=state == PARTIAL))
                 dirs[name][cfg.seed - seed : cfg.seed - seed + cfg.seeds] = config_seed_dirs(cfg)
-            elif state != FINISHED and name not in skipped:
+            elif name not in skipped:
                 skipped.append(name)
     return jobs, skipped
 
