@@ -29,11 +29,11 @@ from jaxsocial.run.flags import config_flags
 from jaxsocial.run.startup import setup
 
 BLIND_SCORE = "written (blind until every seed is in)"
+"""What `run` prints for a pre-registered design's evaluation in place of its score."""
 TRAINING_ELSEWHERE = "training now in another process (left to it)"
 """A program's state where its run directory is begun and a live process holds its lock: another runner's."""
 LEFT_ALONE = (FINISHED, TRAINING_ELSEWHERE)
 """The states of a program `run` neither trains nor resumes."""
-"""What `run` prints for a pre-registered design's evaluation in place of its score."""
 
 
 class TrainingFailed(Exception):
