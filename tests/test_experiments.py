@@ -15,7 +15,7 @@ from conftest import needs_records
 from jaxsocial import stats, train
 from jaxsocial.experiments import __main__ as cli
 from jaxsocial.experiments.analyse import kinds, plot_figures, rundirs, summaries, takeoff
-from jaxsocial.experiments.launch import runner
+from jaxsocial.experiments.launch import pinned, runner
 from jaxsocial.experiments.plan import conditions, paths, recipes
 from jaxsocial.run import config, jsonio, metrics, rundir, schedule, startup
 from jaxsocial.run.cost import read_rate
@@ -549,20 +549,34 @@ def test_run_states_its_cost_before_training_and_ends_with_the_figure_command(tm
 
 
 def test_a_run_that_another_process_trains_is_left_to_it(tmp_path, capsys):
-    """Two runners on one recipe (a core freed while the other trains): a begun run whose lock a live process
-    holds is neither resumed nor counted by the second; once released it is resumed as before."""
+    """Two runners on one recipe (a core freed while the other trains): a run whose lock a live process holds,
+    begun or only just started, is neither started, resumed nor counted by the second; released, a begun
+    run is resumed as before. A job whose run another process took after it was planned is not started."""
+    solo = tmp_path / "tiny" / "solo_pred_nopenalty-s0-0"
     begun = tmp_path / "tiny" / "social_pred_nopenalty-s0-0"
     begun.mkdir(parents=True)
     (begun / rundir.CONFIG_FILE).write_text("{}")
     argv = ["run", "no_penalty", "--scale", "tiny", "--seeds", "1", "--runs-dir", str(tmp_path), "--dry-run"]
-    with RunLock(begun):
+    with RunLock(begun), RunLock(solo):  # `solo` only just started: no config yet
         cli.main([*argv, "--cores", "0"])
     out = capsys.readouterr().out
-    assert f"social_pred_nopenalty: {runner.TRAINING_ELSEWHERE}\n" in out, out
-    assert "[no_penalty/tiny] to train: 1 runs" in out
+    assert (
+        f"social_pred_nopenalty: {rundirs.TRAINING}\n" in out
+        and f"solo_pred_nopenalty: {rundirs.TRAINING}\n" in out
+    )
+    assert "[no_penalty/tiny] to train:" not in out, out
     cli.main([*argv, "--cores", "0"])
     out = capsys.readouterr().out
     assert "social_pred_nopenalty: partial\n" in out and "[no_penalty/tiny] to train: 2 runs" in out
+
+    fresh = pinned.Job("fresh", ("-c", "pass"), begun, afresh=True)  # planned before `begun` was begun
+    held = pinned.Job("held", ("-c", "pass"), solo)
+    with RunLock(solo):
+        assert pinned.run([fresh, held], [0]) == [None, None]
+    out = capsys.readouterr().out
+    assert "fresh: begun by another process since this run was planned, left to it" in out
+    assert "held: training now in another process, left to it" in out
+    assert not fresh.log.exists() and not held.log.exists()
 
 
 def test_figure_compares_ones_runs_with_the_committed_summary():

@@ -376,8 +376,9 @@ def test_restore_copies_records_back_so_the_runner_trains_only_the_rest(in_repo,
 
 @TINY_RECORDS
 def test_status_says_where_each_seed_stands(in_repo, tmp_path, capsys):
-    """`status` reads the records and the run directories: recorded, finished but not recorded, stopped
-    partway, training now (a live lock), not begun; with the iterations of each seed begun, and no return."""
+    """`status` reads the records and the run directories: recorded (or training again beside its record),
+    finished but not recorded, stopped partway (one seed's program or several seeds'), training now (a live
+    lock), not begun; with the iterations of each seed begun, and no return."""
     runs = tmp_path / "runs"
     seeds = ["--scale", "tiny", "--seeds", "3", "--runs-dir", str(runs)]
     cli.main(["status", "no_penalty", *seeds])
@@ -400,6 +401,19 @@ def test_status_says_where_each_seed_stands(in_repo, tmp_path, capsys):
     with RunLock(begun):
         cli.main(["status", "no_penalty", *seeds, *elsewhere])
     assert "1 training now (2: 1 of 4 iterations)" in capsys.readouterr().out
+    (begun / rundir.METRICS_FILE).unlink()  # begun, nothing logged yet
+    cli.main(["status", "no_penalty", *seeds, *elsewhere])
+    assert "1 stopped partway (run resumes it) (2: 0 of 4 iterations)" in capsys.readouterr().out
+    shutil.rmtree(begun)
+    program = runs / "tiny" / f"{RECIPE.conditions[0]}-s0-2"  # the three seeds as one program, begun
+    program.mkdir()
+    shutil.copy(record / rundir.CONFIG_FILE, program)
+    cli.main(["status", "no_penalty", *seeds, *elsewhere])
+    assert "1 stopped partway (run resumes it) (2: 0 of 4 iterations)" in capsys.readouterr().out
+    with RunLock(runs / "tiny" / f"{RECIPE.conditions[0]}-s0-1"):
+        cli.main(["status", "no_penalty", *seeds])
+    twice = "2 recorded, yet training again (two results: keep one) (0-1)"
+    assert f"  {RECIPE.conditions[0]}: {twice}" in capsys.readouterr().out
 
 
 @needs_records("records/laptop8/prereg-pred8", "records/laptop/prereg-mixing")

@@ -1,6 +1,7 @@
 """One process at a time per run directory: a live run's lock refuses `train`, `--resume` and `--overwrite`
 (naming the holder) before anything is deleted or written; a killed run's lock is stale and taken over."""
 
+import fcntl
 import json
 import os
 import signal
@@ -8,6 +9,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -16,7 +18,7 @@ from conftest import TINY_RUN_FLAGS
 
 from jaxsocial import train
 from jaxsocial.run import checkpoint, rundir
-from jaxsocial.run.runlock import RunLock, RunLockedError, lock_path
+from jaxsocial.run.runlock import FLOCK_WAIT_S, RunLock, RunLockedError, lock_path
 
 HOLDER = f"process {os.getpid()} on host {socket.gethostname()}"
 
@@ -42,23 +44,24 @@ def test_a_stale_lock_is_taken_over_with_a_warning(tmp_path, capsys):
     assert f"taking over the lock of {run_dir} left by process {2**22 + 1} on host gone" in err
 
 
-def test_live_holder_looks_without_taking_the_lock(tmp_path):
-    """`live_holder` names a live holder on this host (or any holder elsewhere) and takes no flock, so a look
-    cannot make a starting run's `acquire` fail; a lock file left by a process that ended names no one."""
+def test_live_holder_asks_the_flock_and_a_look_does_not_refuse_a_run(tmp_path):
+    """`live_holder` names the holder where a process holds the lock's flock, and no one where none does,
+    whatever the file names (a pid alive here, another host); a look holds a shared flock for an instant,
+    which `acquire` waits out instead of refusing."""
     run_dir = tmp_path / "run"
     assert RunLock(run_dir).live_holder() is None  # no lock file
     with RunLock(run_dir):
         assert RunLock(run_dir).live_holder()["pid"] == os.getpid()
         with pytest.raises(RunLockedError):  # still held after the look
             RunLock(run_dir).acquire()
-    print_pid = [sys.executable, "-c", "import os; print(os.getpid())"]
-    ended = subprocess.run(print_pid, capture_output=True, text=True, check=True)
-    here = {"pid": int(ended.stdout), "host": socket.gethostname(), "started": time.time()}
-    lock_path(run_dir).write_text(json.dumps(here))
-    assert RunLock(run_dir).live_holder() is None
-    elsewhere = {"pid": int(ended.stdout), "host": "another-host", "started": time.time()}
-    lock_path(run_dir).write_text(json.dumps(elsewhere))
-    assert RunLock(run_dir).live_holder() == elsewhere
+    for host in (socket.gethostname(), "another-host"):  # left by a holder whose flock is gone
+        lock_path(run_dir).write_text(json.dumps({"pid": os.getpid(), "host": host, "started": time.time()}))
+        assert RunLock(run_dir).live_holder() is None
+    with open(lock_path(run_dir)) as look:
+        fcntl.flock(look, fcntl.LOCK_SH)  # a look, from another process, at the moment a run starts
+        threading.Timer(FLOCK_WAIT_S, fcntl.flock, (look, fcntl.LOCK_UN)).start()
+        with RunLock(run_dir):
+            assert json.loads(lock_path(run_dir).read_text())["pid"] == os.getpid()
 
 
 @pytest.mark.parametrize("mode", [["--overwrite"], ["--resume"], []])

@@ -111,8 +111,8 @@ def _run_options(p: argparse.ArgumentParser) -> None:
         default=[],
         metavar="CORE",
         help="train every seed as a one-seed program in its own single-threaded process pinned to "
-        "one of these CPU cores, one per core at a time (e.g. --cores 0 1; default: each condition's "
-        "seeds in one program, in this process)",
+        "one of these CPU cores, one per core at a time (e.g. --cores 0 1; default: in this process, each "
+        "condition's seeds in one program, or as many a program as a design says)",
     )
     p.add_argument(
         "--vmap-seeds",

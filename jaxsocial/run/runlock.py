@@ -43,6 +43,25 @@ def _holder(file: TextIO) -> dict[str, Any]:
     return holder if isinstance(holder, dict) else {}
 
 
+FLOCK_TRIES = 5
+FLOCK_WAIT_S = 0.1
+"""How often, and how far apart, a lock held by someone is tried before it counts as held: a look
+(`RunLock.check_free`, `RunLock.live_holder`, from another process too) holds it for an instant."""
+
+
+def _flock(file: TextIO, mode: int) -> None:
+    """`fcntl.flock(file, mode)` without blocking, tried `FLOCK_TRIES` times `FLOCK_WAIT_S` apart where it is
+    held; BlockingIOError if it stays held."""
+    for attempt in range(FLOCK_TRIES):
+        try:
+            fcntl.flock(file, mode | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            if attempt == FLOCK_TRIES - 1:
+                raise
+            time.sleep(FLOCK_WAIT_S)
+
+
 def _describe(holder: dict[str, Any]) -> str:
     started = holder.get("started")
     since = f" since {time.strftime('%Y-%m-%d %H:%M:%S', time.localtime(started))}" if started else ""
@@ -64,7 +83,7 @@ class RunLock:
         while True:
             file = open(self.path, "a+")  # noqa: SIM115 - held open until release()
             try:
-                fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                _flock(file, fcntl.LOCK_EX)
             except BlockingIOError:
                 holder = _holder(file)
                 file.close()
@@ -101,7 +120,7 @@ class RunLock:
             return  # no lock file: free
         with file:
             try:
-                fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                _flock(file, fcntl.LOCK_EX)
             except BlockingIOError:
                 raise self._in_use(_holder(file)) from None
             except OSError:
@@ -109,26 +128,23 @@ class RunLock:
             fcntl.flock(file, fcntl.LOCK_UN)
 
     def live_holder(self) -> dict[str, Any] | None:
-        """The holder the lock file names where it is a live process on this host, else None: read only, with
-        no flock taken, so that looking cannot make a starting run's `acquire` fail (a process on another
-        host, whose liveness this host cannot see, counts as live)."""
+        """The holder the lock file names where a live process holds its flock now, else None (no lock file,
+        one left by a process that ended however it ended, or a file system without locks). It looks with a
+        shared flock released at once, as `check_free` does; `acquire` tries again for a moment where a look
+        holds it."""
         try:
-            with open(self.path) as file:
-                holder = _holder(file)
+            file = open(self.path)  # noqa: SIM115 - closed below
         except OSError:
             return None
-        pid = holder.get("pid")
-        if not isinstance(pid, int):
+        with file:
+            try:
+                _flock(file, fcntl.LOCK_SH)
+            except BlockingIOError:
+                return _holder(file)
+            except OSError:
+                return None
+            fcntl.flock(file, fcntl.LOCK_UN)
             return None
-        if holder.get("host") != socket.gethostname():
-            return holder
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return None
-        except PermissionError:
-            return holder  # alive, another user's
-        return holder
 
     def _in_use(self, holder: dict[str, Any]) -> RunLockedError:
         return RunLockedError(

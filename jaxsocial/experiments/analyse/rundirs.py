@@ -9,11 +9,14 @@ from pathlib import Path
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import recipes
 from jaxsocial.experiments.plan.recipes import Scale
-from jaxsocial.run import rundir
+from jaxsocial.run import rundir, runlock
 from jaxsocial.run.config import TrainConfig
 
-FINISHED, PARTIAL, MISSING = "finished", "partial", "missing"
-"""A run's state: every iteration logged; begun (its directory is there: training resumes it); not begun."""
+FINISHED, TRAINING, PARTIAL, MISSING = "finished", "training now", "partial", "missing"
+"""A run's state: every iteration logged; training now in a live process (its lock is held: left to it);
+begun and stopped (its config is there: training resumes it); not begun."""
+LEFT_ALONE = (FINISHED, TRAINING)
+"""The states of a run that no runner starts or resumes."""
 RESTORED_FILE = "restored.json"
 """In a run directory copied from its record (`launch.restore`): the record's path, the commit it was read at,
 and when; `record` leaves such a directory alone."""
@@ -35,10 +38,14 @@ def finished(seed_dir: Path, iterations: int) -> bool:
 
 def run_state(run_dir: Path, iterations: int, seed_dirs: list[Path] | None = None) -> str:
     """FINISHED (each of `seed_dirs`, or the run directory itself where a run has one seed, is over:
-    `finished`), PARTIAL (the run's config is written, so training resumes it) or MISSING. The one rule for
-    every run a design or the sweep trains: a recipe's conditions, branches, sweep seeds, follow-ups."""
+    `finished`), TRAINING (a live process holds its lock, `runlock.RunLock.live_holder`: from the run's start,
+    before it writes anything), PARTIAL (the run's config is written, so training resumes it) or MISSING. The
+    one rule for every run a design or the sweep trains: a recipe's conditions, branches, sweep seeds,
+    follow-ups; a runner starts only the PARTIAL and MISSING ones, so two runners share a design's seeds."""
     if all(finished(d, iterations) for d in seed_dirs or [run_dir]):
         return FINISHED
+    if runlock.RunLock(run_dir).live_holder() is not None:
+        return TRAINING
     return PARTIAL if (run_dir / rundir.CONFIG_FILE).exists() else MISSING
 
 

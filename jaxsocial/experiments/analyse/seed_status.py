@@ -1,8 +1,9 @@
 """Where each seed of a design or recipe stands (`status`, the command `python -m jaxsocial.experiments status
 NAME`): a training design's or recipe's seeds and a branch design's branches recorded, finished but not
 recorded, training now, stopped partway, or not begun; an evaluation design's plays written or not. It reads
-the records, run directories and results and writes nothing; it shows counts only, so a blind design stays
-blind."""
+the records, run directories and results and writes nothing. It shows no return or score, only states and
+iteration counts; where a design's runs stop at a return (`stop_at_return`), a run that finished early says
+it took off."""
 
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ from jaxsocial.experiments.plan.branch_design import BranchDesign
 from jaxsocial.experiments.plan.evaluation_design import EvaluationDesign
 from jaxsocial.run import rundir, runlock
 
-RECORDED, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN = (
+RECORDED, TWICE, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN = (
     "recorded",
+    "recorded, yet training again (two results: keep one)",
     "finished, not recorded",
     "training now",
     "stopped partway (run resumes it)",
@@ -45,31 +47,33 @@ def seed_statuses(
     pick: tuple[str, ...] = (),
 ) -> list[SeedStatus]:
     """The state of each seed seed..seed+seeds-1 of every condition of `recipe`: `RECORDED` where
-    `records_dir` holds its record, else by its run directory under `runs_dir` (that of `condition_seed_dirs`,
-    or the one-seed program's `<condition>-s<k>-<k>` that `run --cores` trains): `TO_RECORD` where it is over
-    (`rundirs.finished`), `TRAINING` where a live process on this host holds its lock, `STOPPED` where its
-    config is written, else `NOT_BEGUN`."""
+    `records_dir` holds its record (`TWICE` where its run directory is training again beside it), else by its
+    run directory under `runs_dir` (`rundirs.run_state`), the one that `condition_seed_dirs` names or, where
+    that one is not begun, the one-seed program's `<condition>-s<k>-<k>` that `run --cores` trains."""
     out = []
     dirs = rundirs.records_beside_runs(scale, recipe.conditions, seed, seeds, runs_dir, records_dir, pick)
     for condition, k, record_dir, held in dirs:
         if rundir.has_metrics(record_dir):
-            out.append(SeedStatus(condition, k, RECORDED))
+            out.append(_recorded(condition, k, held))
             continue
-        if not rundir.has_metrics(held):  # not logging yet: where `run --cores` trains it
-            held = Path(runs_dir) / recipes.condition_run_name(scale, condition, k, 1)
-        out.append(_run_status(condition, k, held, scale.iterations))
+        one_seed = Path(runs_dir) / recipes.condition_run_name(scale, condition, k, 1)
+        status = _run_status(condition, k, held, scale.iterations)
+        if status.state == NOT_BEGUN and one_seed != held:
+            status = _run_status(condition, k, one_seed, scale.iterations)
+        out.append(status)
     return out
 
 
 def branch_statuses(design: BranchDesign, runs_root: Path, records_root: Path) -> list[SeedStatus]:
     """The state of each branch of `design` (its arm as the condition, its source seed as the seed):
-    `RECORDED` where `records_root` holds it, else by its run directory under `runs_root`."""
+    `RECORDED` where `records_root` holds it (`TWICE` where it trains again), else by its run directory under
+    `runs_root`."""
     out = []
     for seed in design.seed_range:
         for arm in design.arms:
             name = design.run_name(arm, seed)
             if rundir.has_metrics(records_root / name):
-                out.append(SeedStatus(arm, seed, RECORDED))
+                out.append(_recorded(arm, seed, runs_root / name))
             else:
                 out.append(_run_status(arm, seed, runs_root / name, design.iterations))
     return out
@@ -89,17 +93,21 @@ def play_lines(design: EvaluationDesign, records_root: Path, science: Path) -> l
     return lines
 
 
+def _recorded(condition: str, seed: int, seed_dir: Path) -> SeedStatus:
+    """A seed with a record: `RECORDED`, or `TWICE` where a live process trains its run directory again."""
+    again = runlock.RunLock(rundirs.run_of(seed_dir)).live_holder() is not None
+    return SeedStatus(condition, seed, TWICE if again else RECORDED)
+
+
 def _run_status(condition: str, seed: int, seed_dir: Path, iterations: int) -> SeedStatus:
-    """`TO_RECORD`, `TRAINING`, `STOPPED` or `NOT_BEGUN` for a seed without a record, from `seed_dir`."""
-    if rundirs.finished(seed_dir, iterations):
+    """The state of a seed without a record, from its directory (`rundirs.run_state` of its run)."""
+    state = rundirs.run_state(rundirs.run_of(seed_dir), iterations, [seed_dir])
+    if state == rundirs.FINISHED:
         return SeedStatus(condition, seed, TO_RECORD)
+    if state == rundirs.MISSING:
+        return SeedStatus(condition, seed, NOT_BEGUN)
     logged = len(rundir.read_metrics(seed_dir)) if rundir.has_metrics(seed_dir) else 0
-    run_dir = rundirs.run_of(seed_dir)
-    if runlock.RunLock(run_dir).live_holder() is not None:
-        return SeedStatus(condition, seed, TRAINING, logged)
-    if (run_dir / rundir.CONFIG_FILE).is_file():
-        return SeedStatus(condition, seed, STOPPED, logged)
-    return SeedStatus(condition, seed, NOT_BEGUN)
+    return SeedStatus(condition, seed, TRAINING if state == rundirs.TRAINING else STOPPED, logged)
 
 
 def seed_ranges(numbers: list[int]) -> str:
@@ -119,7 +127,7 @@ def status_lines(statuses: list[SeedStatus], iterations: int) -> list[str]:
     lines = []
     for condition in dict.fromkeys(s.condition for s in statuses):
         parts = []
-        for state in (RECORDED, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN):
+        for state in (RECORDED, TWICE, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN):
             mine = [s for s in statuses if s.condition == condition and s.state == state]
             if not mine:
                 continue

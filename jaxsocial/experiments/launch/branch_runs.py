@@ -66,7 +66,8 @@ def run(
     missing = missing_sources(design, records_root)
     if missing:
         raise FileNotFoundError(f"the design's material is incomplete: {', '.join(missing)}")
-    jobs, counts = [], dict.fromkeys((rundirs.FINISHED, rundirs.PARTIAL, rundirs.MISSING), 0)
+    states = (rundirs.FINISHED, rundirs.TRAINING, rundirs.PARTIAL, rundirs.MISSING)
+    jobs, counts = [], dict.fromkeys(states, 0)
     for seed in design.seed_range:
         for arm in design.arms:
             cfg = branch_config(design, arm, seed, runs_root, records_root)
@@ -76,9 +77,9 @@ def run(
             flags = config_flags(cfg)
             if dry_run:
                 print(f"  {cfg.run_name}: {state}\n    python -m jaxsocial.train {' '.join(flags)}")
-            if state != rundirs.FINISHED:
+            if state not in rundirs.LEFT_ALONE:
                 jobs.append(pinned.training_job(cfg.run_name, flags, run_dir, state == rundirs.PARTIAL))
-    print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items()))
+    print(f"[{design.name}] branches: " + ", ".join(f"{n} {state}" for state, n in counts.items() if n))
     pending = counts[rundirs.PARTIAL] + counts[rundirs.MISSING]
     starting = min(pending, max_runs or pending)
     at_once = launcher.slots(starting)
@@ -104,7 +105,7 @@ def record(design: BranchDesign, runs_root: Path, records_root: Path) -> list[Pa
                 continue
             state = rundirs.run_state(run_dir, design.iterations)
             not_started += state == rundirs.MISSING
-            if state == rundirs.PARTIAL:
+            if state in (rundirs.PARTIAL, rundirs.TRAINING):
                 print(f"  {name}: not finished, not recorded")
             if state != rundirs.FINISHED:
                 continue

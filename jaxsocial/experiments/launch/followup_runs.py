@@ -84,7 +84,7 @@ def run(
             print(f"  {source.name}-{arm}: {state}")
             if dry_run:
                 print("    python -m jaxsocial.train " + " ".join(flags))
-            elif state != rundirs.FINISHED:
+            elif state not in rundirs.LEFT_ALONE:
                 jobs.append(
                     pinned.training_job(f"{source.name}-{arm}", flags, run_dir, state == rundirs.PARTIAL)
                 )

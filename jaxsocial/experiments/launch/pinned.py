@@ -28,7 +28,7 @@ from typing import Any, Protocol
 
 from jaxsocial.experiments.analyse import records
 from jaxsocial.experiments.plan import xla_flags
-from jaxsocial.run import checkout, compile_cache, jsonio, provenance, rundir
+from jaxsocial.run import checkout, compile_cache, jsonio, provenance, rundir, runlock
 
 SINGLE_CORE_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false"
 """What each pinned process adds to the caller's $XLA_FLAGS (`process_xla_flags`). Until 2026-11-27 it ended
@@ -58,6 +58,8 @@ class Job:
     label: str
     argv: tuple[str, ...]
     run_dir: Path
+    afresh: bool = False
+    """Whether it starts its run anew (a training job of a run not begun when planned: no --resume)."""
 
     @property
     def log(self) -> Path:
@@ -75,7 +77,7 @@ def train_command(flags: list[str]) -> tuple[str, ...]:
 def training_job(label: str, flags: list[str], run_dir: Path, begun: bool) -> Job:
     """The job that trains the run `run_dir`: its `train_command`, with `--resume` where it has `begun`
     (`rundirs.PARTIAL`: it goes on from its latest checkpoint)."""
-    return Job(label, train_command([*flags, *(["--resume"] if begun else [])]), run_dir)
+    return Job(label, train_command([*flags, *(["--resume"] if begun else [])]), run_dir, afresh=not begun)
 
 
 def pin(cores: list[int] | None) -> list[str]:
@@ -151,26 +153,44 @@ class Cores:
         return list(run(jobs, list(self.cores), extra_xla_flags))
 
 
-def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[int]:
+def run(jobs: list[Job], cores: list[int], extra_xla_flags: str = "") -> list[int | None]:
     """Run `jobs` in order, one process per core of `cores` at a time, each pinned to its core (`pin`) with a
     single-threaded XLA after the caller's $XLA_FLAGS and before `extra_xla_flags` (`process_xla_flags`);
     write `RUN_FILE`, with the cores the process could see and the package's files as they were when it
     started (`checkout.tree`), into each run directory the process created. Returns the exit codes, in the
-    order of `jobs`."""
+    order of `jobs` (None: left to another process, `taken_by_another`)."""
     if not cores:
         raise ValueError("give at least one core")
     return run_processes(jobs, cores, process_xla_flags(extra_xla_flags))
 
 
-def run_processes(jobs: list[Job], cores: list[int], process_flags: str) -> list[int]:
+def taken_by_another(job: Job) -> str | None:
+    """Why `job` must not start now, or None: a live process trains its run directory (`runlock`), or one
+    began it since it was planned (its config is there, and the job would start it afresh). Asked just
+    before it starts, so that two runners on one design share its seeds (`rundirs.run_state`)."""
+    if runlock.RunLock(job.run_dir).live_holder() is not None:
+        return "training now in another process"
+    if job.afresh and (job.run_dir / rundir.CONFIG_FILE).is_file():
+        return "begun by another process since this run was planned"
+    return None
+
+
+def run_processes(jobs: list[Job], cores: list[int], process_flags: str) -> list[int | None]:
     """`run` with the processes' $XLA_FLAGS whole (`process_xla_flags`, worked out where the jobs were
-    launched: a Slurm job runs its seed through this, `slurm.run_in_job`)."""
+    launched: a Slurm job runs its seed through this, `slurm.run_in_job`). A job `taken_by_another` when its
+    turn comes is left to it (exit code None), and its log is not touched."""
     env = {**os.environ, "XLA_FLAGS": process_flags, provenance.PARENT_WRITES: "1"}
     pending, active, codes = list(enumerate(jobs)), {}, {}
     free = list(cores)
     while pending or active:
         while pending and free:
-            (i, job), core, tree = pending.pop(0), free.pop(0), checkout.tree()
+            i, job = pending.pop(0)
+            taken = taken_by_another(job)
+            if taken:
+                print(f"{job.label}: {taken}, left to it", flush=True)
+                codes[i] = None
+                continue
+            core, tree = free.pop(0), checkout.tree()
             job.log.parent.mkdir(parents=True, exist_ok=True)
             proc = subprocess.Popen(
                 [*pin([core]), sys.executable, *job.argv],

@@ -13,7 +13,7 @@ from pathlib import Path
 from jaxsocial import train
 from jaxsocial.experiments.analyse import kinds, run_times
 from jaxsocial.experiments.analyse.rundirs import (
-    FINISHED,
+    LEFT_ALONE,
     PARTIAL,
     condition_seed_dirs,
     config_seed_dirs,
@@ -23,17 +23,13 @@ from jaxsocial.experiments.analyse.rundirs import (
 from jaxsocial.experiments.launch import evaluation_play, pinned
 from jaxsocial.experiments.plan import paths, prereg, recipes, xla_flags
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import checkout, provenance, rundir, runlock
+from jaxsocial.run import checkout, provenance, rundir
 from jaxsocial.run.config import TrainConfig
 from jaxsocial.run.flags import config_flags
 from jaxsocial.run.startup import setup
 
 BLIND_SCORE = "written (blind until every seed is in)"
 """What `run` prints for a pre-registered design's evaluation in place of its score."""
-TRAINING_ELSEWHERE = "training now in another process (left to it)"
-"""A program's state where its run directory is begun and a live process holds its lock: another runner's."""
-LEFT_ALONE = (FINISHED, TRAINING_ELSEWHERE)
-"""The states of a program `run` neither trains nor resumes."""
 
 
 class TrainingFailed(Exception):
@@ -109,13 +105,10 @@ def designed_per_program(recipe: Recipe, scale: Scale) -> int | None:
 
 def program_state(cfg: TrainConfig, condition_dirs: list[Path], seed: int) -> str:
     """`rundirs.run_state` of the program `cfg` of a condition whose seeds from `seed` on have the directories
-    `condition_dirs`: FINISHED where each of its seeds is, else PARTIAL or MISSING by its run directory;
-    `TRAINING_ELSEWHERE` for a PARTIAL one that a live process holds (another runner's seed, left to it)."""
+    `condition_dirs`: FINISHED where each of its seeds is, else TRAINING, PARTIAL or MISSING by its run
+    directory."""
     held = condition_dirs[cfg.seed - seed : cfg.seed - seed + cfg.seeds]
-    state = run_state(rundir.run_path(cfg), cfg.iterations, held)
-    if state == PARTIAL and runlock.RunLock(rundir.run_path(cfg)).live_holder() is not None:
-        return TRAINING_ELSEWHERE
-    return state
+    return run_state(rundir.run_path(cfg), cfg.iterations, held)
 
 
 def validated_programs(

@@ -186,9 +186,10 @@ def wait(submitted: dict[pinned.Job, Any], submitit) -> dict[pinned.Job, int]:
     return codes
 
 
-def run_in_job(job: pinned.Job, process_flags: str) -> int:
+def run_in_job(job: pinned.Job, process_flags: str) -> int | None:
     """Inside a Slurm job: `job`'s process pinned to the first CPU the job has, with $XLA_FLAGS
-    `process_flags` (`pinned.run_processes`: the process file as a local run's); its exit code."""
+    `process_flags` (`pinned.run_processes`: the process file as a local run's); its exit code (None: left to
+    another process that trains it)."""
     (rc,) = pinned.run_processes([job], (provenance.visible_cores() or [0])[:1], process_flags)
     return rc
 

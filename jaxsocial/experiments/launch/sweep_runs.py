@@ -26,7 +26,7 @@ def run(setting: Setting, seeds: list[int], runs_dir: str, cores: list[int]) -> 
     for seed in seeds:
         state = seed_state(setting, seed, runs_dir)
         print(f"{setting.name} seed {seed}: {state}")
-        if state != rundirs.FINISHED:
+        if state not in rundirs.LEFT_ALONE:
             flags = train_flags(setting, seed, runs_dir)
             label = f"{setting.name} seed {seed}"
             jobs.append(
