@@ -89,7 +89,7 @@ def test_one_command_reaches_every_kind_of_design(kind, capsys):
     assert capsys.readouterr().out.startswith(f"{name}: {'from ' * (kind == 'branch')}the records ")
     if kind == "evaluation":
         with pytest.raises(
-            SystemExit, match=f"record {name}: the evaluation design {name} takes power, run, figure"
+            SystemExit, match=f"record {name}: the evaluation design {name} takes power, run, status, figure"
         ):
             cli.main(["record", name])
 

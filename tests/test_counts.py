@@ -175,9 +175,12 @@ def test_a_design_fixes_its_seeds(name, tmp_path, capsys):
     last = design.seed + design.seeds - 1
     assert f"--iterations {design.iterations} " in out
     assert all("--blind" in line.split() for line in out.splitlines() if "jaxsocial.train" in line)  # blind
-    # in a folder of their own: no ordinary `run h1 --seed 100 --seeds 4` can share their directories
-    condition = recipe.conditions[-1]
-    assert f"--run-name {design.scale}/prereg-{design.name}/{condition}-s{design.seed}-{last}" in out
+    # in a folder of their own: no ordinary `run h1 --seed 100 --seeds 4` can share their directories; each
+    # program as many seeds as the design says, with --cores or without
+    condition, k = recipe.conditions[-1], design.seeds_per_program or design.seeds
+    programs = [(first, min(first + k, last + 1) - 1) for first in range(design.seed, last + 1, k)]
+    for first, end in programs:
+        assert f"--run-name {design.scale}/prereg-{design.name}/{condition}-s{first}-{end} " in out
 
 
 def test_preregistered_block():
