@@ -71,9 +71,6 @@ def record(recipe: recipes.Recipe, scale: recipes.Scale, options: RecordOptions)
         )
     for seed_dir, relative, run, reason in plan:
         record_dir = Path(options.out_dir) / relative
-        if record_dir.exists() and any(record_dir.iterdir()) and not options.overwrite:
-            print(f"  {record_dir}: already recorded, kept (--overwrite replaces it)")
-            continue
         records.pack(seed_dir, record_dir, run, str(relative), options.overwrite, checkpoint_reason=reason)
         with_checkpoint = f", with its final checkpoint: {reason}" if reason else ""
         print(
@@ -112,12 +109,19 @@ def _record_seed(
     commands: dict[str, dict[str, Any]] | None,
     threshold: float,
 ) -> tuple[Path, Path, dict[str, Any], str | None] | None:
-    """One seed of `record_plan` (None: skipped, with a note)."""
+    """One seed of `record_plan` (None: skipped, with a note: not there, restored, recorded already unless
+    --overwrite, not finished or evaluated, or its process not ended)."""
     if not seed_dir.is_dir():
         print(f"  {condition}: no run {seed_dir}, skipped")
         return None
     if (seed_dir / rundirs.RESTORED_FILE).is_file():
         print(f"  {condition}: {seed_dir} was restored from its record, kept as it is")
+        return None
+    runs_dir = Path(options.runs_dir)
+    relative = seed_dir.relative_to(runs_dir)
+    record_dir = Path(options.out_dir) / relative
+    if record_dir.exists() and any(record_dir.iterdir()) and not options.overwrite:
+        print(f"  {record_dir}: already recorded, kept (--overwrite replaces it)")
         return None
     try:
         iteration, rows = records.packable(seed_dir)
@@ -129,8 +133,6 @@ def _record_seed(
     if unevaluated:  # a record holds the seed's evaluations: `run --no-train` makes them
         print(f"  {condition}: {seed_dir} not evaluated yet in {', '.join(unevaluated)}; skipped")
         return None
-    runs_dir = Path(options.runs_dir)
-    relative = seed_dir.relative_to(runs_dir)
     one_of_several = re.fullmatch(r"s\d+", relative.name) and len(relative.parts) > 2
     run_name = relative.parent if one_of_several else relative
     if commands is None:
