@@ -22,7 +22,7 @@ RECIPE_COMMANDS = {
     "restore": "copy a recipe's committed records back into its run directories, so `run` trains only the "
     "seeds not recorded (a fresh machine, or a worktree at a design's commit)",
     "status": "where each seed stands: recorded, finished but not recorded, training now, stopped partway or "
-    "not begun (iteration counts only: a design stays blind)",
+    "not begun (states and iteration counts, no returns)",
 }
 """The subcommands that act on a recipe's conditions and seeds, and their help."""
 

@@ -20,7 +20,7 @@ RECORDED, TWICE, TO_RECORD, TRAINING, STOPPED, NOT_BEGUN = (
     "recorded",
     "recorded, yet training again (two results: keep one)",
     "finished, not recorded",
-    "training now",
+    rundirs.TRAINING,
     "stopped partway (run resumes it)",
     "not begun",
 )
@@ -107,7 +107,7 @@ def _run_status(condition: str, seed: int, seed_dir: Path, iterations: int) -> S
     if state == rundirs.MISSING:
         return SeedStatus(condition, seed, NOT_BEGUN)
     logged = len(rundir.read_metrics(seed_dir)) if rundir.has_metrics(seed_dir) else 0
-    return SeedStatus(condition, seed, TRAINING if state == rundirs.TRAINING else STOPPED, logged)
+    return SeedStatus(condition, seed, TRAINING if state == TRAINING else STOPPED, logged)
 
 
 def seed_ranges(numbers: list[int]) -> str:
