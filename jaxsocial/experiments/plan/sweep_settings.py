@@ -107,6 +107,8 @@ MAP_PAIRS = (
     ("8x8, penalty 2.0, rec", "mb8k8_rec_8x8_pen2", "mb8k8_solo_rec_8x8_pen2"),
     ("9x9, penalty 1.0, rec / solo pred", "mb8k8_rec_pen1", "mb8k8_solo_pred_pen1"),
     ("9x9, penalty 1.25, rec / solo pred", "mb8k8_rec_pen125", "mb8k8_solo_pred_pen125"),
+    ("9x9, 3 goals, pred, 50.0M env-steps", "map_g3_pred_9x9_50m", "map_g3_solo_pred_9x9_50m"),
+    ("10x10, 3 goals, pred, 50.0M env-steps", "map_g3_pred_10x10_50m", "map_g3_solo_pred_10x10_50m"),
 )
 """The map of where solo learners fail (issue 46): per setting, (what it varies, the social learners' sweep
 setting, the solo learners' one with the same loss where there is one)."""
