@@ -191,3 +191,15 @@ def test_an_incomplete_design_stays_blind():
     assert summaries.incomplete_design(no_design) is None
     tiny = SimpleNamespace(recipe=recipes.RECIPES["experts"], scale=recipes.TINY, rows={})
     assert summaries.incomplete_design(tiny) is None  # not the design's scale: an ordinary recipe run
+
+
+def test_evidence_evaluated_with_other_episodes_is_refused(tmp_path, monkeypatch):
+    """The power model's 4-goal scores are means over `EVIDENCE_EPISODES` episodes a policy; an evidence file
+    made with another count is refused before any seed is read."""
+    import json
+
+    path = tmp_path / "goalcycle4-social_rec.json"
+    path.write_text(json.dumps({"episodes_per_checkpoint": 64, "checkpoints": [], "results": [{}]}))
+    monkeypatch.setattr(takeoff_power, "evidence_eval_path", lambda condition: path)
+    with pytest.raises(ValueError, match="64 episodes a policy; the evidence is 128"):
+        takeoff_power.evidence("social_rec", tmp_path)

@@ -78,8 +78,15 @@ def seed_takeoffs(
 
 
 def evidence(condition: str, records_root: Path) -> list[dict[str, Any]]:
-    """Every evidence seed of `condition` (`EVIDENCE_DESIGNS`): `seed_takeoffs`, with its 4-goal score."""
-    scores = jsonio.read_json(evidence_eval_path(condition))
+    """Every evidence seed of `condition` (`EVIDENCE_DESIGNS`): `seed_takeoffs`, with its 4-goal score.
+    Refuses an evidence file evaluated with other than `EVIDENCE_EPISODES` episodes a policy."""
+    path = evidence_eval_path(condition)
+    scores = jsonio.read_json(path)
+    if scores["episodes_per_checkpoint"] != EVIDENCE_EPISODES:
+        raise ValueError(
+            f"{path}: {scores['episodes_per_checkpoint']} episodes a policy; the evidence is "
+            f"{EVIDENCE_EPISODES} (the command in this module's docstring)"
+        )
     by_dir = {  # keyed by '<design folder>/<seed folder>', wherever the records root is
         Path(*Path(ck).parts[-2:]): score
         for ck, score in zip(scores["checkpoints"], scores["results"][0]["per_seed_mean"], strict=True)
