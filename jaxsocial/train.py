@@ -199,7 +199,7 @@ def parse_args(argv: list[str]) -> TrainConfig:
         TrainConfig, default=default, args=argv, description=usage, prog="python -m jaxsocial.train"
     )
     if not any(arg.partition("=")[0] == "--net.obs" for arg in argv):  # the network takes the env's views
-        cfg = startup.with_env_observation(cfg)
+        cfg = flags.with_env_observation(cfg)
     return cfg if saved is None else dataclasses.replace(cfg, resume=True, overwrite=False)
 
 

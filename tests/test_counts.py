@@ -12,7 +12,15 @@ from conftest import needs_records
 
 from jaxsocial import stats
 from jaxsocial.experiments import __main__ as cli
-from jaxsocial.experiments.analyse import kinds, power, summaries, takeoff, takeoff_power, verdicts
+from jaxsocial.experiments.analyse import (
+    design_results,
+    kinds,
+    power,
+    summaries,
+    takeoff,
+    takeoff_power,
+    verdicts,
+)
 from jaxsocial.experiments.launch import pinned
 from jaxsocial.experiments.plan import catalogue, commits, designs, paths, prereg, recipes
 from jaxsocial.run import config, jsonio, rundir
@@ -188,7 +196,7 @@ def test_preregistered_block():
     learned = {"social_pred": [True, True, False, True], "social_rec": [True, False, False, False]}
     learned |= {"solo_pred": [False] * 4, "social_none": [False, True, False, False]}
     head = commits.head_commit()
-    block = prereg.preregistered(design, learned, {"a/s0": head, "a/s1": None})
+    block = design_results.counts_block(design, learned, {"a/s0": head, "a/s1": None})
     assert block["primary"] == {
         "treatment": list(design.treatment),
         "control": list(design.control),
@@ -231,14 +239,14 @@ def test_design_seeds_that_do_not_count_are_named():
     conditions["solo_pred"] = [good, {**good, "config": {**good["config"], "num_envs": 128}}]
     expected = dict.fromkeys(conditions, settings)
     s0, s1 = design.seed, design.seed + 1
-    assert prereg.seed_problems(design, conditions, expected) == [
+    assert design_results.seed_problems(design, conditions, expected) == [
         f"social_rec seed {s0}: missing",
         f"social_rec seed {s1}: unfinished (7 of {design.iterations} iterations)",
         f"social_pred seed {s0}: trained for 9 iterations",
         f"social_pred seed {s1}: trained at {'b' * 40}, not {'a' * 40}",
         f"solo_pred seed {s1}: trained with other settings (num_envs)",
     ]
-    assert prereg.seed_problems(design, {c: [good, good] for c in conditions}, expected) == []
+    assert design_results.seed_problems(design, {c: [good, good] for c in conditions}, expected) == []
 
 
 def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monkeypatch):
@@ -256,7 +264,7 @@ def test_a_design_seed_must_train_with_the_designs_xla_flags_last(tmp_path, monk
     }
     for flags, problems in runs.items():
         conditions = {c: [good | {"xla_flags": flags}] for c in (*design.treatment, *design.control)}
-        found = prereg.seed_problems(design, conditions, dict.fromkeys(conditions, {}))
+        found = design_results.seed_problems(design, conditions, dict.fromkeys(conditions, {}))
         assert len(found) == len(problems) * len(conditions)
         assert all(want in got for want, got in zip(problems * len(conditions), found, strict=True))
     bad = tmp_path / "h1_bad.json"
@@ -298,13 +306,13 @@ def test_a_seed_its_early_stop_ended_counts_as_finished():
     stopped = {"config": config_, "rows": 20, "finished": True, "commit": None}
     settings = {"solo_pred_nopenalty": {}}
     flags = {"xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {design.xla_flags}"}
-    assert prereg.seed_problems(design, {"solo_pred_nopenalty": [stopped | flags]}, settings) == []
+    assert design_results.seed_problems(design, {"solo_pred_nopenalty": [stopped | flags]}, settings) == []
     cut = stopped | flags | {"finished": False}
-    assert prereg.seed_problems(design, {"solo_pred_nopenalty": [cut]}, settings) == [
+    assert design_results.seed_problems(design, {"solo_pred_nopenalty": [cut]}, settings) == [
         f"solo_pred_nopenalty seed 500: unfinished (20 of {design.iterations} iterations)"
     ]
     other = stopped | flags | {"config": {**config_, "stop_at_return": None}}
-    assert prereg.seed_problems(design, {"solo_pred_nopenalty": [other]}, settings) == [
+    assert design_results.seed_problems(design, {"solo_pred_nopenalty": [other]}, settings) == [
         "solo_pred_nopenalty seed 500: trained with stop_at_return None"
     ]
 
@@ -336,10 +344,10 @@ def test_a_config_with_the_old_field_names_counts_as_the_design_expects():
         old["ppo"]["chunk_length"] = old["ppo"].pop("segment_length")
         old["ppo"]["minibatch_chunks"] = old["ppo"].pop("minibatch_segments")
         conditions[c] = [{"config": old, "rows": design.iterations, "commit": None}]
-    assert prereg.seed_problems(design, conditions, expected) == []
+    assert design_results.seed_problems(design, conditions, expected) == []
     first = design.treatment[0]
     conditions[first][0]["config"]["ppo"]["minibatch_chunks"] += 1
-    assert prereg.seed_problems(design, conditions, expected) == [
+    assert design_results.seed_problems(design, conditions, expected) == [
         f"{first} seed {design.seed}: trained with other settings (ppo)"
     ]
 
@@ -386,7 +394,7 @@ def test_secondary_tests_count_each_arm_as_the_design_says():
     (30 of 40 learned; no learner ended above its experts), so each arm equals the other."""
     runs = summaries.design_runs("pred8", str(paths.RECORDS))
     design = dataclasses.replace(designs.load("imperfect8"), treatment=("social_pred",), borrowed={})
-    tests = summaries.secondary_tests(design, runs)
+    tests = design_results.secondary_tests(design, runs)
     assert tests["fewer_than_good_experts"]["counts"] == [30, 40, 30, 40]
     assert tests["fewer_than_good_experts"]["p"] == 1.0 and not tests["fewer_than_good_experts"]["rejected"]
     assert tests["above_own_experts"]["counts"] == [0, 40, 0, 40]
@@ -412,7 +420,7 @@ def test_a_zero_shot_design_compares_the_borrowed_scores_with_its_own_seeds(tmp_
         kinds.eval_path(d, env).parent.mkdir(parents=True)
         jsonio.write_json(kinds.eval_path(d, env), result([-1.0 - k], episodes=128 if k else 64))
     runs = types.SimpleNamespace(lenders={"social_pred": "pred8"}, seed_dirs={"bc": seed_dirs}, commits=dict)
-    block = summaries.preregistered_zero_shot(design, runs)
+    block = design_results.zero_shot_block(design, runs)
     assert (
         block["result"]["goalcycle4_8x8"]["n"] == [40, 10] and block["result"]["goalcycle4_8x8"]["rejected"]
     )

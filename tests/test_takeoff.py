@@ -10,7 +10,7 @@ import pytest
 from scipy import stats as scipy_stats
 
 from jaxsocial import stats
-from jaxsocial.experiments.analyse import takeoff, takeoff_power, verdicts
+from jaxsocial.experiments.analyse import design_results, takeoff, takeoff_power, verdicts
 from jaxsocial.experiments.plan import catalogue, designs, prereg
 from jaxsocial.run.metrics import LEARNED_RETURN
 
@@ -134,7 +134,7 @@ def takeoff_summary(social_lifts, solo_lifts, end, social_scores, solo_scores):
 def test_the_takeoff_designs_block_tests_its_arms_with_holm():
     design = dataclasses.replace(designs.load("experts"), seeds=3)
     summary = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, 8.0, 7.0], [1.0, 2.0, 0.0])
-    block = prereg.preregistered_takeoff(design, summary, {})
+    block = design_results.takeoff_block(design, summary, {})
     primary, secondary = block["result"]["primary"], block["result"]["secondary"]
     lift = stats.logrank(([1, 2, None], [3] * 3), ([2, None, None], [3] * 3))["p"]
     rank = scipy_stats.mannwhitneyu([9.0, 8.0, 7.0], [1.0, 2.0, 0.0], alternative="greater").pvalue
@@ -146,7 +146,7 @@ def test_the_takeoff_designs_block_tests_its_arms_with_holm():
     assert secondary["counts"]["p"] == pytest.approx(stats.boschloo(2, 3, 1, 3), abs=1e-6)
     assert block["checks"]["seeds_as_designed"]
     unscored = takeoff_summary([1, 2, None], [2, None, None], 3, [9.0, None, 7.0], [1.0, 2.0, 0.0])
-    assert not prereg.preregistered_takeoff(design, unscored, {})["checks"]["seeds_as_designed"]
+    assert not design_results.takeoff_block(design, unscored, {})["checks"]["seeds_as_designed"]
     assert "primary takeoff: p = " in verdicts.verdict({"preregistered": block | {"valid": False}})
 
 
@@ -159,7 +159,7 @@ def test_a_tiny_p_value_keeps_its_digits_and_never_reads_zero():
     summary = takeoff_summary([1] * 20, [None] * 20, 3, [9.0] * 20, [1.0] * 20)
     for arm, scores in zip(("social_rec", "solo_rec"), ct, strict=True):
         summary["conditions"][arm]["ct"]["per_seed"] = scores
-    ct_test = prereg.preregistered_takeoff(design, summary, {})["result"]["secondary"]["ct"]
+    ct_test = design_results.takeoff_block(design, summary, {})["result"]["secondary"]["ct"]
     expected = scipy_stats.mannwhitneyu(*ct, alternative="greater").pvalue
     assert 0 < expected < 1e-6 and ct_test["p"] == pytest.approx(expected, rel=1e-2)
 
@@ -169,7 +169,7 @@ def test_a_designs_deviations_reach_its_verdict(tmp_path):
     assert prereg.deviations("x", tmp_path) == [{"date": "2026-11-27", "what": "state lost"}]
     assert prereg.deviations("y", tmp_path) == []
     design = dataclasses.replace(designs.load("experts"), seeds=3)
-    block = prereg.preregistered_takeoff(design, takeoff_summary([1], [None], 3, [1.0], [0.0]), {})
+    block = design_results.takeoff_block(design, takeoff_summary([1], [None], 3, [1.0], [0.0]), {})
     said = verdicts.verdict({"preregistered": block | {"deviations": prereg.deviations("x", tmp_path)}})
     assert "deviation (2026-11-27): state lost" in said
 

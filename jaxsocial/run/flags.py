@@ -4,7 +4,8 @@ they build with `dataclasses.replace`.
 
 The line is `--preset P --env E --iterations N --seed S --seeds K`, then every other field that differs
 from the preset, in the config's field order (nested ones as `--net.hidden 64`); `net.obs` only where
-it differs from the observations of the run's environment, which the parser derives.
+it differs from the observations of the run's environment, which the parser derives
+(`with_env_observation`).
 
 The flags of fields renamed since (`LEGACY_FLAGS`, e.g. `--net.chunk` for `--net.frame-batch`) still work,
 deprecated: `modern_flags` rewrites them before parsing.
@@ -16,7 +17,8 @@ import dataclasses
 import sys
 from typing import Any
 
-from jaxsocial.run import config, startup
+from jaxsocial.env import registry
+from jaxsocial.run import config
 from jaxsocial.run.config import PRESETS, TrainConfig
 
 ALWAYS = ("preset", "env", "iterations", "seed", "seeds")
@@ -83,12 +85,22 @@ def _negated(path: str) -> str:
     return f"{head}.no_{last}" if head else f"no_{path}"
 
 
+def with_env_observation(cfg: TrainConfig) -> TrainConfig:
+    """`cfg` with `net.obs` the observations its environment gives (`--env` with `--env-args`: "rgb" or
+    "symbolic"); `cfg` itself if that environment cannot be built (`setup` then says why)."""
+    try:
+        env_params = registry.env_params(cfg.env, cfg.env_args)
+    except ValueError:
+        return cfg
+    return dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, obs=env_params.observation))
+
+
 def config_flags(cfg: TrainConfig) -> list[str]:
     """The command line of `cfg` (see the module docstring); ValueError for a preset that does not exist."""
     if cfg.preset not in PRESETS:
         raise ValueError(f"unknown preset {cfg.preset!r}; choose one of {sorted(PRESETS)}")
     preset = PRESETS[cfg.preset]
-    derived_obs = startup.with_env_observation(dataclasses.replace(cfg, net=preset.net)).net.obs  # as parsed
+    derived_obs = with_env_observation(dataclasses.replace(cfg, net=preset.net)).net.obs  # as parsed
     reference = dataclasses.replace(preset, net=dataclasses.replace(preset.net, obs=derived_obs))
     names = [*ALWAYS, *(f.name for f in dataclasses.fields(cfg) if f.name not in ALWAYS)]
     flags = []

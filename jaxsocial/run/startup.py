@@ -1,9 +1,8 @@
 """A run's static part, validated and built once before anything is written or compiled: `setup(cfg) ->
-Setup` (the environment of every stage and evaluation, the slots, the frozen policies); `resolve_network`,
-which makes the network's "auto" choices for this machine; and `with_env_observation`, a config whose
-network takes the observations its environment gives. What a run is, its `TrainConfig`, is
-`jaxsocial.run.config`'s. Validating imports no JAX (a bad command is refused at once); loading frozen
-policies and the "auto" choices do.
+Setup` (the environment of every stage and evaluation, the slots, the frozen policies); and
+`resolve_network`, which makes the network's "auto" choices for this machine. What a run is, its
+`TrainConfig`, is `jaxsocial.run.config`'s. Validating imports no JAX (a bad command is refused at once);
+loading frozen policies and the "auto" choices do.
 """
 
 from __future__ import annotations
@@ -41,16 +40,6 @@ class Setup(NamedTuple):
     def stage(self, index: int) -> EnvParams:
         """The environment of stage `index` (-1: before the first stage)."""
         return self.stage_envs[index + 1]
-
-
-def with_env_observation(cfg: TrainConfig) -> TrainConfig:
-    """`cfg` with `net.obs` the observations its environment gives (`--env` with `--env-args`: "rgb" or
-    "symbolic"); `cfg` itself if that environment cannot be built (`setup` then says why)."""
-    try:
-        env_params = registry.env_params(cfg.env, cfg.env_args)
-    except ValueError:
-        return cfg
-    return dataclasses.replace(cfg, net=dataclasses.replace(cfg.net, obs=env_params.observation))
 
 
 def setup(cfg: TrainConfig, load_frozen: bool = True) -> Setup:

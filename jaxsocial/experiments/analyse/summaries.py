@@ -5,30 +5,27 @@ condition's *final return* is, per seed, the learner's episode-weighted mean ret
 training iterations (the issue's measure); the 95% confidence interval is Student t over seeds. A seed has
 *learned* if its final return exceeds `LEARNED_RETURN`; learned counts are compared with one-sided exact
 tests (`stats`), and each seed's takeoff (`takeoff`) gives the time-to-learning curve (`time_to_learning`,
-with each seed's CPU-minutes of training and their sum where every record names its cores). Every summary says
-how it was made (`provenance`: the command that re-creates it, and each seed's recorded training command,
-commit, device and jax version; seeds without a record are listed) and, for a recipe with a design, what was
-pre-registered (`prereg`). What a summary and figure hold besides depends on the recipe's kind
-(`kinds.KINDS`); the metrics rows are read through `jaxsocial.run.metrics`.
+with each seed's CPU-minutes of training and their sum where every record names its cores). Every summary
+says how it was made (`provenance`: the command that re-creates it, and each seed's recorded training
+command, commit, device and jax version; seeds without a record are listed) and, for a recipe with a design,
+what was pre-registered and what its tests found (`design_results`). What a summary and figure hold besides
+depends on the recipe's kind (`kinds.KINDS`); the metrics rows are read through `jaxsocial.run.metrics`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import shlex
 from pathlib import Path
 from typing import Any
 
-from jaxsocial import stats
-from jaxsocial.experiments.analyse import kinds, records, rundirs, takeoff
+from jaxsocial.experiments.analyse import design_results, kinds, records, rundirs
 from jaxsocial.experiments.analyse.kinds import takeoffs
-from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes
+from jaxsocial.experiments.plan import paths, prereg, recipes
 from jaxsocial.experiments.plan.conditions import CONDITIONS
 from jaxsocial.experiments.plan.recipes import Recipe, Scale
-from jaxsocial.run import config, jsonio, metrics, provenance, rundir
+from jaxsocial.run import jsonio, provenance, rundir
 from jaxsocial.run.flags import config_flags
-from jaxsocial.run.metrics import LEARNED_RETURN, final_return
+from jaxsocial.run.metrics import LEARNED_RETURN
 
 
 class RecipeRuns:
@@ -118,6 +115,10 @@ class RecipeRuns:
             for d in dirs
         }
 
+    def of_design(self, name: str) -> RecipeRuns:
+        """Design `name`'s runs at its own scale and seeds, under the same runs folder (`design_runs`)."""
+        return design_runs(name, self.runs_dir)
+
     def header(self, command: str) -> dict[str, Any]:
         def short(seed_dir: Path, rows: list[dict[str, Any]], iterations: int) -> bool:
             return len(rows) < iterations and not records.stopped_early(rundir.read_config(seed_dir), rows)
@@ -192,38 +193,6 @@ def outcome_lines(summary: dict[str, Any]) -> list[str]:
     return lines
 
 
-def design_problems(runs: RecipeRuns, design: prereg.TrainingDesign) -> list[str]:
-    """`prereg.seed_problems` of the design's seeds as `runs` found them (seeds read where they are)."""
-    fields = {f.name for kind in (config.RunConfig, config.ProgramConfig) for f in dataclasses.fields(kind)}
-    fields -= {"seed", "seeds", "seed_batching"}
-
-    def settings(cfg) -> dict[str, Any]:
-        values = json.loads(json.dumps(config.config_dict(cfg)))  # as config.json holds them
-        return {k: values[k] for k in sorted(fields)}
-
-    conditions, expected = {}, {}
-    design_seeds = range(design.seed, design.seed + design.seeds)
-    for c in design.trained_conditions:
-        expected[c] = settings(
-            recipes.condition_config(runs.scale, c, design.seed, design.seeds, runs.runs_dir)
-        )
-        read = runs.dirs_by_seed.get(c, [])  # seeds runs.seed, runs.seed + 1, ...
-        dirs = [read[i] if 0 <= (i := s - runs.seed) < len(read) else None for s in design_seeds]
-        conditions[c] = [
-            None
-            if d is None
-            else {
-                "config": rundir.read_config(d) if (d / rundir.CONFIG_FILE).is_file() else {},
-                "rows": len(rundir.read_metrics(d)),
-                "finished": rundirs.finished(d, design.iterations),
-                "commit": records.run_field(d, "commit"),
-                "xla_flags": records.run_field(d, "xla_flags"),
-            }
-            for d in dirs
-        ]
-    return prereg.seed_problems(design, conditions, expected)
-
-
 def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
     """The JSON summary of a recipe (see the module docstring for the measures; the kind's part from
     `kinds.KINDS`); `command` re-creates it (default: `runs.command()`)."""
@@ -237,43 +206,7 @@ def summarize(runs: RecipeRuns, command: str | None = None) -> dict[str, Any]:
         "cpu_minutes": None if None in minutes else round(sum(minutes), 1),
     }
     if runs.recipe.design is not None:
-        design = prereg.TrainingDesign.read(runs.recipe.design)
-        learned = learned_flags(design, runs)
-        if design.analysis == "takeoff":
-            out["preregistered"] = prereg.preregistered_takeoff(design, out, runs.commits())
-        elif design.analysis == "zero_shot":
-            out["preregistered"] = preregistered_zero_shot(design, runs)
-        else:
-            out["preregistered"] = prereg.preregistered(design, learned, runs.commits())
-            if design.secondary:
-                out["preregistered"]["secondary"] = secondary_tests(design, runs)
-        out["preregistered"]["checks"]["scale_as_designed"] = runs.scale.name == design.scale
-        out["preregistered"]["checks"]["seeds_as_designed"] &= (runs.seed, runs.seeds) == (
-            design.seed,
-            design.seeds,
-        )
-        problems = design_problems(runs, design) + lent_problems(runs)
-        out["preregistered"]["problems"] = problems
-        out["preregistered"]["deviations"] = prereg.deviations(design.name, paths.DEVIATIONS)
-        checks = out["preregistered"]["checks"]
-        out["preregistered"]["valid"] = not problems and all(
-            v for v in checks.values() if isinstance(v, bool)
-        )
-    return out
-
-
-def learned_flags(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, list[bool]]:
-    """Per condition of `runs`, each seed's learned flag as the design counts it (`Design.learned_by`): its
-    final return above the threshold, or its takeoff (`takeoff.seed_takeoff` at the threshold) within the
-    design's iterations."""
-    out = {}
-    for c, seed_rows in runs.rows.items():
-        if design.learned_by == "final_return":
-            out[c] = [final_return(rows) > design.learned_threshold for rows in seed_rows]
-            continue
-        per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
-        lifts = [takeoff.seed_takeoff(rows, per_iteration, design.learned_threshold) for rows in seed_rows]
-        out[c] = [lift is not None and lift <= design.iterations for lift in lifts]
+        out["preregistered"] = design_results.preregistered(runs, out)
     return out
 
 
@@ -282,104 +215,6 @@ def design_runs(name: str, runs_dir: str) -> RecipeRuns:
     design, recipe = prereg.TrainingDesign.read(name), design_recipe(name)
     scale = prereg.recipe_scale(recipe, recipes.SCALES[design.scale])
     return RecipeRuns(recipe, scale, design.seed, design.seeds, runs_dir)
-
-
-def lent_problems(runs: RecipeRuns) -> list[str]:
-    """What keeps a borrowed seed from counting in the design that trained it (`design_problems` of the
-    lender's own runs under the same runs folder), each line naming the lender."""
-    out = []
-    for name in sorted({lender.name for lender in runs.lenders.values()}):
-        lent = design_runs(name, runs.runs_dir)
-        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, prereg.TrainingDesign.read(name))]
-    return out
-
-
-def above_experts(runs: RecipeRuns, condition: str) -> list[bool]:
-    """Per seed of `condition`: whether its learner's final return exceeds the mean final return of the
-    scripted experts in its own run."""
-    slots, _ = kinds.experts_of(runs.configs[condition])
-    out = []
-    for rows in runs.rows[condition]:
-        experts = [final_return(rows, k) for k in slots if k in metrics.slots(rows[0])]
-        out.append(bool(experts) and final_return(rows) > sum(experts) / len(experts))
-    return out
-
-
-def seed_measure(
-    design: prereg.TrainingDesign, runs: RecipeRuns, conditions: tuple[str, ...], name: str
-) -> list[bool]:
-    """The pooled per-seed flags of `conditions` for a secondary test's measure: 'learned' (as `design`
-    counts it) or 'above_experts'."""
-    flags = (
-        learned_flags(design, runs) if name == "learned" else {c: above_experts(runs, c) for c in conditions}
-    )
-    return [flag for c in conditions for flag in flags[c]]
-
-
-def secondary_tests(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, dict[str, Any]]:
-    """A counts design's secondary tests (`Design.secondary`): per test, the counts of this design's arm and
-    of the other design's arm (read from its records under the same runs folder), Boschloo's p-value with
-    the stated alternative, Holm-corrected among themselves at the design's alpha."""
-    entries = {}
-    for name, test in design.secondary.items():
-        own = seed_measure(design, runs, getattr(design, test["arm"]), test["measure"])
-        other, _, other_arm = test["against"].partition(":")
-        theirs = seed_measure(
-            design,
-            design_runs(other, runs.runs_dir),
-            getattr(prereg.TrainingDesign.read(other), other_arm),
-            test["measure"],
-        )
-        counts = [sum(own), len(own), sum(theirs), len(theirs)]
-        p = stats.boschloo(*counts, test["alternative"]) if own and theirs else None
-        entries[name] = {
-            "counts": counts,
-            "measure": test["measure"],
-            "alternative": test["alternative"],
-            "p": p,
-        }
-    return catalogue.holm_family(entries, design.alpha)
-
-
-def preregistered_zero_shot(design: prereg.TrainingDesign, runs: RecipeRuns) -> dict[str, Any]:
-    """A 'zero_shot' design's `preregistered` block: its primary environment's per-seed scores (mean learner
-    return per episode), the borrowed arm's from the evaluation design `tests['borrowed_scores']`
-    (`<science>/<design>/<env tag>-<condition>.json`), the trained arm's from each seed's own evaluation;
-    the one-sided Mann-Whitney test; and the checks (both arms evaluated with the design's episodes and
-    evaluation seed 0, the design before every run it trains)."""
-    ((name, test),) = design.tests["primary"].items()
-    source = paths.SCIENCE / design.tests["borrowed_scores"]
-    scores, protocols = {}, []
-    for arm in ("treatment", "control"):
-        scores[arm] = []
-        for c in getattr(design, arm):
-            if c in runs.lenders:
-                path = source / f"{paths.env_tag(test['env'])}-{c}.json"
-                result = jsonio.read_json(path) if path.is_file() else None
-                scores[arm] += (
-                    [] if result is None else [float(v) for v in result["results"][0]["per_seed_mean"]]
-                )
-                results = [result]
-            else:
-                results = [kinds.read_eval_file(d, test["env"]) for d in runs.seed_dirs.get(c, [])]
-                scores[arm] += [r["results"][0]["mean_return"] for r in results if r is not None]
-            protocols += [None if r is None else (r["episodes_per_checkpoint"], r["seed"]) for r in results]
-    result = stats.mann_whitney(scores["treatment"], scores["control"], test["alternative"])
-    commit = catalogue.design_commit(design.name)
-    checks = catalogue.commit_checks(commit, runs.commits())
-    checks["seeds_as_designed"] = [len(scores["treatment"]), len(scores["control"])] == [
-        design.arm_seeds["treatment"],
-        design.arm_seeds["control"],
-    ]
-    checks["evaluated_as_designed"] = all(p == (design.eval_episodes, 0) for p in protocols)
-    return {
-        "commit": commit,
-        "primary": {name: test, "treatment": list(design.treatment), "control": list(design.control),
-                    "test": design.test, "alpha": design.alpha},
-        "result": {name: result | {"rejected": result["p"] is not None and result["p"] <= design.alpha},
-                   "scores": {arm: stats.summary(v) if v else None for arm, v in scores.items()}},
-        "checks": checks,
-    }  # fmt: skip
 
 
 def incomplete_design(runs: RecipeRuns) -> str | None:

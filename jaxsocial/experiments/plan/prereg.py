@@ -8,11 +8,8 @@ time to takeoff (`takeoff`, one-sided log-rank) and the per-seed zero-shot retur
 training, and its power by simulation from committed seeds (`takeoff_power`).
 
 The design's commit is the last commit that changed that file (`catalogue.design_commit`); `figure` checks
-that it is an ancestor of every run's recorded commit (`git merge-base --is-ancestor`) and writes
-
-    "preregistered": {"commit": ..., "primary": {"treatment": [...], "control": [...], "learned_threshold": x,
-                      "test": ..., "alpha": a}, "result": {"treatment_learned": k, "treatment_seeds": n,
-                      "control_learned": k, "control_seeds": n, "p": p}, "checks": {...}}
+that it is an ancestor of every run's recorded commit and writes what its tests found into the summary
+(`jaxsocial.experiments.analyse.design_results`).
 
     python -m jaxsocial.experiments power h1_prereg      # the design's power, and how it was computed
 """
@@ -25,7 +22,7 @@ from typing import Any
 
 from jaxsocial import stats
 from jaxsocial.experiments.plan import catalogue, recipes, xla_flags
-from jaxsocial.run import config, jsonio
+from jaxsocial.run import jsonio
 
 ANALYSES = ("counts", "takeoff", "zero_shot")
 ZERO_SHOT_TEST = "mannwhitney-greater"
@@ -78,9 +75,9 @@ class TrainingDesign(catalogue.Design):
     be this one. None (designs before this field): each run's commit must follow the design's."""
     xla_flags: str | None = None
     """XLA flags every training process of the design adds after the single-core ones, and every seed's
-    recorded flags must hold (`seed_problems`): `pinned.CROSS_CPU_XLA_FLAGS` for designs since 2026-11-28, so
-    that a seed trains bit for bit alike on the CPU kinds measured. None (designs before this field): XLA's
-    defaults, whose bits differ between CPU models."""
+    recorded flags must hold (`design_results.seed_problems`): `pinned.CROSS_CPU_XLA_FLAGS` for designs
+    since 2026-11-28, so that a seed trains bit for bit alike on the CPU kinds measured. None (designs
+    before this field): XLA's defaults, whose bits differ between CPU models."""
     borrowed: dict[str, str] = dataclasses.field(default_factory=dict)
     """Arms whose seeds an earlier design trained: arm ('treatment' or 'control') -> that design's name. Such
     an arm's conditions are read from the other design's records at its seeds, budget and folder, and are
@@ -217,139 +214,6 @@ def power_of(design: TrainingDesign, env_steps_per_run: int) -> float:
     n = design.arm_seeds
     return stats.power(design.test, n["treatment"], rates["treatment"], n["control"], rates["control"],
                         design.alpha)  # fmt: skip
-
-
-def preregistered(
-    design: TrainingDesign, learned: dict[str, list[bool]], run_commits: dict[str, str | None]
-) -> dict[str, Any]:
-    """The summary's `preregistered` block.
-
-    learned: each condition's per-seed learned flags (final return above the design's threshold);
-    run_commits: each seed directory's recorded commit (None: no record of it).
-    """
-    commit = catalogue.design_commit(design.name)
-    arms = {
-        arm: [x for c in getattr(design, arm) for x in learned.get(c, [])] for arm in ("treatment", "control")
-    }
-    k = {arm: sum(v) for arm, v in arms.items()}
-    n = {arm: len(v) for arm, v in arms.items()}
-    p = stats.p_value(design.test, k["treatment"], n["treatment"], k["control"], n["control"])
-    return {
-        "commit": commit,
-        "primary": {
-            "treatment": list(design.treatment),
-            "control": list(design.control),
-            "learned_threshold": design.learned_threshold,
-            "test": design.test,
-            "alpha": design.alpha,
-        },
-        "result": {
-            "treatment_learned": k["treatment"],
-            "treatment_seeds": n["treatment"],
-            "control_learned": k["control"],
-            "control_seeds": n["control"],
-            "p": stats.round_p(p, catalogue.P_DECIMALS),
-        },
-        "checks": catalogue.commit_checks(commit, run_commits) | {"seeds_as_designed": n == design.arm_seeds},
-    }
-
-
-def preregistered_takeoff(
-    design: TrainingDesign, summary: dict[str, Any], run_commits: dict[str, str | None]
-) -> dict[str, Any]:
-    """The `preregistered` block of a 'takeoff' design from a recipe summary (`kinds.summarise_takeoff` and
-    its `time_to_learning`): each arm's takeoffs (censored at its seeds' run ends) and scores, the primary
-    tests Holm-corrected at the design's alpha, the secondary ones Holm-corrected among themselves.
-
-    Seeds without a score (not evaluated yet) are left out of that score's test; `seeds_as_designed` then
-    fails, so an interim block is never valid."""
-    arms: dict[str, dict[str, list]] = {}
-    for arm in ("treatment", "control"):
-        lifts, ends, scores = [], [], {name: [] for name in ("goalcycle4", "solo3", "ct")}
-        for c in getattr(design, arm):
-            if c not in summary["conditions"]:
-                continue
-            lifts += summary["time_to_learning"]["conditions"][c]["takeoff_env_steps"]
-            ends += summary["conditions"][c]["run_env_steps"]
-            for name, values in scores.items():
-                values += [v for v in summary["conditions"][c][name]["per_seed"] if v is not None]
-        arms[arm] = {"takeoffs": lifts, "ends": ends, **scores}
-    t, c = arms["treatment"], arms["control"]
-    budget = summary["env_steps_per_run"]  # the design's iterations at its scale
-
-    def learned_by_budget(arm: dict[str, list]) -> int:
-        return sum(x is not None and x <= budget for x in arm["takeoffs"])
-
-    primary = {
-        "takeoff": stats.logrank((t["takeoffs"], t["ends"]), (c["takeoffs"], c["ends"]))
-        | {"n": [len(t["takeoffs"]), len(c["takeoffs"])]},
-        "goalcycle4": stats.mann_whitney(t["goalcycle4"], c["goalcycle4"], "greater"),
-    }
-    k = [learned_by_budget(t), learned_by_budget(c)]
-    n = [len(t["takeoffs"]), len(c["takeoffs"])]
-    secondary = {
-        "solo3": stats.mann_whitney(t["solo3"], c["solo3"], "two-sided"),
-        "ct": stats.mann_whitney(t["ct"], c["ct"], "greater"),
-        "counts": {"learned": [k[0], n[0], k[1], n[1]], "p": stats.boschloo(k[0], n[0], k[1], n[1])},
-    }
-    for family in (primary, secondary):
-        catalogue.holm_family(family, design.alpha)
-    designed = {arm: design.seeds * len(getattr(design, arm)) for arm in ("treatment", "control")}
-    scored = all(
-        len(arm[name]) == designed[key] for key, arm in arms.items() for name in ("goalcycle4", "solo3", "ct")
-    )
-    commit = catalogue.design_commit(design.name)
-    return {
-        "commit": commit,
-        "primary": {"treatment": list(design.treatment), "control": list(design.control), "test": design.test,
-                    "alpha": design.alpha, "tests": design.tests},
-        "result": {"primary": primary, "secondary": secondary, "seeds": {"treatment": n[0], "control": n[1]}},
-        "checks": catalogue.commit_checks(commit, run_commits)
-        | {"seeds_as_designed": n == [designed["treatment"], designed["control"]] and scored},
-    }  # fmt: skip
-
-
-def seed_problems(
-    design: TrainingDesign,
-    conditions: dict[str, list[dict[str, Any] | None]],
-    expected: dict[str, dict[str, Any]],
-) -> list[str]:
-    """What keeps each design seed it trains from counting: missing, unfinished (short of its iterations and
-    not ended by the design's early stop), trained for other iterations, another early stop or with other run
-    or program settings than `expected` (each condition's config.json values of the design's command), at
-    another commit than `design.training_commit`, or without the design's `xla_flags`.
-
-    conditions: per condition the seeds design.seed.. in order, each None (no run holds it) or
-    {'config': its config.json, 'rows': metrics rows logged, 'finished': whether its run is over
-    (`rundirs.finished`), 'commit' and 'xla_flags': its record's, or None}; a config.json with fields
-    renamed since is read under today's names (`config.modern_keys`)."""
-    problems = []
-    for c in design.trained_conditions:
-        seeds = conditions.get(c, [])
-        for offset in range(design.seeds):
-            s, run = design.seed + offset, seeds[offset] if offset < len(seeds) else None
-            if run is None:
-                problems.append(f"{c} seed {s}: missing")
-                continue
-            if run["rows"] < design.iterations and not (design.stop_at_return and run.get("finished")):
-                problems.append(f"{c} seed {s}: unfinished ({run['rows']} of {design.iterations} iterations)")
-            if run["config"].get("stop_at_return") != design.stop_at_return:
-                problems.append(
-                    f"{c} seed {s}: trained with stop_at_return {run['config'].get('stop_at_return')}"
-                )
-            if run["config"].get("iterations") != design.iterations:
-                problems.append(f"{c} seed {s}: trained for {run['config'].get('iterations')} iterations")
-            saved = config.modern_keys(run["config"])
-            differ = sorted(k for k, v in expected[c].items() if saved.get(k) != v)
-            if differ:
-                problems.append(f"{c} seed {s}: trained with other settings ({', '.join(differ)})")
-            if design.training_commit and run["commit"] != design.training_commit:
-                problems.append(f"{c} seed {s}: trained at {run['commit']}, not {design.training_commit}")
-            if design.xla_flags and not xla_flags.hold(run.get("xla_flags"), design.xla_flags):
-                problems.append(
-                    f"{c} seed {s}: trained with $XLA_FLAGS {run.get('xla_flags')!r}, not the design's"
-                )
-    return problems
 
 
 def _describe_counts(design: TrainingDesign, env_steps_per_run: int) -> str:

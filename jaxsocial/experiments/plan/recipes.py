@@ -23,10 +23,9 @@ from __future__ import annotations
 import dataclasses
 
 from jaxsocial.experiments.plan.conditions import CONDITIONS, PENALTY_CONDITIONS, Condition
-from jaxsocial.run import config, schedule, startup
+from jaxsocial.run import config, flags, schedule
 from jaxsocial.run.config import PRESETS, TrainConfig
 from jaxsocial.run.cost import MEASURED, Measured, read_rate
-from jaxsocial.run.flags import config_flags
 from jaxsocial.specs import EnvArgsFlag, EnvSpec
 
 
@@ -330,12 +329,12 @@ def condition_config(scale: Scale, condition: str, seed: int, seeds: int, runs_d
         run_name=condition_run_name(scale, condition, seed, seeds),
         **evaluation,
     )
-    return startup.with_env_observation(cfg)
+    return flags.with_env_observation(cfg)
 
 
 def condition_flags(scale: Scale, condition: str, seed: int, seeds: int, runs_dir: str) -> list[str]:
     """The `python -m jaxsocial.train` command line of a condition at a scale (`flags.config_flags`)."""
-    return config_flags(condition_config(scale, condition, seed, seeds, runs_dir))
+    return flags.config_flags(condition_config(scale, condition, seed, seeds, runs_dir))
 
 
 def condition_programs(
