@@ -419,7 +419,14 @@ def test_a_zero_shot_design_compares_the_borrowed_scores_with_its_own_seeds(tmp_
     for k, d in enumerate(seed_dirs):
         kinds.eval_path(d, env).parent.mkdir(parents=True)
         jsonio.write_json(kinds.eval_path(d, env), result([-1.0 - k], episodes=128 if k else 64))
-    runs = types.SimpleNamespace(lenders={"social_pred": "pred8"}, seed_dirs={"bc": seed_dirs}, commits=dict)
+    runs = types.SimpleNamespace(
+        lenders={"social_pred": "pred8"},
+        borrowed_scores=summaries.borrowed_scores(summaries.design_recipe("imitation8")),
+        seed_dirs={"bc": seed_dirs},
+        commits=dict,
+    )
+    assert runs.borrowed_scores == science / "transfer8"
+    assert summaries.borrowed_scores(summaries.design_recipe("imperfect8")) is None  # a counts design
     block = design_results.zero_shot_block(design, runs)
     assert (
         block["result"]["goalcycle4_8x8"]["n"] == [40, 10] and block["result"]["goalcycle4_8x8"]["rejected"]

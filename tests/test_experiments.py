@@ -405,7 +405,16 @@ def test_a_curves_recipe_with_transfer_envs_summarises_its_zero_shot_returns(tmp
     )
     plt = plot_figures.pyplot()
     fig, axes = plt.subplots(1, 3)
-    plot_figures.draw_zero_shot(axes, summary["zero_shot"], plt.get_cmap("tab10").colors)
+    colors = plt.get_cmap("tab10").colors
+    drawn = [
+        "social_pred",
+        "solo_pred",
+        "social_pred_distractors",
+    ]  # the other panels' order, not the summary's
+    plot_figures.draw_zero_shot(axes, summary["zero_shot"], drawn, colors)
+    faces = [tuple(p.get_facecolor()[:3]) for p in axes[0].patches]  # the bars in the summary's order
+    shown = [*learner, "experts"]
+    assert faces == [tuple(colors[drawn.index(n)]) if n in drawn else (0.3, 0.3, 0.3) for n in shown]
     assert [ax.get_title() for ax in axes] == [
         "4-goal Goal Cycle, 7x7, max steps 20",
         "4-goal Goal Cycle with distractors, 7x7, max steps 20",

@@ -22,7 +22,7 @@ from typing import Any
 from jaxsocial import stats
 from jaxsocial.experiments.analyse import kinds, records, rundirs, takeoff
 from jaxsocial.experiments.plan import catalogue, paths, prereg, recipes, xla_flags
-from jaxsocial.run import config, jsonio, metrics, rundir
+from jaxsocial.run import config, metrics, rundir
 from jaxsocial.run.metrics import final_return
 
 
@@ -286,18 +286,16 @@ def secondary_tests(design: prereg.TrainingDesign, runs) -> dict[str, dict[str, 
 def zero_shot_block(design: prereg.TrainingDesign, runs) -> dict[str, Any]:
     """A 'zero_shot' design's `preregistered` block: its primary environment's per-seed scores (mean learner
     return per episode), the borrowed arm's from the evaluation design `tests['borrowed_scores']`
-    (`<science>/<design>/<env tag>-<condition>.json`), the trained arm's from each seed's own evaluation;
+    (`kinds.borrowed_evaluation`), the trained arm's from each seed's own evaluation;
     the one-sided Mann-Whitney test; and the checks (both arms evaluated with the design's episodes and
     evaluation seed 0, the design before every run it trains)."""
     ((name, test),) = design.tests["primary"].items()
-    source = paths.SCIENCE / design.tests["borrowed_scores"]
     scores, protocols = {}, []
     for arm in ("treatment", "control"):
         scores[arm] = []
         for c in getattr(design, arm):
             if c in runs.lenders:
-                path = source / f"{paths.env_tag(test['env'])}-{c}.json"
-                result = jsonio.read_json(path) if path.is_file() else None
+                result = kinds.borrowed_evaluation(runs, c, test["env"])
                 scores[arm] += (
                     [] if result is None else [float(v) for v in result["results"][0]["per_seed_mean"]]
                 )

@@ -101,6 +101,17 @@ def read_eval_file(seed_dir: Path, spec: str) -> dict[str, Any] | None:
     return jsonio.read_json(path) if path.is_file() else None
 
 
+def borrowed_evaluation(runs, condition: str, spec: str) -> dict[str, Any] | None:
+    """The evaluation in `spec` of a borrowed condition's seeds (`jaxsocial.evaluate`'s result, one score a
+    seed in `per_seed_mean`) by the evaluation design whose results the recipe's design names
+    (`runs.borrowed_scores`, `<folder>/<env tag>-<condition>.json`); None where it names none or has no such
+    file."""
+    if runs.borrowed_scores is None:
+        return None
+    path = runs.borrowed_scores / f"{paths.env_tag(spec)}-{condition}.json"
+    return jsonio.read_json(path) if path.is_file() else None
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Shared measures
 # ----------------------------------------------------------------------------------------------------------
@@ -219,14 +230,19 @@ def summarise_transfer(runs) -> dict[str, Any]:
 def zero_shot_returns(runs) -> dict[str, Any]:
     """Per environment spec of the recipe's `transfer_envs`: each condition's learner return after training
     (stats over its seeds of each seed's mean episode return) and, as 'experts', the environment's scripted
-    experts' (per slot, over episodes; random distractors are not experts). Conditions a design borrows
-    (`runs.lenders`) were evaluated as their own design says, and are left out."""
+    experts' (per slot, over episodes; random distractors are not experts). A condition the design borrows
+    (`runs.lenders`) has the scores of the evaluation design it names (`borrowed_evaluation`), or is left
+    out."""
     conditions: dict[str, Any] = {}
     evaluated = {c: dirs for c, dirs in runs.seed_dirs.items() if c not in runs.lenders}
     for spec in transfer_specs(runs.recipe, runs.scale):
         per_cond: dict[str, Any] = {
             c: summary([_read_eval(d, spec)[0]["mean_return"] for d in dirs]) for c, dirs in evaluated.items()
         }
+        for c in runs.lenders:
+            lent = borrowed_evaluation(runs, c, spec)
+            if lent is not None:
+                per_cond[c] = summary(lent["results"][0]["per_seed_mean"])
         # The environment's own experts, from one evaluation (every evaluation plays the same episodes).
         first = _read_eval(next(iter(evaluated.values()))[0], spec)
         experts = [s for s in first if s["kind"] == "expert"]

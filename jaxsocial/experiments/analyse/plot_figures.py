@@ -161,7 +161,7 @@ def draw_curves(runs, summary: dict[str, Any], path: Path) -> None:
     returns_ax.legend(fontsize=8)
     draw_takeoffs(takeoff_ax, runs, summary, colors)
     draw_finals(final_ax, runs, summary, colors)
-    draw_zero_shot(zero_shot_axes, zero_shot, colors)
+    draw_zero_shot(zero_shot_axes, zero_shot, list(runs.rows), colors)
     _save(plt, fig, path, runs)
 
 
@@ -233,15 +233,17 @@ def draw_transfer(runs, summary: dict[str, Any], path: Path) -> None:
     colors = plt.get_cmap("tab10").colors
     fig, axes = _panels(plt, len(summary["conditions"]) + 1)
     draw_takeoffs(axes[-1], runs, summary, colors)
-    draw_zero_shot(axes[:-1], summary["conditions"], colors)
+    draw_zero_shot(axes[:-1], summary["conditions"], list(runs.rows), colors)
     _save(plt, fig, path, runs)
 
 
-def draw_zero_shot(axes, per_spec: dict[str, dict[str, Any]], colors) -> None:
+def draw_zero_shot(axes, per_spec: dict[str, dict[str, Any]], conditions: list[str], colors) -> None:
     """One panel per evaluation environment (`kinds.zero_shot_returns`): each condition's and the experts'
-    return there (`bars`)."""
+    return there (`bars`), a condition in its colour of the figure's other panels (its place in
+    `conditions`), the experts grey."""
     for ax, (spec, per_cond) in zip(axes, per_spec.items(), strict=True):
-        bars(ax, per_cond, colors)
+        shades = [colors[conditions.index(n)] if n in conditions else "0.3" for n in per_cond]
+        bars(ax, per_cond, shades)
         ax.set(title=env_title(spec), ylabel="mean episode return")
 
 

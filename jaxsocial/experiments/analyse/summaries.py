@@ -43,6 +43,7 @@ class RecipeRuns:
         for c in recipe.conditions:
             self._read(c, scale, seed, seeds, runs_dir, pick)
         self.lenders = lenders(recipe, scale)
+        self.borrowed_scores = borrowed_scores(recipe) if self.lenders else None
         for c, lender in self.lenders.items():
             lent_scale = prereg.recipe_scale(design_recipe(lender.name), recipes.SCALES[lender.scale])
             self._read(c, lent_scale, lender.seed, lender.seeds, runs_dir, pick)
@@ -173,6 +174,14 @@ def lenders(recipe: Recipe, scale: Scale) -> dict[str, prereg.TrainingDesign]:
         for arm, name in design.borrowed.items()
         for c in getattr(design, arm)
     }
+
+
+def borrowed_scores(recipe: Recipe) -> Path | None:
+    """The folder of the evaluation design that scored the borrowed arm of the recipe's 'zero_shot' design
+    (its `tests['borrowed_scores']`, under `paths.SCIENCE`); None for another design."""
+    design = prereg.TrainingDesign.read(recipe.design)
+    name = design.tests.get("borrowed_scores") if design.analysis == "zero_shot" else None
+    return None if name is None else paths.SCIENCE / name
 
 
 def outcome_lines(summary: dict[str, Any]) -> list[str]:
