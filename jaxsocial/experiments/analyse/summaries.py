@@ -32,8 +32,8 @@ class RecipeRuns:
     """The run directories of a recipe at a scale and seed range, with their metrics. Seeds without metrics
     are left out of their condition (`missing_seeds`), and conditions without any are left out (`missing`);
     FileNotFoundError if all are. A design's arm borrowed from another design (`Design.borrowed`, at the
-    design's scale) is read from that design's records at its seeds: its conditions join the recipe's, and
-    `lenders` names their design."""
+    design's scale) is read from that design's records at its seeds: its conditions join the recipe's,
+    `lenders` names their design, and `borrowed_scores` the evaluation design that scored them, if any."""
 
     def __init__(
         self, recipe: Recipe, scale: Scale, seed: int, seeds: int, runs_dir: str, pick: tuple[str, ...] = ()
