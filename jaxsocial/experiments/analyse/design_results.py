@@ -83,6 +83,66 @@ def counts_block(
     }
 
 
+def secondary_tests(design: prereg.TrainingDesign, runs) -> dict[str, dict[str, Any]]:
+    """A counts design's secondary tests (`Design.secondary`): per test, the counts of this design's arm and
+    of the other design's arm (read from its records under the same runs folder), Boschloo's p-value with
+    the stated alternative, Holm-corrected among themselves at the design's alpha."""
+    entries = {}
+    for name, test in design.secondary.items():
+        own = seed_measure(design, runs, getattr(design, test["arm"]), test["measure"])
+        other, _, other_arm = test["against"].partition(":")
+        theirs = seed_measure(
+            design,
+            runs.of_design(other),
+            getattr(prereg.TrainingDesign.read(other), other_arm),
+            test["measure"],
+        )
+        counts = [sum(own), len(own), sum(theirs), len(theirs)]
+        p = stats.boschloo(*counts, test["alternative"]) if own and theirs else None
+        entries[name] = {
+            "counts": counts,
+            "measure": test["measure"],
+            "alternative": test["alternative"],
+            "p": p,
+        }
+    return catalogue.holm_family(entries, design.alpha)
+
+
+def seed_measure(design: prereg.TrainingDesign, runs, conditions: tuple[str, ...], name: str) -> list[bool]:
+    """The pooled per-seed flags of `conditions` for a secondary test's measure: 'learned' (as `design`
+    counts it) or 'above_experts'."""
+    flags = (
+        learned_flags(design, runs) if name == "learned" else {c: above_experts(runs, c) for c in conditions}
+    )
+    return [flag for c in conditions for flag in flags[c]]
+
+
+def learned_flags(design: prereg.TrainingDesign, runs) -> dict[str, list[bool]]:
+    """Per condition of `runs`, each seed's learned flag as the design counts it (`Design.learned_by`): its
+    final return above the threshold, or its takeoff (`takeoff.seed_takeoff` at the threshold) within the
+    design's iterations."""
+    out = {}
+    for c, seed_rows in runs.rows.items():
+        if design.learned_by == "final_return":
+            out[c] = [final_return(rows) > design.learned_threshold for rows in seed_rows]
+            continue
+        per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
+        lifts = [takeoff.seed_takeoff(rows, per_iteration, design.learned_threshold) for rows in seed_rows]
+        out[c] = [lift is not None and lift <= design.iterations for lift in lifts]
+    return out
+
+
+def above_experts(runs, condition: str) -> list[bool]:
+    """Per seed of `condition`: whether its learner's final return exceeds the mean final return of the
+    scripted experts in its own run."""
+    slots, _ = kinds.experts_of(runs.configs[condition])
+    out = []
+    for rows in runs.rows[condition]:
+        experts = [final_return(rows, k) for k in slots if k in metrics.slots(rows[0])]
+        out.append(bool(experts) and final_return(rows) > sum(experts) / len(experts))
+    return out
+
+
 def takeoff_block(
     design: prereg.TrainingDesign, summary: dict[str, Any], run_commits: dict[str, str | None]
 ) -> dict[str, Any]:
@@ -138,6 +198,87 @@ def takeoff_block(
     }  # fmt: skip
 
 
+def zero_shot_block(design: prereg.TrainingDesign, runs) -> dict[str, Any]:
+    """A 'zero_shot' design's `preregistered` block: its primary environment's per-seed scores (mean learner
+    return per episode), the borrowed arm's from the evaluation design `tests['borrowed_scores']`
+    (`kinds.borrowed_evaluation`), the trained arm's from each seed's own evaluation;
+    the one-sided Mann-Whitney test; and the checks (both arms evaluated with the design's episodes and
+    evaluation seed 0, the design before every run it trains)."""
+    ((name, test),) = design.tests["primary"].items()
+    scores, protocols = {}, []
+    for arm in ("treatment", "control"):
+        scores[arm] = []
+        for c in getattr(design, arm):
+            if c in runs.lenders:
+                result = kinds.borrowed_evaluation(runs, c, test["env"])
+                scores[arm] += (
+                    [] if result is None else [float(v) for v in result["results"][0]["per_seed_mean"]]
+                )
+                results = [result]
+            else:
+                results = [kinds.read_eval_file(d, test["env"]) for d in runs.seed_dirs.get(c, [])]
+                scores[arm] += [r["results"][0]["mean_return"] for r in results if r is not None]
+            protocols += [None if r is None else (r["episodes_per_checkpoint"], r["seed"]) for r in results]
+    result = stats.mann_whitney(scores["treatment"], scores["control"], test["alternative"])
+    commit = catalogue.design_commit(design.name)
+    checks = catalogue.commit_checks(commit, runs.commits())
+    checks["seeds_as_designed"] = [len(scores["treatment"]), len(scores["control"])] == [
+        design.arm_seeds["treatment"],
+        design.arm_seeds["control"],
+    ]
+    checks["evaluated_as_designed"] = all(p == (design.eval_episodes, 0) for p in protocols)
+    return {
+        "commit": commit,
+        "primary": {name: test, "treatment": list(design.treatment), "control": list(design.control),
+                    "test": design.test, "alpha": design.alpha},
+        "result": {name: result | {"rejected": result["p"] is not None and result["p"] <= design.alpha},
+                   "scores": {arm: stats.summary(v) if v else None for arm, v in scores.items()}},
+        "checks": checks,
+    }  # fmt: skip
+
+
+def design_problems(runs, design: prereg.TrainingDesign) -> list[str]:
+    """`seed_problems` of the design's seeds as `runs` found them (seeds read where they are)."""
+    fields = {f.name for kind in (config.RunConfig, config.ProgramConfig) for f in dataclasses.fields(kind)}
+    fields -= {"seed", "seeds", "seed_batching"}
+
+    def settings(cfg) -> dict[str, Any]:
+        values = json.loads(json.dumps(config.config_dict(cfg)))  # as config.json holds them
+        return {k: values[k] for k in sorted(fields)}
+
+    conditions, expected = {}, {}
+    design_seeds = range(design.seed, design.seed + design.seeds)
+    for c in design.trained_conditions:
+        expected[c] = settings(
+            recipes.condition_config(runs.scale, c, design.seed, design.seeds, runs.runs_dir)
+        )
+        read = runs.dirs_by_seed.get(c, [])  # seeds runs.seed, runs.seed + 1, ...
+        dirs = [read[i] if 0 <= (i := s - runs.seed) < len(read) else None for s in design_seeds]
+        conditions[c] = [
+            None
+            if d is None
+            else {
+                "config": rundir.read_config(d) if (d / rundir.CONFIG_FILE).is_file() else {},
+                "rows": len(rundir.read_metrics(d)),
+                "finished": rundirs.finished(d, design.iterations),
+                "commit": records.run_field(d, "commit"),
+                "xla_flags": records.run_field(d, "xla_flags"),
+            }
+            for d in dirs
+        ]
+    return seed_problems(design, conditions, expected)
+
+
+def lent_problems(runs) -> list[str]:
+    """What keeps a borrowed seed from counting in the design that trained it (`design_problems` of the
+    lender's own runs under the same runs folder), each line naming the lender."""
+    out = []
+    for name in sorted({lender.name for lender in runs.lenders.values()}):
+        lent = runs.of_design(name)
+        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, prereg.TrainingDesign.read(name))]
+    return out
+
+
 def seed_problems(
     design: prereg.TrainingDesign,
     conditions: dict[str, list[dict[str, Any] | None]],
@@ -179,144 +320,3 @@ def seed_problems(
                     f"{c} seed {s}: trained with $XLA_FLAGS {run.get('xla_flags')!r}, not the design's"
                 )
     return problems
-
-
-def design_problems(runs, design: prereg.TrainingDesign) -> list[str]:
-    """`seed_problems` of the design's seeds as `runs` found them (seeds read where they are)."""
-    fields = {f.name for kind in (config.RunConfig, config.ProgramConfig) for f in dataclasses.fields(kind)}
-    fields -= {"seed", "seeds", "seed_batching"}
-
-    def settings(cfg) -> dict[str, Any]:
-        values = json.loads(json.dumps(config.config_dict(cfg)))  # as config.json holds them
-        return {k: values[k] for k in sorted(fields)}
-
-    conditions, expected = {}, {}
-    design_seeds = range(design.seed, design.seed + design.seeds)
-    for c in design.trained_conditions:
-        expected[c] = settings(
-            recipes.condition_config(runs.scale, c, design.seed, design.seeds, runs.runs_dir)
-        )
-        read = runs.dirs_by_seed.get(c, [])  # seeds runs.seed, runs.seed + 1, ...
-        dirs = [read[i] if 0 <= (i := s - runs.seed) < len(read) else None for s in design_seeds]
-        conditions[c] = [
-            None
-            if d is None
-            else {
-                "config": rundir.read_config(d) if (d / rundir.CONFIG_FILE).is_file() else {},
-                "rows": len(rundir.read_metrics(d)),
-                "finished": rundirs.finished(d, design.iterations),
-                "commit": records.run_field(d, "commit"),
-                "xla_flags": records.run_field(d, "xla_flags"),
-            }
-            for d in dirs
-        ]
-    return seed_problems(design, conditions, expected)
-
-
-def learned_flags(design: prereg.TrainingDesign, runs) -> dict[str, list[bool]]:
-    """Per condition of `runs`, each seed's learned flag as the design counts it (`Design.learned_by`): its
-    final return above the threshold, or its takeoff (`takeoff.seed_takeoff` at the threshold) within the
-    design's iterations."""
-    out = {}
-    for c, seed_rows in runs.rows.items():
-        if design.learned_by == "final_return":
-            out[c] = [final_return(rows) > design.learned_threshold for rows in seed_rows]
-            continue
-        per_iteration = runs.configs[c].num_envs * runs.configs[c].rollout_steps
-        lifts = [takeoff.seed_takeoff(rows, per_iteration, design.learned_threshold) for rows in seed_rows]
-        out[c] = [lift is not None and lift <= design.iterations for lift in lifts]
-    return out
-
-
-def lent_problems(runs) -> list[str]:
-    """What keeps a borrowed seed from counting in the design that trained it (`design_problems` of the
-    lender's own runs under the same runs folder), each line naming the lender."""
-    out = []
-    for name in sorted({lender.name for lender in runs.lenders.values()}):
-        lent = runs.of_design(name)
-        out += [f"borrowed from {name}: {p}" for p in design_problems(lent, prereg.TrainingDesign.read(name))]
-    return out
-
-
-def above_experts(runs, condition: str) -> list[bool]:
-    """Per seed of `condition`: whether its learner's final return exceeds the mean final return of the
-    scripted experts in its own run."""
-    slots, _ = kinds.experts_of(runs.configs[condition])
-    out = []
-    for rows in runs.rows[condition]:
-        experts = [final_return(rows, k) for k in slots if k in metrics.slots(rows[0])]
-        out.append(bool(experts) and final_return(rows) > sum(experts) / len(experts))
-    return out
-
-
-def seed_measure(design: prereg.TrainingDesign, runs, conditions: tuple[str, ...], name: str) -> list[bool]:
-    """The pooled per-seed flags of `conditions` for a secondary test's measure: 'learned' (as `design`
-    counts it) or 'above_experts'."""
-    flags = (
-        learned_flags(design, runs) if name == "learned" else {c: above_experts(runs, c) for c in conditions}
-    )
-    return [flag for c in conditions for flag in flags[c]]
-
-
-def secondary_tests(design: prereg.TrainingDesign, runs) -> dict[str, dict[str, Any]]:
-    """A counts design's secondary tests (`Design.secondary`): per test, the counts of this design's arm and
-    of the other design's arm (read from its records under the same runs folder), Boschloo's p-value with
-    the stated alternative, Holm-corrected among themselves at the design's alpha."""
-    entries = {}
-    for name, test in design.secondary.items():
-        own = seed_measure(design, runs, getattr(design, test["arm"]), test["measure"])
-        other, _, other_arm = test["against"].partition(":")
-        theirs = seed_measure(
-            design,
-            runs.of_design(other),
-            getattr(prereg.TrainingDesign.read(other), other_arm),
-            test["measure"],
-        )
-        counts = [sum(own), len(own), sum(theirs), len(theirs)]
-        p = stats.boschloo(*counts, test["alternative"]) if own and theirs else None
-        entries[name] = {
-            "counts": counts,
-            "measure": test["measure"],
-            "alternative": test["alternative"],
-            "p": p,
-        }
-    return catalogue.holm_family(entries, design.alpha)
-
-
-def zero_shot_block(design: prereg.TrainingDesign, runs) -> dict[str, Any]:
-    """A 'zero_shot' design's `preregistered` block: its primary environment's per-seed scores (mean learner
-    return per episode), the borrowed arm's from the evaluation design `tests['borrowed_scores']`
-    (`kinds.borrowed_evaluation`), the trained arm's from each seed's own evaluation;
-    the one-sided Mann-Whitney test; and the checks (both arms evaluated with the design's episodes and
-    evaluation seed 0, the design before every run it trains)."""
-    ((name, test),) = design.tests["primary"].items()
-    scores, protocols = {}, []
-    for arm in ("treatment", "control"):
-        scores[arm] = []
-        for c in getattr(design, arm):
-            if c in runs.lenders:
-                result = kinds.borrowed_evaluation(runs, c, test["env"])
-                scores[arm] += (
-                    [] if result is None else [float(v) for v in result["results"][0]["per_seed_mean"]]
-                )
-                results = [result]
-            else:
-                results = [kinds.read_eval_file(d, test["env"]) for d in runs.seed_dirs.get(c, [])]
-                scores[arm] += [r["results"][0]["mean_return"] for r in results if r is not None]
-            protocols += [None if r is None else (r["episodes_per_checkpoint"], r["seed"]) for r in results]
-    result = stats.mann_whitney(scores["treatment"], scores["control"], test["alternative"])
-    commit = catalogue.design_commit(design.name)
-    checks = catalogue.commit_checks(commit, runs.commits())
-    checks["seeds_as_designed"] = [len(scores["treatment"]), len(scores["control"])] == [
-        design.arm_seeds["treatment"],
-        design.arm_seeds["control"],
-    ]
-    checks["evaluated_as_designed"] = all(p == (design.eval_episodes, 0) for p in protocols)
-    return {
-        "commit": commit,
-        "primary": {name: test, "treatment": list(design.treatment), "control": list(design.control),
-                    "test": design.test, "alpha": design.alpha},
-        "result": {name: result | {"rejected": result["p"] is not None and result["p"] <= design.alpha},
-                   "scores": {arm: stats.summary(v) if v else None for arm, v in scores.items()}},
-        "checks": checks,
-    }  # fmt: skip
