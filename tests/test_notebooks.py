@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from jaxsocial.experiments.analyse import verdicts
+from jaxsocial.run.metrics import final_return
 
 REPO = Path(__file__).parent.parent
 NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
@@ -123,7 +124,7 @@ def test_social_learning_notebook_trains_when_asked_then_finds_the_runs(tmp_path
     printed = capsys.readouterr().out
     assert "found tiny/" in printed and "compiling" not in printed  # nothing trained
     finals = ns["summary"]["conditions"]["social_pred"]["final_returns"]
-    assert finals == [round(ns["summaries"].final_return(rows), 4) for rows in ns["runs"].rows["social_pred"]]
+    assert finals == [round(final_return(rows), 4) for rows in ns["runs"].rows["social_pred"]]
     # The GIF: one frame per step (60 asked for, at most the episode's length), the learner's predicted view
     # beside its own.
     episode = ns["record_episode"]
