@@ -20,7 +20,7 @@ import numpy as np
 from run_info import REPO, metadata, write_results
 
 from jaxsocial import train
-from jaxsocial.run import config, nonfinite, startup
+from jaxsocial.run import config, flags, nonfinite
 
 
 def time_calls(fn, repeats: int) -> list[float]:
@@ -43,7 +43,7 @@ def main() -> None:
     args = parser.parse_args()
     meta = metadata(args)
 
-    cfg = startup.with_env_observation(dataclasses.replace(config.PRESETS["paper"], env=args.env))
+    cfg = flags.with_env_observation(dataclasses.replace(config.PRESETS["paper"], env=args.env))
     program = train.compiled_program(cfg)
     state = program.init(np.int32(0))
     shapes = jax.eval_shape(program.run_chunk, state, None, 1)[1]
