@@ -87,7 +87,7 @@ def _negated(path: str) -> str:
 
 def with_env_observation(cfg: TrainConfig) -> TrainConfig:
     """`cfg` with `net.obs` the observations its environment gives (`--env` with `--env-args`: "rgb" or
-    "symbolic"); `cfg` itself if that environment cannot be built (`setup` then says why)."""
+    "symbolic"); `cfg` itself if that environment cannot be built (`startup.setup` then says why)."""
     try:
         env_params = registry.env_params(cfg.env, cfg.env_args)
     except ValueError:
