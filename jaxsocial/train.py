@@ -74,7 +74,7 @@ def run(cfg: TrainConfig, command: str | None = None) -> Path:
     First the config is validated (`startup.setup`), then the run directory is checked (`check_run_dir`:
     RunLockedError where a live run holds it; for a new run, FileExistsError where it holds another run, or
     anything beyond what a run of this config leaves before its first iteration, which does not block it);
-    only then are JAX and the modules that train imported (`_train`), so that a refusal is quick (JAX comes
+    only then are JAX and the modules that train imported, so that a refusal is quick (JAX comes
     first only for several processes or frozen slots to load). The run goes
     through the stages of `cfg.stages` (one compiled program each, switched between chunks); metrics rows
     record the stage, and checkpoints the stage to resume in. The run directory is locked (`runlock`) from
@@ -91,19 +91,6 @@ def run(cfg: TrainConfig, command: str | None = None) -> Path:
     static = startup.setup(cfg)  # validate before touching the disk or compiling; once per run
     run_dir = rundir.run_path(cfg)
     processes.on_main(functools.partial(check_run_dir, cfg, run_dir))
-    return _train(cfg, static, run_dir, command)
-
-
-def check_run_dir(cfg: TrainConfig, run_dir: Path) -> None:
-    """Before a run prints its cost or compiles (on process 0): RunLockedError where a live process holds
-    `run_dir` (`runlock.RunLock.check_free`), FileExistsError where a new run may not start in it
-    (`unstarted.check_new_run`)."""
-    runlock.RunLock(run_dir).check_free()
-    unstarted.check_new_run(cfg, run_dir)
-
-
-def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str | None) -> Path:
-    """`run` once its directory is checked and `cfg` is valid (`static`)."""
     from jaxsocial.run import cost, init_from, loop  # orbax, optax and scipy: not imported by a refusal
     from jaxsocial.run.driver import train_chunks
     from jaxsocial.run.outputs import seed_runs, start_run_dir, write_configs
@@ -112,13 +99,12 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
         compile_cache.enable(cfg.compile_cache)
     branching = cfg.init_from is not None and not cfg.resume  # a resumed run loads its own state
     numbers = list(range(cfg.seed, cfg.seed + cfg.seeds))
-    if branching:
+    if branching:  # checked, then RUN_DIR@ITERATION in config.json
         init_from.check_source(cfg.init_from, numbers, cfg.net, static.pop.learners)
-    mesh = loop.program_mesh(cfg.program, cfg.devices)
-    if branching:  # RUN_DIR@ITERATION in config.json
         cfg = dataclasses.replace(cfg, init_from=init_from.pin_iteration(cfg.init_from, numbers, run_dir))
         if processes.is_main() and init_from.params_only(cfg.init_from, numbers):
             print(f"--init-from {cfg.init_from}: the params of its policy (no checkpoint), a fresh optimiser")
+    mesh = loop.program_mesh(cfg.program, cfg.devices)
     lock = runlock.RunLock(run_dir)
     processes.on_main(lock.acquire)  # before the cost line, and anything in the run directory is written
     try:
@@ -137,6 +123,14 @@ def _train(cfg: TrainConfig, static: startup.Setup, run_dir: Path, command: str 
         if processes.is_main():
             lock.release()
     return run_dir
+
+
+def check_run_dir(cfg: TrainConfig, run_dir: Path) -> None:
+    """Before a run prints its cost or compiles (on process 0): RunLockedError where a live process holds
+    `run_dir` (`runlock.RunLock.check_free`), FileExistsError where a new run may not start in it
+    (`unstarted.check_new_run`)."""
+    runlock.RunLock(run_dir).check_free()
+    unstarted.check_new_run(cfg, run_dir)
 
 
 USAGE = """Train independent conv-LSTM PPO learners (or behaviour cloning) beside experts in a jaxsocial

@@ -17,8 +17,6 @@ from typing import Any, Protocol, TextIO
 
 import numpy as np
 
-from jaxsocial.run.jsonio import to_json
-
 
 def _fmt_value(v: Any) -> str:
     """Floats with 3 significant digits, ints with thousands separators, arrays element-wise."""
@@ -181,9 +179,7 @@ class _TensorBoardLogger:
                     "logger 'tensorboard' needs tensorboardX (pip install tensorboardX) or torch"
                 ) from None
         self.writer = SummaryWriter(str(run_dir / "tensorboard"))
-        self.writer.add_text(
-            "config", "```\n" + json.dumps(to_json(config), indent=2, sort_keys=True) + "\n```"
-        )
+        self.writer.add_text("config", "```\n" + json.dumps(config, indent=2, sort_keys=True) + "\n```")
 
     def log(self, row: Mapping[str, Any], step: int) -> None:
         for k, v in _scalars(row).items():
@@ -205,7 +201,7 @@ class _WandbLogger:
             project=os.environ.get("WANDB_PROJECT", "jaxsocial"),
             name=run_dir.name,
             dir=str(run_dir),
-            config=to_json(config),
+            config=dict(config),
             mode=os.environ.get("WANDB_MODE"),
         )
 
@@ -218,8 +214,9 @@ class _WandbLogger:
 
 def make_logger(kind: str | None, run_dir: str | Path, config: Mapping[str, Any]) -> Logger:
     """External logger with `log(row, step)` and `close()`: None/"none" -> no-op, "tensorboard" (tensorboardX
-    or torch, logs to run_dir/tensorboard) or "wandb". Only finite scalar values are logged. ImportError with
-    the package to install if missing."""
+    or torch, logs to run_dir/tensorboard) or "wandb", given the run's `config` as plain JSON values
+    (config.json's, `SeedRun.config`). Only finite scalar values are logged. ImportError with the package to
+    install if missing."""
     if kind is None or kind == "none":
         return _NullLogger()
     if kind == "tensorboard":

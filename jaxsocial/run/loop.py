@@ -97,6 +97,14 @@ def over_seeds(run_chunk, batching: str = "vmap"):
     return run_seeds
 
 
+def seed_batching(requested: str, mesh: jax.sharding.Mesh) -> str:
+    """How `over_seeds` runs several seeds on `mesh`: `requested` ('vmap' or 'map'), or for 'auto' 'map' on
+    CPUs and 'vmap' on accelerators."""
+    if requested != "auto":
+        return requested
+    return "map" if mesh.devices.flat[0].platform == "cpu" else "vmap"
+
+
 class Program(NamedTuple):
     """A run's compiled functions, placed on a device mesh.
 
@@ -122,6 +130,8 @@ def compiled(
     (`startup.Setup`) on `mesh` (`program_mesh`), shared between runs whose programs are the same (tests,
     notebooks, sweeps and a run's stages of one environment compile once)."""
     init, run_chunk = make_program(program_cfg, env_params, pop, mesh)
+    if program_cfg.seeds > 1:  # each seed's state as in a run of its own, stacked
+        run_chunk = over_seeds(run_chunk, seed_batching(program_cfg.seed_batching, mesh))
     replicated = distributed.replicated(mesh)
 
     def init_from_seed(seed):
@@ -131,11 +141,7 @@ def compiled(
     shardings = distributed.state_shardings(one_seed, mesh, ENV_AXES)
     init_one = jax.jit(init_from_seed, in_shardings=replicated, out_shardings=shardings)
     program_init = init_one
-    if program_cfg.seeds > 1:  # each seed's state as in a run of its own, stacked
-        batching = program_cfg.seed_batching
-        if batching == "auto":
-            batching = "map" if mesh.devices.flat[0].platform == "cpu" else "vmap"
-        run_chunk = over_seeds(run_chunk, batching)
+    if program_cfg.seeds > 1:
         stacked = jax.eval_shape(population.stack, [one_seed] * program_cfg.seeds)
         shardings = distributed.state_shardings(stacked, mesh, ENV_AXES, offset=1)
         stack = jax.jit(population.stack, out_shardings=shardings)

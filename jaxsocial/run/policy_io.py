@@ -120,4 +120,5 @@ def load_frozen(pop: population.Population, net_cfg: network.NetworkConfig) -> A
     """The frozen slots' params stacked [S_f, ...] in slot order, or None if `pop` has no frozen slot."""
     if not pop.frozen:
         return None
-    return population.stack([load_policy(pop.slots[i].policy, net_cfg) for i in pop.frozen])
+    policies = [load_policy(pop.slots[i].policy, net_cfg) for i in pop.frozen]
+    return population.stack(policies)
