@@ -69,9 +69,10 @@ def test_a_retrained_record_is_exact_up_to_a_changed_row(tiny_record, tmp_path, 
     rows[-1][field] += 1e-7
     (record / rundir.METRICS_FILE).write_text("".join(json.dumps(r) + "\n" for r in rows))
     before = sorted(p.relative_to(record) for p in record.rglob("*"))
-    cli.main(["verify", str(record), "--iterations", str(len(rows)), "--out", str(tmp_path / "v.json")])
+    written = tmp_path / "new" / "v.json"  # its folder is made
+    cli.main(["verify", str(record), "--iterations", str(len(rows)), "--out", str(written)])
     out = capsys.readouterr().out
-    result = json.loads((tmp_path / "v.json").read_text())
+    result = json.loads(written.read_text())
     assert not result["exact"] and result["first_difference"]["iteration"] == len(rows)
     assert result["first_difference"]["field"] == field
     assert result["first_difference"]["abs"] == pytest.approx(1e-7, rel=1e-3)
@@ -88,6 +89,8 @@ def test_bad_input_is_refused_before_training(tiny_record, tmp_path):
     taken.write_text("{}")
     with pytest.raises(SystemExit, match="exists"):
         cli.main(["verify", str(tiny_record), "--out", str(taken)])
+    with pytest.raises(SystemExit, match="cannot make its folder"):
+        cli.main(["verify", str(tiny_record), "--out", str(taken / "v.json")])
     with pytest.raises(SystemExit, match="inside the record"):
         cli.main(["verify", str(tiny_record), "--out", str(tiny_record / "v.json")])
     with pytest.raises(SystemExit):

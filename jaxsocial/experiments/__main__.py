@@ -242,6 +242,11 @@ def run_verify(args: argparse.Namespace) -> None:
         raise SystemExit(f"error: {out} exists; choose another --out")
     if out is not None and out.resolve().is_relative_to(Path(args.record).resolve()):
         raise SystemExit(f"error: --out {out} is inside the record; verify writes nothing there")
+    if out is not None:  # its folder, made before anything trains: one that cannot be made fails now
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise SystemExit(f"error: --out {out}: cannot make its folder ({err.strerror or err})") from err
     record_dir = Path(args.record)
     try:
         iterations = args.iterations or min(verify.DEFAULT_ITERATIONS, len(rundir.read_metrics(record_dir)))
