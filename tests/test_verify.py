@@ -138,7 +138,7 @@ def test_a_difference_names_its_possible_causes_and_how_to_reproduce():
     assert "cores seen: record 1 core; re-training 1 core" in said and "counts of cores differ" not in said
     assert said.splitlines()[-1] == (
         f"  bit for bit it re-trains from commit a, with $XLA_FLAGS '{pinned.SINGLE_CORE_XLA_FLAGS}', in a "
-        "process that sees 1 core (verify pins itself so), on a one CPU, with the same package versions"
+        "process that sees 1 core (verify pins itself so), on one CPU, with the same package versions"
     )
     crossed = {**result, "xla_flags": f"{pinned.SINGLE_CORE_XLA_FLAGS} {pinned.CROSS_CPU_XLA_FLAGS}"}
     assert "platform-dependent" not in verify.report(crossed)
@@ -146,7 +146,7 @@ def test_a_difference_names_its_possible_causes_and_how_to_reproduce():
     said = verify.report({**crossed, "prediction": alike}).splitlines()
     assert said[0] == "prediction: exact expected: they agree" and said[1].startswith("r: first 1 iterations")
     assert said[-1].endswith(
-        "on a one CPU or a kind whose operation fingerprints agree with it under those flags (a third CPU), "
+        "on one CPU or a kind whose operation fingerprints agree with it under those flags (a third CPU), "
         "with the same package versions"
     )
     assert "platform-dependent" not in verify.report({**result, "exact": True})

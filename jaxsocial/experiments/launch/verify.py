@@ -315,7 +315,7 @@ def how_to_reproduce(result: dict) -> str:
     """What re-trains the record bit for bit, as measured (docs/reproducibility.md, "Does the training
     re-run?")."""
     flags, cores, cpu = result["xla_flags"], result["cores"]["record"], result["cpu"]["record"]
-    cpus = f"a {cpu}" if cpu else "its CPU model (not recorded)"
+    cpus = cpu or "its CPU model (not recorded)"
     alike = (result.get("prediction") or {}).get("alike")
     if alike:
         cpus += (
