@@ -176,7 +176,20 @@ LAPTOP8 = Scale(
     ),
 )
 
-SCALES = {s.name: s for s in (CPU, LAPTOP, LAPTOP8, GPU, PAPER, TINY)}
+LAPTOP10 = Scale(
+    name="laptop10",
+    config=dataclasses.replace(LAPTOP.config, env_args=(("width", 10), ("height", 10))),
+    eval_every=LAPTOP.eval_every,
+    eval_episodes=LAPTOP.eval_episodes,
+    note=(
+        "The laptop scale in a 10x10 Goal Cycle (8x8 interior; the paper's is 13x13 with 11x11), as the "
+        "sweep's `map_g3_*pred_10x10_50m` settings without their early stop: there, with the prediction "
+        "loss, 2 of 4 social seeds left the one-tile plateau within 20.0M env-steps (3 of 4 within 50.0M) "
+        "and none of 2 solo seeds within 50.0M (docs/experiments.md). The scale of the `pred10` design."
+    ),
+)
+
+SCALES = {s.name: s for s in (CPU, LAPTOP, LAPTOP8, LAPTOP10, GPU, PAPER, TINY)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -232,6 +245,9 @@ RECIPES = {
         Recipe("pred8", "The prediction loss in 8x8, pre-registered: PPO + pred beside the experts and alone",
                ("solo_pred", "social_pred"), "curves", hypotheses=(("social_pred", "solo_pred"),),
                design="pred8"),
+        Recipe("pred10", "The prediction loss in 10x10, pre-registered: PPO + pred beside the experts and "
+               "alone", ("solo_pred", "social_pred"), "curves", hypotheses=(("social_pred", "solo_pred"),),
+               design="pred10"),
         Recipe("nopenalty8", "No penalty in 8x8, pre-registered: solo PPO + pred without the penalty against "
                "pred8's solo learners under it", ("solo_pred_nopenalty",), "curves", ("goalcycle3-solo",),
                design="nopenalty8"),
