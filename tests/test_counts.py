@@ -401,6 +401,21 @@ def test_secondary_tests_count_each_arm_as_the_design_says():
     assert set(tests["above_own_experts"]) >= {"p", "p_holm", "rejected", "measure", "alternative"}
 
 
+@pytest.mark.slow
+@needs_records("records/laptop8/prereg-pred8")
+def test_pred10_counts_pred8_s_arms_by_takeoff_as_pred8_counted_them():
+    """pred10's secondary tests read pred8's arms from pred8's own scale (laptop8) and count them as pred10
+    does, by takeoff within 2,442 iterations. With pred8's runs standing in for pred10's own, each arm meets
+    itself with pred8's final-return counts (30 and 6 of 40), as the design's rationale says they would."""
+    runs = summaries.design_runs("pred8", str(paths.RECORDS))
+    design = designs.load("pred10")
+    assert (design.learned_by, design.scale) == ("takeoff", "laptop10")
+    tests = design_results.secondary_tests(design, runs)
+    assert tests["social_against_8x8"]["counts"] == [30, 40, 30, 40]
+    assert tests["solo_against_8x8"]["counts"] == [6, 40, 6, 40]
+    assert tests["social_against_8x8"]["p"] == 1.0 and not tests["solo_against_8x8"]["rejected"]
+
+
 def test_a_zero_shot_design_compares_the_borrowed_scores_with_its_own_seeds(tmp_path, monkeypatch):
     """imitation8's block from hand-written evaluations: the borrowed arm's from the evaluation design's
     file, the trained arm's from each seed's own; a protocol other than the design's fails its check."""
