@@ -163,30 +163,31 @@ TINY = Scale(
     caveat="plumbing only: it learns nothing",
 )
 
-LAPTOP8 = Scale(
-    name="laptop8",
-    config=dataclasses.replace(LAPTOP.config, env_args=(("width", 8), ("height", 8))),
-    eval_every=LAPTOP.eval_every,
-    eval_episodes=LAPTOP.eval_episodes,
-    note=(
-        "The laptop scale in an 8x8 Goal Cycle (6x6 interior), as the sweep's `mb8k8_*_8x8` settings "
-        "without their early stop: there, with the prediction loss, 3 of 7 social seeds and none of 7 solo "
-        "seeds left the one-tile plateau within 20.0M env-steps (docs/experiments.md). The scale of the "
-        "`pred8` design."
-    ),
+
+def laptop_in_grid(size: int, note: str) -> Scale:
+    """The laptop scale in a `size` x `size` Goal Cycle, named `laptop<size>`, with its own `note`."""
+    return Scale(
+        name=f"laptop{size}",
+        config=dataclasses.replace(LAPTOP.config, env_args=(("width", size), ("height", size))),
+        eval_every=LAPTOP.eval_every,
+        eval_episodes=LAPTOP.eval_episodes,
+        note=note,
+    )
+
+
+LAPTOP8 = laptop_in_grid(
+    8,
+    "The laptop scale in an 8x8 Goal Cycle (6x6 interior), as the sweep's `mb8k8_*_8x8` settings without "
+    "their early stop: there, with the prediction loss, 3 of 7 social seeds and none of 7 solo seeds left "
+    "the one-tile plateau within 20.0M env-steps (docs/experiments.md). The scale of the `pred8` design.",
 )
 
-LAPTOP10 = Scale(
-    name="laptop10",
-    config=dataclasses.replace(LAPTOP.config, env_args=(("width", 10), ("height", 10))),
-    eval_every=LAPTOP.eval_every,
-    eval_episodes=LAPTOP.eval_episodes,
-    note=(
-        "The laptop scale in a 10x10 Goal Cycle (8x8 interior; the paper's is 13x13 with 11x11), as the "
-        "sweep's `map_g3_*pred_10x10_50m` settings without their early stop: there, with the prediction "
-        "loss, 2 of 4 social seeds left the one-tile plateau within 20.0M env-steps (3 of 4 within 50.0M) "
-        "and none of 2 solo seeds within 50.0M (docs/experiments.md). The scale of the `pred10` design."
-    ),
+LAPTOP10 = laptop_in_grid(
+    10,
+    "The laptop scale in a 10x10 Goal Cycle (8x8 interior; the paper's is 13x13 with 11x11), as the sweep's "
+    "`map_g3_*pred_10x10_50m` settings without their early stop: there, with the prediction loss, 2 of 4 "
+    "social seeds left the one-tile plateau within 20.0M env-steps (3 of 4 within 50.0M) and none of 2 solo "
+    "seeds within 50.0M (docs/experiments.md). The scale of the `pred10` design.",
 )
 
 SCALES = {s.name: s for s in (CPU, LAPTOP, LAPTOP8, LAPTOP10, GPU, PAPER, TINY)}
